@@ -1,0 +1,201 @@
+"""Typed, validated experiment configuration (TOML in, TOML out).
+
+Every field carries its unit in the comment. Configs are frozen pydantic models with
+``extra="forbid"``: an unknown key, a wrong type or an out-of-range value raises
+``ConfigError`` with one line naming the key and what would be right. The fully resolved
+config is written beside every run (``config.toml``) so a run explains itself.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Any, Literal
+
+import tomli_w
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from kinadapt_nn.errors import ConfigError
+
+Vec2 = tuple[float, float]
+Vec3 = tuple[float, float, float]
+Vec6 = tuple[float, float, float, float, float, float]
+
+
+class _Cfg(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=False, validate_default=True)
+
+
+class ToolCfg(_Cfg):
+    """The true tool (hidden from the controller): a rigid square peg held at the flange."""
+
+    offset_f_m: Vec3 = (0.003, -0.002, 0.100)  # [m] O -> tip in the flange frame f (true)
+    tilt_deg: Vec2 = (0.0, 0.0)  # [deg] rotation of the peg in the grasp about f x, then f y
+    mass_kg: float = Field(0.10, gt=0.0)  # [kg] peg mass (loads the wrist sensor)
+    side_m: float = Field(0.020, gt=0.0, lt=0.022)  # [m] square peg side (bore is 22 mm)
+    length_m: float = Field(0.100, gt=0.0)  # [m] peg length along its own axis, ending at the tip
+
+
+class SceneCfg(_Cfg):
+    """The bore block: a square bore whose walls are +-bore_half_width about its axis."""
+
+    bore_entry_w_m: Vec3 = (0.45, 0.0, 0.30)  # [m] centre of the bore entrance, world frame
+    bore_half_width_m: float = Field(0.011, gt=0.0)  # [m] wall position about the bore centre
+    bore_depth_m: float = Field(0.050, gt=0.0)  # [m] bore depth (floor below the entrance)
+    block_half_size_m: float = Field(0.06, gt=0.0)  # [m] half side of the block (x and y)
+    chamfer_m: float = Field(0.0, ge=0.0, le=0.005)  # [m] 45-deg entrance chamfer (0 = none)
+    friction: float = Field(0.3, ge=0.0, le=2.0)  # [-] Coulomb friction peg <-> block
+    contact_timeconst_s: float = Field(0.004, gt=0.0)  # [s] MuJoCo solref time constant
+    contact_dampratio: float = Field(1.0, gt=0.0)  # [-] MuJoCo solref damping ratio
+
+
+class StartCfg(_Cfg):
+    """Where the episode starts (set by the simulator from the true tool; truth side)."""
+
+    tip_height_m: float = Field(0.015, gt=0.0, le=0.2)  # [m] true tip above the bore entrance
+    lateral_w_m: Vec2 = (0.0015, 0.0)  # [m] true tip lateral misalignment (world x, y)
+    tilt_deg: Vec2 = (0.0, 2.5)  # [deg] flange tilt from vertical about world x, then y
+    settle_s: float = Field(0.3, ge=0.05)  # [s] hold still at start (servo settles, tare)
+
+
+class SensingCfg(_Cfg):
+    """Known sensing model: the constant nominal map S, the channel metric W, the filter."""
+
+    nominal_offset_f_m: Vec3 = (0.0, 0.0, 0.100)  # [m] nominal tool (CAD) O -> tip, known
+    stiffness_lat_N_per_m: float = Field(2.0e4, gt=0.0)  # [N/m] nominal lateral contact k_t
+    stiffness_rot_Nm_per_rad: float = Field(20.0, ge=0.0)  # [N m/rad] nominal contact couple k_r
+    filter_tau_s: float = Field(0.01, gt=0.0)  # [s] first-order filter of s_dot (both sides)
+    # channel metric W = diag(1/scale): [d m, F_lat N, F_lat N, M N m, M N m, M N m]
+    channel_scale: Vec6 = (0.01, 10.0, 10.0, 1.0, 1.0, 1.0)
+    tare_window_s: float = Field(0.1, gt=0.0)  # [s] free-space window averaged for the tare
+
+    @model_validator(mode="after")
+    def _positive_scales(self) -> SensingCfg:
+        if min(self.channel_scale) <= 0.0:
+            raise ValueError("sensing.channel_scale entries must all be > 0 (units m, N, N m)")
+        return self
+
+
+class ControlCfg(_Cfg):
+    """Value function V(s) and the second-order twist admittance (paper Results constants)."""
+
+    depth_target_m: float = Field(0.045, gt=0.0)  # [m] d* (minimum of V)
+    k_depth_N_per_m: float = Field(5000.0, gt=0.0)  # [N/m] V = 1/2 k_d (d - d*)^2 + ...
+    depth_force_max_N: float = Field(300.0, gt=0.0)  # [N] V is linear (Huber) beyond this force
+    compliance_lat_m_per_N: float = Field(2.0e-5, ge=0.0)  # [m/N] V += 1/2 c_F |F_lat|^2
+    compliance_mom_rad_per_Nm: float = Field(2.0e-2, ge=0.0)  # [rad/(N m)] V += 1/2 c_M |M|^2
+    tau_trans_s: float = Field(2.0e-3, gt=0.0)  # [s] virtual time constant, translation
+    tau_ang_s: float = Field(1.0e-2, gt=0.0)  # [s] virtual time constant, rotation
+    beta_trans: float = Field(0.072, ge=0.0)  # [-] extra damping beta, translation
+    beta_ang: float = Field(0.0, ge=0.0)  # [-] extra damping beta, rotation
+    gain_trans: float = Field(2.0e-4, gt=0.0)  # [m/(N s)] wrench-to-velocity gain, translation
+    gain_ang: float = Field(2.0e-4, gt=0.0)  # [rad/(N m s)] wrench-to-velocity gain, rotation
+    v_max_m_per_s: float = Field(0.05, gt=0.0)  # [m/s] translational speed limit of the twist
+    w_max_rad_per_s: float = Field(0.5, gt=0.0)  # [rad/s] angular speed limit of the twist
+    ramp_s: float = Field(0.3, ge=0.0)  # [s] the drive is ramped in over this time after tare
+    nullspace_gain: float = Field(2.0, ge=0.0)  # [1/s] posture pull in the null space of J_arm
+
+
+class SuccessCfg(_Cfg):
+    """Success and failure classification, judged from sensor-side signals only."""
+
+    depth_m: float = Field(0.045, gt=0.0)  # [m] seat depth (paper: 45 mm)
+    depth_tol_m: float = Field(0.0005, ge=0.0)  # [m] V's minimum is approached asymptotically
+    max_lateral_force_N: float = Field(50.0, gt=0.0)  # [N] |F_lat| limit
+    max_moment_Nm: float = Field(2.0, gt=0.0)  # [N m] |M| limit
+    hold_s: float = Field(0.05, ge=0.0)  # [s] all three conditions held this long
+    jam_window_s: float = Field(1.0, gt=0.0)  # [s] no depth progress for this long under load
+    jam_progress_m: float = Field(0.0005, gt=0.0)  # [m] progress that counts as "moving"
+    jam_force_N: float = Field(30.0, gt=0.0)  # [N] |F| above which a stall is a jam
+    face_depth_m: float = Field(0.003, gt=0.0)  # [m] loaded at d below this -> block face
+    diverge_force_N: float = Field(500.0, gt=0.0)  # [N] |F| beyond this = divergence
+
+
+class RunCfg(_Cfg):
+    """What to run."""
+
+    seed: int = Field(0, ge=0)  # [-] seeds every random draw of the run
+    duration_s: float = Field(8.0, gt=0.0, le=600.0)  # [s] simulated time limit (timeout)
+    dt_s: float = Field(0.001, gt=0.0, le=0.01)  # [s] control and physics timestep
+    features: Literal["oracle"] = "oracle"  # Y(q) parameterisation (this release: oracle)
+    stop_after_seat_s: float = Field(0.5, ge=0.0)  # [s] keep simulating this long after seating
+    log_every: int = Field(1, ge=1)  # [steps] trace decimation
+    tensorboard: bool = True  # write TensorBoard event files
+    figure: bool = True  # write the rollout figure (PNG)
+    progress: bool = True  # show a progress bar
+
+
+class ExperimentCfg(_Cfg):
+    """One online experiment (``kinadapt online``)."""
+
+    run: RunCfg = RunCfg()
+    tool: ToolCfg = ToolCfg()
+    scene: SceneCfg = SceneCfg()
+    start: StartCfg = StartCfg()
+    sensing: SensingCfg = SensingCfg()
+    control: ControlCfg = ControlCfg()
+    success: SuccessCfg = SuccessCfg()
+
+
+def _format_validation_error(err: ValidationError) -> str:
+    first = err.errors()[0]
+    loc = ".".join(str(x) for x in first["loc"]) or "<root>"
+    kind = first["type"]
+    if kind == "extra_forbidden":
+        return f"unknown config key '{loc}' (check the spelling; see online/rollout.toml)"
+    return f"config key '{loc}': {first['msg']} (got {first.get('input')!r})"
+
+
+def _parse_value(text: str) -> Any:
+    """Parse the right-hand side of ``--set key=value`` as a TOML value (fallback: string)."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def _set_dotted(tree: dict[str, Any], dotted: str, value: Any) -> None:
+    parts = dotted.split(".")
+    node = tree
+    for p in parts[:-1]:
+        nxt = node.setdefault(p, {})
+        if not isinstance(nxt, dict):
+            raise ConfigError(f"--set {dotted}: '{p}' is a value, not a section")
+        node = nxt
+    node[parts[-1]] = value
+
+
+#: Short aliases accepted by ``--set`` (``features=oracle`` means ``run.features=oracle``).
+SET_ALIASES: dict[str, str] = {"features": "run.features", "seed": "run.seed"}
+
+
+def load_config(path: Path | None, overrides: list[str] | tuple[str, ...] = ()) -> ExperimentCfg:
+    """Load an experiment config from TOML (``None``: defaults) and apply ``key=value`` overrides.
+
+    Raises ``ConfigError`` (one line) for a missing/unparsable file, an unknown key, a wrong
+    type or an out-of-range value.
+    """
+    tree: dict[str, Any] = {}
+    if path is not None:
+        path = Path(path)
+        if not path.is_file():
+            raise ConfigError(f"config file '{path}' not found (pass an existing .toml file)")
+        try:
+            tree = tomllib.loads(path.read_text())
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"config file '{path}' is not valid TOML: {exc}") from None
+    for item in overrides:
+        if "=" not in item:
+            raise ConfigError(f"--set '{item}': expected key=value, e.g. --set run.seed=3")
+        key, _, text = item.partition("=")
+        key = SET_ALIASES.get(key.strip(), key.strip())
+        _set_dotted(tree, key, _parse_value(text.strip()))
+    try:
+        return ExperimentCfg.model_validate(tree)
+    except ValidationError as err:
+        raise ConfigError(_format_validation_error(err)) from None
+
+
+def config_to_toml(cfg: BaseModel) -> str:
+    """The fully resolved config as TOML text (tuples become arrays)."""
+    return tomli_w.dumps(cfg.model_dump(mode="json"))

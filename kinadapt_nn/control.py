@@ -1,0 +1,235 @@
+"""The controller: value force, second-order twist admittance, joint reference.
+
+Truth firewall: ``Controller.step(t, q, qdot, wrench)`` sees joint encoders and the raw
+wrist F/T reading only. Its kinematics come from its own MuJoCo model of the *bare arm*
+(``models/panda.xml``: no tool, no block); the known constants it holds (bore pose,
+nominal tool offset, S, W, V's weights) are listed in the README's "known vs unknown"
+table. It never receives the simulator, the true tool or the true tip.
+
+Discrete admittance (see README "The admittance we implement"), per twist channel c of the
+flange twist ``xi = [v_O; omega]`` (world), with ``m_c = tau_c / g_c`` and
+``D_c = (1 + beta_c) / g_c``:
+
+    m_c (xi_c[k+1] - xi_c[k]) / dt + D_c xi_c[k+1] = (rho_k J_hat_xi^T F - w_env)_c
+
+i.e. eq. cp_admittance written on the wrist twist, ``J_hat_xi = J_hat J_arm^+`` (for the
+adjoint features exactly ``S Ad(theta)``), implicit in the damping. The drive and the
+contact wrench enter with the same (unit) scaling, so the power the virtual mass-damper
+delivers through ``w_env`` is the power the contact stores (eq. cp_storage). The joint
+reference follows ``qdot_ref = J_arm^+ xi + N (k_ns (q_0 - q))``.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import mujoco
+import numpy as np
+
+from kinadapt_nn.config import ExperimentCfg
+from kinadapt_nn.errors import SensorError
+from kinadapt_nn.features.base import Features, KinState
+from kinadapt_nn.robot import FLANGE_SITE, PANDA_MJCF
+from kinadapt_nn.sensing import LowPass, RateFilter, channel_metric, lateral_projector, nominal_sensor_map
+
+
+class JointCommand(NamedTuple):
+    """What the controller sends to the joint servo."""
+
+    q_ref_rad: np.ndarray  #: (n,) joint position reference
+    qdot_ref_rad_s: np.ndarray  #: (n,) joint velocity feed-forward
+
+
+class StepLog(NamedTuple):
+    """Controller-side quantities of one step, for the trace (all from sensors)."""
+
+    s: np.ndarray  #: (m,) sensor vector [d, F_lat, M]
+    s_dot_meas: np.ndarray  #: (m,) filtered measured rate
+    s_dot_pred: np.ndarray  #: (m,) filtered predicted rate J_hat qdot
+    F: np.ndarray  #: (m,) value force -grad V
+    xi: np.ndarray  #: (6,) admittance twist state [v_O; omega]
+    V: float  #: value V(s) [J]
+    lambda_min: float  #: lambda_min of W J_hat J_hat^T W
+    w_env_w: np.ndarray  #: (6,) wrench tool -> environment at O, world [N, N m]
+    theta: np.ndarray  #: (p,) parameter estimate
+    drive_scale: float  #: rho in [0, 1]: 0 while taring, ramps to 1
+
+
+class ValueFunction:
+    """``V(s)`` with its minimum at ``s* = [d*, 0, 0, 0, 0, 0]`` and ``F = -grad_s V`` (eq. ft_force).
+
+    ``V = h(d - d*) + 1/2 c_F |F_lat|^2 + 1/2 c_M |M|^2`` with ``h`` the Huber function of
+    slope ``k_d`` (quadratic up to the force ``depth_force_max``, linear beyond). Units: V in J,
+    F in [N, m, m, rad, rad, rad] so that ``F . s_dot`` is a power.
+    """
+
+    def __init__(self, cfg: ExperimentCfg) -> None:
+        c = cfg.control
+        self.d_star = c.depth_target_m
+        self.k_d = c.k_depth_N_per_m
+        self.f_max = c.depth_force_max_N
+        self.c_F = c.compliance_lat_m_per_N
+        self.c_M = c.compliance_mom_rad_per_Nm
+        self._e_max = self.f_max / self.k_d
+
+    def value(self, s: np.ndarray) -> float:
+        e = s[0] - self.d_star
+        ae = abs(e)
+        h = 0.5 * self.k_d * e * e if ae <= self._e_max else self.f_max * (ae - 0.5 * self._e_max)
+        return float(h + 0.5 * self.c_F * (s[1] ** 2 + s[2] ** 2) + 0.5 * self.c_M * (s[3:] @ s[3:]))
+
+    def force(self, s: np.ndarray, out: np.ndarray) -> np.ndarray:
+        e = s[0] - self.d_star
+        out[0] = -min(max(self.k_d * e, -self.f_max), self.f_max)
+        out[1:3] = -self.c_F * s[1:3]
+        out[3:] = -self.c_M * s[3:]
+        return out
+
+
+class ArmKinematics:
+    """Forward kinematics and ``J_arm`` of the bare arm from encoder readings (MuJoCo)."""
+
+    def __init__(self) -> None:
+        self.model = mujoco.MjModel.from_xml_path(str(PANDA_MJCF))
+        self.data = mujoco.MjData(self.model)
+        self.site = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, FLANGE_SITE)
+        self._jac = np.zeros((6, self.model.nv))
+
+    def __call__(self, q: np.ndarray) -> KinState:
+        d = self.data
+        d.qpos[:] = q
+        mujoco.mj_kinematics(self.model, d)
+        mujoco.mj_comPos(self.model, d)
+        mujoco.mj_jacSite(self.model, d, self._jac[:3], self._jac[3:], self.site)
+        return KinState(
+            q_rad=q,
+            p_w_O=d.site_xpos[self.site].copy(),
+            R_wf=d.site_xmat[self.site].reshape(3, 3).copy(),
+            J_arm=self._jac.copy(),
+        )
+
+
+class Controller:
+    """F/T + encoder admittance controller. ``step(t, q, qdot, wrench) -> JointCommand``.
+
+    Parameters are known constants only (config sections ``sensing``, ``control`` and the
+    bore pose); ``features`` and ``theta0`` define ``J_hat``. In this release theta is held
+    fixed (``features=oracle`` passes the true offset as a declared baseline).
+    """
+
+    def __init__(self, cfg: ExperimentCfg, features: Features, theta0: np.ndarray, bore_axis_w: np.ndarray) -> None:
+        self.cfg = cfg
+        c, sc = cfg.control, cfg.sensing
+        self.dt = cfg.run.dt_s
+        self.features = features
+        self.theta = np.asarray(theta0, dtype=float).copy()
+        self.kin = ArmKinematics()
+        self.n_axis = np.asarray(bore_axis_w, dtype=float)
+        self.entry_w = np.asarray(cfg.scene.bore_entry_w_m, dtype=float)  # known bore pose
+        self.l_nom_f = np.asarray(sc.nominal_offset_f_m, dtype=float)
+        self.S = nominal_sensor_map(sc, self.n_axis)
+        self.P = lateral_projector(self.S, sc.stiffness_lat_N_per_m)  # (2, 3)
+        self.W = channel_metric(sc)
+        self.value_fn = ValueFunction(cfg)
+        tau = np.array([c.tau_trans_s] * 3 + [c.tau_ang_s] * 3)
+        gain = np.array([c.gain_trans] * 3 + [c.gain_ang] * 3)
+        beta = np.array([c.beta_trans] * 3 + [c.beta_ang] * 3)
+        self.M_virt = tau / gain  # [kg | kg m^2] virtual inertia per twist channel
+        self.D_virt = (1.0 + beta) / gain  # [N s/m | N m s/rad] damping (I + beta) / g
+        self._den = self.M_virt + self.dt * self.D_virt
+        self.v_max, self.w_max = c.v_max_m_per_s, c.w_max_rad_per_s
+        self.k_ns = c.nullspace_gain
+        self.t_settle = cfg.start.settle_s
+        self.t_tare0 = max(0.0, self.t_settle - sc.tare_window_s)
+        self.ramp_s = c.ramp_s
+        self.rate_meas = RateFilter(sc.filter_tau_s, self.dt, 6)
+        self.rate_pred = LowPass(sc.filter_tau_s, self.dt, (6,))
+        self.reset()
+
+    def reset(self) -> None:
+        self.xi = np.zeros(6)
+        self.q_ref: np.ndarray | None = None
+        self.q_posture: np.ndarray | None = None
+        self.tare_sum = np.zeros(6)
+        self.tare_n = 0
+        self.tare = np.zeros(6)
+        self.F = np.zeros(6)
+        self.rate_meas.primed = False
+        self.rate_pred.reset()
+        self.last: StepLog | None = None
+
+    # ------------------------------------------------------------------------------------
+    def sensor_vector(self, kin: KinState, w_env_w: np.ndarray) -> np.ndarray:
+        """s = [d, F_lat, M] (see kinadapt_nn.sensing). -> (6,)."""
+        s = np.empty(6)
+        s[0] = self.n_axis @ (kin.p_w_O + kin.R_wf @ self.l_nom_f - self.entry_w)
+        f_on_tool = -w_env_w[:3]
+        s[1:3] = self.P @ f_on_tool
+        s[3:] = -w_env_w[3:]
+        return s
+
+    def step(self, t: float, q: np.ndarray, qdot: np.ndarray, wrench: np.ndarray) -> JointCommand:
+        """One control period. Inputs: time [s], encoders (n,), raw F/T reading (6,) in f."""
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qdot)) and np.all(np.isfinite(wrench))):
+            raise SensorError(f"non-finite sensor sample at t={t:.3f} s (check the encoders and the F/T sensor)")
+        kin = self.kin(q)
+        if self.q_ref is None:
+            self.q_ref = q.copy()
+            self.q_posture = q.copy()
+        # -- tare: average the free-space reading (tool weight) while holding still
+        if t < self.t_settle:
+            if t >= self.t_tare0:
+                self.tare_sum += wrench
+                self.tare_n += 1
+            rho = 0.0
+        else:
+            if self.tare_n and not np.any(self.tare):
+                self.tare = self.tare_sum / self.tare_n
+            rho = min(1.0, (t - self.t_settle) / self.ramp_s) if self.ramp_s > 0 else 1.0
+        R = kin.R_wf
+        dw = wrench - self.tare
+        w_env = np.concatenate([R @ dw[:3], R @ dw[3:]])  # tool -> environment, world, about O
+        if rho == 0.0:
+            w_env[:] = 0.0
+        s = self.sensor_vector(kin, w_env)
+        # -- measured and predicted rates through the same filter
+        s_dot_meas = self.rate_meas.rate(s)
+        J_hat = self.features.jacobian(kin, self.theta)  # (m, n)
+        s_dot_pred = self.rate_pred(J_hat @ qdot).copy()
+        # -- value force and the twist admittance (eq. ft_force, eq. cp_admittance)
+        F = self.value_fn.force(s, self.F)
+        J = kin.J_arm
+        JJt = J @ J.T + 1e-6 * np.eye(6)
+        # J_hat_xi^T F = J_arm^{+T} J_hat^T F  (= (S Ad)^T F for the adjoint features)
+        drive = np.linalg.solve(JJt, J @ (J_hat.T @ F))
+        u = rho * drive - w_env
+        xi = (self.M_virt * self.xi + self.dt * u) / self._den
+        vn = np.linalg.norm(xi[:3])
+        if vn > self.v_max:
+            xi[:3] *= self.v_max / vn
+        wn = np.linalg.norm(xi[3:])
+        if wn > self.w_max:
+            xi[3:] *= self.w_max / wn
+        self.xi = xi
+        # -- joint reference: qdot = J^+ xi + null-space posture
+        qdot_ref = J.T @ np.linalg.solve(JJt, xi)
+        if self.k_ns > 0.0:
+            z = self.k_ns * (self.q_posture - q)
+            qdot_ref += z - J.T @ np.linalg.solve(JJt, J @ z)
+        self.q_ref = self.q_ref + self.dt * qdot_ref
+        # -- diagnostics for the trace
+        WJ = self.W[:, None] * J_hat
+        lam = float(np.linalg.eigvalsh(WJ @ WJ.T)[0])
+        self.last = StepLog(
+            s=s,
+            s_dot_meas=s_dot_meas,
+            s_dot_pred=s_dot_pred,
+            F=F.copy(),
+            xi=xi.copy(),
+            V=self.value_fn.value(s),
+            lambda_min=lam,
+            w_env_w=w_env,
+            theta=self.theta.copy(),
+            drive_scale=rho,
+        )
+        return JointCommand(self.q_ref.copy(), qdot_ref)

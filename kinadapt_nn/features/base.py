@@ -1,0 +1,57 @@
+"""The shared abstraction of every Jacobian parameterisation.
+
+``Features`` maps a kinematic state (from the encoders) and parameters ``theta`` (p,) to
+
+* ``jacobian(kin, theta) -> J_hat``  (m, n): the estimated sensor Jacobian
+  (eq. adaptive_factorization, ``J_hat = Y(q) theta`` plus a known constant part);
+* ``regressor(kin, qdot) -> Regressor(known, Phi)`` with ``J_hat(q) qdot = known + Phi theta``
+  (the prediction regressor of Section ft_rigid; ``Phi`` is (m, p)).
+
+The composite law is written once on ``Phi``; analytic, RBF and neural features differ
+only in how they build it.
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import NamedTuple
+
+import numpy as np
+
+
+class KinState(NamedTuple):
+    """Arm kinematics from the joint encoders (controller side; no truth)."""
+
+    q_rad: np.ndarray  #: (n,) joint positions
+    p_w_O: np.ndarray  #: (3,) flange origin O in the world
+    R_wf: np.ndarray  #: (3, 3) flange orientation: f -> w
+    J_arm: np.ndarray  #: (6, n) world-frame geometric Jacobian of O, rows [v_O; omega]
+
+
+class Regressor(NamedTuple):
+    """``J_hat qdot = known + Phi @ theta``."""
+
+    known: np.ndarray  #: (m,) part of the prediction that does not depend on theta
+    Phi: np.ndarray  #: (m, p) prediction regressor
+
+
+class Features(abc.ABC):
+    """Base class: subclasses provide the Jacobian and the regressor."""
+
+    #: number of adapted parameters p
+    n_params: int
+    #: short name used in summaries and TensorBoard
+    name: str
+
+    @abc.abstractmethod
+    def jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray:
+        """J_hat(q; theta). -> (m, n)."""
+
+    @abc.abstractmethod
+    def regressor(self, kin: KinState, qdot: np.ndarray) -> Regressor:
+        """Prediction regressor on joint velocity ``qdot`` (n,)."""
+
+    def predict_rate(self, kin: KinState, qdot: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """Predicted sensor rate ``J_hat qdot``. -> (m,)."""
+        reg = self.regressor(kin, qdot)
+        return reg.known + reg.Phi @ theta

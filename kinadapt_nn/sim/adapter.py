@@ -1,0 +1,155 @@
+"""The simulator adapter: the only object that touches MuJoCo's state of the world.
+
+It owns the true scene, places the arm at the start pose (solved from the *true* tool: the
+scenario is set up by the experimenter, not by the controller), steps the physics, and
+hands out exactly what a real Panda would give a user program: joint encoders ``q, qdot``
+and the raw wrist F/T reading. Ground truth (true tip depth, contacts) is read here for
+evaluation only and never reaches the controller.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import mujoco
+import numpy as np
+
+from kinadapt_nn.config import ExperimentCfg
+from kinadapt_nn.errors import KinadaptError
+from kinadapt_nn.geometry import rotvec_from_matrix, tilt_rotation
+from kinadapt_nn.robot import JOINT_LIMITS_RAD, Q_HOME_RAD, SERVO_KP, SERVO_KV
+from kinadapt_nn.sim.scene import SceneIds, build_model
+
+#: Bore axis in the world frame: into the hole.
+BORE_AXIS_W = np.array([0.0, 0.0, -1.0])
+#: Flange "down" orientation: z_f along the bore axis, x_f along x_w (peg square aligned with
+#: the bore walls).
+R_W_F_DOWN = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
+
+
+class SensorSample(NamedTuple):
+    """What a real robot hands a user program each control period."""
+
+    q_rad: np.ndarray  #: (n,) joint encoder positions [rad]
+    qdot_rad_s: np.ndarray  #: (n,) joint velocities [rad/s]
+    wrench_raw_f: np.ndarray  #: (6,) F/T reading [N, N m]: flange on tool, about O, in f
+
+
+class TruthSample(NamedTuple):
+    """Ground truth for evaluation only (never given to the controller)."""
+
+    tip_pos_w_m: np.ndarray  #: (3,) true tip position, world
+    tip_depth_m: float  #: true tip depth below the bore entrance along the bore axis
+    contact_face: bool  #: the peg touches the block's top face outside the bore
+    contact_bore: bool  #: the peg touches a bore wall, the entrance edge or the floor
+    contact_force_N: float  #: total normal contact force peg <-> block
+
+
+def solve_start_ik(
+    model: mujoco.MjModel, ids: SceneIds, tip_target_w: np.ndarray, R_target_w_f: np.ndarray, q0: np.ndarray
+) -> np.ndarray:
+    """Damped least-squares IK on the *true* tip site (scenario set-up only). -> (n,) q."""
+    data = mujoco.MjData(model)
+    q = q0.copy()
+    jacp = np.zeros((3, model.nv))
+    jacr = np.zeros((3, model.nv))
+    for _ in range(300):
+        data.qpos[ids.qpos_adr] = q
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)
+        err_p = tip_target_w - data.site_xpos[ids.tip_site]
+        R = data.site_xmat[ids.ft_site].reshape(3, 3)
+        err_r = rotvec_from_matrix(R_target_w_f @ R.T)
+        err = np.concatenate([err_p, err_r])
+        if np.linalg.norm(err) < 1e-10:
+            break
+        mujoco.mj_jacSite(model, data, jacp, jacr, ids.tip_site)
+        J = np.vstack([jacp[:, ids.dof_adr], jacr[:, ids.dof_adr]])
+        dq = J.T @ np.linalg.solve(J @ J.T + 1e-8 * np.eye(6), err)
+        dq += 0.1 * (np.eye(7) - np.linalg.pinv(J) @ J) @ (Q_HOME_RAD - q)
+        q = np.clip(q + dq, JOINT_LIMITS_RAD[:, 0], JOINT_LIMITS_RAD[:, 1])
+    if np.linalg.norm(err) > 1e-6:
+        raise KinadaptError(
+            f"start pose unreachable (IK residual {np.linalg.norm(err):.2e}); move scene.bore_entry_w_m "
+            "closer to the robot or reduce start.tilt_deg"
+        )
+    return q
+
+
+class PegInHoleSim:
+    """MuJoCo Panda + peg + bore. Truth side: the controller never holds a reference to it."""
+
+    def __init__(self, cfg: ExperimentCfg) -> None:
+        self.cfg = cfg
+        self.model, self.ids = build_model(cfg.tool, cfg.scene)
+        self.model.opt.timestep = cfg.run.dt_s
+        self.data = mujoco.MjData(self.model)
+        self.entry_w = np.asarray(cfg.scene.bore_entry_w_m, dtype=float)
+        self._block_set = frozenset(int(g) for g in self.ids.block_geoms)
+        self._kv_over_kp = SERVO_KV / SERVO_KP
+        self.q_start = self._start_configuration()
+        self.reset()
+
+    # -- set-up -----------------------------------------------------------------------
+    def _start_configuration(self) -> np.ndarray:
+        st = self.cfg.start
+        R_target = tilt_rotation(st.tilt_deg) @ R_W_F_DOWN
+        tip_target = self.entry_w + np.array([st.lateral_w_m[0], st.lateral_w_m[1], st.tip_height_m])
+        return solve_start_ik(self.model, self.ids, tip_target, R_target, Q_HOME_RAD)
+
+    def reset(self) -> SensorSample:
+        """Put the arm at the start configuration at rest, servo holding it."""
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[self.ids.qpos_adr] = self.q_start
+        self.data.ctrl[:] = self.q_start
+        mujoco.mj_forward(self.model, self.data)
+        return self.sense()
+
+    # -- the interface a real robot offers ---------------------------------------------
+    def sense(self) -> SensorSample:
+        """Encoders and the raw F/T reading (copies)."""
+        d = self.data
+        a = self.ids
+        return SensorSample(
+            q_rad=d.qpos[a.qpos_adr].copy(),
+            qdot_rad_s=d.qvel[a.dof_adr].copy(),
+            wrench_raw_f=np.concatenate(
+                [d.sensordata[a.force_adr : a.force_adr + 3], d.sensordata[a.torque_adr : a.torque_adr + 3]]
+            ),
+        )
+
+    def apply(self, q_ref: np.ndarray, qdot_ref: np.ndarray) -> None:
+        """Joint servo set-point with velocity feed-forward (q_ref + kv/kp qdot_ref)."""
+        self.data.ctrl[:] = q_ref + self._kv_over_kp * qdot_ref
+
+    def step(self) -> None:
+        mujoco.mj_step(self.model, self.data)
+
+    @property
+    def time_s(self) -> float:
+        return float(self.data.time)
+
+    # -- ground truth (evaluation only) ------------------------------------------------
+    def truth(self) -> TruthSample:
+        d, m = self.data, self.model
+        tip = d.site_xpos[self.ids.tip_site].copy()
+        depth = float(BORE_AXIS_W @ (tip - self.entry_w))
+        face = bore = False
+        fsum = 0.0
+        top = self.entry_w[2]
+        hw = self.cfg.scene.bore_half_width_m
+        peg = self.ids.peg_geom
+        f6 = np.zeros(6)
+        for i in range(d.ncon):
+            c = d.contact[i]
+            g1, g2 = int(c.geom1), int(c.geom2)
+            if not ((g1 == peg and g2 in self._block_set) or (g2 == peg and g1 in self._block_set)):
+                continue
+            mujoco.mj_contactForce(m, d, i, f6)
+            fsum += abs(f6[0])
+            p = c.pos
+            lat = np.abs(p[:2] - self.entry_w[:2])
+            on_top = abs(p[2] - top) < 1.5e-3 and (lat.max() > hw + 0.5e-3)
+            face |= bool(on_top)
+            bore |= not on_top
+        return TruthSample(tip, depth, face, bore, fsum)

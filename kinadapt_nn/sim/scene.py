@@ -1,0 +1,185 @@
+"""Build the peg-in-hole scene programmatically with ``mujoco.MjSpec``.
+
+The Panda comes from ``models/panda.xml``; the tool (a rigid square peg under a wrist F/T
+sensor site) and the bore block are added here from ``ToolCfg`` / ``SceneCfg`` so every
+tool of a sweep is the same code path. Nothing is downloaded.
+
+Frames: the tool body's origin is the flange origin O with axes of the flange frame ``f``;
+the F/T sensor site ``ft_site`` sits there, so the sensor reports the wrench the flange
+exerts on the tool, about O, in ``f``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import NamedTuple
+
+import mujoco
+import numpy as np
+
+from kinadapt_nn.config import SceneCfg, ToolCfg
+from kinadapt_nn.errors import ModelFileError
+from kinadapt_nn.geometry import quat_from_matrix, tilt_rotation
+from kinadapt_nn.robot import FLANGE_BODY, PANDA_MJCF
+
+FT_SITE = "ft_site"
+TIP_SITE = "tip_site"  # truth only: the true tip (never given to the controller)
+PEG_GEOM = "peg"
+TOOL_BODY = "tool"
+FORCE_SENSOR = "ft_force"
+TORQUE_SENSOR = "ft_torque"
+BLOCK_BODY = "bore_block"
+BLOCK_TOP_GEOMS_PREFIX = "block_"
+
+
+class SceneIds(NamedTuple):
+    """MuJoCo ids and addresses looked up once."""
+
+    ft_site: int  #: site id of the F/T sensor (flange origin O)
+    tip_site: int  #: site id of the true tip (truth side only)
+    peg_geom: int  #: geom id of the peg
+    block_geoms: np.ndarray  #: (k,) geom ids of the block
+    force_adr: int  #: sensordata address of the 3 force values
+    torque_adr: int  #: sensordata address of the 3 torque values
+    qpos_adr: np.ndarray  #: (n,) qpos addresses of the arm joints
+    dof_adr: np.ndarray  #: (n,) dof addresses of the arm joints
+
+
+def _box_inertia(mass: float, half: np.ndarray) -> np.ndarray:
+    a, b, c = 2 * half
+    return mass / 12.0 * np.array([b * b + c * c, a * a + c * c, a * a + b * b])
+
+
+def _add_tool(spec: mujoco.MjSpec, tool: ToolCfg) -> None:
+    link7 = spec.body(FLANGE_BODY)
+    flange_site = spec.site("flange")
+    body = link7.add_body(name=TOOL_BODY, pos=list(flange_site.pos))
+    R_f_t = tilt_rotation(tool.tilt_deg)  # tool axes in f (grasp tilt)
+    axis_f = R_f_t[:, 2]
+    tip_f = np.asarray(tool.offset_f_m, dtype=float)
+    centre_f = tip_f - 0.5 * tool.length_m * axis_f
+    half = np.array([tool.side_m / 2, tool.side_m / 2, tool.length_m / 2])
+    quat = quat_from_matrix(R_f_t)
+    body.add_geom(
+        name=PEG_GEOM,
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=list(half),
+        pos=list(centre_f),
+        quat=list(quat),
+        contype=1,
+        conaffinity=1,
+        condim=3,
+        density=0.0,
+        rgba=[0.35, 0.47, 0.75, 1.0],
+    )
+    body.explicitinertial = True
+    body.mass = tool.mass_kg
+    body.ipos = list(centre_f)
+    body.iquat = list(quat)
+    body.inertia = list(_box_inertia(tool.mass_kg, half))
+    body.add_site(name=FT_SITE, pos=[0, 0, 0], size=[0.006, 0, 0], rgba=[0.8, 0.3, 0.3, 1])
+    body.add_site(name=TIP_SITE, pos=list(tip_f), size=[0.003, 0, 0], rgba=[1, 0.8, 0.2, 1])
+
+
+def _convex_prism(spec: mujoco.MjSpec, name: str, profile_xz: np.ndarray, y0: float, y1: float) -> None:
+    verts = []
+    for y in (y0, y1):
+        for x, z in profile_xz:
+            verts.extend([x, y, z])
+    spec.add_mesh(name=name, uservert=verts)
+
+
+def _add_block(spec: mujoco.MjSpec, scene: SceneCfg) -> None:
+    cx, cy, top = scene.bore_entry_w_m
+    hw, B, depth, c = scene.bore_half_width_m, scene.block_half_size_m, scene.bore_depth_m, scene.chamfer_m
+    floor_t = 0.02
+    bottom = top - depth - floor_t
+    h_wall = (top - bottom) / 2
+    block = spec.worldbody.add_body(name=BLOCK_BODY, pos=[cx, cy, 0.0])
+    common = dict(contype=1, conaffinity=1, condim=3, rgba=[0.78, 0.8, 0.84, 1.0])
+    # four corner blocks (never chamfered)
+    half_corner = (B - hw) / 2
+    for i, (sx, sy) in enumerate([(1, 1), (1, -1), (-1, 1), (-1, -1)]):
+        block.add_geom(
+            name=f"{BLOCK_TOP_GEOMS_PREFIX}corner{i}",
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            size=[half_corner, half_corner, h_wall],
+            pos=[sx * (hw + half_corner), sy * (hw + half_corner), bottom + h_wall],
+            **common,
+        )
+    # four side walls facing the bore; with a chamfer they are convex prisms
+    for i, (axis, sign) in enumerate([(0, 1), (0, -1), (1, 1), (1, -1)]):
+        name = f"{BLOCK_TOP_GEOMS_PREFIX}wall{i}"
+        if c <= 0.0:
+            size = [half_corner, hw, h_wall] if axis == 0 else [hw, half_corner, h_wall]
+            pos = [sign * (hw + half_corner), 0.0, bottom + h_wall]
+            if axis == 1:
+                pos = [0.0, sign * (hw + half_corner), bottom + h_wall]
+            block.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_BOX, size=size, pos=pos, **common)
+            continue
+        # profile in (u, z) with u the outward distance from the bore axis
+        prof = np.array([[hw, top - c], [hw + c, top], [B, top], [B, bottom], [hw, bottom]])
+        mesh_name = f"{name}_mesh"
+        _convex_prism(spec, mesh_name, prof, -hw, hw)
+        # mesh is built with u along +x and the extrusion along y; rotate into place
+        angle = {(0, 1): 0.0, (1, 1): 90.0, (0, -1): 180.0, (1, -1): 270.0}[(axis, sign)]
+        q = np.zeros(4)
+        mujoco.mju_axisAngle2Quat(q, np.array([0.0, 0.0, 1.0]), np.deg2rad(angle))
+        block.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=mesh_name, quat=list(q), **common)
+    block.add_geom(
+        name=f"{BLOCK_TOP_GEOMS_PREFIX}floor",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[hw, hw, floor_t / 2],
+        pos=[0.0, 0.0, bottom + floor_t / 2],
+        **common,
+    )
+
+
+def build_spec(tool: ToolCfg, scene: SceneCfg, mjcf_path: Path = PANDA_MJCF) -> mujoco.MjSpec:
+    """The full scene spec: Panda + tool + bore block + wrist F/T sensor."""
+    mjcf_path = Path(mjcf_path)
+    if not mjcf_path.is_file():
+        raise ModelFileError(f"model file '{mjcf_path}' not found (reinstall the package or fix the path)")
+    try:
+        spec = mujoco.MjSpec.from_file(str(mjcf_path))
+    except Exception as exc:  # mujoco raises ValueError with a long message
+        raise ModelFileError(f"model file '{mjcf_path}' could not be parsed: {str(exc).splitlines()[0]}") from None
+    spec.option.o_solref = [scene.contact_timeconst_s, scene.contact_dampratio]
+    spec.option.enableflags |= int(mujoco.mjtEnableBit.mjENBL_OVERRIDE)
+    spec.option.o_friction = [scene.friction, scene.friction, 0.005, 0.0001, 0.0001]
+    spec.option.o_margin = 0.0
+    spec.option.o_solimp = [0.95, 0.99, 0.001, 0.5, 2.0]
+    _add_tool(spec, tool)
+    _add_block(spec, scene)
+    spec.add_sensor(
+        name=FORCE_SENSOR, type=mujoco.mjtSensor.mjSENS_FORCE, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=FT_SITE
+    )
+    spec.add_sensor(
+        name=TORQUE_SENSOR, type=mujoco.mjtSensor.mjSENS_TORQUE, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=FT_SITE
+    )
+    spec.worldbody.add_light(pos=[0.4, -0.6, 1.5], dir=[0, 0.5, -1])
+    spec.worldbody.add_camera(
+        name="side", pos=[scene.bore_entry_w_m[0] + 0.0, scene.bore_entry_w_m[1] - 0.45, scene.bore_entry_w_m[2] + 0.12],
+        xyaxes=[1, 0, 0, 0, 0.25, 1],
+    )
+    return spec
+
+
+def build_model(tool: ToolCfg, scene: SceneCfg, mjcf_path: Path = PANDA_MJCF) -> tuple[mujoco.MjModel, SceneIds]:
+    """Compile the scene and look every id/address up once."""
+    spec = build_spec(tool, scene, mjcf_path)
+    model = spec.compile()
+    block_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, BLOCK_BODY)
+    block_geoms = np.flatnonzero(model.geom_bodyid == block_id)
+    joint_ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"joint{i}") for i in range(1, 8)]
+    ids = SceneIds(
+        ft_site=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, FT_SITE),
+        tip_site=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, TIP_SITE),
+        peg_geom=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, PEG_GEOM),
+        block_geoms=block_geoms,
+        force_adr=int(model.sensor_adr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, FORCE_SENSOR)]),
+        torque_adr=int(model.sensor_adr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, TORQUE_SENSOR)]),
+        qpos_adr=np.array([int(model.jnt_qposadr[j]) for j in joint_ids]),
+        dof_adr=np.array([int(model.jnt_dofadr[j]) for j in joint_ids]),
+    )
+    return model, ids
