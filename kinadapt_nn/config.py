@@ -52,9 +52,9 @@ class SceneCfg(_Cfg):
 class StartCfg(_Cfg):
     """Where the episode starts (set by the simulator from the true tool; truth side)."""
 
-    tip_height_m: float = Field(0.015, gt=0.0, le=0.2)  # [m] true tip above the bore entrance
-    lateral_w_m: Vec2 = (0.0015, 0.0)  # [m] true tip lateral misalignment (world x, y)
-    tilt_deg: Vec2 = (0.0, 2.5)  # [deg] flange tilt from vertical about world x, then y
+    tip_height_m: float = Field(0.005, gt=0.0, le=0.2)  # [m] true tip above the bore entrance
+    lateral_w_m: Vec2 = (0.0008, 0.0)  # [m] true tip lateral misalignment (world x, y)
+    tilt_deg: Vec2 = (0.0, 2.0)  # [deg] flange tilt from vertical about world x, then y
     settle_s: float = Field(0.3, ge=0.05)  # [s] hold still at start (servo settles, tare)
 
 
@@ -80,8 +80,8 @@ class ControlCfg(_Cfg):
     """Value function V(s) and the second-order twist admittance (paper Results constants)."""
 
     depth_target_m: float = Field(0.045, gt=0.0)  # [m] d* (minimum of V)
-    k_depth_N_per_m: float = Field(5000.0, gt=0.0)  # [N/m] V = 1/2 k_d (d - d*)^2 + ...
-    depth_force_max_N: float = Field(300.0, gt=0.0)  # [N] V is linear (Huber) beyond this force
+    k_depth_N_per_m: float = Field(1.0e4, gt=0.0)  # [N/m] V = 1/2 k_d (d - d*)^2 + ...
+    depth_force_max_N: float = Field(80.0, gt=0.0)  # [N] V is linear (Huber) beyond this force
     compliance_lat_m_per_N: float = Field(2.0e-5, ge=0.0)  # [m/N] V += 1/2 c_F |F_lat|^2
     compliance_mom_rad_per_Nm: float = Field(2.0e-2, ge=0.0)  # [rad/(N m)] V += 1/2 c_M |M|^2
     tau_trans_s: float = Field(2.0e-3, gt=0.0)  # [s] virtual time constant, translation

@@ -1,0 +1,243 @@
+"""One insertion: simulator adapter -> controller -> trace, success and failure class.
+
+The loop is the truth firewall in action: each period the adapter hands the controller
+``(t, q, qdot, wrench)`` -- nothing else -- and applies the returned joint command. Ground
+truth is read from the adapter beside it, into ``truth_*`` channels, for evaluation only.
+Success and failure are judged from sensor-side signals (``SeatMonitor``,
+``classify_failure``); the truth only checks them afterwards.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from kinadapt_nn.config import ExperimentCfg
+from kinadapt_nn.control import Controller
+from kinadapt_nn.errors import SensorError
+from kinadapt_nn.features import AdjointFeatures
+from kinadapt_nn.features.base import Features
+from kinadapt_nn.sensing import CHANNEL_NAMES, nominal_sensor_map
+from kinadapt_nn.sim.adapter import BORE_AXIS_W, PegInHoleSim
+from kinadapt_nn.trace import Trace, TraceRecorder
+
+FAILURES = ("none", "timeout", "jam", "block_face", "divergence")
+
+
+class SeatMonitor:
+    """Sensor-side success: depth reached, |F_lat| and |M| inside limits, held ``hold_s``."""
+
+    def __init__(self, cfg: ExperimentCfg) -> None:
+        sc = cfg.success
+        self.d_seat = sc.depth_m - sc.depth_tol_m
+        self.f_max = sc.max_lateral_force_N
+        self.m_max = sc.max_moment_Nm
+        self.hold = sc.hold_s
+        self.since: float | None = None
+        self.seat_time: float | None = None
+
+    def update(self, t: float, s: np.ndarray) -> tuple[bool, bool, bool]:
+        depth_ok = bool(s[0] >= self.d_seat)
+        force_ok = bool(np.hypot(s[1], s[2]) < self.f_max)
+        moment_ok = bool(np.sqrt(s[3] ** 2 + s[4] ** 2 + s[5] ** 2) < self.m_max)
+        if depth_ok and force_ok and moment_ok:
+            if self.since is None:
+                self.since = t
+            if self.seat_time is None and t - self.since >= self.hold - 1e-12:
+                self.seat_time = t
+        else:
+            self.since = None
+        return depth_ok, force_ok, moment_ok
+
+
+def classify_failure(cfg: ExperimentCfg, t: np.ndarray, s: np.ndarray, w_env: np.ndarray, diverged: bool) -> str:
+    """Failure class of an unseated run from sensor-side channels only.
+
+    ``divergence``: non-finite samples or a contact force beyond ``diverge_force_N``;
+    ``block_face``: the last ``jam_window_s`` spent loaded with the sensor depth above
+    ``face_depth_m`` (the peg never entered); ``jam``: loaded inside the bore with no depth
+    progress over the last window; otherwise ``timeout``.
+    """
+    sc = cfg.success
+    fmag = np.linalg.norm(w_env[:, :3], axis=1) if len(t) else np.zeros(0)
+    if diverged or (len(fmag) and (not np.all(np.isfinite(fmag)) or fmag.max() > sc.diverge_force_N)):
+        return "divergence"
+    if len(t) == 0:
+        return "timeout"
+    win = t >= t[-1] - sc.jam_window_s
+    loaded = np.median(fmag[win]) > sc.jam_force_N or np.median(np.linalg.norm(s[win, 3:], axis=1)) > sc.max_moment_Nm
+    progress = s[win, 0].max() - s[win, 0].min()
+    if loaded and progress < sc.jam_progress_m:
+        return "block_face" if s[win, 0].mean() < sc.face_depth_m else "jam"
+    return "timeout"
+
+
+def make_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
+    """Features object and the initial parameters for ``run.features``."""
+    S = nominal_sensor_map(cfg.sensing, BORE_AXIS_W)
+    feats = AdjointFeatures(S, np.asarray(cfg.sensing.nominal_offset_f_m))
+    if cfg.run.features == "oracle":
+        # declared baseline: the true offset is handed over as a constant, nothing else
+        return feats, np.asarray(cfg.tool.offset_f_m, dtype=float)
+    raise ValueError(f"unknown features {cfg.run.features!r}")  # pragma: no cover (validated)
+
+
+def make_controller(cfg: ExperimentCfg) -> Controller:
+    feats, theta0 = make_features(cfg)
+    return Controller(cfg, feats, theta0, BORE_AXIS_W)
+
+
+class EpisodeResult(NamedTuple):
+    trace: Trace  #: every logged channel
+    summary: dict  #: the run-outputs contract (``summary.json``)
+
+
+def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
+    """Simulate one insertion with config ``cfg``. Deterministic for a given config."""
+    wall0 = time.perf_counter()
+    sim = PegInHoleSim(cfg)
+    ctrl = make_controller(cfg)
+    dt = cfg.run.dt_s
+    n_steps = int(round(cfg.run.duration_s / dt))
+    every = cfg.run.log_every
+    rec = TraceRecorder(n_steps // every + 1, ctrl.features.n_params)
+    monitor = SeatMonitor(cfg)
+    obs = sim.sense()
+    diverged = False
+    stop_at: float | None = None
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=n_steps, unit="step", desc="episode", leave=False, mininterval=0.25)
+    k = 0
+    for k in range(n_steps):
+        t = sim.time_s
+        try:
+            cmd = ctrl.step(t, obs.q_rad, obs.qdot_rad_s, obs.wrench_raw_f)
+        except SensorError:
+            diverged = True
+            break
+        sim.apply(cmd.q_ref_rad, cmd.qdot_ref_rad_s)
+        lg = ctrl.last
+        ok = monitor.update(t, lg.s) if lg.drive_scale > 0 else (False, False, False)
+        if k % every == 0:
+            tr = sim.truth()
+            rec.record(
+                t_s=t,
+                q_rad=obs.q_rad,
+                qdot_rad_s=obs.qdot_rad_s,
+                q_ref_rad=cmd.q_ref_rad,
+                wrench_raw_f=obs.wrench_raw_f,
+                w_env_w=lg.w_env_w,
+                s=lg.s,
+                s_dot_meas=lg.s_dot_meas,
+                s_dot_pred=lg.s_dot_pred,
+                F_value=lg.F,
+                xi=lg.xi,
+                V=lg.V,
+                lambda_min=lg.lambda_min,
+                theta=lg.theta,
+                drive_scale=lg.drive_scale,
+                depth_ok=ok[0],
+                force_ok=ok[1],
+                moment_ok=ok[2],
+                truth_tip_depth_m=tr.tip_depth_m,
+                truth_tip_pos_w_m=tr.tip_pos_w_m,
+                truth_contact_face=tr.contact_face,
+                truth_contact_bore=tr.contact_bore,
+                truth_contact_force_N=tr.contact_force_N,
+            )
+        sim.step()
+        obs = sim.sense()
+        if bar is not None and k % 250 == 0:
+            bar.update(250 if k else 1)
+        if monitor.seat_time is not None and stop_at is None:
+            stop_at = monitor.seat_time + cfg.run.stop_after_seat_s
+        if stop_at is not None and sim.time_s >= stop_at:
+            break
+        if not np.all(np.isfinite(obs.q_rad)):
+            diverged = True
+            break
+    if bar is not None:
+        bar.close()
+    steps = k + 1
+    wall = time.perf_counter() - wall0
+    meta = {
+        "dt_s": dt * every,
+        "features": cfg.run.features,
+        "seed": cfg.run.seed,
+        "truth_offset_f_m": list(cfg.tool.offset_f_m),
+        "channel_names": list(CHANNEL_NAMES),
+        "bore_entry_w_m": list(cfg.scene.bore_entry_w_m),
+    }
+    trace = rec.finish(meta)
+    summary = summarize(cfg, trace, ctrl, monitor, diverged, steps, sim.time_s, wall)
+    return EpisodeResult(trace, summary)
+
+
+def summarize(
+    cfg: ExperimentCfg,
+    trace: Trace,
+    ctrl: Controller,
+    monitor: SeatMonitor,
+    diverged: bool,
+    steps: int,
+    sim_time: float,
+    wall: float,
+) -> dict:
+    """The ``summary.json`` contract of ``../shared/DESIGN.md`` plus run-specific figures."""
+    t, s, w = trace["t_s"], trace["s"], trace["w_env_w"]
+    active = trace["drive_scale"] > 0
+    success = monitor.seat_time is not None and not diverged
+    failure = "none" if success else classify_failure(cfg, t[active], s[active], w[active], diverged)
+    fmag = np.linalg.norm(w[:, :3], axis=1)
+    mmag = np.linalg.norm(w[:, 3:], axis=1)
+    flat = np.hypot(s[:, 1], s[:, 2])
+    # prediction error through the same filter on both sides
+    eps = trace["s_dot_meas"][active] - trace["s_dot_pred"][active]
+    pred_rms = {name: float(np.sqrt(np.mean(eps[:, i] ** 2))) if len(eps) else None for i, name in enumerate(CHANNEL_NAMES)}
+    theta = trace["theta"][-1] if len(trace) else ctrl.theta
+    true_off = np.asarray(cfg.tool.offset_f_m)
+    # Jacobian error at the final configuration against the nominal model with the true offset
+    kin = ctrl.kin(trace["q_rad"][-1]) if len(trace) else None
+    if kin is not None:
+        J_hat = ctrl.features.jacobian(kin, theta)
+        J_true = ctrl.features.jacobian(kin, true_off)
+        jac_err = float(np.linalg.norm(J_hat - J_true) / np.linalg.norm(J_true))
+    else:
+        jac_err = None
+    tip = trace["truth_tip_pos_w_m"]
+    touched = trace["truth_contact_face"] | trace["truth_contact_bore"]
+    first_touch = int(np.argmax(touched)) if touched.any() else len(trace)
+    drift = np.linalg.norm(tip[:, :2] - tip[0, :2], axis=1) if len(trace) else np.zeros(1)
+    seat_idx = int(np.searchsorted(t, monitor.seat_time)) if success else None
+    return {
+        "success": bool(success),
+        "failure": failure,
+        "seat_time_s": monitor.seat_time if success else None,
+        "final_depth_m": float(s[-1, 0]) if len(trace) else None,
+        "true_final_depth_m": float(trace["truth_tip_depth_m"][-1]) if len(trace) else None,
+        "true_depth_at_seat_m": float(trace["truth_tip_depth_m"][min(seat_idx, len(trace) - 1)]) if success else None,
+        "max_force_N": float(fmag.max()) if len(fmag) else None,
+        "max_lateral_force_N": float(flat.max()) if len(flat) else None,
+        "max_moment_Nm": float(mmag.max()) if len(mmag) else None,
+        "min_lambda_JJt": float(trace["lambda_min"][active].min()) if active.any() else None,
+        "offset_estimate_final_f_m": [float(x) for x in theta],
+        "offset_error_final_m": [float(x) for x in (theta - true_off)],
+        "jacobian_rel_error_final": jac_err,
+        "pred_error_rms": pred_rms,
+        "lateral_drift_free_space_m": float(drift[: max(first_touch, 1)].max()),
+        "lateral_drift_max_m": float(drift.max()),
+        "truth_touched_block_face": bool(trace["truth_contact_face"].any()),
+        "truth_touched_bore": bool(trace["truth_contact_bore"].any()),
+        "features": cfg.run.features,
+        "law": "frozen" if cfg.run.features == "oracle" else "composite",
+        "n_params": int(ctrl.features.n_params),
+        "seed": cfg.run.seed,
+        "steps": int(steps),
+        "sim_time_s": float(sim_time),
+        "wall_time_s": float(wall),
+    }

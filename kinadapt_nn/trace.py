@@ -1,0 +1,138 @@
+"""The run-log format (``trace.npz``), versioned and self-describing.
+
+A trace is one NumPy ``.npz`` archive. Every array's first axis is the logged sample
+(``t_s`` gives its time). The archive's ``meta`` entry is a JSON string with
+``format = "kinadapt-trace"``, ``version``, ``dt_s`` (sample time of the log), the
+channel table (name -> unit, frame, description) and run constants. Channels whose name
+starts with ``truth_`` are ground truth, logged for evaluation only; no controller-side
+channel is computed from them.
+
+Channel table (``CHANNELS`` below is the single source; the README lists it):
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from kinadapt_nn.errors import KinadaptError
+
+TRACE_FORMAT = "kinadapt-trace"
+TRACE_VERSION = 1
+
+#: name -> (per-sample shape, unit, frame, description)
+CHANNELS: dict[str, tuple[tuple[int, ...], str, str, str]] = {
+    "t_s": ((), "s", "-", "time since the start of the episode"),
+    "q_rad": ((7,), "rad", "joint", "joint encoder positions"),
+    "qdot_rad_s": ((7,), "rad/s", "joint", "joint velocities"),
+    "q_ref_rad": ((7,), "rad", "joint", "joint servo position reference"),
+    "wrench_raw_f": ((6,), "N, N m", "f (about O)", "raw F/T reading: flange on tool [f; m]"),
+    "w_env_w": ((6,), "N, N m", "w (about O)", "tared wrench tool -> environment [f; m]"),
+    "s": ((6,), "m, N, N m", "bore", "sensor vector [d, F_lat_x, F_lat_y, M_x, M_y, M_z]"),
+    "s_dot_meas": ((6,), "per s", "bore", "filtered measured sensor rate"),
+    "s_dot_pred": ((6,), "per s", "bore", "filtered predicted rate J_hat qdot"),
+    "F_value": ((6,), "N, m, m, rad, rad, rad", "bore", "value force -grad_s V"),
+    "xi": ((6,), "m/s, rad/s", "w (at O)", "admittance twist state [v_O; omega]"),
+    "V": ((), "J", "-", "value function V(s)"),
+    "lambda_min": ((), "-", "-", "lambda_min(W J_hat J_hat^T W)"),
+    "theta": ((-1,), "feature units", "-", "parameter estimate (adjoint: offset O->tip in f, m)"),
+    "drive_scale": ((), "-", "-", "drive ramp rho in [0, 1] (0 while taring)"),
+    "depth_ok": ((), "bool", "-", "success channel: d >= d_seat - tol"),
+    "force_ok": ((), "bool", "-", "success channel: |F_lat| < limit"),
+    "moment_ok": ((), "bool", "-", "success channel: |M| < limit"),
+    "truth_tip_depth_m": ((), "m", "bore", "TRUTH: true tip depth below the entrance"),
+    "truth_tip_pos_w_m": ((3,), "m", "w", "TRUTH: true tip position"),
+    "truth_contact_face": ((), "bool", "-", "TRUTH: peg touches the block top face"),
+    "truth_contact_bore": ((), "bool", "-", "TRUTH: peg touches bore walls/edge/floor"),
+    "truth_contact_force_N": ((), "N", "-", "TRUTH: total normal contact force"),
+}
+
+
+@dataclass
+class Trace:
+    """Arrays of a run, keyed by channel name, plus ``meta`` (JSON-serialisable)."""
+
+    arrays: dict[str, np.ndarray]
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.arrays[name]
+
+    def __len__(self) -> int:
+        return int(self.arrays["t_s"].shape[0])
+
+    def save(self, path: Path) -> None:
+        """Write atomically (temp file + rename): a crash never leaves half a trace."""
+        path = Path(path)
+        meta = dict(self.meta)
+        meta.update(
+            format=TRACE_FORMAT,
+            version=TRACE_VERSION,
+            channels={k: {"unit": v[1], "frame": v[2], "description": v[3]} for k, v in CHANNELS.items()},
+        )
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+        os.close(fd)
+        try:
+            with open(tmp, "wb") as fh:
+                np.savez_compressed(fh, meta=np.array(json.dumps(meta)), **self.arrays)
+            os.replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+
+    @classmethod
+    def load(cls, path: Path) -> Trace:
+        """Read and validate a trace; one-line ``KinadaptError`` if it is not one."""
+        path = Path(path)
+        if not path.is_file():
+            raise KinadaptError(f"trace file '{path}' not found")
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                arrays = {k: z[k] for k in z.files}
+        except (OSError, ValueError, zipfile.BadZipFile) as exc:
+            raise KinadaptError(f"trace file '{path}' is not a readable .npz archive ({exc})") from None
+        if "meta" not in arrays:
+            raise KinadaptError(f"trace file '{path}' has no 'meta' entry (not a kinadapt trace)")
+        meta = json.loads(str(arrays.pop("meta")))
+        if meta.get("format") != TRACE_FORMAT:
+            raise KinadaptError(f"trace file '{path}': format {meta.get('format')!r}, expected {TRACE_FORMAT!r}")
+        if int(meta.get("version", -1)) > TRACE_VERSION:
+            raise KinadaptError(
+                f"trace file '{path}' has version {meta.get('version')}; this kinadapt reads <= {TRACE_VERSION}"
+            )
+        for name in ("t_s", "q_rad", "qdot_rad_s", "wrench_raw_f"):
+            if name not in arrays:
+                raise KinadaptError(f"trace file '{path}' lacks the required channel '{name}'")
+        return cls(arrays=arrays, meta=meta)
+
+
+class TraceRecorder:
+    """Preallocated per-step logging (the hot path only copies into arrays)."""
+
+    def __init__(self, n_samples: int, n_params: int) -> None:
+        self.n = 0
+        self.cap = n_samples
+        self.arrays: dict[str, np.ndarray] = {}
+        for name, (shape, unit, _, _) in CHANNELS.items():
+            shp = tuple(n_params if s == -1 else s for s in shape)
+            dtype = bool if unit == "bool" else np.float64
+            self.arrays[name] = np.zeros((n_samples, *shp), dtype=dtype)
+
+    def record(self, **values: Any) -> None:
+        i = self.n
+        if i >= self.cap:
+            return
+        a = self.arrays
+        for k, v in values.items():
+            a[k][i] = v
+        self.n = i + 1
+
+    def finish(self, meta: dict[str, Any]) -> Trace:
+        return Trace(arrays={k: v[: self.n].copy() for k, v in self.arrays.items()}, meta=meta)
