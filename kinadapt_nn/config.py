@@ -45,7 +45,7 @@ class SceneCfg(_Cfg):
     block_half_size_m: float = Field(0.06, gt=0.0)  # [m] half side of the block (x and y)
     chamfer_m: float = Field(0.0, ge=0.0, le=0.005)  # [m] 45-deg entrance chamfer (0 = none)
     friction: float = Field(0.3, ge=0.0, le=2.0)  # [-] Coulomb friction peg <-> block
-    contact_timeconst_s: float = Field(0.004, gt=0.0)  # [s] MuJoCo solref time constant
+    contact_timeconst_s: float = Field(0.02, gt=0.0)  # [s] MuJoCo solref time constant
     contact_dampratio: float = Field(1.0, gt=0.0)  # [-] MuJoCo solref damping ratio
 
 

@@ -48,8 +48,6 @@ class StepLog(NamedTuple):
     s_dot_pred: np.ndarray  #: (m,) filtered predicted rate J_hat qdot
     F: np.ndarray  #: (m,) value force -grad V
     xi: np.ndarray  #: (6,) admittance twist state [v_O; omega]
-    V: float  #: value V(s) [J]
-    lambda_min: float  #: lambda_min of W J_hat J_hat^T W
     w_env_w: np.ndarray  #: (6,) wrench tool -> environment at O, world [N, N m]
     theta: np.ndarray  #: (p,) parameter estimate
     drive_scale: float  #: rho in [0, 1]: 0 while taring, ramps to 1
@@ -109,6 +107,13 @@ class ArmKinematics:
         )
 
 
+def rank_margin(W: np.ndarray, J_hat: np.ndarray) -> float:
+    """``lambda_min(W J_hat J_hat^T W)`` on W-scaled rows: the online proxy of the full-row-rank
+    hypothesis of Theorem ft_rigid (paper: gate 1e-6). W (m,), J_hat (m, n) -> float."""
+    WJ = W[:, None] * J_hat
+    return float(np.linalg.eigvalsh(WJ @ WJ.T)[0])
+
+
 class Controller:
     """F/T + encoder admittance controller. ``step(t, q, qdot, wrench) -> JointCommand``.
 
@@ -139,6 +144,7 @@ class Controller:
         self._den = self.M_virt + self.dt * self.D_virt
         self.v_max, self.w_max = c.v_max_m_per_s, c.w_max_rad_per_s
         self.k_ns = c.nullspace_gain
+        self.damp_pinv = 1e-6  # Tikhonov term of J_arm^+ (J J^T + 1e-6 I)^-1
         self.t_settle = cfg.start.settle_s
         self.t_tare0 = max(0.0, self.t_settle - sc.tare_window_s)
         self.ramp_s = c.ramp_s
@@ -154,6 +160,10 @@ class Controller:
         self.tare_n = 0
         self.tare = np.zeros(6)
         self.F = np.zeros(6)
+        self.tared = False
+        self._w_env = np.zeros(6)
+        self._chol = np.zeros((6, 6))
+        self._tmp6 = np.zeros(6)
         self.rate_meas.primed = False
         self.rate_pred.reset()
         self.last: StepLog | None = None
@@ -170,8 +180,10 @@ class Controller:
 
     def step(self, t: float, q: np.ndarray, qdot: np.ndarray, wrench: np.ndarray) -> JointCommand:
         """One control period. Inputs: time [s], encoders (n,), raw F/T reading (6,) in f."""
-        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qdot)) and np.all(np.isfinite(wrench))):
-            raise SensorError(f"non-finite sensor sample at t={t:.3f} s (check the encoders and the F/T sensor)")
+        if not np.isfinite(q.sum() + qdot.sum() + wrench.sum()):
+            raise SensorError(
+                f"non-finite sensor sample at t={t:.3f} s (check the encoders and the F/T sensor for NaN/inf)"
+            )
         kin = self.kin(q)
         if self.q_ref is None:
             self.q_ref = q.copy()
@@ -183,53 +195,60 @@ class Controller:
                 self.tare_n += 1
             rho = 0.0
         else:
-            if self.tare_n and not np.any(self.tare):
-                self.tare = self.tare_sum / self.tare_n
+            if not self.tared:
+                self.tare = self.tare_sum / max(self.tare_n, 1)
+                self.tared = True
             rho = min(1.0, (t - self.t_settle) / self.ramp_s) if self.ramp_s > 0 else 1.0
         R = kin.R_wf
-        dw = wrench - self.tare
-        w_env = np.concatenate([R @ dw[:3], R @ dw[3:]])  # tool -> environment, world, about O
-        if rho == 0.0:
+        w_env = self._w_env
+        if rho > 0.0:
+            dw = wrench - self.tare
+            w_env[:3] = R @ dw[:3]  # tool -> environment, world, about O
+            w_env[3:] = R @ dw[3:]
+        else:
             w_env[:] = 0.0
         s = self.sensor_vector(kin, w_env)
         # -- measured and predicted rates through the same filter
         s_dot_meas = self.rate_meas.rate(s)
-        J_hat = self.features.jacobian(kin, self.theta)  # (m, n)
-        s_dot_pred = self.rate_pred(J_hat @ qdot).copy()
+        J = kin.J_arm
+        J_xi = self.features.twist_jacobian(kin, self.theta)  # (m, 6) or None
+        J_hat = J_xi @ J if J_xi is not None else self.features.jacobian(kin, self.theta)  # (m, n)
+        s_dot_pred = self.rate_pred(J_hat @ qdot)
         # -- value force and the twist admittance (eq. ft_force, eq. cp_admittance)
         F = self.value_fn.force(s, self.F)
-        J = kin.J_arm
-        JJt = J @ J.T + 1e-6 * np.eye(6)
-        # J_hat_xi^T F = J_arm^{+T} J_hat^T F  (= (S Ad)^T F for the adjoint features)
-        drive = np.linalg.solve(JJt, J @ (J_hat.T @ F))
+        L = self._chol
+        np.matmul(J, J.T, out=L)
+        L.flat[::7] += self.damp_pinv
+        mujoco.mju_cholFactor(L, 0.0)
+        if J_xi is not None:
+            drive = J_xi.T @ F  # (S Ad)^T F: wrench at O
+        else:  # J_hat_xi^T F = J_arm^{+T} J_hat^T F
+            drive = self._tmp6
+            mujoco.mju_cholSolve(drive, L, J @ (J_hat.T @ F))
         u = rho * drive - w_env
         xi = (self.M_virt * self.xi + self.dt * u) / self._den
-        vn = np.linalg.norm(xi[:3])
+        vn = np.sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2])
         if vn > self.v_max:
             xi[:3] *= self.v_max / vn
-        wn = np.linalg.norm(xi[3:])
+        wn = np.sqrt(xi[3] * xi[3] + xi[4] * xi[4] + xi[5] * xi[5])
         if wn > self.w_max:
             xi[3:] *= self.w_max / wn
         self.xi = xi
-        # -- joint reference: qdot = J^+ xi + null-space posture
-        qdot_ref = J.T @ np.linalg.solve(JJt, xi)
-        if self.k_ns > 0.0:
-            z = self.k_ns * (self.q_posture - q)
-            qdot_ref += z - J.T @ np.linalg.solve(JJt, J @ z)
+        # -- joint reference: qdot = J^+ xi + (I - J^+ J) k_ns (q_0 - q)
+        z = self.k_ns * (self.q_posture - q)
+        y = self._tmp6
+        mujoco.mju_cholSolve(y, L, xi - J @ z)
+        qdot_ref = J.T @ y + z
         self.q_ref = self.q_ref + self.dt * qdot_ref
-        # -- diagnostics for the trace
-        WJ = self.W[:, None] * J_hat
-        lam = float(np.linalg.eigvalsh(WJ @ WJ.T)[0])
+        # -- diagnostics for the trace (V and lambda_min are evaluated off the hot path)
         self.last = StepLog(
             s=s,
             s_dot_meas=s_dot_meas,
             s_dot_pred=s_dot_pred,
-            F=F.copy(),
-            xi=xi.copy(),
-            V=self.value_fn.value(s),
-            lambda_min=lam,
+            F=F,
+            xi=xi,
             w_env_w=w_env,
-            theta=self.theta.copy(),
+            theta=self.theta,
             drive_scale=rho,
         )
-        return JointCommand(self.q_ref.copy(), qdot_ref)
+        return JointCommand(self.q_ref, qdot_ref)

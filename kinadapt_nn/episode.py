@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from kinadapt_nn.config import ExperimentCfg
-from kinadapt_nn.control import Controller
+from kinadapt_nn.control import Controller, rank_margin
 from kinadapt_nn.errors import SensorError
 from kinadapt_nn.features import AdjointFeatures
 from kinadapt_nn.features.base import Features
@@ -137,8 +137,6 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
                 s_dot_pred=lg.s_dot_pred,
                 F_value=lg.F,
                 xi=lg.xi,
-                V=lg.V,
-                lambda_min=lg.lambda_min,
                 theta=lg.theta,
                 drive_scale=lg.drive_scale,
                 depth_ok=ok[0],
@@ -174,8 +172,20 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
         "bore_entry_w_m": list(cfg.scene.bore_entry_w_m),
     }
     trace = rec.finish(meta)
+    evaluate_offline(trace, ctrl)
     summary = summarize(cfg, trace, ctrl, monitor, diverged, steps, sim.time_s, wall)
     return EpisodeResult(trace, summary)
+
+
+def evaluate_offline(trace: Trace, ctrl: Controller) -> None:
+    """Fill ``V`` and ``lambda_min`` from logged controller-side channels (``s``, ``q``,
+    ``theta``): same numbers the controller would compute, kept off the 1 kHz hot path."""
+    s = trace["s"]
+    trace.arrays["V"] = np.array([ctrl.value_fn.value(x) for x in s])
+    lam = np.empty(len(s))
+    for i, (q, th) in enumerate(zip(trace["q_rad"], trace["theta"])):
+        lam[i] = rank_margin(ctrl.W, ctrl.features.jacobian(ctrl.kin(q), th))
+    trace.arrays["lambda_min"] = lam
 
 
 def summarize(

@@ -82,6 +82,7 @@ class Trace:
         try:
             with open(tmp, "wb") as fh:
                 np.savez_compressed(fh, meta=np.array(json.dumps(meta)), **self.arrays)
+            os.chmod(tmp, 0o644)
             os.replace(tmp, path)
         finally:
             if os.path.exists(tmp):

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from kinadapt_nn.features.base import Features, KinState, Regressor
-from kinadapt_nn.geometry import adjoint_offset, skew
+from kinadapt_nn.geometry import skew
 
 
 class AdjointFeatures(Features):
@@ -33,14 +33,17 @@ class AdjointFeatures(Features):
         self.S_v[0] = 0.0  # the depth row does not see theta
         self.l_nom_f = np.asarray(nominal_offset_f_m, dtype=float)
 
-    def twist_jacobian(self, R_wf: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    def twist_jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray:
         """``S Ad(R_wf theta)`` with the depth row on the nominal offset. -> (m, 6)."""
-        J_xi = self.S @ adjoint_offset(R_wf @ theta)
-        J_xi[0] = self.S[0] @ adjoint_offset(R_wf @ self.l_nom_f)
+        R = kin.R_wf
+        J_xi = self.S.copy()
+        # S Ad(l) = [S_v, S_w - S_v [l]x]  (geometry.adjoint_offset)
+        J_xi[:, 3:] -= self.S_v @ skew(R @ theta)
+        J_xi[0, 3:] -= self.S[0, :3] @ skew(R @ self.l_nom_f)
         return J_xi
 
     def jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray:
-        return self.twist_jacobian(kin.R_wf, theta) @ kin.J_arm
+        return self.twist_jacobian(kin, theta) @ kin.J_arm
 
     def regressor(self, kin: KinState, qdot: np.ndarray) -> Regressor:
         xi = kin.J_arm @ qdot

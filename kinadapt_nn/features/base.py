@@ -51,6 +51,11 @@ class Features(abc.ABC):
     def regressor(self, kin: KinState, qdot: np.ndarray) -> Regressor:
         """Prediction regressor on joint velocity ``qdot`` (n,)."""
 
+    def twist_jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray | None:
+        """``J_hat_xi`` (m, 6) with ``J_hat = J_hat_xi J_arm`` where the parameterisation
+        factors through the wrist twist (the adjoint does); ``None`` otherwise."""
+        return None
+
     def predict_rate(self, kin: KinState, qdot: np.ndarray, theta: np.ndarray) -> np.ndarray:
         """Predicted sensor rate ``J_hat qdot``. -> (m,)."""
         reg = self.regressor(kin, qdot)

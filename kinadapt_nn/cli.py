@@ -1,0 +1,101 @@
+"""``kinadapt`` command line: parse, load a config, call the library. No algorithm here.
+
+Every ``KinadaptError`` (bad config, missing file, existing output folder, ...) becomes one
+line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from pathlib import Path
+
+from kinadapt_nn.errors import KinadaptError
+
+log = logging.getLogger("kinadapt")
+
+
+def _default_out(kind: str) -> Path:
+    return Path("runs") / f"{kind}-{time.strftime('%Y%m%d-%H%M%S')}"
+
+
+def _summary_lines(summary: dict, out: Path) -> list[str]:
+    ok = "SEATED" if summary["success"] else f"NOT SEATED ({summary['failure']})"
+    seat = f"{summary['seat_time_s']:.3f} s" if summary["seat_time_s"] is not None else "-"
+    err = summary["offset_error_final_m"]
+    return [
+        f"kinadapt online: {ok}   features={summary['features']} law={summary['law']} seed={summary['seed']}",
+        f"  seat time          {seat}   (paper, with adaptation: 5.1 s)",
+        f"  depth sensor/true  {1e3 * summary['final_depth_m']:.2f} / {1e3 * summary['true_final_depth_m']:.2f} mm",
+        f"  max |F| / |F_lat|  {summary['max_force_N']:.1f} / {summary['max_lateral_force_N']:.1f} N   "
+        f"max |M| {summary['max_moment_Nm']:.2f} N m",
+        f"  min lambda(JJ^T)   {summary['min_lambda_JJt']:.3g}   offset error "
+        f"[{', '.join(f'{1e3 * e:+.2f}' for e in err)}] mm",
+        f"  lateral drift      free space {1e3 * summary['lateral_drift_free_space_m']:.3f} mm, "
+        f"max {1e3 * summary['lateral_drift_max_m']:.3f} mm",
+        f"  sim {summary['sim_time_s']:.2f} s in {summary['wall_time_s']:.2f} s wall ({summary['steps']} steps)",
+        f"  wrote {out}/ (config.toml, summary.json, trace.npz, rollout.png, tb/)",
+    ]
+
+
+def cmd_online(args: argparse.Namespace) -> int:
+    from kinadapt_nn.config import config_to_toml, load_config
+    from kinadapt_nn.episode import run_episode
+    from kinadapt_nn.runio import check_output_dir, staged_output, write_json
+
+    cfg = load_config(Path(args.config) if args.config else None, args.set or [])
+    out = Path(args.out) if args.out else _default_out("online")
+    check_output_dir(out, args.overwrite)
+    result = run_episode(cfg, progress=cfg.run.progress and not args.quiet)
+    with staged_output(out, args.overwrite) as stage:
+        (stage / "config.toml").write_text(config_to_toml(cfg))
+        write_json(stage / "summary.json", result.summary)
+        result.trace.save(stage / "trace.npz")
+        fig = None
+        if cfg.run.figure:
+            from kinadapt_nn.figures import rollout_figure, save_figure
+
+            fig = rollout_figure(result.trace, result.summary, cfg)
+        if cfg.run.tensorboard:
+            from kinadapt_nn.tb import write_tensorboard
+
+            hp = {"features": cfg.run.features, "law": result.summary["law"], "seed": cfg.run.seed}
+            write_tensorboard(stage / "tb", result.trace, result.summary, hp, figure=fig)
+        if fig is not None:
+            save_figure(fig, stage / "rollout.png")
+    if not args.quiet:
+        print("\n".join(_summary_lines(result.summary, out)))
+    return 0 if result.summary["success"] else 1
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="kinadapt", description="Online kinematic adaptation by feel (MuJoCo Panda).")
+    sub = p.add_subparsers(dest="command", required=True)
+    on = sub.add_parser("online", help="run one insertion episode")
+    on.add_argument("--config", help="experiment TOML (default: built-in defaults = online/rollout.toml)")
+    on.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a config key, e.g. run.seed=3")
+    on.add_argument("--out", help="output folder (default: runs/online-<timestamp>)")
+    on.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    on.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
+    on.set_defaults(func=cmd_online)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args))
+    except KinadaptError as exc:
+        print(f"kinadapt: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("kinadapt: interrupted; nothing was written", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
