@@ -83,7 +83,7 @@ class ControlCfg(_Cfg):
     k_depth_N_per_m: float = Field(1.0e4, gt=0.0)  # [N/m] V = 1/2 k_d (d - d*)^2 + ...
     depth_force_max_N: float = Field(80.0, gt=0.0)  # [N] V is linear (Huber) beyond this force
     compliance_lat_m_per_N: float = Field(2.0e-5, ge=0.0)  # [m/N] V += 1/2 c_F |F_lat|^2
-    compliance_mom_rad_per_Nm: float = Field(2.0e-2, ge=0.0)  # [rad/(N m)] V += 1/2 c_M |M|^2
+    compliance_mom_rad_per_Nm: float = Field(2.0e-3, ge=0.0)  # [rad/(N m)] V += 1/2 c_M |M|^2
     tau_trans_s: float = Field(2.0e-3, gt=0.0)  # [s] virtual time constant, translation
     tau_ang_s: float = Field(1.0e-2, gt=0.0)  # [s] virtual time constant, rotation
     beta_trans: float = Field(0.072, ge=0.0)  # [-] extra damping beta, translation
