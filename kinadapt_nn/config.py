@@ -39,6 +39,8 @@ class ToolCfg(_Cfg):
 class SceneCfg(_Cfg):
     """The bore block: a square bore whose walls are +-bore_half_width about its axis."""
 
+    arm_mjcf: str = ""  # arm MJCF path ("" = the shipped models/panda.xml); known to both sides
+
     bore_entry_w_m: Vec3 = (0.45, 0.0, 0.30)  # [m] centre of the bore entrance, world frame
     bore_half_width_m: float = Field(0.011, gt=0.0)  # [m] wall position about the bore centre
     bore_depth_m: float = Field(0.050, gt=0.0)  # [m] bore depth (floor below the entrance)
@@ -135,6 +137,13 @@ class ExperimentCfg(_Cfg):
     sensing: SensingCfg = SensingCfg()
     control: ControlCfg = ControlCfg()
     success: SuccessCfg = SuccessCfg()
+
+
+def arm_mjcf_path(scene: SceneCfg) -> Path:
+    """The arm model file named by ``scene.arm_mjcf`` (default: the shipped Panda)."""
+    from kinadapt_nn.robot import PANDA_MJCF
+
+    return Path(scene.arm_mjcf) if scene.arm_mjcf else PANDA_MJCF
 
 
 def _format_validation_error(err: ValidationError) -> str:

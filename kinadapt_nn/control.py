@@ -21,13 +21,14 @@ reference follows ``qdot_ref = J_arm^+ xi + N (k_ns (q_0 - q))``.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import NamedTuple
 
 import mujoco
 import numpy as np
 
-from kinadapt_nn.config import ExperimentCfg
-from kinadapt_nn.errors import SensorError
+from kinadapt_nn.config import ExperimentCfg, arm_mjcf_path
+from kinadapt_nn.errors import ModelFileError, SensorError
 from kinadapt_nn.features.base import Features, KinState
 from kinadapt_nn.robot import FLANGE_SITE, PANDA_MJCF
 from kinadapt_nn.sensing import LowPass, RateFilter, channel_metric, lateral_projector, nominal_sensor_map
@@ -87,8 +88,14 @@ class ValueFunction:
 class ArmKinematics:
     """Forward kinematics and ``J_arm`` of the bare arm from encoder readings (MuJoCo)."""
 
-    def __init__(self) -> None:
-        self.model = mujoco.MjModel.from_xml_path(str(PANDA_MJCF))
+    def __init__(self, mjcf_path: Path = PANDA_MJCF) -> None:
+        mjcf_path = Path(mjcf_path)
+        if not mjcf_path.is_file():
+            raise ModelFileError(f"arm model file '{mjcf_path}' not found (fix scene.arm_mjcf or reinstall)")
+        try:
+            self.model = mujoco.MjModel.from_xml_path(str(mjcf_path))
+        except Exception as exc:
+            raise ModelFileError(f"arm model '{mjcf_path}' could not be loaded: {str(exc).splitlines()[0]}") from None
         self.data = mujoco.MjData(self.model)
         self.site = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, FLANGE_SITE)
         self._jac = np.zeros((6, self.model.nv))
@@ -128,7 +135,7 @@ class Controller:
         self.dt = cfg.run.dt_s
         self.features = features
         self.theta = np.asarray(theta0, dtype=float).copy()
-        self.kin = ArmKinematics()
+        self.kin = ArmKinematics(arm_mjcf_path(cfg.scene))
         self.n_axis = np.asarray(bore_axis_w, dtype=float)
         self.entry_w = np.asarray(cfg.scene.bore_entry_w_m, dtype=float)  # known bore pose
         self.l_nom_f = np.asarray(sc.nominal_offset_f_m, dtype=float)

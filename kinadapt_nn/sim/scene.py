@@ -17,10 +17,10 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
-from kinadapt_nn.config import SceneCfg, ToolCfg
+from kinadapt_nn.config import SceneCfg, ToolCfg, arm_mjcf_path
 from kinadapt_nn.errors import ModelFileError
 from kinadapt_nn.geometry import quat_from_matrix, tilt_rotation
-from kinadapt_nn.robot import FLANGE_BODY, PANDA_MJCF
+from kinadapt_nn.robot import FLANGE_BODY
 
 FT_SITE = "ft_site"
 TIP_SITE = "tip_site"  # truth only: the true tip (never given to the controller)
@@ -135,9 +135,9 @@ def _add_block(spec: mujoco.MjSpec, scene: SceneCfg) -> None:
     )
 
 
-def build_spec(tool: ToolCfg, scene: SceneCfg, mjcf_path: Path = PANDA_MJCF) -> mujoco.MjSpec:
+def build_spec(tool: ToolCfg, scene: SceneCfg, mjcf_path: Path | None = None) -> mujoco.MjSpec:
     """The full scene spec: Panda + tool + bore block + wrist F/T sensor."""
-    mjcf_path = Path(mjcf_path)
+    mjcf_path = Path(mjcf_path) if mjcf_path is not None else arm_mjcf_path(scene)
     if not mjcf_path.is_file():
         raise ModelFileError(f"model file '{mjcf_path}' not found (reinstall the package or fix the path)")
     try:
@@ -165,10 +165,13 @@ def build_spec(tool: ToolCfg, scene: SceneCfg, mjcf_path: Path = PANDA_MJCF) -> 
     return spec
 
 
-def build_model(tool: ToolCfg, scene: SceneCfg, mjcf_path: Path = PANDA_MJCF) -> tuple[mujoco.MjModel, SceneIds]:
+def build_model(tool: ToolCfg, scene: SceneCfg, mjcf_path: Path | None = None) -> tuple[mujoco.MjModel, SceneIds]:
     """Compile the scene and look every id/address up once."""
     spec = build_spec(tool, scene, mjcf_path)
-    model = spec.compile()
+    try:
+        model = spec.compile()
+    except Exception as exc:
+        raise ModelFileError(f"scene does not compile: {str(exc).splitlines()[0]}") from None
     block_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, BLOCK_BODY)
     block_geoms = np.flatnonzero(model.geom_bodyid == block_id)
     joint_ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"joint{i}") for i in range(1, 8)]
