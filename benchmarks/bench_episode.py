@@ -1,0 +1,85 @@
+"""Time the default episode against raw MuJoCo physics in the same scene, in one run.
+
+Prints, last two lines:
+    step_latency_p50_us=<a> step_latency_p99_us=<b>
+    episode_wall_s=<x> sim_time_s=<t> raw_physics_s=<y> ratio=<x/y>
+
+Targets (issue 2): <= 0.3 s wall per 5 s simulated, ratio <= 5, controller p99 <= 100 us.
+Run single-threaded for a "one core" figure:  taskset -c 0 python benchmarks/bench_episode.py
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+
+from kinadapt_nn.config import load_config  # noqa: E402
+from kinadapt_nn.episode import make_controller, run_episode  # noqa: E402
+from kinadapt_nn.sim.adapter import PegInHoleSim  # noqa: E402
+
+
+def raw_physics_seconds(cfg, qpos_traj: np.ndarray, ctrl_traj: np.ndarray) -> float:
+    """mj_step for the same number of steps in the same scene, replaying the episode's controls
+    open loop (so the contacts are similar); no controller, no logging."""
+    sim = PegInHoleSim(cfg)
+    m, d = sim.model, sim.data
+    t0 = time.perf_counter()
+    for u in ctrl_traj:
+        d.ctrl[:] = u
+        mujoco.mj_step(m, d)
+    return time.perf_counter() - t0
+
+
+def step_latencies_us(cfg) -> np.ndarray:
+    """Controller.step latency over a closed-loop default episode (sensor I/O excluded)."""
+    sim = PegInHoleSim(cfg)
+    ctrl = make_controller(cfg)
+    n = int(round(cfg.run.duration_s / cfg.run.dt_s))
+    lat = np.empty(n)
+    obs = sim.sense()
+    for k in range(n):
+        t = sim.time_s
+        t0 = time.perf_counter()
+        cmd = ctrl.step(t, obs.q_rad, obs.qdot_rad_s, obs.wrench_raw_f)
+        lat[k] = time.perf_counter() - t0
+        sim.apply(cmd.q_ref_rad, cmd.qdot_ref_rad_s)
+        sim.step()
+        obs = sim.sense()
+    return lat * 1e6
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--repeats", type=int, default=3, help="best-of-N for the wall times")
+    ap.add_argument("--set", action="append", default=[], help="config override key=value")
+    args = ap.parse_args()
+    cfg = load_config(None, ["run.progress=false", "run.stop_after_seat_s=0.0", *args.set])
+    walls = []
+    res = None
+    for _ in range(args.repeats):
+        t0 = time.perf_counter()
+        res = run_episode(cfg)
+        walls.append(time.perf_counter() - t0)
+    tr = res.trace
+    steps = res.summary["steps"]
+    sim_time = res.summary["sim_time_s"]
+    ctrl_traj = tr["q_ref_rad"] + (450.0 / 4500.0) * 0.0  # position set-points replayed open loop
+    raw = min(raw_physics_seconds(cfg, tr["q_rad"], ctrl_traj) for _ in range(args.repeats))
+    lat = step_latencies_us(load_config(None, ["run.progress=false", "run.duration_s=5.0", *args.set]))
+    wall = min(walls)
+    print(f"features={res.summary['features']} success={res.summary['success']} "
+          f"seat_time_s={res.summary['seat_time_s']} steps={steps}")
+    print(f"wall_per_5s_sim={wall * 5.0 / sim_time:.3f} (target <= 0.3 s)")
+    print(f"step_latency_p50_us={np.percentile(lat, 50):.1f} step_latency_p99_us={np.percentile(lat, 99):.1f}")
+    print(f"episode_wall_s={wall:.3f} sim_time_s={sim_time:.3f} raw_physics_s={raw:.3f} ratio={wall / raw:.2f}")
+
+
+if __name__ == "__main__":
+    main()
