@@ -52,7 +52,7 @@ def nominal_sensor_map(cfg: SensingCfg, bore_axis_w: np.ndarray) -> np.ndarray:
     ex = ref - (ref @ n) * n
     ex /= np.linalg.norm(ex)
     ey = np.cross(n, ex)
-    if ey @ np.array([0.0, 1.0, 0.0]) < 0:  # keep (x, y) right-handed with world y for n = -z
+    if ey @ np.array([0.0, 1.0, 0.0]) < 0:  # lateral axes = world x, y when n = -z (left-handed with n)
         ey = -ey
     P = np.vstack([ex, ey])  # (2, 3)
     L = float(np.linalg.norm(cfg.nominal_offset_f_m))
