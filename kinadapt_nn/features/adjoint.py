@@ -36,8 +36,8 @@ class AdjointFeatures(Features):
     def twist_jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray:
         """``S Ad(R_wf theta)`` with the depth row on the nominal offset. -> (m, 6)."""
         R = kin.R_wf
-        J_xi = self.S.copy()
         # S Ad(l) = [S_v, S_w - S_v [l]x]  (geometry.adjoint_offset)
+        J_xi = self.S.copy()
         J_xi[:, 3:] -= self.S_v @ skew(R @ theta)
         J_xi[0, 3:] -= self.S[0, :3] @ skew(R @ self.l_nom_f)
         return J_xi
