@@ -98,6 +98,21 @@ class ControlCfg(_Cfg):
     nullspace_gain: float = Field(2.0, ge=0.0)  # [1/s] posture pull in the null space of J_arm
 
 
+class AdaptationCfg(_Cfg):
+    """The composite law (eq. ft_composite) and the initial estimate (see kinadapt_nn.adaptation)."""
+
+    mode: Literal["composite", "prediction", "tracking", "frozen"] = "composite"  # adapted terms
+    gamma: float = Field(100.0, gt=0.0)  # [m^2/J] Gamma = gamma I of the tracking term / V_aug
+    eta: float = Field(0.5, gt=0.0, lt=2.0)  # [-] fraction of the exact per-sample QP step
+    eps_norm: float = Field(1.0e-4, gt=0.0)  # [-] regulariser, W-scaled units of ||W Phi||^2
+    initial_error_m: float = Field(0.005, ge=0.0, le=0.05)  # [m] |theta0 - true offset|
+    initial_error_dir_f: Vec3 = (0.0, 0.0, 0.0)  # [-] direction in f; 0 = away from the flange axis
+    omega_lateral_m: float = Field(0.015, gt=0.0)  # [m] Omega: |theta_xy - nominal_xy| bound
+    omega_axial_m: float = Field(0.030, gt=0.0)  # [m] Omega: |theta_z - nominal_z| bound
+    contact_force_N: float = Field(1.0, ge=0.0)  # [N] free-space rule: adapt only in contact
+    contact_moment_Nm: float = Field(0.05, ge=0.0)  # [N m] ... or when |M| exceeds this
+
+
 class SuccessCfg(_Cfg):
     """Success and failure classification, judged from sensor-side signals only."""
 
@@ -119,7 +134,7 @@ class RunCfg(_Cfg):
     seed: int = Field(0, ge=0)  # [-] seeds every random draw of the run
     duration_s: float = Field(8.0, gt=0.0, le=600.0)  # [s] simulated time limit (timeout)
     dt_s: float = Field(0.001, gt=0.0, le=0.01)  # [s] control and physics timestep
-    features: Literal["oracle"] = "oracle"  # Y(q) parameterisation (this release: oracle)
+    features: Literal["adjoint", "oracle"] = "adjoint"  # Y(q): analytic adjoint; oracle = true offset
     stop_after_seat_s: float = Field(0.5, ge=0.0)  # [s] keep simulating this long after seating
     log_every: int = Field(1, ge=1)  # [steps] trace decimation
     tensorboard: bool = True  # write TensorBoard event files
@@ -136,6 +151,7 @@ class ExperimentCfg(_Cfg):
     start: StartCfg = StartCfg()
     sensing: SensingCfg = SensingCfg()
     control: ControlCfg = ControlCfg()
+    adaptation: AdaptationCfg = AdaptationCfg()
     success: SuccessCfg = SuccessCfg()
 
 
@@ -175,7 +191,7 @@ def _set_dotted(tree: dict[str, Any], dotted: str, value: Any) -> None:
 
 
 #: Short aliases accepted by ``--set`` (``features=oracle`` means ``run.features=oracle``).
-SET_ALIASES: dict[str, str] = {"features": "run.features", "seed": "run.seed"}
+SET_ALIASES: dict[str, str] = {"features": "run.features", "seed": "run.seed", "mode": "adaptation.mode"}
 
 
 def load_config(path: Path | None, overrides: list[str] | tuple[str, ...] = ()) -> ExperimentCfg:

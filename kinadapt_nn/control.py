@@ -32,7 +32,8 @@ from kinadapt_nn.config import ExperimentCfg, arm_mjcf_path
 from kinadapt_nn.errors import ModelFileError, SensorError
 from kinadapt_nn.features.base import Features, KinState
 from kinadapt_nn.robot import FLANGE_SITE, PANDA_MJCF
-from kinadapt_nn.sensing import LowPass, RateFilter, channel_metric, lateral_projector, nominal_sensor_map
+from kinadapt_nn.adaptation import AdaptStep, CompositeLaw
+from kinadapt_nn.sensing import RateFilter, channel_metric, lateral_projector, nominal_sensor_map
 
 
 class JointCommand(NamedTuple):
@@ -51,8 +52,9 @@ class StepLog(NamedTuple):
     F: np.ndarray  #: (m,) value force -grad V
     xi: np.ndarray  #: (6,) admittance twist state [v_O; omega]
     w_env_w: np.ndarray  #: (6,) wrench tool -> environment at O, world [N, N m]
-    theta: np.ndarray  #: (p,) parameter estimate
+    theta: np.ndarray  #: (p,) parameter estimate used this step
     drive_scale: float  #: rho in [0, 1]: 0 while taring, ramps to 1
+    adapt: AdaptStep  #: what the adaptation law did this step
 
 
 class ValueFunction:
@@ -132,11 +134,19 @@ class Controller:
     """F/T + encoder admittance controller. ``step(t, q, qdot, wrench) -> JointCommand``.
 
     Parameters are known constants only (config sections ``sensing``, ``control`` and the
-    bore pose); ``features`` and ``theta0`` define ``J_hat``. In this release theta is held
-    fixed (``features=oracle`` passes the true offset as a declared baseline).
+    bore pose); ``features`` and ``theta0`` define ``J_hat``; ``theta`` is adapted by the
+    composite law (``adaptation.mode``; ``features=oracle`` holds the true offset frozen as a
+    declared baseline).
     """
 
-    def __init__(self, cfg: ExperimentCfg, features: Features, theta0: np.ndarray, bore_axis_w: np.ndarray) -> None:
+    def __init__(
+        self,
+        cfg: ExperimentCfg,
+        features: Features,
+        theta0: np.ndarray,
+        bore_axis_w: np.ndarray,
+        mode: str | None = None,
+    ) -> None:
         self.cfg = cfg
         c, sc = cfg.control, cfg.sensing
         self.dt = cfg.run.dt_s
@@ -168,7 +178,23 @@ class Controller:
         self.t_tare0 = max(0.0, self.t_settle - sc.tare_window_s)
         self.ramp_s = c.ramp_s
         self.rate_meas = RateFilter(sc.filter_tau_s, self.dt, 6)
-        self.rate_pred = LowPass(sc.filter_tau_s, self.dt, (6,))
+        ad = cfg.adaptation
+        self.theta0 = self.theta.copy()
+        half = np.array([ad.omega_lateral_m, ad.omega_lateral_m, ad.omega_axial_m])
+        self.law_args = dict(
+            features=features,
+            mode=mode or ad.mode,
+            gamma=ad.gamma,
+            eta=ad.eta,
+            eps_norm=ad.eps_norm,
+            W=self.W,
+            filter_tau_s=sc.filter_tau_s,
+            dt_s=self.dt,
+            theta_nominal=self.l_nom_f if features.n_params == 3 else self.theta0,
+            omega_half_width=half if features.n_params == 3 else np.full(features.n_params, np.inf),
+            contact_force_N=ad.contact_force_N,
+            contact_moment_Nm=ad.contact_moment_Nm,
+        )
         self.reset()
 
     def reset(self) -> None:
@@ -182,7 +208,8 @@ class Controller:
         self.tared = False
         self._tmp6 = np.zeros(6)
         self.rate_meas.primed = False
-        self.rate_pred.reset()
+        self.theta = self.theta0.copy()
+        self.law = CompositeLaw(**self.law_args)
         self.last: StepLog | None = None
 
     # ------------------------------------------------------------------------------------
@@ -223,7 +250,6 @@ class Controller:
         J = kin.J_arm
         J_xi = self.features.twist_jacobian(kin, self.theta)  # (m, 6) or None
         J_hat = J_xi @ J if J_xi is not None else self.features.jacobian(kin, self.theta)  # (m, n)
-        s_dot_pred = self.rate_pred(J_hat @ qdot)
         # -- value force and the twist admittance (eq. ft_force, eq. cp_admittance)
         F = self.value_fn.force(s, self.F)
         L = J @ J.T
@@ -249,6 +275,9 @@ class Controller:
         mujoco.mju_cholSolve(y, L, xi - J @ z)
         qdot_ref = J.T @ y + z
         self.q_ref = self.q_ref + self.dt * qdot_ref
+        # -- adaptation (eq. ft_composite) on the realised velocity; theta_{k+1} is used next step
+        theta = self.theta
+        self.theta, a = self.law.update(kin, qdot, theta, s, s_dot_meas, F, w_env)
         # -- diagnostics for the trace (V and lambda_min are evaluated off the hot path)
-        self.last = StepLog(s, s_dot_meas, s_dot_pred, F, xi, w_env, self.theta, rho)
+        self.last = StepLog(s, s_dot_meas, a.s_dot_pred, F, xi, w_env, theta, rho, a)
         return JointCommand(self.q_ref, qdot_ref)

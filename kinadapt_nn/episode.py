@@ -74,6 +74,20 @@ def classify_failure(cfg: ExperimentCfg, t: np.ndarray, s: np.ndarray, w_env: np
     return "timeout"
 
 
+def initial_estimate(cfg: ExperimentCfg) -> np.ndarray:
+    """theta0 = true offset + ``initial_error_m`` along ``initial_error_dir_f`` (default: away
+    from the flange axis, along the true lateral offset). Experiment design: the controller
+    receives the number, never the truth it was derived from. -> (3,) in f [m]."""
+    ad = cfg.adaptation
+    true = np.asarray(cfg.tool.offset_f_m, dtype=float)
+    direction = np.asarray(ad.initial_error_dir_f, dtype=float)
+    if not np.any(direction):
+        direction = np.array([true[0], true[1], 0.0])
+        if not np.any(direction):
+            direction = np.array([1.0, 0.0, 0.0])
+    return true + ad.initial_error_m * direction / np.linalg.norm(direction)
+
+
 def make_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
     """Features object and the initial parameters for ``run.features``."""
     S = nominal_sensor_map(cfg.sensing, BORE_AXIS_W)
@@ -81,12 +95,16 @@ def make_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
     if cfg.run.features == "oracle":
         # declared baseline: the true offset is handed over as a constant, nothing else
         return feats, np.asarray(cfg.tool.offset_f_m, dtype=float)
-    raise ValueError(f"unknown features {cfg.run.features!r}")  # pragma: no cover (validated)
+    return feats, initial_estimate(cfg)
+
+
+def law_name(cfg: ExperimentCfg) -> str:
+    return "frozen" if cfg.run.features == "oracle" else cfg.adaptation.mode
 
 
 def make_controller(cfg: ExperimentCfg) -> Controller:
     feats, theta0 = make_features(cfg)
-    return Controller(cfg, feats, theta0, BORE_AXIS_W)
+    return Controller(cfg, feats, theta0, BORE_AXIS_W, mode=law_name(cfg))
 
 
 class EpisodeResult(NamedTuple):
@@ -139,6 +157,10 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
                 xi=lg.xi,
                 theta=lg.theta,
                 drive_scale=lg.drive_scale,
+                eps_w=lg.adapt.eps_w,
+                adapt_gate=lg.adapt.gate,
+                theta_dot_track=lg.adapt.d_track / dt,
+                theta_dot_pred=lg.adapt.d_pred / dt,
                 depth_ok=ok[0],
                 force_ok=ok[1],
                 moment_ok=ok[2],
@@ -247,7 +269,7 @@ def summarize(
         "truth_touched_block_face": bool(trace["truth_contact_face"].any()),
         "truth_touched_bore": bool(trace["truth_contact_bore"].any()),
         "features": cfg.run.features,
-        "law": "frozen" if cfg.run.features == "oracle" else "composite",
+        "law": law_name(cfg),
         "n_params": int(ctrl.features.n_params),
         "seed": cfg.run.seed,
         "steps": int(steps),

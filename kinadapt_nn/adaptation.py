@@ -1,0 +1,158 @@
+"""The composite adaptation law (eq. ft_composite), written once on the regressor ``Phi``.
+
+Per control step k (dt), with ``Phi_r = Phi(q_k, qdot_k)`` on the *realised* (measured)
+joint velocity, ``Phi_f`` the same regressor through the rate filter, and the W-scaled
+prediction error ``e = W (s_dot_meas - (known_f + Phi_f theta))`` (eq. ft_pred):
+
+    tracking    d_track = - dt * Gamma * Phi_r^T F                       (eq. ft_composite, 1st term)
+    prediction  d_pred  = eta * (W Phi_f)^T e / (||W Phi_f||_2^2 + eps_norm)
+                                                         (fractional step of eq. ident_qp_solution)
+    theta_{k+1} = Proj_Omega( theta_k + g_k * (d_track + d_pred) )
+
+``||.||_2`` is the spectral norm: for per-entry features (rows of Phi mutually orthogonal with
+equal norms) ``||Phi||_2^2 = ||psi||^2 ||qdot||^2`` and ``d_pred`` with ``eta = 1`` *is* the
+closed form of eq. ident_qp_solution with ``eps_norm = 1/(kappa gamma)``; the size of the step
+does not grow with ``Gamma`` (a naive ``dt kappa Gamma`` step at Gamma = 8000 would exceed the
+normalised-LMS stability limit ``eta < 2``).
+
+``g_k`` is the contact gate (the free-space rule): the nominal map S models a contact, so in
+free space (no sensed contact: ``|F| < contact_force_N`` and ``|M| < contact_moment_Nm``) the
+F/T channels carry no information about the offset and S's prediction is not even meant to
+hold; adaptation is frozen there (the tracking term vanishes there anyway, since F_lat = M = 0).
+
+``Omega`` (paper appendix, eq. QPaug) is a box about the nominal offset: lateral components
+within ``omega_lateral_m``, axial within ``omega_axial_m``. For the adjoint features any theta
+gives a full-row-rank ``J_hat = S Ad(theta) J_arm`` (Ad is invertible), so Omega only encodes
+the physical envelope of the tool; the projection is the Euclidean one (a clip).
+
+Modes: ``composite`` (both terms), ``prediction`` (d_pred only), ``tracking`` (d_track only),
+``frozen`` (theta constant).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from kinadapt_nn.features.base import Features, KinState, Regressor
+from kinadapt_nn.sensing import LowPass
+
+MODES = ("composite", "prediction", "tracking", "frozen")
+
+
+class AdaptStep(NamedTuple):
+    """What one adaptation step did (for the trace)."""
+
+    s_dot_pred: np.ndarray  #: (m,) filtered prediction known_f + Phi_f theta (before the update)
+    eps_w: np.ndarray  #: (m,) W-scaled filtered prediction error before the update
+    d_track: np.ndarray  #: (p,) tracking increment (before the gate)
+    d_pred: np.ndarray  #: (p,) prediction increment (before the gate)
+    gate: float  #: 1 in contact, 0 in free space
+    phi_norm2: float  #: ||W Phi_f||_2^2
+
+
+def prediction_step(Phi_w: np.ndarray, eps_w: np.ndarray, eta: float, eps_norm: float) -> tuple[np.ndarray, float]:
+    """Fractional normalised step of the exact per-sample identification QP.
+
+    ``Phi_w`` (m, p) and ``eps_w`` (m,) already W-scaled. Returns (d_theta (p,), ||Phi_w||_2^2).
+    """
+    m, p = Phi_w.shape
+    G = Phi_w.T @ Phi_w if p <= m else Phi_w @ Phi_w.T
+    n2 = float(np.linalg.eigvalsh(G)[-1])
+    return eta * (Phi_w.T @ eps_w) / (n2 + eps_norm), n2
+
+
+def exact_qp_step(Phi_w: np.ndarray, eps_w: np.ndarray, eps_norm: float) -> np.ndarray:
+    """The exact minimiser of eq. ident_qp (with Gamma = gamma I, eps_norm = 1/(kappa gamma)):
+    ``Phi^T (Phi Phi^T + eps_norm I)^{-1} eps`` (push-through form). Reference for tests."""
+    m = Phi_w.shape[0]
+    return Phi_w.T @ np.linalg.solve(Phi_w @ Phi_w.T + eps_norm * np.eye(m), eps_w)
+
+
+class CompositeLaw:
+    """Composite tracking + prediction adaptation of ``theta`` on ``Features``."""
+
+    def __init__(
+        self,
+        features: Features,
+        mode: str,
+        gamma: float,
+        eta: float,
+        eps_norm: float,
+        W: np.ndarray,
+        filter_tau_s: float,
+        dt_s: float,
+        theta_nominal: np.ndarray,
+        omega_half_width: np.ndarray,
+        contact_force_N: float,
+        contact_moment_Nm: float,
+    ) -> None:
+        if mode not in MODES:
+            raise ValueError(f"adaptation mode {mode!r} not in {MODES}")
+        self.features = features
+        self.mode = mode
+        self.gamma = float(gamma)
+        self.eta = float(eta)
+        self.eps_norm = float(eps_norm)
+        self.W = np.asarray(W, dtype=float)
+        self.dt = float(dt_s)
+        p = features.n_params
+        m = self.W.shape[0]
+        self.lo = np.asarray(theta_nominal, dtype=float) - omega_half_width
+        self.hi = np.asarray(theta_nominal, dtype=float) + omega_half_width
+        self.known_f = LowPass(filter_tau_s, dt_s, (m,))
+        self.Phi_f = LowPass(filter_tau_s, dt_s, (m, p))
+        self.f_gate = contact_force_N
+        self.m_gate = contact_moment_Nm
+        self._use_track = mode in ("composite", "tracking")
+        self._use_pred = mode in ("composite", "prediction")
+        self._zero_p = np.zeros(p)
+        #: sum over gated (contact) steps of (W Phi_f)^T (W Phi_f): the regressor Gram <Phi^T Phi>
+        self.gram_sum = np.zeros((p, p))
+        self.gram_n = 0
+
+    def project(self, theta: np.ndarray) -> np.ndarray:
+        """Euclidean projection onto the box Omega."""
+        return np.minimum(np.maximum(theta, self.lo), self.hi)
+
+    def update(
+        self,
+        kin: KinState,
+        qdot: np.ndarray,
+        theta: np.ndarray,
+        s: np.ndarray,
+        s_dot_meas: np.ndarray,
+        F: np.ndarray,
+        w_env: np.ndarray,
+        reg: Regressor | None = None,
+    ) -> tuple[np.ndarray, AdaptStep]:
+        """One step of eq. ft_composite. Returns (theta_next (p,), AdaptStep).
+
+        ``s_dot_meas`` is the filtered measured rate, ``F`` the value force (raw units),
+        ``w_env`` the tared contact wrench (for the contact gate); ``reg`` the regressor on the
+        realised velocity ``qdot`` if the caller already has it.
+        """
+        if reg is None:
+            reg = self.features.regressor(kin, qdot)
+        known_f = self.known_f(reg.known)
+        Phi_f = self.Phi_f(reg.Phi)
+        pred = known_f + Phi_f @ theta
+        eps_w = self.W * (s_dot_meas - pred)
+        fn = math.sqrt(w_env[0] ** 2 + w_env[1] ** 2 + w_env[2] ** 2)
+        mn = math.sqrt(w_env[3] ** 2 + w_env[4] ** 2 + w_env[5] ** 2)
+        gate = 1.0 if (fn >= self.f_gate or mn >= self.m_gate) else 0.0
+        if not gate:
+            return theta, AdaptStep(pred, eps_w, self._zero_p, self._zero_p, 0.0, 0.0)
+        Phi_w = self.W[:, None] * Phi_f
+        self.gram_sum += Phi_w.T @ Phi_w  # observability: <Phi^T Phi> over the contact phase
+        self.gram_n += 1
+        if self.mode == "frozen":
+            return theta, AdaptStep(pred, eps_w, self._zero_p, self._zero_p, gate, 0.0)
+        d_track = -self.dt * self.gamma * (reg.Phi.T @ F) if self._use_track else self._zero_p
+        if self._use_pred:
+            d_pred, n2 = prediction_step(Phi_w, eps_w, self.eta, self.eps_norm)
+        else:
+            d_pred, n2 = self._zero_p, 0.0
+        return self.project(theta + d_track + d_pred), AdaptStep(pred, eps_w, d_track, d_pred, gate, n2)
