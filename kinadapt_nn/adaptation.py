@@ -4,7 +4,7 @@ Per control step k (dt), with ``Phi_r = Phi(q_k, qdot_k)`` on the *realised* (me
 joint velocity, ``Phi_f`` the same regressor through the rate filter, and the W-scaled
 prediction error ``e = W (s_dot_meas - (known_f + Phi_f theta))`` (eq. ft_pred):
 
-    tracking    d_track = - dt * Gamma * Phi_r^T F                       (eq. ft_composite, 1st term)
+    tracking    d_track = - dt * Gamma * gamma_d * Phi_r^T F             (eq. ft_composite, 1st term)
     prediction  d_pred  = eta * (W Phi_f)^T e / (||W Phi_f||_2^2 + eps_norm)
                                                          (fractional step of eq. ident_qp_solution)
     theta_{k+1} = Proj_Omega( theta_k + g_k * (d_track + d_pred) )
@@ -19,6 +19,12 @@ normalised-LMS stability limit ``eta < 2``).
 free space (no sensed contact: ``|F| < contact_force_N`` and ``|M| < contact_moment_Nm``) the
 F/T channels carry no information about the offset and S's prediction is not even meant to
 hold; adaptation is frozen there (the tracking term vanishes there anyway, since F_lat = M = 0).
+
+``gamma_d`` is the weight of ``V(s)`` in ``V_aug = gamma_d V(s) + 1/2 |theta~|^2 / Gamma`` (the
+paper's Results section writes it but never gives it); it makes V [J] and the parameter energy
+[m^2 / Gamma] commensurate. The certificate is unchanged by it: scaling every mechanical
+storage (V, kinetic, contact) by gamma_d is the same as using ``Gamma * gamma_d`` in the
+tracking term.
 
 ``Omega`` (paper appendix, eq. QPaug) is a box about the nominal offset: lateral components
 within ``omega_lateral_m``, axial within ``omega_axial_m``. For the adjoint features any theta
@@ -79,6 +85,7 @@ class CompositeLaw:
         features: Features,
         mode: str,
         gamma: float,
+        gamma_d: float,
         eta: float,
         eps_norm: float,
         W: np.ndarray,
@@ -94,6 +101,8 @@ class CompositeLaw:
         self.features = features
         self.mode = mode
         self.gamma = float(gamma)
+        self.gamma_d = float(gamma_d)
+        self._track_gain = self.gamma * self.gamma_d
         self.eta = float(eta)
         self.eps_norm = float(eps_norm)
         self.W = np.asarray(W, dtype=float)
@@ -150,7 +159,7 @@ class CompositeLaw:
         self.gram_n += 1
         if self.mode == "frozen":
             return theta, AdaptStep(pred, eps_w, self._zero_p, self._zero_p, gate, 0.0)
-        d_track = -self.dt * self.gamma * (reg.Phi.T @ F) if self._use_track else self._zero_p
+        d_track = -self.dt * self._track_gain * (reg.Phi.T @ F) if self._use_track else self._zero_p
         if self._use_pred:
             d_pred, n2 = prediction_step(Phi_w, eps_w, self.eta, self.eps_norm)
         else:

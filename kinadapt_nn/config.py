@@ -49,6 +49,10 @@ class SceneCfg(_Cfg):
     friction: float = Field(0.3, ge=0.0, le=2.0)  # [-] Coulomb friction peg <-> block
     contact_timeconst_s: float = Field(0.02, gt=0.0)  # [s] MuJoCo solref time constant
     contact_dampratio: float = Field(1.0, gt=0.0)  # [-] MuJoCo solref damping ratio
+    contact_model: Literal["bore", "socket"] = "bore"  # bore block | low-bias tip "socket" spring
+    socket_k_lat_N_per_m: float = Field(2.0e4, gt=0.0)  # [N/m] socket: lateral spring at the tip
+    socket_k_rot_Nm_per_rad: float = Field(20.0, ge=0.0)  # [N m/rad] socket: angular spring
+    socket_damping_ratio: float = Field(0.05, ge=0.0)  # [-] socket: damping (x critical, 3 kg)
 
 
 class StartCfg(_Cfg):
@@ -58,6 +62,8 @@ class StartCfg(_Cfg):
     lateral_w_m: Vec2 = (0.0008, 0.0)  # [m] true tip lateral misalignment (world x, y)
     tilt_deg: Vec2 = (0.0, 2.0)  # [deg] flange tilt from vertical about world x, then y
     settle_s: float = Field(0.3, ge=0.05)  # [s] hold still at start (servo settles, tare)
+    lateral_jitter_m: float = Field(0.0, ge=0.0, le=0.005)  # [m] seeded uniform +- jitter of lateral_w_m
+    tilt_jitter_deg: float = Field(0.0, ge=0.0, le=5.0)  # [deg] seeded uniform +- jitter of tilt_deg
 
 
 class SensingCfg(_Cfg):
@@ -96,13 +102,16 @@ class ControlCfg(_Cfg):
     w_max_rad_per_s: float = Field(0.5, gt=0.0)  # [rad/s] angular speed limit of the twist
     ramp_s: float = Field(0.3, ge=0.0)  # [s] the drive is ramped in over this time after tare
     nullspace_gain: float = Field(2.0, ge=0.0)  # [1/s] posture pull in the null space of J_arm
+    dither_rad_s: Vec3 = (0.0, 0.0, 0.0)  # [rad/s] commanded angular excitation about world x, y, z
+    dither_hz: float = Field(1.0, gt=0.0)  # [Hz] dither frequency (x: sin, y: cos, z: sin at 1.7 f)
 
 
 class AdaptationCfg(_Cfg):
     """The composite law (eq. ft_composite) and the initial estimate (see kinadapt_nn.adaptation)."""
 
     mode: Literal["composite", "prediction", "tracking", "frozen"] = "composite"  # adapted terms
-    gamma: float = Field(100.0, gt=0.0)  # [m^2/J] Gamma = gamma I of the tracking term / V_aug
+    gamma: float = Field(100.0, gt=0.0)  # [m^2] Gamma = gamma I: V_aug = gamma_d V + |theta~|^2/(2 Gamma)
+    gamma_d: float = Field(1.0e-7, gt=0.0)  # [1/J] weight of V(s) in V_aug (paper Results; undefined there)
     eta: float = Field(0.5, gt=0.0, lt=2.0)  # [-] fraction of the exact per-sample QP step
     eps_norm: float = Field(1.0e-4, gt=0.0)  # [-] regulariser, W-scaled units of ||W Phi||^2
     initial_error_m: float = Field(0.005, ge=0.0, le=0.05)  # [m] |theta0 - true offset|

@@ -173,6 +173,9 @@ class Controller:
         self._inv_den = 1.0 / (self.M_virt + self.dt * self.D_virt)
         self.v_max, self.w_max = c.v_max_m_per_s, c.w_max_rad_per_s
         self.k_ns = c.nullspace_gain
+        self._dither = np.asarray(c.dither_rad_s, dtype=float)
+        self._dither_on = bool(np.any(self._dither))
+        self._two_pi_f = 2.0 * math.pi * c.dither_hz
         self._damp_eye = 1e-6 * np.eye(6)  # Tikhonov term of J_arm^+ = J^T (J J^T + 1e-6 I)^-1
         self.t_settle = cfg.start.settle_s
         self.t_tare0 = max(0.0, self.t_settle - sc.tare_window_s)
@@ -185,6 +188,7 @@ class Controller:
             features=features,
             mode=mode or ad.mode,
             gamma=ad.gamma,
+            gamma_d=ad.gamma_d,
             eta=ad.eta,
             eps_norm=ad.eps_norm,
             W=self.W,
@@ -269,6 +273,12 @@ class Controller:
         if wn > self.w_max:
             xi[3:] *= self.w_max / wn
         self.xi = xi
+        if self._dither_on and rho > 0.0:  # commanded excitation (Remark ft_excitation), not stored
+            ph = self._two_pi_f * (t - self.t_settle)
+            xi = xi.copy()
+            xi[3] += rho * self._dither[0] * math.sin(ph)
+            xi[4] += rho * self._dither[1] * math.cos(ph)
+            xi[5] += rho * self._dither[2] * math.sin(1.7 * ph)
         # -- joint reference: qdot = J^+ xi + (I - J^+ J) k_ns (q_0 - q)
         z = self.k_ns * (self.q_posture - q)
         y = self._tmp6

@@ -192,6 +192,8 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
         "truth_offset_f_m": list(cfg.tool.offset_f_m),
         "channel_names": list(CHANNEL_NAMES),
         "bore_entry_w_m": list(cfg.scene.bore_entry_w_m),
+        "start_lateral_w_m": [float(x) for x in sim.start_lateral_w_m],
+        "start_tilt_deg": [float(x) for x in sim.start_tilt_deg],
     }
     trace = rec.finish(meta)
     evaluate_offline(trace, ctrl)
@@ -211,6 +213,63 @@ def evaluate_offline(trace: Trace, ctrl: Controller, rank_every: int = 10) -> No
         J_hat = ctrl.features.jacobian(ctrl.kin(trace["q_rad"][i]), trace["theta"][i])
         lam[i : i + rank_every] = rank_margin(ctrl.W, J_hat)
     trace.arrays["lambda_min"] = lam
+
+
+FLANGE_AXES = ("x_f", "y_f", "z_f")
+
+
+def identification_report(trace: Trace, ctrl: Controller, true_offset: np.ndarray) -> dict:
+    """Observability and uncertainty of the offset over the contact phase (gate = 1).
+
+    * ``regressor_gram``: eigen-decomposition of the mean W-scaled regressor Gram
+      ``<(W Phi_f)^T (W Phi_f)>`` [1/s^2 per m^2], eigenvalues in the order of the flange axis each
+      eigenvector is closest to (x_f, y_f, z_f), not sorted.
+    * ``pred_error_rms_contact_w``: RMS of the W-scaled prediction error in contact (for the
+      oracle this *is* the bias b of eq. ft_pred, filtered).
+    * ``offset_uncertainty_m``: least-squares standard deviation of each offset component from
+      the residual, ``sqrt(diag(sigma^2 H^-1 N/N_eff))``, ``H`` the summed Gram, ``N_eff`` from the
+      residual's lag-1 autocorrelation. Statistical only: a bias b that co-varies with the motion
+      is not in it (compare ``offset_error_final_m``).
+    """
+    law = ctrl.law
+    p = ctrl.features.n_params
+    out: dict = {"contact_steps": int(law.gram_n)}
+    gate = trace["adapt_gate"] > 0
+    if law.gram_n == 0 or not gate.any():
+        out.update(regressor_gram=None, pred_error_rms_contact_w=None, offset_uncertainty_m=None)
+        return out
+    G = law.gram_sum / law.gram_n
+    lam, vec = np.linalg.eigh(G)
+    eps = trace["eps_w"][gate]
+    out["pred_error_rms_contact_w"] = float(np.sqrt(np.mean(np.sum(eps**2, axis=1))))
+    if p == 3:
+        order = []
+        for ax in range(3):  # eigenvector closest to each flange axis, without reuse
+            cand = [j for j in np.argsort(-np.abs(vec[ax])) if j not in order]
+            order.append(int(cand[0]))
+        out["regressor_gram"] = {
+            "axes": list(FLANGE_AXES),
+            "eigenvalues": [float(lam[j]) for j in order],
+            "eigenvectors_f": [[float(x) for x in vec[:, j]] for j in order],
+            "separation_max_over_min": float(lam.max() / max(lam.min(), 1e-300)),
+        }
+    else:
+        out["regressor_gram"] = {"eigenvalues": [float(x) for x in lam[::-1]], "separation_max_over_min":
+                                 float(lam.max() / max(lam.min(), 1e-300))}
+    sigma2 = float(np.mean(eps**2))
+    e = eps - eps.mean(axis=0)
+    den = float(np.sum(e[:-1] ** 2))
+    rho1 = float(np.sum(e[1:] * e[:-1]) / den) if den > 0 else 0.0
+    rho1 = min(max(rho1, 0.0), 0.999)
+    n_ratio = (1.0 + rho1) / (1.0 - rho1)  # N / N_eff
+    H = law.gram_sum
+    try:
+        cov = sigma2 * np.linalg.inv(H) * n_ratio
+        out["offset_uncertainty_m"] = [float(np.sqrt(max(c, 0.0))) for c in np.diag(cov)][:p] if p <= 12 else None
+    except np.linalg.LinAlgError:
+        out["offset_uncertainty_m"] = None
+    out["residual_lag1_autocorr"] = rho1
+    return out
 
 
 def summarize(
@@ -249,6 +308,7 @@ def summarize(
     first_touch = int(np.argmax(touched)) if touched.any() else len(trace)
     drift = np.linalg.norm(tip[:, :2] - tip[0, :2], axis=1) if len(trace) else np.zeros(1)
     seat_idx = int(np.searchsorted(t, monitor.seat_time)) if success else None
+    ident = identification_report(trace, ctrl, true_off)
     return {
         "success": bool(success),
         "failure": failure,
@@ -264,6 +324,9 @@ def summarize(
         "offset_error_final_m": [float(x) for x in (theta - true_off)],
         "jacobian_rel_error_final": jac_err,
         "pred_error_rms": pred_rms,
+        "offset_error_lateral_initial_m": float(np.hypot(*(trace["theta"][0, :2] - true_off[:2]))) if len(trace) else None,
+        "offset_error_lateral_final_m": float(np.hypot(*(theta[:2] - true_off[:2]))),
+        **ident,
         "lateral_drift_free_space_m": float(drift[: max(first_touch, 1)].max()),
         "lateral_drift_max_m": float(drift.max()),
         "truth_touched_block_face": bool(trace["truth_contact_face"].any()),
@@ -272,6 +335,8 @@ def summarize(
         "law": law_name(cfg),
         "n_params": int(ctrl.features.n_params),
         "seed": cfg.run.seed,
+        "start_lateral_w_m": trace.meta.get("start_lateral_w_m"),
+        "start_tilt_deg": trace.meta.get("start_tilt_deg"),
         "steps": int(steps),
         "sim_time_s": float(sim_time),
         "wall_time_s": float(wall),

@@ -87,19 +87,28 @@ class PegInHoleSim:
         self.entry_w = np.asarray(cfg.scene.bore_entry_w_m, dtype=float)
         self._block_set = frozenset(int(g) for g in self.ids.block_geoms)
         self._kv_over_kp = SERVO_KV / SERVO_KP
+        self._socket = cfg.scene.contact_model == "socket"
+        self._tool_body = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, "tool")
+        self._vel6 = np.zeros(6)
         self.q_start = self._start_configuration()
         self.reset()
 
     # -- set-up -----------------------------------------------------------------------
     def _start_configuration(self) -> np.ndarray:
         st = self.cfg.start
-        R_target = tilt_rotation(st.tilt_deg) @ R_W_F_DOWN
-        tip_target = self.entry_w + np.array([st.lateral_w_m[0], st.lateral_w_m[1], st.tip_height_m])
+        rng = np.random.default_rng(self.cfg.run.seed)  # the run's only random draws
+        lat = np.asarray(st.lateral_w_m) + rng.uniform(-1.0, 1.0, 2) * st.lateral_jitter_m
+        tilt = np.asarray(st.tilt_deg) + rng.uniform(-1.0, 1.0, 2) * st.tilt_jitter_deg
+        self.start_lateral_w_m, self.start_tilt_deg = lat, tilt
+        R_target = tilt_rotation(tilt) @ R_W_F_DOWN
+        tip_target = self.entry_w + np.array([lat[0], lat[1], st.tip_height_m])
         return solve_start_ik(self.model, self.ids, tip_target, R_target, Q_HOME_RAD)
 
     def reset(self) -> SensorSample:
         """Put the arm at the start configuration at rest, servo holding it."""
         mujoco.mj_resetData(self.model, self.data)
+        self._anchor = None
+        self._socket_force = 0.0
         self.data.qpos[self.ids.qpos_adr] = self.q_start
         self.data.ctrl[:] = self.q_start
         mujoco.mj_forward(self.model, self.data)
@@ -123,7 +132,36 @@ class PegInHoleSim:
         self.data.ctrl[:] = q_ref + self._kv_over_kp * qdot_ref
 
     def step(self) -> None:
+        if self._socket:
+            self._socket_wrench()
         mujoco.mj_step(self.model, self.data)
+
+    def _socket_wrench(self) -> None:
+        """Low-bias contact (``scene.contact_model = "socket"``): a lateral spring-damper at the
+        true tip and an angular spring-damper, anchored where they are when the drive starts
+        (end of the settle/tare window). It is the nominal map S's own contact model, so the
+        bias b is what remains: the lever (true offset vs nominal), the F-dependent terms, and
+        any stiffness mismatch set in the config."""
+        d, sc = self.data, self.cfg.scene
+        if d.time < self.cfg.start.settle_s:
+            return
+        tip = d.site_xpos[self.ids.tip_site]
+        R = d.xmat[self._tool_body].reshape(3, 3)
+        if self._anchor is None:
+            self._anchor = (tip.copy(), R.copy())
+        p0, R0 = self._anchor
+        mujoco.mj_objectVelocity(self.model, d, mujoco.mjtObj.mjOBJ_SITE, self.ids.tip_site, self._vel6, 0)
+        w, v = self._vel6[:3], self._vel6[3:]
+        m_eff = 3.0  # [kg] order of the arm's effective mass at the tip, for the damping only
+        c_lat = 2.0 * sc.socket_damping_ratio * np.sqrt(sc.socket_k_lat_N_per_m * m_eff)
+        f = np.zeros(3)
+        f[:2] = -sc.socket_k_lat_N_per_m * (tip[:2] - p0[:2]) - c_lat * v[:2]
+        c_rot = 2.0 * sc.socket_damping_ratio * np.sqrt(max(sc.socket_k_rot_Nm_per_rad, 0.0) * 0.01)
+        tau = -sc.socket_k_rot_Nm_per_rad * rotvec_from_matrix(R @ R0.T) - c_rot * w
+        com = d.xipos[self._tool_body]
+        d.xfrc_applied[self._tool_body, :3] = f
+        d.xfrc_applied[self._tool_body, 3:] = tau + np.cross(tip - com, f)
+        self._socket_force = float(np.linalg.norm(f))
 
     @property
     def time_s(self) -> float:
@@ -152,4 +190,7 @@ class PegInHoleSim:
             on_top = abs(p[2] - top) < 1.5e-3 and (lat.max() > hw + 0.5e-3)
             face |= bool(on_top)
             bore |= not on_top
+        if self._socket:
+            bore = self._anchor is not None
+            fsum = self._socket_force
         return TruthSample(tip, depth, face, bore, fsum)

@@ -150,7 +150,8 @@ def build_spec(tool: ToolCfg, scene: SceneCfg, mjcf_path: Path | None = None) ->
     spec.option.o_margin = 0.0
     spec.option.o_solimp = [0.95, 0.99, 0.001, 0.5, 2.0]
     _add_tool(spec, tool)
-    _add_block(spec, scene)
+    if scene.contact_model == "bore":
+        _add_block(spec, scene)
     spec.add_sensor(
         name=FORCE_SENSOR, type=mujoco.mjtSensor.mjSENS_FORCE, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=FT_SITE
     )
@@ -173,7 +174,7 @@ def build_model(tool: ToolCfg, scene: SceneCfg, mjcf_path: Path | None = None) -
     except Exception as exc:
         raise ModelFileError(f"scene does not compile: {str(exc).splitlines()[0]}") from None
     block_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, BLOCK_BODY)
-    block_geoms = np.flatnonzero(model.geom_bodyid == block_id)
+    block_geoms = np.flatnonzero(model.geom_bodyid == block_id) if block_id >= 0 else np.zeros(0, int)
     joint_ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"joint{i}") for i in range(1, 8)]
     ids = SceneIds(
         ft_site=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, FT_SITE),
