@@ -123,6 +123,8 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
     rec = TraceRecorder(n_steps // every + 1, ctrl.features.n_params)
     monitor = SeatMonitor(cfg)
     obs = sim.sense()
+    theta_true = np.asarray(cfg.tool.offset_f_m, dtype=float) if ctrl.features.n_params == 3 else None
+    nan6 = np.full(6, np.nan)
     diverged = False
     stop_at: float | None = None
     bar = None
@@ -158,6 +160,11 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
                 theta=lg.theta,
                 drive_scale=lg.drive_scale,
                 eps_w=lg.adapt.eps_w,
+                phi_norm2=lg.adapt.phi_norm2,
+                # evaluation side reads the law's filtered regressor (never writes it)
+                truth_bias_w=lg.adapt.eps_w - ctrl.W * (ctrl.law.Phi_f.z @ (theta_true - lg.theta))
+                if theta_true is not None
+                else nan6,
                 adapt_gate=lg.adapt.gate,
                 theta_dot_track=lg.adapt.d_track / dt,
                 theta_dot_pred=lg.adapt.d_pred / dt,
@@ -197,7 +204,9 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
     }
     trace = rec.finish(meta)
     evaluate_offline(trace, ctrl)
+    certificate = certificate_check(cfg, trace, ctrl)
     summary = summarize(cfg, trace, ctrl, monitor, diverged, steps, sim.time_s, wall)
+    summary["certificate"] = certificate
     return EpisodeResult(trace, summary)
 
 
@@ -216,6 +225,60 @@ def evaluate_offline(trace: Trace, ctrl: Controller, rank_every: int = 10) -> No
 
 
 FLANGE_AXES = ("x_f", "y_f", "z_f")
+
+
+def certificate_check(cfg: ExperimentCfg, trace: Trace, ctrl: Controller, window_s: float = 0.05) -> dict | None:
+    """Simulation-side check of eqs. cp_lyap / cp_iss (evaluation only: uses the true offset).
+
+    ``V_tot = gamma_d (V(s) + 1/2 xi^T M xi + S_c) + |theta - theta_true|^2 / (2 Gamma)`` with the
+    *nominal* contact storage ``S_c = 1/2 (|f|^2 / k_t + |m|^2 / k_r)`` of the wrench at O, and
+    the bound rate of eq. cp_iss in our scaling: ``-gamma_d xi^T D xi + kappa/4 |b|^2`` with the
+    per-step prediction gain ``kappa = eta / (dt Gamma (||W Phi_f||^2 + eps_norm))`` (only while
+    the prediction term runs). Reports the worst excess of ``Delta V_tot`` over the integrated
+    bound in ``window_s`` windows after the drive ramp. Returns None for non-adjoint features.
+    """
+    if ctrl.features.n_params != 3 or len(trace) < 3:
+        return None
+    ad, sc = cfg.adaptation, cfg.sensing
+    dt = float(trace.meta["dt_s"])
+    xi, w, theta = trace["xi"], trace["w_env_w"], trace["theta"]
+    true = np.asarray(cfg.tool.offset_f_m, dtype=float)
+    kin = 0.5 * np.sum(ctrl.M_virt * xi**2, axis=1)
+    S_c = 0.5 * (np.sum(w[:, :3] ** 2, axis=1) / sc.stiffness_lat_N_per_m
+                 + np.sum(w[:, 3:] ** 2, axis=1) / max(sc.stiffness_rot_Nm_per_rad, 1e-9))
+    param = 0.5 * np.sum((theta - true) ** 2, axis=1) / ad.gamma
+    V_tot = ad.gamma_d * (trace["V"] + kin + S_c) + param
+    trace.arrays["truth_V_tot"] = V_tot
+    D = (1.0 + np.array([cfg.control.beta_trans] * 3 + [cfg.control.beta_ang] * 3)) / np.array(
+        [cfg.control.gain_trans] * 3 + [cfg.control.gain_ang] * 3
+    )
+    diss = ad.gamma_d * np.sum(D * xi**2, axis=1)
+    pred_on = (trace["phi_norm2"] > 0) & (law_name(cfg) in ("composite", "prediction"))
+    kappa = np.where(pred_on, ad.eta / (dt * ad.gamma * (trace["phi_norm2"] + ad.eps_norm)), 0.0)
+    b2 = np.nan_to_num(np.sum(trace["truth_bias_w"] ** 2, axis=1))
+    bound_rate = -diss + 0.25 * kappa * b2
+    t = trace["t_s"]
+    start = cfg.start.settle_s + cfg.control.ramp_s
+    n_win = max(1, int(round(window_s / dt)))
+    idx = np.flatnonzero(t >= start)
+    if len(idx) < n_win + 1:
+        return None
+    i0s = np.arange(idx[0], len(t) - n_win, n_win)
+    dV = V_tot[i0s + n_win] - V_tot[i0s]
+    cum = np.concatenate([[0.0], np.cumsum(bound_rate[:-1] * dt)])
+    bound = cum[i0s + n_win] - cum[i0s]
+    excess = dV - bound
+    worst = int(np.argmax(excess))
+    return {
+        "window_s": window_s,
+        "windows": int(len(i0s)),
+        "worst_excess": float(excess[worst]),
+        "worst_excess_at_s": float(t[i0s[worst]]),
+        "worst_excess_over_V_tot": float(excess[worst] / max(V_tot[i0s[worst]], 1e-300)),
+        "fraction_windows_violating": float(np.mean(excess > 0.0)),
+        "V_tot_start": float(V_tot[idx[0]]),
+        "V_tot_final": float(V_tot[-1]),
+    }
 
 
 def identification_report(trace: Trace, ctrl: Controller, true_offset: np.ndarray) -> dict:

@@ -56,6 +56,9 @@ CHANNELS: dict[str, tuple[tuple[int, ...], str, str, str]] = {
     "truth_contact_face": ((), "bool", "-", "TRUTH: peg touches the block top face"),
     "truth_contact_bore": ((), "bool", "-", "TRUTH: peg touches bore walls/edge/floor"),
     "truth_contact_force_N": ((), "N", "-", "TRUTH: total normal contact force"),
+    "phi_norm2": ((), "1/s^2", "-", "||W Phi_f||_2^2 of the prediction step (0 when not adapting)"),
+    "truth_bias_w": ((6,), "-", "bore", "TRUTH: W-scaled bias b = eps_w - W Phi_f (theta_true - theta)"),
+    "truth_V_tot": ((), "-", "-", "TRUTH: V_tot = gamma_d (V + kinetic + contact) + |theta~|^2/(2 Gamma)"),
 }
 
 
