@@ -21,7 +21,7 @@ def rollout_figure(trace: Trace, summary: dict, cfg: ExperimentCfg) -> plt.Figur
     s = trace["s"]
     w = trace["w_env_w"]
     sc = cfg.success
-    fig, ax = plt.subplots(2, 3, figsize=(13, 6.5), sharex=True, constrained_layout=True)
+    fig, ax = plt.subplots(3, 3, figsize=(13, 9.5), sharex=True, constrained_layout=True)
     a = ax[0, 0]
     a.plot(t, 1e3 * s[:, 0], label="sensor depth d (encoders)")
     a.plot(t, 1e3 * trace["truth_tip_depth_m"], "--", label="true tip depth (truth)")
@@ -69,8 +69,47 @@ def rollout_figure(trace: Trace, summary: dict, cfg: ExperimentCfg) -> plt.Figur
     a.set_xlabel("time [s]")
     a.legend(fontsize=8)
     a.set_title("stability margin")
+    theta = trace["theta"]
+    true = np.asarray(trace.meta.get("truth_offset_f_m", [np.nan] * 3))
+    if theta.shape[1] == 3:
+        a = ax[2, 0]
+        for i, (n, col) in enumerate(zip("xy", ("C0", "C1"))):
+            a.plot(t, 1e3 * theta[:, i], col, label=f"estimate {n}_f")
+            a.axhline(1e3 * true[i], color=col, ls="--", lw=0.8, label=f"true {n}_f")
+        a.set_ylabel("lateral offset [mm]")
+        a.set_xlabel("time [s]")
+        a.legend(fontsize=7, ncol=2)
+        a.set_title("offset estimate vs truth (flange frame)")
+        a = ax[2, 1]
+        a.plot(t, 1e3 * theta[:, 2], "C2", label="estimate z_f")
+        a.axhline(1e3 * true[2], color="C2", ls="--", lw=0.8, label="true z_f (length)")
+        a.set_ylabel("axial offset [mm]")
+        a.set_xlabel("time [s]")
+        a.legend(fontsize=7)
+        a.set_title("tool length estimate vs truth")
+        a = ax[2, 2]
+        err = np.hypot(theta[:, 0] - true[0], theta[:, 1] - true[1])
+        a.semilogy(t, 1e3 * np.maximum(err, 1e-6), "k", label="|lateral error|")
+        a.axhline(1.0, color="r", ls=":", lw=0.8, label="1 mm")
+        a2 = a.twinx()
+        a2.fill_between(t, 0, trace["adapt_gate"], color="C1", alpha=0.15, step="post", label="adapting (contact)")
+        a2.set_yticks([])
+        a.set_ylabel("lateral offset error [mm]")
+        a.set_xlabel("time [s]")
+        a.legend(fontsize=7, loc="lower left")
+        a.set_title("identification")
+    else:
+        a = ax[2, 0]
+        a.plot(t, np.linalg.norm(trace["eps_w"], axis=1), "k", lw=0.6)
+        a.set_ylabel("|W eps|")
+        a.set_xlabel("time [s]")
+        a.set_title("prediction error (W-scaled)")
+        for a in (ax[2, 1], ax[2, 2]):
+            a.axis("off")
     status = "SEATED" if summary["success"] else f"FAILED ({summary['failure']})"
-    fig.suptitle(f"kinadapt online - features={summary['features']}, seed={summary['seed']}: {status}")
+    fig.suptitle(
+        f"kinadapt online - features={summary['features']}, law={summary['law']}, seed={summary['seed']}: {status}"
+    )
     return fig
 
 

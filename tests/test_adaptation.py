@@ -1,0 +1,171 @@
+"""The composite law: identities of the paper checked against independent numerics."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kinadapt_nn.adaptation import CompositeLaw, exact_qp_step, prediction_step
+from kinadapt_nn.config import load_config
+from kinadapt_nn.episode import make_controller, run_episode
+from kinadapt_nn.features.base import Features, KinState, Regressor
+
+
+class PerEntryFeatures(Features):
+    """J_ij = theta_ij^T psi(q) (the paper's per-entry blocks), psi a fixed random map of q.
+
+    theta is stored flat in (i, j, k) order; p = m n k. A test double for the law's algebra."""
+
+    name = "per_entry_test"
+
+    def __init__(self, m: int, n: int, k: int, seed: int = 0) -> None:
+        self.m, self.n, self.k = m, n, k
+        self.n_params = m * n * k
+        self.A = np.random.default_rng(seed).normal(size=(k, n))
+
+    def psi(self, q: np.ndarray) -> np.ndarray:
+        return np.tanh(self.A @ q)
+
+    def jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray:
+        return np.einsum("ijk,k->ij", theta.reshape(self.m, self.n, self.k), self.psi(kin.q_rad))
+
+    def regressor(self, kin: KinState, qdot: np.ndarray) -> Regressor:
+        psi = self.psi(kin.q_rad)
+        Phi = np.zeros((self.m, self.m, self.n, self.k))
+        for i in range(self.m):
+            Phi[i, i] = np.outer(qdot, psi)
+        return Regressor(known=np.zeros(self.m), Phi=Phi.reshape(self.m, -1))
+
+
+def _kin(q):
+    return KinState(q_rad=q, p_w_O=np.zeros(3), R_wf=np.eye(3), J_arm=np.zeros((6, q.size)))
+
+
+def test_trace_identity_eq_pred_trace_identity():
+    """tr(theta~^T Y^T eps qdot^T) = (J~ qdot)^T eps, with Y as the per-entry tensor, and the same
+    number through the regressor: theta~^T Phi^T eps."""
+    rng = np.random.default_rng(1)
+    m, n, k = 6, 7, 5
+    feats = PerEntryFeatures(m, n, k)
+    q, qdot, eps = rng.normal(size=n), rng.normal(size=n), rng.normal(size=m)
+    th = rng.normal(size=(m, n, k))
+    psi = feats.psi(q)
+    # paper form: sum_ijk theta~_ijk (Y^T eps qdot^T)_ijk with (Y^T eps qdot^T)_ijk = psi_k eps_i qdot_j
+    lhs = np.einsum("ijk,k,i,j->", th, psi, eps, qdot)
+    J_tilde = feats.jacobian(_kin(q), th.ravel())
+    assert lhs == pytest.approx((J_tilde @ qdot) @ eps, rel=1e-12)
+    Phi = feats.regressor(_kin(q), qdot).Phi
+    assert th.ravel() @ (Phi.T @ eps) == pytest.approx(lhs, rel=1e-12)
+
+
+def test_prediction_step_equals_closed_form_for_per_entry_features():
+    """eta = 1: the law's step is eq. ident_qp_solution, Y^T eps qdot^T / (|psi|^2 |qdot|^2 + eps_norm),
+    and also the exact QP minimiser Phi^T (Phi Phi^T + eps_norm I)^-1 eps."""
+    rng = np.random.default_rng(2)
+    m, n, k = 6, 7, 4
+    feats = PerEntryFeatures(m, n, k)
+    q, qdot, eps = rng.normal(size=n), rng.normal(size=n), rng.normal(size=m)
+    Phi = feats.regressor(_kin(q), qdot).Phi
+    eps_norm = 1e-4
+    step, n2 = prediction_step(Phi, eps, eta=1.0, eps_norm=eps_norm)
+    psi = feats.psi(q)
+    closed = np.einsum("k,i,j->ijk", psi, eps, qdot).ravel() / (psi @ psi * (qdot @ qdot) + eps_norm)
+    np.testing.assert_allclose(step, closed, rtol=1e-12)
+    np.testing.assert_allclose(step, exact_qp_step(Phi, eps, eps_norm), rtol=1e-10)
+    assert n2 == pytest.approx(psi @ psi * (qdot @ qdot), rel=1e-12)
+    # fractional step: eta scales it and its size does not depend on Gamma
+    half, _ = prediction_step(Phi, eps, eta=0.5, eps_norm=eps_norm)
+    np.testing.assert_allclose(half, 0.5 * closed, rtol=1e-12)
+
+
+def test_nlms_step_contracts_the_parametric_error():
+    """With b = 0 (eps = Phi theta~) one fractional step shrinks |Phi theta~| by (1 - eta) on
+    per-entry features (normalised LMS is stable for 0 < eta < 2), whatever Gamma is."""
+    rng = np.random.default_rng(3)
+    feats = PerEntryFeatures(6, 7, 3)
+    q, qdot = rng.normal(size=7), rng.normal(size=7)
+    Phi = feats.regressor(_kin(q), qdot).Phi
+    th_err = rng.normal(size=feats.n_params)
+    for eta in (0.5, 1.0, 1.5):
+        step, _ = prediction_step(Phi, Phi @ th_err, eta=eta, eps_norm=0.0)
+        after = Phi @ (th_err - step)
+        assert np.linalg.norm(after) == pytest.approx(abs(1 - eta) * np.linalg.norm(Phi @ th_err), rel=1e-9)
+
+
+def test_rigid_lyapunov_derivative_eq_composite_vdot():
+    """Rigid case with the adjoint features and our law's increments: along qdot = J_hat^T F and
+    s_dot = J qdot, d/dt [gamma_d V + |theta~|^2/(2 Gamma)] = -gamma_d |qdot|^2 - kappa |W J~ qdot|^2
+    (eq. composite_vdot with the gamma_d weight), kappa = eta / (dt Gamma (|W Phi|^2 + eps_norm))."""
+    cfg = load_config(None, ["sensing.filter_tau_s=1e-12"])  # no filter lag: the law sees eps = J~ qdot
+    ctrl = make_controller(cfg)
+    feats = ctrl.features
+    rng = np.random.default_rng(4)
+    for trial in range(5):
+        q = np.array([0.1, -0.6, 0.05, -2.4, 0.02, 1.9, 0.7]) + 0.1 * rng.normal(size=7)
+        kin = ctrl.kin(q)
+        theta_true = np.array([0.003, -0.002, 0.1]) + 0.002 * rng.normal(size=3)
+        theta_hat = theta_true + 0.005 * rng.normal(size=3)
+        F = rng.normal(size=6) * np.array([10.0, 1e-4, 1e-4, 1e-3, 1e-3, 1e-3])  # [N, m, m, rad...]
+        J_hat = feats.jacobian(kin, theta_hat)
+        J_true = feats.jacobian(kin, theta_true)
+        qdot = J_hat.T @ F  # eq. ft_control
+        s_dot = J_true @ qdot
+        law = CompositeLaw(**{**ctrl.law_args, "mode": "composite"})
+        w_contact = np.array([5.0, 0, 0, 0, 0, 0])  # gate open
+        theta_next, a = law.update(kin, qdot, theta_hat, np.zeros(6), s_dot, F, w_contact)
+        dt, G, gd = law.dt, law.gamma, law.gamma_d
+        theta_dot = (a.d_track + a.d_pred) / dt
+        Vdot = gd * (-(F @ s_dot)) + (theta_hat - theta_true) @ theta_dot / G  # d/dt of 1/2 |theta~|^2 / Gamma
+        kappa = law.eta / (dt * G * (a.phi_norm2 + law.eps_norm))
+        expected = -gd * (qdot @ qdot) - kappa * np.sum((law.W * ((J_true - J_hat) @ qdot)) ** 2)
+        assert Vdot == pytest.approx(expected, rel=1e-6, abs=1e-14)  # filter alpha = 1 - 1e-9
+        assert expected < 0.0
+
+
+def test_gate_freezes_adaptation_in_free_space_and_projection_keeps_omega():
+    cfg = load_config(None, [])
+    ctrl = make_controller(cfg)
+    law = ctrl.law
+    kin = ctrl.kin(np.array([0.0, -0.6, 0.0, -2.4, 0.0, 1.9, 0.7]))
+    qdot = np.full(7, 0.1)
+    th = np.array([0.007, -0.005, 0.1])
+    big = np.full(6, 100.0)
+    same, a = law.update(kin, qdot, th, np.zeros(6), big, np.ones(6), np.zeros(6))  # no contact
+    assert a.gate == 0.0 and np.array_equal(same, th)
+    moved, a = law.update(kin, qdot, th, np.zeros(6), big, np.ones(6), np.array([0, 0, 5.0, 0, 0, 0]))
+    assert a.gate == 1.0
+    assert np.all(moved >= law.lo - 1e-15) and np.all(moved <= law.hi + 1e-15)
+
+
+@pytest.fixture(scope="module")
+def low_bias_runs():
+    over = ["scene.contact_model=socket", "control.dither_rad_s=[0.05,0.05,0.05]", "run.progress=false"]
+    return {g: run_episode(load_config(None, over + [f"adaptation.gamma={g}"])) for g in (100.0, 8000.0)}
+
+
+def test_identification_where_the_bias_is_small(low_bias_runs):
+    """Socket contact (S's own contact model) + commanded rotation: the 5 mm lateral error falls
+    below 1 mm, as Theorem ft_rigid predicts when b / sigma_min is small."""
+    s = low_bias_runs[100.0].summary
+    assert s["success"]
+    assert s["offset_error_lateral_initial_m"] == pytest.approx(0.005, abs=1e-9)
+    assert s["offset_error_lateral_final_m"] < 1.0e-3
+    assert abs(s["offset_error_final_m"][2]) < 1.0e-3
+
+
+def test_gain_flat_gamma_100_and_8000_both_seat(low_bias_runs):
+    """Gamma = 100 and 8000 both seat with the same seat time (normalised prediction step)."""
+    a, b = low_bias_runs[100.0].summary, low_bias_runs[8000.0].summary
+    assert a["success"] and b["success"]
+    assert abs(a["seat_time_s"] - b["seat_time_s"]) < 0.1
+    assert abs(a["offset_error_lateral_final_m"] - b["offset_error_lateral_final_m"]) < 0.5e-3
+
+
+def test_default_run_seats_and_reports_identification(default_episode):
+    """The paper's setting (bore, no dither): it seats; the report says how observable each axis was."""
+    s = default_episode.summary
+    assert s["success"] and s["law"] == "composite" and s["features"] == "adjoint"
+    g = s["regressor_gram"]
+    assert g["axes"] == ["x_f", "y_f", "z_f"] and len(g["eigenvalues"]) == 3
+    assert len(s["offset_uncertainty_m"]) == 3
+    assert s["certificate"]["windows"] > 50
