@@ -100,6 +100,8 @@ def main() -> None:
         lo, hi = np.nanmin(x) / 2, np.nanmax(x) * 2
         ax.loglog([lo, hi], [lo, hi], "k:", lw=0.8, label="err = b / sigma_min")
         ax.axhline(5.0, color="r", lw=0.8, ls="--", label="initial error 5 mm")
+        ax.axhline(1e3 * np.hypot(0.015 + 0.003, 0.015 + 0.002), color="gray", lw=0.8, ls="-.",
+                   label="Omega box reached (estimate pinned)")
         ax.set_xlabel("b_rms / sigma_min [mm] (oracle run)")
         ax.set_ylabel("lateral offset error, last 1.5 s RMS [mm]")
         ax.legend(fontsize=8)
