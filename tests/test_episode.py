@@ -129,3 +129,12 @@ def test_non_finite_sensor_sample_is_refused(bad):
     qd[2] = bad
     with pytest.raises(SensorError):
         ctrl.step(0.0, q, qd, np.zeros(6))
+
+
+def test_entrance_chamfer_guides_a_misaligned_peg():
+    """The chamfer is real geometry: a 2 mm misalignment lands on the block face without one and
+    is guided into the bore (seats) with a 2 mm, 45-degree chamfer."""
+    plain = run_episode(load_config(None, ["start.lateral_w_m=[0.002, 0.0]", "run.duration_s=3.0"])).summary
+    chamfered = run_episode(load_config(None, ["start.lateral_w_m=[0.002, 0.0]", "scene.chamfer_m=0.002"])).summary
+    assert not plain["success"] and plain["failure"] == "block_face"
+    assert chamfered["success"] and chamfered["true_depth_at_seat_m"] > 0.044
