@@ -12,7 +12,7 @@ import sys
 import time
 from pathlib import Path
 
-from kinadapt_nn.errors import KinadaptError
+from kinadapt_nn.errors import KinadaptError, OutputExistsError
 
 log = logging.getLogger("kinadapt")
 
@@ -70,6 +70,51 @@ def cmd_online(args: argparse.Namespace) -> int:
     return 0 if result.summary["success"] else 1
 
 
+def cmd_pretrain(args: argparse.Namespace) -> int:
+    from kinadapt_nn.pretrain import load_pretrain_config, pretrain
+
+    cfg = load_pretrain_config(Path(args.config) if args.config else None, args.set or [])
+    out = Path(args.out) if args.out else _default_out("pretrain")
+    if out.exists() and any(out.iterdir()) and not (out / "train_state.pt").exists() and not args.overwrite:
+        raise OutputExistsError(f"output folder '{out}' already exists (pass --overwrite or choose another --out)")
+    if args.overwrite and out.exists() and not (out / "train_state.pt").exists():
+        import shutil
+
+        shutil.rmtree(out)
+    try:
+        m = pretrain(cfg, out, progress=not args.quiet)
+    except KeyboardInterrupt:
+        print(f"kinadapt: interrupted; rerun the same command to resume from {out}/train_state.pt", file=sys.stderr)
+        return 130
+    if not args.quiet:
+        print(
+            f"kinadapt pretrain: {m['steps']} steps in {m['wall_time_s']:.1f} s on {m['device']}; "
+            f"p = {m['n_params_online']} online parameters, body {m['n_params_body']}\n"
+            f"  held-out relative Jacobian error (median): {m['heldout_rel_jacobian_error_median']:.2e} "
+            f"(nominal arm {m['heldout_rel_jacobian_error_median_nominal_arm']:.2e}, "
+            f"arm errors {m['heldout_rel_jacobian_error_median_arm_errors']:.2e}); "
+            f"adjoint best fit: nominal arm {m['adjoint_best_fit_rel_error_median_nominal_arm']:.1e}, "
+            f"arm errors {m['adjoint_best_fit_rel_error_median_arm_errors']:.2e}\n"
+            f"  wrote {out}/model.pt, metrics.json, tb/"
+        )
+    return 0
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from kinadapt_nn.compare import load_compare_config, run_compare
+    from kinadapt_nn.runio import check_output_dir, staged_output
+
+    cfg = load_compare_config(Path(args.config) if args.config else None, args.set or [])
+    out = Path(args.out) if args.out else _default_out("compare")
+    check_output_dir(out, args.overwrite)
+    with staged_output(out, args.overwrite) as stage:
+        rows = run_compare(cfg, stage, progress=not args.quiet)
+    if not args.quiet:
+        print((out / "comparison.md").read_text())
+        print(f"wrote {out}/ (comparison.csv, comparison.md, jacobian_error.png, tb/)")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="kinadapt", description="Online kinematic adaptation by feel (MuJoCo Panda).")
     sub = p.add_subparsers(dest="command", required=True)
@@ -80,6 +125,20 @@ def build_parser() -> argparse.ArgumentParser:
     on.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     on.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
     on.set_defaults(func=cmd_online)
+    pt = sub.add_parser("pretrain", help="train the neural Jacobian basis on randomised tools and arms")
+    pt.add_argument("--config", help="pretraining TOML (default: built-in defaults = pretrain/default.toml)")
+    pt.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key, e.g. train.steps=200")
+    pt.add_argument("--out", help="output folder (default: runs/pretrain-<timestamp>); rerun to resume")
+    pt.add_argument("--overwrite", action="store_true", help="replace an existing finished output folder")
+    pt.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
+    pt.set_defaults(func=cmd_pretrain)
+    cp = sub.add_parser("compare", help="adjoint vs RBF vs neural features on the same held-out tools")
+    cp.add_argument("--config", help="compare TOML (default: built-in defaults = online/compare.toml)")
+    cp.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key, e.g. n_tools=2")
+    cp.add_argument("--out", help="output folder (default: runs/compare-<timestamp>)")
+    cp.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    cp.add_argument("--quiet", action="store_true", help="no progress bar, no table")
+    cp.set_defaults(func=cmd_compare)
     return p
 
 

@@ -55,6 +55,21 @@ class SceneCfg(_Cfg):
     socket_damping_ratio: float = Field(0.05, ge=0.0)  # [-] socket: damping (x critical, 3 kg)
 
 
+class ArmCfg(_Cfg):
+    """The TRUE arm's small kinematic errors (hidden; see kinadapt_nn.sim.arm_errors)."""
+
+    link_length_error_m: tuple[float, ...] = (0.0,) * 8  # [m] link1..link7 offsets + flange
+    joint_offset_rad: tuple[float, ...] = (0.0,) * 7  # [rad] encoder zero offsets, joint1..7
+
+    @model_validator(mode="after")
+    def _lengths(self) -> ArmCfg:
+        if len(self.link_length_error_m) != 8 or len(self.joint_offset_rad) != 7:
+            raise ValueError("arm.link_length_error_m needs 8 values and arm.joint_offset_rad 7")
+        if max(abs(x) for x in self.link_length_error_m) > 0.02 or max(abs(x) for x in self.joint_offset_rad) > 0.1:
+            raise ValueError("arm errors must be small: |link error| <= 0.02 m, |joint offset| <= 0.1 rad")
+        return self
+
+
 class StartCfg(_Cfg):
     """Where the episode starts (set by the simulator from the true tool; truth side)."""
 
@@ -106,6 +121,16 @@ class ControlCfg(_Cfg):
     dither_hz: float = Field(1.0, gt=0.0)  # [Hz] dither frequency (x: sin, y: cos, z: sin at 1.7 f)
 
 
+class FeaturesCfg(_Cfg):
+    """Learned feature settings (``run.features = rbf | neural``)."""
+
+    rbf_centres: Literal["path", "sampled"] = "path"  # centres on the insertion path or sampled about it
+    rbf_n_centres: int = Field(6, ge=1, le=64)  # K; p = 5 * 7 * K
+    rbf_width_rad: float = Field(0.0, ge=0.0)  # [rad] Gaussian width (0 = mean nearest-centre distance)
+    rbf_seed: int = Field(0, ge=0)  # seed of the sampled centres
+    neural_checkpoint: str = ""  # pretrained body ("" = the shipped models/neural_default.pt)
+
+
 class AdaptationCfg(_Cfg):
     """The composite law (eq. ft_composite) and the initial estimate (see kinadapt_nn.adaptation)."""
 
@@ -143,7 +168,7 @@ class RunCfg(_Cfg):
     seed: int = Field(0, ge=0)  # [-] seeds every random draw of the run
     duration_s: float = Field(8.0, gt=0.0, le=600.0)  # [s] simulated time limit (timeout)
     dt_s: float = Field(0.001, gt=0.0, le=0.01)  # [s] control and physics timestep
-    features: Literal["adjoint", "oracle"] = "adjoint"  # Y(q): analytic adjoint; oracle = true offset
+    features: Literal["adjoint", "rbf", "neural", "oracle"] = "adjoint"  # Y(q); oracle = true offset
     stop_after_seat_s: float = Field(0.5, ge=0.0)  # [s] keep simulating this long after seating
     log_every: int = Field(1, ge=1)  # [steps] trace decimation
     tensorboard: bool = True  # write TensorBoard event files
@@ -156,10 +181,12 @@ class ExperimentCfg(_Cfg):
 
     run: RunCfg = RunCfg()
     tool: ToolCfg = ToolCfg()
+    arm: ArmCfg = ArmCfg()
     scene: SceneCfg = SceneCfg()
     start: StartCfg = StartCfg()
     sensing: SensingCfg = SensingCfg()
     control: ControlCfg = ControlCfg()
+    features: FeaturesCfg = FeaturesCfg()
     adaptation: AdaptationCfg = AdaptationCfg()
     success: SuccessCfg = SuccessCfg()
 

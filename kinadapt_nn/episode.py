@@ -10,18 +10,20 @@ Success and failure are judged from sensor-side signals (``SeatMonitor``,
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
-from kinadapt_nn.config import ExperimentCfg
+from kinadapt_nn.config import ExperimentCfg, arm_mjcf_path
 from kinadapt_nn.control import Controller, rank_margin
 from kinadapt_nn.errors import SensorError
 from kinadapt_nn.features import AdjointFeatures
 from kinadapt_nn.features.base import Features
-from kinadapt_nn.sensing import CHANNEL_NAMES, nominal_sensor_map
+from kinadapt_nn.sensing import CHANNEL_NAMES, channel_metric, nominal_sensor_map
 from kinadapt_nn.sim.adapter import BORE_AXIS_W, PegInHoleSim
 from kinadapt_nn.trace import Trace, TraceRecorder
+from kinadapt_nn.truth import TrueSensorJacobian
 
 FAILURES = ("none", "timeout", "jam", "block_face", "divergence")
 
@@ -89,13 +91,41 @@ def initial_estimate(cfg: ExperimentCfg) -> np.ndarray:
 
 
 def make_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
-    """Features object and the initial parameters for ``run.features``."""
+    """Features object and the initial parameters for ``run.features``.
+
+    Nothing here uses the truth except the two declared cases: ``oracle`` (the true offset) and
+    the adjoint's initial estimate (true offset + the configured error, experiment design)."""
     S = nominal_sensor_map(cfg.sensing, BORE_AXIS_W)
-    feats = AdjointFeatures(S, np.asarray(cfg.sensing.nominal_offset_f_m))
-    if cfg.run.features == "oracle":
-        # declared baseline: the true offset is handed over as a constant, nothing else
-        return feats, np.asarray(cfg.tool.offset_f_m, dtype=float)
-    return feats, initial_estimate(cfg)
+    l_nom = np.asarray(cfg.sensing.nominal_offset_f_m, dtype=float)
+    adjoint = AdjointFeatures(S, l_nom)
+    kind = cfg.run.features
+    if kind == "oracle":
+        return adjoint, np.asarray(cfg.tool.offset_f_m, dtype=float)
+    if kind == "adjoint":
+        return adjoint, initial_estimate(cfg)
+    if kind == "rbf":
+        from kinadapt_nn.features.rbf import RBFFeatures, auto_width
+        from kinadapt_nn.workspace import insertion_path, sample_workspace
+
+        fc = cfg.features
+        nominal = cfg.model_copy(update={"tool": cfg.tool.model_copy(update={"offset_f_m": tuple(l_nom), "tilt_deg": (0.0, 0.0)}),
+                                         "arm": type(cfg.arm)()})
+        if fc.rbf_centres == "path":
+            centres = insertion_path(nominal, n=fc.rbf_n_centres)
+        else:
+            path = insertion_path(nominal)
+            centres = sample_workspace(path, fc.rbf_n_centres, 0.03, np.random.default_rng(fc.rbf_seed))
+        width = fc.rbf_width_rad or auto_width(centres)
+        feats = RBFFeatures(adjoint, l_nom, centres, width)
+        return feats, np.zeros(feats.n_params)
+    if kind == "neural":
+        from kinadapt_nn.features.neural import NeuralFeatures
+        from kinadapt_nn.robot import MODELS_DIR
+
+        ckpt = Path(cfg.features.neural_checkpoint) if cfg.features.neural_checkpoint else MODELS_DIR / "neural_default.pt"
+        feats = NeuralFeatures(adjoint, l_nom, ckpt, channel_metric(cfg.sensing))
+        return feats, feats.theta_mean.copy()
+    raise ValueError(f"unknown features {kind!r}")  # pragma: no cover (validated by the config)
 
 
 def law_name(cfg: ExperimentCfg) -> str:
@@ -123,7 +153,7 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
     rec = TraceRecorder(n_steps // every + 1, ctrl.features.n_params)
     monitor = SeatMonitor(cfg)
     obs = sim.sense()
-    theta_true = np.asarray(cfg.tool.offset_f_m, dtype=float) if ctrl.features.n_params == 3 else None
+    theta_true = np.asarray(cfg.tool.offset_f_m, dtype=float) if isinstance(ctrl.features, AdjointFeatures) else None
     nan6 = np.full(6, np.nan)
     diverged = False
     stop_at: float | None = None
@@ -203,14 +233,31 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
         "start_tilt_deg": [float(x) for x in sim.start_tilt_deg],
     }
     trace = rec.finish(meta)
-    evaluate_offline(trace, ctrl)
+    truth_jac = TrueSensorJacobian(
+        ctrl.S, ctrl.l_nom_f, np.asarray(cfg.tool.offset_f_m), arm_mjcf_path(cfg.scene),
+        cfg.arm.link_length_error_m, cfg.arm.joint_offset_rad,
+    )
+    evaluate_offline(trace, ctrl, truth_jac=truth_jac)
     certificate = certificate_check(cfg, trace, ctrl)
     summary = summarize(cfg, trace, ctrl, monitor, diverged, steps, sim.time_s, wall)
     summary["certificate"] = certificate
     return EpisodeResult(trace, summary)
 
 
-def evaluate_offline(trace: Trace, ctrl: Controller, rank_every: int = 10) -> None:
+def implied_offset(ctrl: Controller, q: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """The adjoint offset whose Jacobian best fits ``J_hat(q; theta)`` (W-scaled rows 1..5, LS;
+    exact because ``S Ad(R l) J_arm`` is affine in l). -> (3,) [m] in f."""
+    kin = ctrl.kin(q)
+    adj = AdjointFeatures(ctrl.S, ctrl.l_nom_f)
+    J_hat = ctrl.features.jacobian(kin, theta)
+    J0 = adj.jacobian(kin, np.zeros(3))
+    B = np.stack([(adj.jacobian(kin, e) - J0)[1:] for e in np.eye(3)], axis=-1)  # (5, n, 3)
+    Wr = ctrl.W[1:, None, None]
+    x, *_ = np.linalg.lstsq((Wr * B).reshape(-1, 3), (Wr[:, :, 0] * (J_hat - J0)[1:]).ravel(), rcond=None)
+    return x
+
+
+def evaluate_offline(trace: Trace, ctrl: Controller, rank_every: int = 10, truth_jac=None) -> None:
     """Fill ``V`` and ``lambda_min`` from logged controller-side channels (``s``, ``q``,
     ``theta``): the numbers the controller would compute, kept off the 1 kHz hot path.
     ``lambda_min`` is evaluated every ``rank_every`` samples (10 ms) and held in between."""
@@ -218,10 +265,20 @@ def evaluate_offline(trace: Trace, ctrl: Controller, rank_every: int = 10) -> No
     trace.arrays["V"] = ctrl.value_fn.value_batch(s)
     n = len(s)
     lam = np.empty(n)
+    jerr = np.full(n, np.nan)
+    W = ctrl.W[:, None]
     for i in range(0, n, rank_every):
         J_hat = ctrl.features.jacobian(ctrl.kin(trace["q_rad"][i]), trace["theta"][i])
         lam[i : i + rank_every] = rank_margin(ctrl.W, J_hat)
+        if truth_jac is not None:  # evaluation only: W-scaled relative Frobenius error
+            J_true = truth_jac(trace["q_rad"][i])
+            jerr[i : i + rank_every] = np.linalg.norm(W * (J_hat - J_true)) / np.linalg.norm(W * J_true)
+    if n and truth_jac is not None:
+        J_true = truth_jac(trace["q_rad"][-1])
+        J_hat = ctrl.features.jacobian(ctrl.kin(trace["q_rad"][-1]), trace["theta"][-1])
+        jerr[-1] = np.linalg.norm(W * (J_hat - J_true)) / np.linalg.norm(W * J_true)
     trace.arrays["lambda_min"] = lam
+    trace.arrays["truth_jacobian_rel_error"] = jerr
 
 
 FLANGE_AXES = ("x_f", "y_f", "z_f")
@@ -237,7 +294,7 @@ def certificate_check(cfg: ExperimentCfg, trace: Trace, ctrl: Controller, window
     the prediction term runs). Reports the worst excess of ``Delta V_tot`` over the integrated
     bound in ``window_s`` windows after the drive ramp. Returns None for non-adjoint features.
     """
-    if ctrl.features.n_params != 3 or len(trace) < 3:
+    if not isinstance(ctrl.features, AdjointFeatures) or len(trace) < 3:
         return None
     ad, sc = cfg.adaptation, cfg.sensing
     dt = float(trace.meta["dt_s"])
@@ -358,14 +415,16 @@ def summarize(
     pred_rms = {name: float(np.sqrt(np.mean(eps[:, i] ** 2))) if len(eps) else None for i, name in enumerate(CHANNEL_NAMES)}
     theta = trace["theta"][-1] if len(trace) else ctrl.theta
     true_off = np.asarray(cfg.tool.offset_f_m)
-    # Jacobian error at the final configuration against the nominal model with the true offset
-    kin = ctrl.kin(trace["q_rad"][-1]) if len(trace) else None
-    if kin is not None:
-        J_hat = ctrl.features.jacobian(kin, theta)
-        J_true = ctrl.features.jacobian(kin, true_off)
-        jac_err = float(np.linalg.norm(J_hat - J_true) / np.linalg.norm(J_true))
+    jerr = trace["truth_jacobian_rel_error"]
+    jac_err = float(jerr[-1]) if len(trace) else None
+    # offset: the estimate itself (adjoint) or the offset implied by a LS fit of J_hat (others)
+    if isinstance(ctrl.features, AdjointFeatures):
+        off0, off_T = trace["theta"][0], theta
+    elif len(trace):
+        off0 = implied_offset(ctrl, trace["q_rad"][0], trace["theta"][0])
+        off_T = implied_offset(ctrl, trace["q_rad"][-1], theta)
     else:
-        jac_err = None
+        off0 = off_T = np.full(3, np.nan)
     tip = trace["truth_tip_pos_w_m"]
     touched = trace["truth_contact_face"] | trace["truth_contact_bore"]
     first_touch = int(np.argmax(touched)) if touched.any() else len(trace)
@@ -383,12 +442,13 @@ def summarize(
         "max_lateral_force_N": float(flat.max()) if len(flat) else None,
         "max_moment_Nm": float(mmag.max()) if len(mmag) else None,
         "min_lambda_JJt": float(trace["lambda_min"][active].min()) if active.any() else None,
-        "offset_estimate_final_f_m": [float(x) for x in theta],
-        "offset_error_final_m": [float(x) for x in (theta - true_off)],
+        "offset_estimate_final_f_m": [float(x) for x in off_T],
+        "offset_error_final_m": [float(x) for x in (off_T - true_off)],
+        "jacobian_rel_error_initial": float(jerr[0]) if len(trace) else None,
         "jacobian_rel_error_final": jac_err,
         "pred_error_rms": pred_rms,
-        "offset_error_lateral_initial_m": float(np.hypot(*(trace["theta"][0, :2] - true_off[:2]))) if len(trace) else None,
-        "offset_error_lateral_final_m": float(np.hypot(*(theta[:2] - true_off[:2]))),
+        "offset_error_lateral_initial_m": float(np.hypot(*(off0[:2] - true_off[:2]))),
+        "offset_error_lateral_final_m": float(np.hypot(*(off_T[:2] - true_off[:2]))),
         **ident,
         "lateral_drift_free_space_m": float(drift[: max(first_touch, 1)].max()),
         "lateral_drift_max_m": float(drift.max()),

@@ -17,10 +17,11 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
-from kinadapt_nn.config import SceneCfg, ToolCfg, arm_mjcf_path
+from kinadapt_nn.config import ArmCfg, SceneCfg, ToolCfg, arm_mjcf_path
 from kinadapt_nn.errors import ModelFileError
 from kinadapt_nn.geometry import quat_from_matrix, tilt_rotation
 from kinadapt_nn.robot import FLANGE_BODY
+from kinadapt_nn.sim.arm_errors import apply_arm_errors
 
 FT_SITE = "ft_site"
 TIP_SITE = "tip_site"  # truth only: the true tip (never given to the controller)
@@ -135,7 +136,9 @@ def _add_block(spec: mujoco.MjSpec, scene: SceneCfg) -> None:
     )
 
 
-def build_spec(tool: ToolCfg, scene: SceneCfg, mjcf_path: Path | None = None) -> mujoco.MjSpec:
+def build_spec(
+    tool: ToolCfg, scene: SceneCfg, mjcf_path: Path | None = None, arm: ArmCfg | None = None
+) -> mujoco.MjSpec:
     """The full scene spec: Panda + tool + bore block + wrist F/T sensor."""
     mjcf_path = Path(mjcf_path) if mjcf_path is not None else arm_mjcf_path(scene)
     if not mjcf_path.is_file():
@@ -149,6 +152,8 @@ def build_spec(tool: ToolCfg, scene: SceneCfg, mjcf_path: Path | None = None) ->
     spec.option.o_friction = [scene.friction, scene.friction, 0.005, 0.0001, 0.0001]
     spec.option.o_margin = 0.0
     spec.option.o_solimp = [0.95, 0.99, 0.001, 0.5, 2.0]
+    if arm is not None:
+        apply_arm_errors(spec, arm.link_length_error_m, arm.joint_offset_rad)
     _add_tool(spec, tool)
     if scene.contact_model == "bore":
         _add_block(spec, scene)
@@ -166,9 +171,9 @@ def build_spec(tool: ToolCfg, scene: SceneCfg, mjcf_path: Path | None = None) ->
     return spec
 
 
-def build_model(tool: ToolCfg, scene: SceneCfg, mjcf_path: Path | None = None) -> tuple[mujoco.MjModel, SceneIds]:
+def build_model(tool: ToolCfg, scene: SceneCfg, mjcf_path: Path | None = None, arm: ArmCfg | None = None) -> tuple[mujoco.MjModel, SceneIds]:
     """Compile the scene and look every id/address up once."""
-    spec = build_spec(tool, scene, mjcf_path)
+    spec = build_spec(tool, scene, mjcf_path, arm)
     try:
         model = spec.compile()
     except Exception as exc:

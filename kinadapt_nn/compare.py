@@ -1,0 +1,226 @@
+"""``kinadapt compare``: every features type on the same held-out tools, side by side.
+
+Tool families:
+* ``nominal``    -- rigid tools on the nominal arm (the adjoint represents them exactly);
+* ``arm_errors`` -- the same kind of tools on an arm with small kinematic errors (link lengths,
+  joint zero offsets), which the 3-parameter adjoint cannot represent.
+
+Tools are drawn with ``seed`` (never the pretraining seed, so they are held out): lateral
+offset uniform in a disc, length ``100 mm +- length_spread`` (the depth channel uses the
+nominal length, so a long tool would bottom out in the 50 mm bore before ``d`` reads 45 mm).
+Each (scenario, family, features, tool) episode writes one TensorBoard run with the same tags
+and hparams; the table ``comparison.csv`` / ``comparison.md`` has one row per (scenario,
+features, tool family), and ``jacobian_error.png`` the Jacobian error vs time per features type.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import tomllib
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from kinadapt_nn.config import _format_validation_error, _parse_value, _set_dotted
+from kinadapt_nn.errors import ConfigError
+
+FEATURES = ("adjoint", "rbf", "neural")
+FAMILIES = ("nominal", "arm_errors")
+
+
+class CompareCfg(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    features: list[str] = list(FEATURES)  # features types to compare
+    families: list[str] = list(FAMILIES)  # tool families
+    n_tools: int = Field(4, ge=1, le=200)  # tools per family
+    seed: int = Field(1000, ge=0)  # draws the tools and arm errors (not the pretraining seed)
+    lateral_radius_m: float = Field(0.006, ge=0.0)  # [m] tool lateral offset disc
+    length_spread_m: float = Field(0.003, ge=0.0, le=0.004)  # [m] tool length 0.100 +- this
+    link_sigma_m: float = Field(0.001, ge=0.0)  # [m] arm_errors: link length error std
+    joint_sigma_rad: float = Field(0.004, ge=0.0)  # [rad] arm_errors: joint zero offset std
+    jobs: int = Field(2, ge=1, le=64)  # worker processes
+    base: list[str] = []  # overrides applied to every episode (online config keys)
+    scenarios: dict[str, list[str]] = {
+        "bore": [],
+        "socket_dither": ["scene.contact_model=socket", "control.dither_rad_s=[0.05,0.05,0.05]"],
+    }
+
+
+def load_compare_config(path: Path | None, overrides=()) -> CompareCfg:
+    tree: dict = {}
+    if path is not None:
+        path = Path(path)
+        if not path.is_file():
+            raise ConfigError(f"config file '{path}' not found (pass an existing .toml file)")
+        try:
+            tree = tomllib.loads(path.read_text())
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"config file '{path}' is not valid TOML: {exc}") from None
+    for item in overrides:
+        if "=" not in item:
+            raise ConfigError(f"--set '{item}': expected key=value, e.g. --set n_tools=2")
+        key, _, text = item.partition("=")
+        _set_dotted(tree, key.strip(), _parse_value(text.strip()))
+    try:
+        cfg = CompareCfg.model_validate(tree)
+    except ValidationError as err:
+        raise ConfigError(_format_validation_error(err).replace("online/rollout.toml", "online/compare.toml")) from None
+    for f in cfg.features:
+        if f not in FEATURES:
+            raise ConfigError(f"compare: unknown features {f!r} (choose from {', '.join(FEATURES)})")
+    for f in cfg.families:
+        if f not in FAMILIES:
+            raise ConfigError(f"compare: unknown tool family {f!r} (choose from {', '.join(FAMILIES)})")
+    return cfg
+
+
+def draw_tools(cfg: CompareCfg) -> dict[str, list[list[str]]]:
+    """Per family, a list of override lists describing each (tool, arm). Deterministic."""
+    from kinadapt_nn.sim.arm_errors import random_arm_errors
+
+    rng = np.random.default_rng(cfg.seed)
+    tools = []
+    for _ in range(cfg.n_tools):
+        rad = cfg.lateral_radius_m * math.sqrt(rng.random())
+        ang = 2 * math.pi * rng.random()
+        length = 0.100 + rng.uniform(-cfg.length_spread_m, cfg.length_spread_m)
+        tools.append([round(float(rad * math.cos(ang)), 6), round(float(rad * math.sin(ang)), 6), round(float(length), 6)])
+    out: dict[str, list[list[str]]] = {}
+    for fam in cfg.families:
+        rows = []
+        for t in tools:
+            over = [f"tool.offset_f_m={t}"]
+            if fam == "arm_errors":
+                link, joint = random_arm_errors(rng, cfg.link_sigma_m, cfg.joint_sigma_rad)
+                over += [f"arm.link_length_error_m={[round(float(x), 7) for x in link]}",
+                         f"arm.joint_offset_rad={[round(float(x), 7) for x in joint]}"]
+            rows.append(over)
+        out[fam] = rows
+    return out
+
+
+def _run_one(job: tuple) -> dict:
+    from kinadapt_nn.config import load_config
+    from kinadapt_nn.episode import run_episode
+    from kinadapt_nn.tb import write_tensorboard
+
+    scenario, family, features, tool_i, overrides, tb_dir = job
+    cfg = load_config(None, ["run.progress=false", *overrides, f"run.features={features}"])
+    res = run_episode(cfg)
+    s = res.summary
+    hp = {"features": features, "tool_family": family, "scenario": scenario, "tool": tool_i,
+          "n_params": int(s["n_params"]), "law": s["law"]}
+    write_tensorboard(Path(tb_dir), res.trace, s, hp)
+    t = res.trace["t_s"]
+    idx = np.arange(0, len(t), 10)
+    return {
+        "scenario": scenario, "tool_family": family, "features": features, "tool": tool_i, "summary": s,
+        "t": t[idx].tolist(), "jac_err": res.trace["truth_jacobian_rel_error"][idx].tolist(),
+    }
+
+
+def _median(xs):
+    xs = [x for x in xs if x is not None and not (isinstance(x, float) and math.isnan(x))]
+    return float(np.median(xs)) if xs else None
+
+
+def run_compare(cfg: CompareCfg, out: Path, progress: bool = True) -> list[dict]:
+    """Run every episode, write tb/, comparison.csv/.md and jacobian_error.png into ``out``."""
+    tools = draw_tools(cfg)
+    jobs = []
+    for scen, scen_over in cfg.scenarios.items():
+        for fam, rows in tools.items():
+            for feat in cfg.features:
+                for i, over in enumerate(rows):
+                    tb = out / "tb" / scen / fam / feat / f"tool{i}"
+                    jobs.append((scen, fam, feat, i, [*cfg.base, *scen_over, *over], str(tb)))
+    results = []
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(jobs), desc="compare", unit="episode")
+    with ProcessPoolExecutor(max_workers=cfg.jobs) as ex:
+        for r in ex.map(_run_one, jobs):
+            results.append(r)
+            if bar is not None:
+                bar.update(1)
+    if bar is not None:
+        bar.close()
+    rows = []
+    for scen in cfg.scenarios:
+        for feat in cfg.features:
+            for fam in cfg.families:
+                grp = [r["summary"] for r in results if (r["scenario"], r["features"], r["tool_family"]) == (scen, feat, fam)]
+                if not grp:
+                    continue
+                rows.append({
+                    "scenario": scen,
+                    "features": feat,
+                    "tool_family": fam,
+                    "episodes": len(grp),
+                    "success_rate": sum(g["success"] for g in grp) / len(grp),
+                    "seat_time_s_median": _median([g["seat_time_s"] for g in grp]),
+                    "jacobian_rel_error_initial_median": _median([g["jacobian_rel_error_initial"] for g in grp]),
+                    "jacobian_rel_error_final_median": _median([g["jacobian_rel_error_final"] for g in grp]),
+                    "pred_error_rms_median": _median([g["pred_error_rms_contact_w"] for g in grp]),
+                    "offset_error_lateral_final_m_median": _median([g["offset_error_lateral_final_m"] for g in grp]),
+                    "min_lambda_JJt_median": _median([g["min_lambda_JJt"] for g in grp]),
+                    "n_params": grp[0]["n_params"],
+                    "wall_time_s_median": _median([g["wall_time_s"] for g in grp]),
+                })
+    cols = list(rows[0].keys()) if rows else []
+    with open(out / "comparison.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=cols)
+        w.writeheader()
+        w.writerows(rows)
+    (out / "comparison.md").write_text(_markdown(rows, cols))
+    _figure(results, cfg, out / "jacobian_error.png")
+    return rows
+
+
+def _fmt(v) -> str:
+    if v is None:
+        return "–"
+    if isinstance(v, float):
+        return f"{v:.3g}"
+    return str(v)
+
+
+def _markdown(rows: list[dict], cols: list[str]) -> str:
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for r in rows:
+        lines.append("| " + " | ".join(_fmt(r[c]) for c in cols) + " |")
+    note = ("\npred_error_rms: W-scaled prediction error RMS in contact; jacobian errors: |W (J_hat - J_true)| / "
+            "|W J_true| at the last step (initial: first step); J_true includes the arm errors.\n")
+    return "\n".join(lines) + "\n" + note
+
+
+def _figure(results: list[dict], cfg: CompareCfg, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scen = list(cfg.scenarios)
+    fams = list(cfg.families)
+    fig, axes = plt.subplots(len(scen), len(fams), figsize=(5.5 * len(fams), 3.6 * len(scen)), squeeze=False,
+                             constrained_layout=True)
+    for a, sc in enumerate(scen):
+        for b, fam in enumerate(fams):
+            ax = axes[a, b]
+            for k, feat in enumerate(cfg.features):
+                for r in results:
+                    if (r["scenario"], r["tool_family"], r["features"]) == (sc, fam, feat):
+                        ax.semilogy(r["t"], r["jac_err"], color=f"C{k}", lw=0.8, alpha=0.8,
+                                    label=feat if r["tool"] == 0 else None)
+            ax.set_title(f"{sc} / {fam}")
+            ax.set_xlabel("time [s]")
+            ax.set_ylabel("|W(J_hat - J_true)| / |W J_true|")
+            ax.legend(fontsize=8)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

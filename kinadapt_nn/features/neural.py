@@ -1,0 +1,82 @@
+"""Neural features: ``Y(q)`` from a frozen pretrained body, only ``theta`` adapts online.
+
+``J_hat(q) = K(q) + W^-1 Y(q) theta`` on rows 1..5 (``K`` the known nominal model -- the adjoint
+at the nominal offset, depth row included; ``W`` the channel metric the body was trained in).
+The per-step path is a hand-written numpy forward of the checkpoint's MLP (no torch, no
+autograd in the loop); ``tests/test_features_learned.py`` proves it equals the torch network.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from kinadapt_nn.features.adjoint import AdjointFeatures
+from kinadapt_nn.features.base import Features, KinState, Regressor
+from kinadapt_nn.nets import N_JOINTS, N_ROWS
+
+
+class NeuralFeatures(Features):
+    """Frozen MLP body -> Y(q); ``theta`` (p,) the online output weights."""
+
+    name = "neural"
+
+    def __init__(self, known: AdjointFeatures, prior_offset_f: np.ndarray, checkpoint: Path, W: np.ndarray) -> None:
+        from kinadapt_nn.pretrain import load_checkpoint
+
+        net, meta = load_checkpoint(checkpoint)
+        self.meta = meta
+        self.checkpoint = Path(checkpoint)
+        self.known = known
+        self.prior = np.asarray(prior_offset_f, dtype=float)
+        self.structure = meta["structure"]
+        self.K = int(meta["n_features"])
+        self.n_params = int(net.n_params)
+        sd = {k: v.detach().cpu().numpy().astype(np.float64) for k, v in net.state_dict().items()}
+        self.W1, self.b1 = sd["l1.weight"], sd["l1.bias"]
+        self.W2, self.b2 = sd["l2.weight"], sd["l2.bias"]
+        self.W3, self.b3 = sd["l3.weight"], sd["l3.bias"]
+        self.q_mean, self.q_inv_std = sd["q_mean"], 1.0 / sd["q_std"]
+        w_rows = np.asarray(meta.get("w_rows", W[1:]), dtype=float)
+        if not np.allclose(w_rows, W[1:]):
+            from kinadapt_nn.errors import ModelFileError
+
+            raise ModelFileError(
+                f"checkpoint '{checkpoint}' was trained with channel metric {w_rows.tolist()}, this run uses "
+                f"{np.asarray(W[1:]).tolist()} (retrain, or keep sensing.channel_scale as in training)"
+            )
+        self.inv_w = (1.0 / w_rows)[:, None, None]  # (5, 1, 1)
+        self.theta_mean = np.asarray(meta["theta_mean"], dtype=float)
+
+    def body(self, q: np.ndarray) -> np.ndarray:
+        """The MLP output in raw sensor units: Y (5, n, p) for ``basis``, psi (K,) for ``per_entry``."""
+        x = (q - self.q_mean) * self.q_inv_std
+        h = np.tanh(self.W2 @ np.tanh(self.W1 @ x + self.b1) + self.b2)
+        y = self.W3 @ h + self.b3
+        if self.structure == "basis":
+            return y.reshape(N_ROWS, N_JOINTS, self.K) * self.inv_w
+        return y
+
+    def jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray:
+        J = self.known.jacobian(kin, self.prior)
+        y = self.body(kin.q_rad)
+        if self.structure == "basis":
+            J[1:] += y @ theta
+        else:
+            J[1:] += (theta.reshape(N_ROWS, N_JOINTS, self.K) @ y) * self.inv_w[:, :, 0]
+        return J
+
+    def regressor(self, kin: KinState, qdot: np.ndarray) -> Regressor:
+        reg0 = self.known.regressor(kin, qdot)
+        known = reg0.known + reg0.Phi @ self.prior
+        y = self.body(kin.q_rad)
+        Phi = np.zeros((N_ROWS + 1, self.n_params))
+        if self.structure == "basis":
+            Phi[1:] = np.einsum("ijk,j->ik", y, qdot)
+        else:
+            block = np.outer(qdot, y).ravel()
+            w = block.size
+            for i in range(N_ROWS):
+                Phi[1 + i, i * w : (i + 1) * w] = block * self.inv_w[i, 0, 0]
+        return Regressor(known=known, Phi=Phi)

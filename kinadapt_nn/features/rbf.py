@@ -1,0 +1,64 @@
+"""Gaussian RBF features (Sanner & Slotine 1992) with the paper's per-entry blocks.
+
+``J_hat_ij(q) = K_ij(q) + theta_ij^T psi(q)`` for the force/moment rows i = 1..5 and joints
+j = 1..7, ``psi_k(q) = exp(-|q - c_k|^2 / (2 w^2))`` (K centres in joint space). ``K(q)`` is the
+known part: the adjoint model at the prior offset (the nominal CAD tool), depth row included;
+the depth row is never adapted. ``p = 5 * 7 * K``. ``theta`` is stored flat in (i, j, k) order.
+
+Regressor: row ``i`` of ``Phi`` holds ``qdot_j psi_k`` in block i and zeros elsewhere, so rows
+are mutually orthogonal with equal norms ``|psi| |qdot|`` -- the per-entry structure for which
+the prediction step is exactly eq. ident_qp_solution.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kinadapt_nn.features.adjoint import AdjointFeatures
+from kinadapt_nn.features.base import Features, KinState, Regressor
+
+N_ROWS = 5  # adapted rows: F_lat (2) and M (3)
+
+
+class RBFFeatures(Features):
+    """Per-entry Gaussian RBF features on top of the known adjoint prior."""
+
+    name = "rbf"
+
+    def __init__(self, known: AdjointFeatures, prior_offset_f: np.ndarray, centres: np.ndarray, width_rad: float) -> None:
+        self.known = known
+        self.prior = np.asarray(prior_offset_f, dtype=float)
+        self.centres = np.asarray(centres, dtype=float)  # (K, n)
+        self.K, self.n = self.centres.shape
+        self.inv2w2 = 1.0 / (2.0 * width_rad**2)
+        self.width = float(width_rad)
+        self.n_params = N_ROWS * self.n * self.K
+
+    def psi(self, q: np.ndarray) -> np.ndarray:
+        """RBF activations. (n,) -> (K,)."""
+        d = self.centres - q
+        return np.exp(-np.einsum("kj,kj->k", d, d) * self.inv2w2)
+
+    def jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray:
+        J = self.known.jacobian(kin, self.prior)
+        J[1:] += theta.reshape(N_ROWS, self.n, self.K) @ self.psi(kin.q_rad)
+        return J
+
+    def regressor(self, kin: KinState, qdot: np.ndarray) -> Regressor:
+        reg0 = self.known.regressor(kin, qdot)
+        known = reg0.known + reg0.Phi @ self.prior
+        block = np.outer(qdot, self.psi(kin.q_rad)).ravel()  # (n K,)
+        Phi = np.zeros((N_ROWS + 1, self.n_params))
+        w = block.size
+        for i in range(N_ROWS):
+            Phi[1 + i, i * w : (i + 1) * w] = block
+        return Regressor(known=known, Phi=Phi)
+
+
+def auto_width(centres: np.ndarray) -> float:
+    """Mean distance from each centre to its nearest neighbour [rad] (0.05 rad if one centre)."""
+    if len(centres) < 2:
+        return 0.05
+    d = np.linalg.norm(centres[:, None, :] - centres[None, :, :], axis=2)
+    np.fill_diagonal(d, np.inf)
+    return float(np.mean(d.min(axis=1)))

@@ -1,0 +1,403 @@
+"""Offline pretraining of the Jacobian basis across randomised tools and arms.
+
+Data set (deterministic from ``seed``): instances = (tool, arm) pairs. Tools: lateral offset
+uniform in a disc, length uniform, grasp tilt uniform (recorded; a rigid tool's tilt does not
+change its Jacobian, eq. ft_factor). Arms: with probability ``arm_error_fraction`` small
+kinematic errors (link lengths, joint zero offsets: ``kinadapt_nn.sim.arm_errors``), else
+nominal. Configurations: around the insertion workspace (``kinadapt_nn.workspace``). Targets:
+the true sensor Jacobian rows 1..5 (``kinadapt_nn.truth``) minus the nominal model, W-scaled.
+Held-out instances are drawn from the same distribution and never trained on.
+
+Training: closed-form per-instance least-squares heads on a support set, loss on a query set
+(the body learns a basis in which any tool/arm is a linear combination). Writes, into ``--out``:
+``model.pt`` (the checkpoint, atomically, with metadata and a content hash), ``metrics.json``,
+``tb/`` (TensorBoard: train loss, held-out Jacobian error), and ``train_state.pt`` while
+training (resume after an interruption gives the same result).
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import json
+import math
+import os
+import tempfile
+import time
+import tomllib
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+import kinadapt_nn
+from kinadapt_nn.config import ExperimentCfg, _format_validation_error, _parse_value, _set_dotted
+from kinadapt_nn.errors import ConfigError, ModelFileError
+from kinadapt_nn.nets import N_JOINTS, N_ROWS, JacobianBasisNet, least_squares_heads
+from kinadapt_nn.robot import PANDA_MJCF
+from kinadapt_nn.sensing import channel_metric, nominal_sensor_map
+from kinadapt_nn.sim.adapter import BORE_AXIS_W
+from kinadapt_nn.sim.arm_errors import random_arm_errors
+from kinadapt_nn.truth import TrueSensorJacobian
+from kinadapt_nn.workspace import insertion_path, sample_workspace
+
+CHECKPOINT_FORMAT = "kinadapt-jacobian-basis"
+CHECKPOINT_VERSION = 1
+
+
+class _P(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class ToolDistCfg(_P):
+    lateral_radius_m: float = Field(0.006, ge=0.0)  # [m] lateral offset uniform in this disc
+    length_min_m: float = Field(0.08, gt=0.0)  # [m] tool length (axial offset) range
+    length_max_m: float = Field(0.13, gt=0.0)
+    tilt_max_deg: float = Field(3.0, ge=0.0)  # [deg] grasp tilt (recorded; no effect on J)
+
+
+class ArmDistCfg(_P):
+    arm_error_fraction: float = Field(0.5, ge=0.0, le=1.0)  # [-] share of instances with arm errors
+    link_sigma_m: float = Field(0.001, ge=0.0)  # [m] link length error std
+    joint_sigma_rad: float = Field(0.004, ge=0.0)  # [rad] joint zero offset std
+
+
+class DataCfg(_P):
+    n_train: int = Field(768, ge=8)  # instances (tool, arm) for training
+    n_heldout: int = Field(96, ge=4)  # instances never trained on
+    n_support: int = Field(32, ge=4)  # configurations per instance used to fit the head
+    n_query: int = Field(16, ge=2)  # configurations per instance used for the loss
+    joint_sigma_rad: float = Field(0.03, gt=0.0)  # [rad] workspace spread about the insertion path
+
+
+class NetCfg(_P):
+    structure: Literal["basis", "per_entry"] = "basis"  # matrix-valued basis or paper's per-entry
+    n_features: int = Field(12, ge=1, le=256)  # p (basis) or K (per-entry: p = 35 K)
+    hidden: int = Field(64, ge=4, le=1024)  # hidden width of the two tanh layers
+
+
+class TrainCfg(_P):
+    steps: int = Field(1500, ge=1)  # optimiser steps
+    batch_instances: int = Field(32, ge=1)  # instances per step
+    lr: float = Field(3e-3, gt=0.0)  # Adam learning rate (cosine decay to 5 %)
+    ridge: float = Field(1e-4, gt=0.0)  # LS head ridge (W-scaled units)
+    eval_every: int = Field(100, ge=1)  # [steps] held-out evaluation + TensorBoard
+    checkpoint_every: int = Field(250, ge=1)  # [steps] resumable training state
+    device: Literal["auto", "cpu", "cuda"] = "auto"  # auto = CUDA when present
+
+
+class PretrainCfg(_P):
+    seed: int = Field(0, ge=0)
+    tools: ToolDistCfg = ToolDistCfg()
+    arms: ArmDistCfg = ArmDistCfg()
+    data: DataCfg = DataCfg()
+    net: NetCfg = NetCfg()
+    train: TrainCfg = TrainCfg()
+
+
+def load_pretrain_config(path: Path | None, overrides=()) -> PretrainCfg:
+    tree: dict = {}
+    if path is not None:
+        path = Path(path)
+        if not path.is_file():
+            raise ConfigError(f"config file '{path}' not found (pass an existing .toml file)")
+        try:
+            tree = tomllib.loads(path.read_text())
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"config file '{path}' is not valid TOML: {exc}") from None
+    for item in overrides:
+        if "=" not in item:
+            raise ConfigError(f"--set '{item}': expected key=value, e.g. --set train.steps=200")
+        key, _, text = item.partition("=")
+        _set_dotted(tree, key.strip(), _parse_value(text.strip()))
+    try:
+        cfg = PretrainCfg.model_validate(tree)
+    except ValidationError as err:
+        raise ConfigError(_format_validation_error(err).replace("online/rollout.toml", "pretrain/default.toml")) from None
+    if cfg.tools.length_max_m < cfg.tools.length_min_m:
+        raise ConfigError("tools.length_max_m must be >= tools.length_min_m")
+    return cfg
+
+
+# ----------------------------------------------------------------------------------------- data
+def make_dataset(cfg: PretrainCfg, exp: ExperimentCfg | None = None) -> dict[str, np.ndarray]:
+    """Instances, configurations and W-scaled residual targets. Deterministic from ``cfg.seed``.
+
+    Returns arrays: ``q`` (I, N, 7), ``r`` (I, N, 5, 7) residual W (J_true - J_nom) rows 1..5,
+    ``jn`` (I,) W-scaled Frobenius norm of J_true rows 1..5 over the instance, ``offset`` (I, 3),
+    ``tilt_deg`` (I, 2), ``link`` (I, 8), ``joint`` (I, 7), ``arm_error`` (I,) bool, and
+    ``q_mean``/``q_std`` (7,) for the input normalisation.
+    """
+    exp = exp or ExperimentCfg()
+    rng = np.random.default_rng(cfg.seed)
+    S = nominal_sensor_map(exp.sensing, BORE_AXIS_W)
+    W = channel_metric(exp.sensing)[1:, None]  # (5, 1)
+    l_nom = np.asarray(exp.sensing.nominal_offset_f_m, dtype=float)
+    path = insertion_path(exp)
+    I = cfg.data.n_train + cfg.data.n_heldout
+    N = cfg.data.n_support + cfg.data.n_query
+    out = {k: [] for k in ("q", "r", "jn", "offset", "tilt_deg", "link", "joint", "arm_error")}
+    td = cfg.tools
+    for _ in range(I):
+        rad = td.lateral_radius_m * math.sqrt(rng.random())
+        ang = 2 * math.pi * rng.random()
+        offset = np.array([rad * math.cos(ang), rad * math.sin(ang), rng.uniform(td.length_min_m, td.length_max_m)])
+        tilt = rng.uniform(-td.tilt_max_deg, td.tilt_max_deg, 2)
+        has_err = rng.random() < cfg.arms.arm_error_fraction
+        link, joint = random_arm_errors(rng, cfg.arms.link_sigma_m, cfg.arms.joint_sigma_rad)
+        if not has_err:
+            link, joint = np.zeros(8), np.zeros(7)
+        truth = TrueSensorJacobian(S, l_nom, offset, PANDA_MJCF, link, joint)
+        qs = sample_workspace(path, N, cfg.data.joint_sigma_rad, rng)
+        r = np.empty((N, N_ROWS, N_JOINTS))
+        jt = np.empty((N, N_ROWS, N_JOINTS))
+        for k, q in enumerate(qs):
+            J_true = truth(q)
+            _, R_n, J_n = truth.nominal(q)
+            from kinadapt_nn.truth import sensor_jacobian_rows
+
+            J_nom = sensor_jacobian_rows(S[1:], R_n, J_n, l_nom)
+            r[k] = W * (J_true[1:] - J_nom)
+            jt[k] = W * J_true[1:]
+        out["q"].append(qs)
+        out["r"].append(r)
+        out["jn"].append(np.sqrt(np.mean(np.sum(jt**2, axis=(1, 2)))))
+        out["offset"].append(offset)
+        out["tilt_deg"].append(tilt)
+        out["link"].append(link)
+        out["joint"].append(joint)
+        out["arm_error"].append(has_err)
+    data = {k: np.asarray(v) for k, v in out.items()}
+    allq = data["q"][: cfg.data.n_train].reshape(-1, N_JOINTS)
+    data["q_mean"] = allq.mean(axis=0)
+    data["q_std"] = allq.std(axis=0) + 1e-6
+    return data
+
+
+# ----------------------------------------------------------------------------------- checkpoints
+def _atomic_torch_save(obj, path: Path) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    os.close(fd)
+    try:
+        torch.save(obj, tmp)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def state_hash(state: dict[str, torch.Tensor], meta: dict) -> str:
+    """sha256 over the tensors (name, dtype, shape, bytes) and the metadata JSON."""
+    h = hashlib.sha256()
+    for k in sorted(state):
+        t = state[k].detach().cpu().contiguous()
+        h.update(k.encode())
+        h.update(str(t.dtype).encode())
+        h.update(str(tuple(t.shape)).encode())
+        h.update(t.numpy().tobytes())
+    h.update(json.dumps(meta, sort_keys=True).encode())
+    return h.hexdigest()
+
+
+def save_checkpoint(path: Path, net: JacobianBasisNet, theta_mean: np.ndarray, meta: dict) -> None:
+    state = {k: v.detach().cpu().clone() for k, v in net.state_dict().items()}
+    meta = dict(meta, format=CHECKPOINT_FORMAT, version=CHECKPOINT_VERSION, theta_mean=[float(x) for x in theta_mean])
+    _atomic_torch_save({"state_dict": state, "meta": meta, "sha256": state_hash(state, meta)}, Path(path))
+
+
+def load_checkpoint(path: Path) -> tuple[JacobianBasisNet, dict]:
+    """Load and verify a checkpoint. One-line ``ModelFileError`` for anything wrong with it."""
+    path = Path(path)
+    if not path.is_file():
+        raise ModelFileError(f"checkpoint '{path}' not found (run 'kinadapt pretrain --out DIR' or fix the path)")
+    try:
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many types for corrupt files
+        raise ModelFileError(f"checkpoint '{path}' is corrupt or not a torch file ({type(exc).__name__})") from None
+    if not isinstance(blob, dict) or not {"state_dict", "meta", "sha256"} <= set(blob):
+        raise ModelFileError(f"checkpoint '{path}' is not a kinadapt checkpoint (missing state_dict/meta/sha256)")
+    meta = blob["meta"]
+    if meta.get("format") != CHECKPOINT_FORMAT:
+        raise ModelFileError(f"checkpoint '{path}' has format {meta.get('format')!r}, expected {CHECKPOINT_FORMAT!r}")
+    if int(meta.get("version", -1)) > CHECKPOINT_VERSION:
+        raise ModelFileError(f"checkpoint '{path}' has version {meta.get('version')}; upgrade kinadapt_nn to read it")
+    if state_hash(blob["state_dict"], meta) != blob["sha256"]:
+        raise ModelFileError(f"checkpoint '{path}' failed its content hash (file modified or damaged)")
+    try:
+        net = JacobianBasisNet(meta["structure"], meta["n_features"], meta["hidden"], meta["q_mean"], meta["q_std"])
+        net.load_state_dict(blob["state_dict"])
+    except (KeyError, RuntimeError, ValueError) as exc:
+        raise ModelFileError(f"checkpoint '{path}' does not match the network it describes ({exc})") from None
+    net.double().eval()
+    return net, meta
+
+
+# -------------------------------------------------------------------------------------- training
+def _device(cfg: PretrainCfg) -> torch.device:
+    if cfg.train.device == "cuda" or (cfg.train.device == "auto" and torch.cuda.is_available()):
+        return torch.device("cuda")
+    return torch.device("cpu")
+
+
+def _relative_error(net, q_s, r_s, q_q, r_q, jn, ridge) -> torch.Tensor:
+    """Per-instance relative Jacobian error on the query set with heads fit on the support set."""
+    theta = least_squares_heads(net, q_s, r_s, ridge)
+    pred = net.residual(q_q, theta[:, None, :].expand(-1, q_q.shape[1], -1))
+    err = torch.sqrt(torch.mean(torch.sum((pred - r_q) ** 2, dim=(-2, -1)), dim=1))
+    return err / jn
+
+
+def adjoint_best_fit_error(data: dict, n_train: int, n_support: int) -> np.ndarray:
+    """Reference: the 3-parameter adjoint's best LS fit (residual is affine in the offset, so a
+    linear LS on support with basis d J / d offset is exact) evaluated on the query set.
+    Returns the per-instance relative error of the held-out instances."""
+    # In W-scaled residual space the adjoint spans {d(S Ad(R l) J_arm)/dl}: computed numerically.
+    exp = ExperimentCfg()
+    S = nominal_sensor_map(exp.sensing, BORE_AXIS_W)
+    W = channel_metric(exp.sensing)[1:, None]
+    l_nom = np.asarray(exp.sensing.nominal_offset_f_m, dtype=float)
+    nominal = TrueSensorJacobian(S, l_nom, l_nom, PANDA_MJCF)
+    from kinadapt_nn.truth import sensor_jacobian_rows
+
+    errs = []
+    for i in range(n_train, len(data["q"])):
+        qs = data["q"][i]
+        basis = []
+        for q in qs:
+            _, R, J = nominal.nominal(q)
+            cols = [W * (sensor_jacobian_rows(S[1:], R, J, e) - sensor_jacobian_rows(S[1:], R, J, 0 * e)) for e in np.eye(3)]
+            basis.append(np.stack(cols, axis=-1))  # (5, 7, 3)
+        B = np.array(basis)  # (N, 5, 7, 3); residual = B (l - l_nom)
+        A = B[:n_support].reshape(-1, 3)
+        x, *_ = np.linalg.lstsq(A, data["r"][i][:n_support].reshape(-1), rcond=None)
+        pred = B[n_support:] @ x
+        e = np.sqrt(np.mean(np.sum((pred - data["r"][i][n_support:]) ** 2, axis=(1, 2))))
+        errs.append(e / data["jn"][i])
+    return np.array(errs)
+
+
+def pretrain(cfg: PretrainCfg, out: Path, progress: bool = True, stop_after: int | None = None) -> dict:
+    """Train (or resume) into ``out``. ``stop_after`` simulates an interruption (tests)."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    dev = _device(cfg)
+    t0 = time.perf_counter()
+    data = make_dataset(cfg)
+    nt, ns = cfg.data.n_train, cfg.data.n_support
+    f64 = torch.float64
+    q = torch.as_tensor(data["q"], dtype=f64, device=dev)
+    r = torch.as_tensor(data["r"], dtype=f64, device=dev)
+    jn = torch.as_tensor(data["jn"], dtype=f64, device=dev)
+    torch.manual_seed(cfg.seed)
+    net = JacobianBasisNet(cfg.net.structure, cfg.net.n_features, cfg.net.hidden, data["q_mean"], data["q_std"])
+    net = net.double().to(dev)
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.train.lr)
+    rng = np.random.default_rng(cfg.seed + 1)
+    cfg_json = cfg.model_dump(mode="json")
+    state_path = out / "train_state.pt"
+    step = 0
+    if state_path.is_file():
+        st = torch.load(state_path, map_location=dev, weights_only=False)
+        if st.get("config") != cfg_json:
+            raise ConfigError(f"'{state_path}' was written by a different pretrain config; use another --out")
+        net.load_state_dict(st["net"])
+        opt.load_state_dict(st["opt"])
+        rng.bit_generator.state = st["rng"]
+        step = int(st["step"])
+    adj_err = adjoint_best_fit_error(data, nt, ns)
+    held_arm = data["arm_error"][nt:]
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=cfg.train.steps, initial=step, desc="pretrain", unit="step")
+    hist = []
+    with SummaryWriter(log_dir=str(out / "tb")) as tb:
+        while step < cfg.train.steps:
+            idx = torch.as_tensor(rng.choice(nt, cfg.train.batch_instances, replace=False), device=dev)
+            lr = cfg.train.lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * step / cfg.train.steps)))
+            for g in opt.param_groups:
+                g["lr"] = lr
+            err = _relative_error(net, q[idx, :ns], r[idx, :ns], q[idx, ns:], r[idx, ns:], jn[idx], cfg.train.ridge)
+            loss = torch.mean(err**2)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            step += 1
+            if bar is not None:
+                bar.update(1)
+            if step % cfg.train.eval_every == 0 or step == cfg.train.steps:
+                with torch.no_grad():
+                    he = _relative_error(net, q[nt:, :ns], r[nt:, :ns], q[nt:, ns:], r[nt:, ns:], jn[nt:], cfg.train.ridge)
+                he = he.cpu().numpy()
+                tb.add_scalar("pretrain/train_rel_jacobian_error_rms", float(torch.sqrt(loss.detach())), step)
+                tb.add_scalar("pretrain/heldout_rel_jacobian_error_median", float(np.median(he)), step)
+                tb.add_scalar("pretrain/heldout_rel_jacobian_error_arm_errors_median", float(np.median(he[held_arm])) if held_arm.any() else 0.0, step)
+                tb.add_scalar("pretrain/adjoint_heldout_rel_jacobian_error_median", float(np.median(adj_err)), step)
+                hist.append((step, float(torch.sqrt(loss.detach())), float(np.median(he))))
+            if step % cfg.train.checkpoint_every == 0 or step == cfg.train.steps:
+                _atomic_torch_save(
+                    {"net": net.state_dict(), "opt": opt.state_dict(), "rng": rng.bit_generator.state, "step": step,
+                     "config": cfg_json},
+                    state_path,
+                )
+            if stop_after is not None and step >= stop_after and step < cfg.train.steps:
+                if bar is not None:
+                    bar.close()
+                return {"interrupted_at": step}
+    if bar is not None:
+        bar.close()
+    # heads of every training instance -> theta_mean (the online initial estimate)
+    with torch.no_grad():
+        theta_all = least_squares_heads(net, q[:nt], r[:nt], cfg.train.ridge).cpu().numpy()
+        he = _relative_error(net, q[nt:, :ns], r[nt:, :ns], q[nt:, ns:], r[nt:, ns:], jn[nt:], cfg.train.ridge).cpu().numpy()
+    n_body = sum(p.numel() for p in net.parameters())
+    meta = {
+        "structure": cfg.net.structure,
+        "n_features": cfg.net.n_features,
+        "hidden": cfg.net.hidden,
+        "n_params_online": int(net.n_params),
+        "n_params_body": int(n_body),
+        "q_mean": [float(x) for x in data["q_mean"]],
+        "q_std": [float(x) for x in data["q_std"]],
+        "w_rows": [float(x) for x in channel_metric(ExperimentCfg().sensing)[1:]],
+        "tool_distribution": cfg.tools.model_dump(mode="json"),
+        "arm_distribution": cfg.arms.model_dump(mode="json"),
+        "config": cfg_json,
+        "library_version": kinadapt_nn.__version__,
+        "torch_version": str(torch.__version__),
+        "heldout_rel_jacobian_error_median": float(np.median(he)),
+    }
+    net_cpu = net.to("cpu")
+    save_checkpoint(out / "model.pt", net_cpu, theta_all.mean(axis=0), meta)
+    metrics = {
+        "steps": step,
+        "wall_time_s": time.perf_counter() - t0,
+        "device": str(dev),
+        "n_params_online": int(net.n_params),
+        "n_params_body": int(n_body),
+        "heldout_rel_jacobian_error_median": float(np.median(he)),
+        "heldout_rel_jacobian_error_median_nominal_arm": float(np.median(he[~held_arm])) if (~held_arm).any() else None,
+        "heldout_rel_jacobian_error_median_arm_errors": float(np.median(he[held_arm])) if held_arm.any() else None,
+        "adjoint_best_fit_rel_error_median_nominal_arm": float(np.median(adj_err[~held_arm])) if (~held_arm).any() else None,
+        "adjoint_best_fit_rel_error_median_arm_errors": float(np.median(adj_err[held_arm])) if held_arm.any() else None,
+        "history": hist,
+    }
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=1) + "\n")
+    state_path.unlink(missing_ok=True)
+    return metrics
+
+
+def checkpoint_bytes_equal(a: Path, b: Path) -> bool:
+    """True when two checkpoints hold the same tensors (for resume tests)."""
+    sa = torch.load(a, weights_only=True)["state_dict"]
+    sb = torch.load(b, weights_only=True)["state_dict"]
+    return sa.keys() == sb.keys() and all(torch.equal(sa[k], sb[k]) for k in sa)
+
+
+
