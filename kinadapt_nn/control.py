@@ -44,7 +44,10 @@ class JointCommand(NamedTuple):
 
 
 class StepLog(NamedTuple):
-    """Controller-side quantities of one step, for the trace (all from sensors)."""
+    """Controller-side quantities of one step, for the trace (all from sensors).
+
+    ``s``, ``F`` and ``w_env_w`` are views of the controller's work buffers: valid until the next
+    ``step()`` (the episode copies them into the trace at once); copy them to keep them."""
 
     s: np.ndarray  #: (m,) sensor vector [d, F_lat, M]
     s_dot_meas: np.ndarray  #: (m,) filtered measured rate
@@ -73,6 +76,7 @@ class ValueFunction:
         self.c_F = c.compliance_lat_m_per_N
         self.c_M = c.compliance_mom_rad_per_Nm
         self._e_max = self.f_max / self.k_d
+        self._neg_c = np.array([0.0, -self.c_F, -self.c_F, -self.c_M, -self.c_M, -self.c_M])
 
     def value(self, s: np.ndarray) -> float:
         e = s[0] - self.d_star
@@ -87,15 +91,19 @@ class ValueFunction:
         return h + 0.5 * self.c_F * (s[:, 1] ** 2 + s[:, 2] ** 2) + 0.5 * self.c_M * np.sum(s[:, 3:] ** 2, axis=1)
 
     def force(self, s: np.ndarray, out: np.ndarray) -> np.ndarray:
-        e = s[0] - self.d_star
-        out[0] = -min(max(self.k_d * e, -self.f_max), self.f_max)
-        out[1:3] = -self.c_F * s[1:3]
-        out[3:] = -self.c_M * s[3:]
+        # one multiply for the quadratic channels (-c_F s_lat, -c_M s_M), then the Huber depth slope
+        np.multiply(s, self._neg_c, out=out)
+        out[0] = -min(max(self.k_d * (float(s[0]) - self.d_star), -self.f_max), self.f_max)
         return out
 
 
 class ArmKinematics:
-    """Forward kinematics and ``J_arm`` of the bare arm from encoder readings (MuJoCo)."""
+    """Forward kinematics and ``J_arm`` of the bare arm from encoder readings (MuJoCo).
+
+    ``update(q)`` is the hot-path form: it returns a ``KinState`` of *views* into this object's
+    buffers (``p_w_O``, ``R_wf``, ``J_arm``), valid until the next ``update``/call; ``kin(q)``
+    returns copies that may be kept.
+    """
 
     def __init__(self, mjcf_path: Path = PANDA_MJCF) -> None:
         mjcf_path = Path(mjcf_path)
@@ -108,19 +116,24 @@ class ArmKinematics:
         self.data = mujoco.MjData(self.model)
         self.site = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, FLANGE_SITE)
         self._jac = np.zeros((6, self.model.nv))
+        # views into MjData, fetched once (each attribute access builds a new array object)
+        self._qpos = self.data.qpos
+        self._p = self.data.site_xpos[self.site]
+        self._R = self.data.site_xmat[self.site].reshape(3, 3)
+        self._jacp, self._jacr = self._jac[:3], self._jac[3:]
+
+    def update(self, q: np.ndarray) -> KinState:
+        """FK + ``J_arm`` at ``q``; the returned arrays are views, overwritten by the next call."""
+        m, d = self.model, self.data
+        self._qpos[:] = q
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_jacSite(m, d, self._jacp, self._jacr, self.site)
+        return KinState(q, self._p, self._R, self._jac)
 
     def __call__(self, q: np.ndarray) -> KinState:
-        d = self.data
-        d.qpos[:] = q
-        mujoco.mj_kinematics(self.model, d)
-        mujoco.mj_comPos(self.model, d)
-        mujoco.mj_jacSite(self.model, d, self._jac[:3], self._jac[3:], self.site)
-        return KinState(
-            q_rad=q,
-            p_w_O=d.site_xpos[self.site].copy(),
-            R_wf=d.site_xmat[self.site].reshape(3, 3).copy(),
-            J_arm=self._jac.copy(),
-        )
+        self.update(q)
+        return KinState(q_rad=q, p_w_O=self._p.copy(), R_wf=self._R.copy(), J_arm=self._jac.copy())
 
 
 def rank_margin(W: np.ndarray, J_hat: np.ndarray) -> float:
@@ -176,11 +189,34 @@ class Controller:
         self._dither = np.asarray(c.dither_rad_s, dtype=float)
         self._dither_on = bool(np.any(self._dither))
         self._two_pi_f = 2.0 * math.pi * c.dither_hz
-        self._damp_eye = 1e-6 * np.eye(6)  # Tikhonov term of J_arm^+ = J^T (J J^T + 1e-6 I)^-1
+        self._damp = 1e-6  # Tikhonov term of J_arm^+ = J^T (J J^T + 1e-6 I)^-1
         self.t_settle = cfg.start.settle_s
         self.t_tare0 = max(0.0, self.t_settle - sc.tare_window_s)
         self.ramp_s = c.ramp_s
-        self.rate_meas = RateFilter(sc.filter_tau_s, self.dt, 6)
+        # -- work buffers of step() (allocated once; step() fills them in place)
+        p = features.n_params
+        # One filter pass for every filtered channel (README: the prediction goes through the
+        # *same* filter as the measured rate): rows [s; known; Phi^T] -> states
+        # [y (rate filter of s); known_f; Phi_f^T] (the law's LowPass states are views of rows 1:).
+        self._U = np.zeros((2 + p, 6))  # filter inputs this step
+        self._Z = np.zeros((2 + p, 6))  # filter states
+        self._D = np.zeros((2 + p, 6))  # scratch: U - Z
+        self._s, self._s_tail, self._known, self._Phi_T = self._U[0], self._U[0, 1:], self._U[1], self._U[2:]
+        self._D0 = self._D[0]
+        self.rate_meas = RateFilter(sc.filter_tau_s, self.dt, 6, y=self._Z[0])
+        self._alpha, self._inv_tau = self.rate_meas.alpha, self.rate_meas.inv
+        self._dw = np.zeros(6)  # wrench - tare
+        self._dw23 = self._dw.reshape(2, 3)
+        self._w_env = np.zeros(6)  # tool -> environment wrench, world
+        self._w_env23 = self._w_env.reshape(2, 3)
+        self._L = np.zeros((6, 6))  # J J^T + 1e-6 I, then its Cholesky factor
+        self._L_diag = self._L.reshape(-1)[::7]
+        # adjoint features: fused kernels (no J_hat_xi formed); other features: generic path
+        self._fused = bool(getattr(features, "has_fused_kernels", lambda: False)())
+        self._n_t = tuple(self.n_axis.tolist())
+        self._l_nom_t = tuple(self.l_nom_f.tolist())
+        self._M_t = tuple(self.M_virt.tolist())
+        self._inv_den_t = tuple(self._inv_den.tolist())
         ad = cfg.adaptation
         self.theta0 = self.theta.copy()
         half = np.array([ad.omega_lateral_m, ad.omega_lateral_m, ad.omega_axial_m])
@@ -211,9 +247,11 @@ class Controller:
         self.F = np.zeros(6)
         self.tared = False
         self._tmp6 = np.zeros(6)
+        self._xi_t = (0.0,) * 6
+        self._Z[...] = 0.0
         self.rate_meas.primed = False
         self.theta = self.theta0.copy()
-        self.law = CompositeLaw(**self.law_args)
+        self.law = CompositeLaw(**self.law_args, filter_state=self._Z[1:])
         self.last: StepLog | None = None
 
     # ------------------------------------------------------------------------------------
@@ -225,12 +263,17 @@ class Controller:
         return s
 
     def step(self, t: float, q: np.ndarray, qdot: np.ndarray, wrench: np.ndarray) -> JointCommand:
-        """One control period. Inputs: time [s], encoders (n,), raw F/T reading (6,) in f."""
+        """One control period. Inputs: time [s], encoders (n,), raw F/T reading (6,) in f.
+
+        Hot path (1 kHz): numpy calls cost ~0.3-1 us each whatever the size here, so small
+        vectors are handled as Python floats and the rest is fused into few calls on
+        preallocated buffers; the comments name what each fused line implements."""
         if not math.isfinite(q.dot(q) + qdot.dot(qdot) + wrench.dot(wrench)):
             raise SensorError(
                 f"non-finite sensor sample at t={t:.3f} s (check the encoders and the F/T sensor for NaN/inf)"
             )
-        kin = self.kin(q)
+        kin = self.kin.update(q)  # views, valid for this step
+        R, J = kin.R_wf, kin.J_arm
         if self.q_ref is None:
             self.q_ref = q.copy()
             self.q_posture = q.copy()
@@ -247,32 +290,65 @@ class Controller:
                 self.tared = True
             rho = min(1.0, (t - self.t_settle) / self.ramp_s) if self.ramp_s > 0 else 1.0
             # tool -> environment, world axes, about O: [R (r_f - r0_f); R (r_m - r0_m)]
-            w_env = ((wrench - self.tare).reshape(2, 3) @ kin.R_wf.T).ravel()
-        s = self.sensor_vector(kin, w_env)
-        # -- measured and predicted rates through the same filter
-        s_dot_meas = self.rate_meas.rate(s)
-        J = kin.J_arm
-        J_xi = self.features.twist_jacobian(kin, self.theta)  # (m, 6) or None
-        J_hat = J_xi @ J if J_xi is not None else self.features.jacobian(kin, self.theta)  # (m, n)
+            np.subtract(wrench, self.tare, out=self._dw)
+            np.dot(self._dw23, R.T, out=self._w_env23)
+            w_env = self._w_env
+        # -- s = [d, F_lat, M] (kinadapt_nn.sensing), written into row 0 of the filter input
+        s = self._s
+        np.dot(self._G, w_env, out=self._s_tail)  # F_lat = P f_on_tool = -P w_env_f ; M = -w_env_m
+        p0, p1, p2 = kin.p_w_O.tolist()
+        l0, l1, l2 = R.dot(self.l_nom_f).tolist()
+        n0, n1, n2 = self._n_t
+        s[0] = n0 * (p0 + l0) + n1 * (p1 + l1) + n2 * (p2 + l2) - self._n_entry  # n . (p_O + R l_nom) - n . p_entry
+        # -- regressor on the realised velocity (rows 1: of the filter input)
+        if self._fused:
+            self.features.regressor_rows(kin, qdot, self._known, self._Phi_T)
+        else:
+            reg = self.features.regressor(kin, qdot)
+            self._known[:] = reg.known
+            self._Phi_T[:] = reg.Phi.T
+        # -- one pass of the shared first-order filter (sensing.RateFilter / LowPass):
+        #    s_dot_meas = (s - y) / (tau + dt);  y, known_f, Phi_f += alpha (input - state)
+        U, Z, D = self._U, self._Z, self._D
+        if not self.rate_meas.primed:
+            Z[0] = s
+            self.rate_meas.primed = True
+        np.subtract(U, Z, out=D)
+        s_dot_meas = self._D0 * self._inv_tau
+        D *= self._alpha
+        Z += D
         # -- value force and the twist admittance (eq. ft_force, eq. cp_admittance)
         F = self.value_fn.force(s, self.F)
-        L = J @ J.T
-        L += self._damp_eye
+        L = self._L
+        mujoco.mju_mulMatMatT(L, J, J)
+        self._L_diag += self._damp
         mujoco.mju_cholFactor(L, 0.0)
-        if J_xi is not None:
-            drive = J_xi.T @ F  # (S Ad)^T F: wrench at O
-        else:  # J_hat_xi^T F = J_arm^{+T} J_hat^T F
-            drive = np.empty(6)
-            mujoco.mju_cholSolve(drive, L, J @ (J_hat.T @ F))
-        # M (xi+ - xi)/dt + D xi+ = rho drive - w_env   (implicit in the damping)
-        xi = (self.M_virt * self.xi + self.dt * (rho * drive - w_env)) * self._inv_den
-        vn = math.sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2])
+        if self._fused:
+            drive = self.features.twist_drive(kin, self.theta, F)  # (S Ad)^T F: wrench at O
+        else:
+            J_xi = self.features.twist_jacobian(kin, self.theta)  # (m, 6) or None
+            if J_xi is not None:
+                drive = J_xi.T.dot(F).tolist()
+            else:  # J_hat_xi^T F = J_arm^{+T} J_hat^T F
+                dr = np.empty(6)
+                mujoco.mju_cholSolve(dr, L, J.dot(self.features.jacobian(kin, self.theta).T.dot(F)))
+                drive = dr.tolist()
+        # M (xi+ - xi)/dt + D xi+ = rho drive - w_env   (implicit in the damping), per channel
+        dt = self.dt
+        x0, x1, x2, x3, x4, x5 = (
+            (m * x + dt * (rho * dr - we)) * iv
+            for m, x, dr, we, iv in zip(self._M_t, self._xi_t, drive, w_env.tolist(), self._inv_den_t)
+        )
+        vn = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
         if vn > self.v_max:
-            xi[:3] *= self.v_max / vn
-        wn = math.sqrt(xi[3] * xi[3] + xi[4] * xi[4] + xi[5] * xi[5])
+            c = self.v_max / vn
+            x0, x1, x2 = x0 * c, x1 * c, x2 * c
+        wn = math.sqrt(x3 * x3 + x4 * x4 + x5 * x5)
         if wn > self.w_max:
-            xi[3:] *= self.w_max / wn
-        self.xi = xi
+            c = self.w_max / wn
+            x3, x4, x5 = x3 * c, x4 * c, x5 * c
+        self._xi_t = (x0, x1, x2, x3, x4, x5)
+        self.xi = xi = np.array(self._xi_t)
         if self._dither_on and rho > 0.0:  # commanded excitation (Remark ft_excitation), not stored
             ph = self._two_pi_f * (t - self.t_settle)
             xi = xi.copy()
@@ -280,14 +356,16 @@ class Controller:
             xi[4] += rho * self._dither[1] * math.cos(ph)
             xi[5] += rho * self._dither[2] * math.sin(1.7 * ph)
         # -- joint reference: qdot = J^+ xi + (I - J^+ J) k_ns (q_0 - q)
-        z = self.k_ns * (self.q_posture - q)
+        z = self.q_posture - q
+        z *= self.k_ns
         y = self._tmp6
-        mujoco.mju_cholSolve(y, L, xi - J @ z)
-        qdot_ref = J.T @ y + z
-        self.q_ref = self.q_ref + self.dt * qdot_ref
+        mujoco.mju_cholSolve(y, L, xi - J.dot(z))
+        qdot_ref = y.dot(J)  # J^T y
+        qdot_ref += z
+        self.q_ref = self.q_ref + dt * qdot_ref
         # -- adaptation (eq. ft_composite) on the realised velocity; theta_{k+1} is used next step
         theta = self.theta
-        self.theta, a = self.law.update(kin, qdot, theta, s, s_dot_meas, F, w_env)
+        self.theta, a = self.law.step_filtered(theta, self._Phi_T, s_dot_meas, F, w_env)
         # -- diagnostics for the trace (V and lambda_min are evaluated off the hot path)
         self.last = StepLog(s, s_dot_meas, a.s_dot_pred, F, xi, w_env, theta, rho, a)
         return JointCommand(self.q_ref, qdot_ref)

@@ -84,10 +84,12 @@ class RateFilter:
     lag does not enter the residual. Shapes: (k,) channels.
     """
 
-    def __init__(self, tau_s: float, dt_s: float, n_channels: int) -> None:
+    def __init__(self, tau_s: float, dt_s: float, n_channels: int, y: np.ndarray | None = None) -> None:
         self.alpha = dt_s / (tau_s + dt_s)
         self.inv = 1.0 / (tau_s + dt_s)
-        self.y = np.zeros(n_channels)
+        #: filter state; ``y`` may be a view into a caller's stacked buffer (Controller.step
+        #: updates it there together with the law's filters, in one pass)
+        self.y = np.zeros(n_channels) if y is None else y
         self.z = np.zeros(n_channels)
         self.primed = False
 
@@ -108,9 +110,12 @@ class RateFilter:
 class LowPass:
     """The same first-order filter applied to an already-differentiated signal. (k,) or (k, p)."""
 
-    def __init__(self, tau_s: float, dt_s: float, shape: tuple[int, ...]) -> None:
+    def __init__(self, tau_s: float, dt_s: float, shape: tuple[int, ...], z: np.ndarray | None = None) -> None:
         self.alpha = dt_s / (tau_s + dt_s)
-        self.z = np.zeros(shape)
+        #: filter state; may be a view into a caller's stacked buffer (see CompositeLaw)
+        self.z = np.zeros(shape) if z is None else z
+        if self.z.shape != tuple(shape):
+            raise ValueError(f"LowPass state shape {self.z.shape} != {tuple(shape)}")
 
     def reset(self) -> None:
         self.z[...] = 0.0

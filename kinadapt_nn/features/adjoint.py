@@ -22,7 +22,12 @@ from kinadapt_nn.geometry import skew
 
 
 class AdjointFeatures(Features):
-    """Analytic adjoint of the wrist-to-tip offset (p = 3)."""
+    """Analytic adjoint of the wrist-to-tip offset (p = 3).
+
+    Besides the ``Features`` interface it offers two hot-path kernels for ``Controller.step``
+    (same math, no (m, 6) ``J_hat_xi`` formed, few numpy calls): :meth:`regressor_rows` and
+    :meth:`twist_drive`.
+    """
 
     n_params = 3
     name = "adjoint"
@@ -32,23 +37,72 @@ class AdjointFeatures(Features):
         self.S_v = self.S[:, :3].copy()
         self.S_v[0] = 0.0  # the depth row does not see theta
         self.l_nom_f = np.asarray(nominal_offset_f_m, dtype=float)
+        # -- constants of the hot-path kernels
+        self._n = tuple(self.S[0, :3].tolist())  # depth row, linear part (the bore axis)
+        self._K = np.vstack([self.S.T, self.S_v.T])  # (9, m): K F = [S^T F; S_v^T F]
+        # Phi^T = (S_v [w]x R)^T = R^T sum_k w_k T_k with T_k = -[e_k]x S_v^T  (3, m) each
+        self._T = np.stack([-skew(e) @ self.S_v.T for e in np.eye(3)]).reshape(3, -1)
+        self._xi = np.zeros(6)  # scratch: realised flange twist J_arm qdot
+        self._w = self._xi[3:]
+        self._B = np.zeros(self._T.shape[1])
+        self._B3m = self._B.reshape(3, -1)
 
     def twist_jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray:
         """``S Ad(R_wf theta)`` with the depth row on the nominal offset. -> (m, 6)."""
         R = kin.R_wf
         # S Ad(l) = [S_v, S_w - S_v [l]x]  (geometry.adjoint_offset)
         J_xi = self.S.copy()
-        J_xi[:, 3:] -= self.S_v @ skew(R @ theta)
-        J_xi[0, 3:] -= self.S[0, :3] @ skew(R @ self.l_nom_f)
+        J_xi[:, 3:] -= self.S_v.dot(skew(R.dot(theta)))
+        J_xi[0, 3:] -= self.S[0, :3].dot(skew(R.dot(self.l_nom_f)))
         return J_xi
 
     def jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray:
-        return self.twist_jacobian(kin, theta) @ kin.J_arm
+        return self.twist_jacobian(kin, theta).dot(kin.J_arm)
 
     def regressor(self, kin: KinState, qdot: np.ndarray) -> Regressor:
-        xi = kin.J_arm @ qdot
-        v, w = xi[:3], xi[3:]
-        known = self.S @ xi
+        xi = kin.J_arm.dot(qdot)
+        w = xi[3:]
+        known = self.S.dot(xi)
         known[0] += self.S[0, :3] @ np.cross(w, kin.R_wf @ self.l_nom_f)
         Phi = self.S_v @ skew(w) @ kin.R_wf
         return Regressor(known=known, Phi=Phi)
+
+    # -- hot-path kernels ------------------------------------------------------------------
+    def has_fused_kernels(self) -> bool:
+        """True when the kernels below compute what ``regressor``/``twist_jacobian`` do (a
+        subclass that overrides either must not be served by them)."""
+        cls = type(self)
+        return cls.regressor is AdjointFeatures.regressor and cls.twist_jacobian is AdjointFeatures.twist_jacobian
+
+    def regressor_rows(self, kin: KinState, qdot: np.ndarray, known_out: np.ndarray, Phi_T_out: np.ndarray) -> None:
+        """``regressor(kin, qdot)`` written in place: ``known_out`` (m,) and ``Phi_T_out`` (3, m)
+        = Phi^T, both C-contiguous (rows of the controller's filter buffer)."""
+        xi = np.dot(kin.J_arm, qdot, out=self._xi)  # realised twist [v; w]
+        np.dot(self.S, xi, out=known_out)
+        np.dot(self._w, self._T, out=self._B)  # [w]x S_v^T, negated, flattened
+        np.dot(kin.R_wf.T, self._B3m, out=Phi_T_out)  # Phi^T = -R^T [w]x S_v^T
+        # depth row on the nominal offset: S_0 Ad(R l_nom) xi = S_0 xi + n . (w x R l_nom)
+        w0, w1, w2 = self._w.tolist()
+        l0, l1, l2 = kin.R_wf.dot(self.l_nom_f).tolist()
+        n0, n1, n2 = self._n
+        known_out[0] += n0 * (w1 * l2 - w2 * l1) + n1 * (w2 * l0 - w0 * l2) + n2 * (w0 * l1 - w1 * l0)
+
+    def twist_drive(self, kin: KinState, theta: np.ndarray, F: np.ndarray) -> list[float]:
+        """``twist_jacobian(kin, theta)^T F`` (6 floats) without forming it: with ``a = R theta``,
+        ``lw = R l_nom``, ``u = S_v^T F`` and ``f0 = F_0 n`` (the depth row),
+        ``[S_v^T F + f0; S_w^T F + a x u + lw x f0]`` since ``(S_v [a]x)^T F = -[a]x u``."""
+        g = self._K.dot(F).tolist()  # [S^T F (6); u (3)]
+        R = kin.R_wf
+        a0, a1, a2 = R.dot(theta).tolist()
+        l0, l1, l2 = R.dot(self.l_nom_f).tolist()
+        u0, u1, u2 = g[6], g[7], g[8]
+        f0 = float(F[0])
+        m0, m1, m2 = f0 * self._n[0], f0 * self._n[1], f0 * self._n[2]
+        return [
+            g[0],
+            g[1],
+            g[2],
+            g[3] + (a1 * u2 - a2 * u1) + (l1 * m2 - l2 * m1),
+            g[4] + (a2 * u0 - a0 * u2) + (l2 * m0 - l0 * m2),
+            g[5] + (a0 * u1 - a1 * u0) + (l0 * m1 - l1 * m0),
+        ]
