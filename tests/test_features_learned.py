@@ -1,0 +1,201 @@
+"""RBF and neural features, pretraining, checkpoints, arm errors, compare."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+
+from kinadapt_nn.adaptation import prediction_step
+from kinadapt_nn.config import load_config
+from kinadapt_nn.episode import make_controller, make_features, run_episode
+from kinadapt_nn.errors import ModelFileError
+from kinadapt_nn.robot import MODELS_DIR
+
+Q0 = np.array([0.05, -0.55, 0.02, -2.45, 0.03, 1.95, 0.75])
+
+
+def _kin_and_qdot(seed=0):
+    rng = np.random.default_rng(seed)
+    ctrl = make_controller(load_config(None, []))
+    q = Q0 + 0.05 * rng.normal(size=7)
+    return ctrl, ctrl.kin(q), 0.2 * rng.normal(size=7), rng
+
+
+@pytest.mark.parametrize("kind", ["rbf", "neural"])
+def test_learned_regressor_matches_jacobian_and_finite_differences(kind):
+    """J_hat(theta) qdot = known + Phi theta, and Phi is the derivative of J_hat qdot in theta."""
+    _, kin, qdot, rng = _kin_and_qdot(1)
+    feats, theta0 = make_features(load_config(None, [f"run.features={kind}"]))
+    theta = theta0 + 0.01 * rng.normal(size=feats.n_params) * (np.abs(theta0).max() + 1.0)
+    reg = feats.regressor(kin, qdot)
+    J = feats.jacobian(kin, theta)
+    np.testing.assert_allclose(J @ qdot, reg.known + reg.Phi @ theta, rtol=1e-10, atol=1e-9)
+    h = 1e-3
+    for k in rng.choice(feats.n_params, 5, replace=False):
+        e = np.zeros(feats.n_params)
+        e[k] = h
+        fd = (feats.jacobian(kin, theta + e) @ qdot - feats.jacobian(kin, theta - e) @ qdot) / (2 * h)
+        np.testing.assert_allclose(reg.Phi[:, k], fd, rtol=1e-7, atol=1e-9)
+    assert np.all(reg.Phi[0] == 0.0)  # the depth row is never adapted
+
+
+def test_rbf_prediction_step_is_the_closed_form():
+    """Per-entry RBF rows are orthogonal with norm |psi||qdot|: the step is eq. ident_qp_solution."""
+    _, kin, qdot, rng = _kin_and_qdot(2)
+    feats, _ = make_features(load_config(None, ["run.features=rbf"]))
+    Phi = feats.regressor(kin, qdot).Phi
+    eps = rng.normal(size=6)
+    step, n2 = prediction_step(Phi, eps, eta=1.0, eps_norm=1e-4)
+    psi = feats.psi(kin.q_rad)
+    assert n2 == pytest.approx((psi @ psi) * (qdot @ qdot), rel=1e-10)
+    np.testing.assert_allclose(step, Phi.T @ eps / (n2 + 1e-4), rtol=1e-12)
+    assert feats.n_params == 5 * 7 * len(feats.centres)
+
+
+def test_neural_fast_path_equals_the_torch_network():
+    """The numpy per-step body reproduces the checkpoint's torch network (Y(q) theta exactly)."""
+    from kinadapt_nn.pretrain import load_checkpoint
+
+    ckpt = MODELS_DIR / "neural_default.pt"
+    net, meta = load_checkpoint(ckpt)
+    feats, theta0 = make_features(load_config(None, ["run.features=neural"]))
+    rng = np.random.default_rng(3)
+    qs = Q0 + 0.05 * rng.normal(size=(20, 7))
+    with torch.no_grad():
+        res_t = net.residual(torch.as_tensor(qs), torch.as_tensor(theta0)).numpy()  # W-scaled rows 1..5
+    w = np.asarray(meta["w_rows"])[:, None]
+    for q, rt in zip(qs, res_t):
+        y = feats.body(q)
+        np.testing.assert_allclose(y @ theta0, rt / w, rtol=1e-12, atol=1e-12)
+    assert feats.n_params == meta["n_params_online"]
+
+
+def test_body_is_bit_identical_after_an_online_run():
+    """Only theta adapts: the network weights do not change during an episode."""
+    cfg = load_config(None, ["run.features=neural", "run.duration_s=2.0", "scene.contact_model=socket",
+                             "control.dither_rad_s=[0.05,0.05,0.05]"])
+    ctrl = make_controller(cfg)
+    feats = ctrl.features
+    before = [a.copy() for a in (feats.W1, feats.b1, feats.W2, feats.b2, feats.W3, feats.b3)]
+    from kinadapt_nn.sim.adapter import PegInHoleSim
+
+    sim = PegInHoleSim(cfg)
+    obs = sim.sense()
+    for _ in range(1500):
+        cmd = ctrl.step(sim.time_s, obs.q_rad, obs.qdot_rad_s, obs.wrench_raw_f)
+        sim.apply(cmd.q_ref_rad, cmd.qdot_ref_rad_s)
+        sim.step()
+        obs = sim.sense()
+    after = (feats.W1, feats.b1, feats.W2, feats.b2, feats.W3, feats.b3)
+    assert all(np.array_equal(a, b) for a, b in zip(before, after))
+    assert not np.array_equal(ctrl.theta, ctrl.theta0)  # ... while theta did move
+
+
+def test_checkpoint_round_trip_and_corruption(tmp_path):
+    from kinadapt_nn.cli import main
+    from kinadapt_nn.pretrain import load_checkpoint, save_checkpoint
+
+    net, meta = load_checkpoint(MODELS_DIR / "neural_default.pt")
+    p = tmp_path / "copy.pt"
+    save_checkpoint(p, net, np.asarray(meta["theta_mean"]), {k: v for k, v in meta.items()
+                                                             if k not in ("format", "version", "theta_mean")})
+    net2, meta2 = load_checkpoint(p)
+    assert all(torch.equal(a, b) for a, b in zip(net.state_dict().values(), net2.state_dict().values()))
+    assert meta2["theta_mean"] == meta["theta_mean"]
+    # a flipped byte in the tensor data -> content hash fails; garbage -> not a torch file
+    raw = bytearray(p.read_bytes())
+    raw[len(raw) // 2] ^= 0xFF
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(bytes(raw))
+    with pytest.raises(ModelFileError):
+        load_checkpoint(bad)
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"\x00" * 100)
+    with pytest.raises(ModelFileError, match="corrupt or not a torch file"):
+        load_checkpoint(junk)
+    out = tmp_path / "run"
+    rc = main(["online", "--out", str(out), "--quiet", "--set", "run.features=neural",
+               "--set", f"features.neural_checkpoint='{junk}'"])
+    assert rc == 2 and not out.exists()
+
+
+def test_pretraining_resume_equals_uninterrupted(tmp_path):
+    """Deterministic from the seed; an interrupted run resumed from train_state.pt ends bit-identical."""
+    from kinadapt_nn.pretrain import checkpoint_bytes_equal, load_pretrain_config, pretrain
+
+    cfg = load_pretrain_config(None, ["data.n_train=12", "data.n_heldout=4", "data.n_support=8", "data.n_query=4",
+                                      "train.steps=12", "train.batch_instances=4", "train.eval_every=4",
+                                      "train.checkpoint_every=3", "net.hidden=16", "net.n_features=4"])
+    a, b = tmp_path / "a", tmp_path / "b"
+    m = pretrain(cfg, a, progress=False)
+    assert m["steps"] == 12 and (a / "model.pt").is_file() and not (a / "train_state.pt").exists()
+    partial = pretrain(cfg, b, progress=False, stop_after=6)
+    assert partial == {"interrupted_at": 6} and (b / "train_state.pt").is_file()
+    pretrain(cfg, b, progress=False)
+    assert checkpoint_bytes_equal(a / "model.pt", b / "model.pt")
+    metrics = json.loads((a / "metrics.json").read_text())
+    assert metrics["n_params_online"] == 4 and metrics["heldout_rel_jacobian_error_median"] < 1.0
+
+
+def test_arm_errors_simulator_and_truth_agree():
+    """The true sensor Jacobian with arm errors equals S times the simulated tip twist of a scene
+    built with the same errors (rows 1..5), and differs from the nominal one."""
+    from kinadapt_nn.geometry import adjoint_offset
+    from kinadapt_nn.sensing import nominal_sensor_map
+    from kinadapt_nn.sim.adapter import BORE_AXIS_W, PegInHoleSim
+    from kinadapt_nn.truth import TrueSensorJacobian
+
+    link = [0.002, -0.001, 0.0015, 0.0, 0.001, -0.002, 0.001, 0.0005]
+    joint = [0.004, -0.003, 0.002, 0.005, -0.004, 0.003, -0.002]
+    cfg = load_config(None, [f"arm.link_length_error_m={link}", f"arm.joint_offset_rad={joint}"])
+    sim = PegInHoleSim(cfg)
+    S = nominal_sensor_map(cfg.sensing, BORE_AXIS_W)
+    truth = TrueSensorJacobian(S, np.asarray(cfg.sensing.nominal_offset_f_m), np.asarray(cfg.tool.offset_f_m),
+                               MODELS_DIR / "panda.xml", link, joint)
+    rng = np.random.default_rng(5)
+    m, d = sim.model, sim.data
+    for _ in range(5):
+        q = Q0 + 0.05 * rng.normal(size=7)
+        qd = 0.3 * rng.normal(size=7)
+        d.qpos[sim.ids.qpos_adr], d.qvel[sim.ids.dof_adr] = q, qd
+        mujoco.mj_forward(m, d)
+        v6 = np.zeros(6)
+        mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_SITE, sim.ids.tip_site, v6, 0)
+        tip_twist = np.concatenate([v6[3:], v6[:3]])
+        np.testing.assert_allclose(truth(q)[1:] @ qd, S[1:] @ tip_twist, rtol=1e-9, atol=1e-9)
+        nominal = S @ adjoint_offset(np.zeros(3))  # sanity: errors matter
+        assert nominal.shape == (6, 6)
+    ctrl = make_controller(load_config(None, []))
+    J_nom = ctrl.features.jacobian(ctrl.kin(q), np.asarray(cfg.tool.offset_f_m))
+    assert np.linalg.norm(J_nom[1:] - truth(q)[1:]) / np.linalg.norm(truth(q)[1:]) > 1e-3
+
+
+def test_compare_writes_table_figure_and_tensorboard(tmp_path):
+    from kinadapt_nn.cli import main
+
+    out = tmp_path / "cmp"
+    rc = main(["compare", "--out", str(out), "--quiet", "--set", "n_tools=1", "--set", "jobs=1",
+               "--set", "features=['adjoint','neural']", "--set", "scenarios={short=['run.duration_s=1.0']}"])
+    assert rc == 0
+    import csv
+
+    rows = list(csv.DictReader(open(out / "comparison.csv")))
+    need = {"features", "tool_family", "episodes", "success_rate", "seat_time_s_median",
+            "jacobian_rel_error_final_median", "pred_error_rms_median", "n_params", "wall_time_s_median"}
+    assert need <= set(rows[0])
+    assert {(r["features"], r["tool_family"]) for r in rows} == {
+        ("adjoint", "nominal"), ("adjoint", "arm_errors"), ("neural", "nominal"), ("neural", "arm_errors")}
+    assert (out / "comparison.md").read_text().startswith("| scenario | features")
+    assert (out / "jacobian_error.png").stat().st_size > 10_000
+    assert len(list((out / "tb").rglob("events.out.tfevents*"))) >= 4
+
+
+def test_default_neural_run_works_from_the_shipped_checkpoint():
+    r = run_episode(load_config(None, ["run.features=neural", "run.duration_s=1.5"]))
+    assert r.summary["n_params"] == 12 and r.summary["features"] == "neural"
+    assert np.isfinite(r.summary["jacobian_rel_error_final"])
