@@ -169,3 +169,22 @@ def test_default_run_seats_and_reports_identification(default_episode):
     assert g["axes"] == ["x_f", "y_f", "z_f"] and len(g["eigenvalues"]) == 3
     assert len(s["offset_uncertainty_m"]) == 3
     assert s["certificate"]["windows"] > 50
+
+
+def test_tracking_only_self_extinguishes_with_per_entry_features():
+    """Remark cls_self_extinguish on the Panda's rigid tip-position loop: with per-entry RBF
+    features the tracking-only law kills the command at the rate of eq. cls_command_decay while
+    the error stays; the composite law removes it; the 3-parameter adjoint does not extinguish."""
+    from kinadapt_nn.rigid_demo import run_rigid_demo
+
+    tr = run_rigid_demo("per_entry", "tracking", duration_s=0.6)
+    k = np.searchsorted(tr.t_s, 0.02)
+    measured = -np.log(tr.command_norm[k] / tr.command_norm[1]) / (tr.t_s[k] - tr.t_s[1])
+    predicted = tr.predicted_rate[1:k].mean()
+    assert measured == pytest.approx(predicted, rel=0.3)
+    assert tr.command_norm[-1] < 1e-3 * tr.command_norm[0]
+    assert tr.error_norm[-1] > 0.85 * tr.error_norm[0]  # stuck away from the goal
+    comp = run_rigid_demo("per_entry", "composite", duration_s=0.6)
+    assert comp.error_norm[-1] < 0.6 * comp.error_norm[0] and comp.command_norm[-1] > 0.2 * comp.command_norm[0]
+    adj = run_rigid_demo("adjoint", "tracking", duration_s=0.6)
+    assert adj.error_norm[-1] < 0.6 * adj.error_norm[0]
