@@ -230,8 +230,9 @@ class Controller:
             W=self.W,
             filter_tau_s=sc.filter_tau_s,
             dt_s=self.dt,
-            theta_nominal=self.l_nom_f if features.n_params == 3 else self.theta0,
-            omega_half_width=half if features.n_params == 3 else np.full(features.n_params, np.inf),
+            # Omega: the adjoint's box about the nominal offset; learned features give their own
+            theta_nominal=self.l_nom_f if features.name == "adjoint" else features.omega()[0],
+            omega_half_width=half if features.name == "adjoint" else features.omega()[1],
             contact_force_N=ad.contact_force_N,
             contact_moment_Nm=ad.contact_moment_Nm,
         )

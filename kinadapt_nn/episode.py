@@ -124,7 +124,7 @@ def make_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
 
         ckpt = Path(cfg.features.neural_checkpoint) if cfg.features.neural_checkpoint else MODELS_DIR / "neural_default.pt"
         feats = NeuralFeatures(adjoint, l_nom, ckpt, channel_metric(cfg.sensing))
-        return feats, feats.theta_mean.copy()
+        return feats, np.zeros(feats.n_params)  # the head of the nominal tool (zero residual)
     raise ValueError(f"unknown features {kind!r}")  # pragma: no cover (validated by the config)
 
 

@@ -202,9 +202,13 @@ def state_hash(state: dict[str, torch.Tensor], meta: dict) -> str:
     return h.hexdigest()
 
 
-def save_checkpoint(path: Path, net: JacobianBasisNet, theta_mean: np.ndarray, meta: dict) -> None:
+def save_checkpoint(
+    path: Path, net: JacobianBasisNet, theta_mean: np.ndarray, meta: dict, theta_std: np.ndarray | None = None
+) -> None:
     state = {k: v.detach().cpu().clone() for k, v in net.state_dict().items()}
     meta = dict(meta, format=CHECKPOINT_FORMAT, version=CHECKPOINT_VERSION, theta_mean=[float(x) for x in theta_mean])
+    if theta_std is not None:
+        meta["theta_std"] = [float(x) for x in theta_std]
     _atomic_torch_save({"state_dict": state, "meta": meta, "sha256": state_hash(state, meta)}, Path(path))
 
 
@@ -358,6 +362,7 @@ def pretrain(cfg: PretrainCfg, out: Path, progress: bool = True, stop_after: int
         he = _relative_error(net, q[nt:, :ns], r[nt:, :ns], q[nt:, ns:], r[nt:, ns:], jn[nt:], cfg.train.ridge).cpu().numpy()
     n_body = sum(p.numel() for p in net.parameters())
     meta = {
+        "theta0_online": "zeros: the head of the nominal (CAD) tool on the nominal arm",
         "structure": cfg.net.structure,
         "n_features": cfg.net.n_features,
         "hidden": cfg.net.hidden,
@@ -374,7 +379,7 @@ def pretrain(cfg: PretrainCfg, out: Path, progress: bool = True, stop_after: int
         "heldout_rel_jacobian_error_median": float(np.median(he)),
     }
     net_cpu = net.to("cpu")
-    save_checkpoint(out / "model.pt", net_cpu, theta_all.mean(axis=0), meta)
+    save_checkpoint(out / "model.pt", net_cpu, theta_all.mean(axis=0), meta, theta_all.std(axis=0))
     metrics = {
         "steps": step,
         "wall_time_s": time.perf_counter() - t0,

@@ -66,12 +66,13 @@ def test_neural_fast_path_equals_the_torch_network():
     feats, theta0 = make_features(load_config(None, ["run.features=neural"]))
     rng = np.random.default_rng(3)
     qs = Q0 + 0.05 * rng.normal(size=(20, 7))
+    theta = np.asarray(meta["theta_mean"])  # any theta; the mean head is a non-trivial one
     with torch.no_grad():
-        res_t = net.residual(torch.as_tensor(qs), torch.as_tensor(theta0)).numpy()  # W-scaled rows 1..5
+        res_t = net.residual(torch.as_tensor(qs), torch.as_tensor(theta)).numpy()  # W-scaled rows 1..5
     w = np.asarray(meta["w_rows"])[:, None]
     for q, rt in zip(qs, res_t):
         y = feats.body(q)
-        np.testing.assert_allclose(y @ theta0, rt / w, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(y @ theta, rt / w, rtol=1e-12, atol=1e-12)
     assert feats.n_params == meta["n_params_online"]
 
 
@@ -103,10 +104,11 @@ def test_checkpoint_round_trip_and_corruption(tmp_path):
     net, meta = load_checkpoint(MODELS_DIR / "neural_default.pt")
     p = tmp_path / "copy.pt"
     save_checkpoint(p, net, np.asarray(meta["theta_mean"]), {k: v for k, v in meta.items()
-                                                             if k not in ("format", "version", "theta_mean")})
+                                                             if k not in ("format", "version", "theta_mean", "theta_std")},
+                    np.asarray(meta["theta_std"]))
     net2, meta2 = load_checkpoint(p)
     assert all(torch.equal(a, b) for a, b in zip(net.state_dict().values(), net2.state_dict().values()))
-    assert meta2["theta_mean"] == meta["theta_mean"]
+    assert meta2["theta_mean"] == meta["theta_mean"] and meta2["theta_std"] == meta["theta_std"]
     # a flipped byte in the tensor data -> content hash fails; garbage -> not a torch file
     raw = bytearray(p.read_bytes())
     raw[len(raw) // 2] ^= 0xFF

@@ -56,6 +56,10 @@ class Features(abc.ABC):
         factors through the wrist twist (the adjoint does); ``None`` otherwise."""
         return None
 
+    def omega(self) -> tuple[np.ndarray, np.ndarray]:
+        """The projection set Omega as a box: (centre (p,), half widths (p,)); default unbounded."""
+        return np.zeros(self.n_params), np.full(self.n_params, np.inf)
+
     def predict_rate(self, kin: KinState, qdot: np.ndarray, theta: np.ndarray) -> np.ndarray:
         """Predicted sensor rate ``J_hat qdot``. -> (m,)."""
         reg = self.regressor(kin, qdot)

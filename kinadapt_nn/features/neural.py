@@ -48,6 +48,11 @@ class NeuralFeatures(Features):
             )
         self.inv_w = (1.0 / w_rows)[:, None, None]  # (5, 1, 1)
         self.theta_mean = np.asarray(meta["theta_mean"], dtype=float)
+        self.theta_std = np.asarray(meta.get("theta_std", np.full(self.n_params, np.inf)), dtype=float)
+
+    def omega(self) -> tuple[np.ndarray, np.ndarray]:
+        """Omega = the tool/arm family seen in training: theta_mean +- 3 std of the training heads."""
+        return self.theta_mean, 3.0 * self.theta_std
 
     def body(self, q: np.ndarray) -> np.ndarray:
         """The MLP output in raw sensor units: Y (5, n, p) for ``basis``, psi (K,) for ``per_entry``."""
