@@ -90,6 +90,19 @@ class PegInHoleSim:
         self._socket = cfg.scene.contact_model == "socket"
         self._tool_body = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, "tool")
         self._vel6 = np.zeros(6)
+        self._f6 = np.zeros(6)  # mj_contactForce output
+        # views into MjData fetched once (each attribute access builds a new array object; the
+        # buffers live as long as self.data): encoders, F/T reading, servo set-point, true tip
+        d, a = self.data, self.ids
+        self._q_v = d.qpos[_as_slice(a.qpos_adr)]  # a copy (refreshed in sense) if not contiguous
+        self._qdot_v = d.qvel[_as_slice(a.dof_adr)]
+        self._views = isinstance(_as_slice(a.qpos_adr), slice) and isinstance(_as_slice(a.dof_adr), slice)
+        self._wrench_v = d.sensordata[a.force_adr : a.force_adr + 6] if a.torque_adr == a.force_adr + 3 else None
+        self._ctrl_v = d.ctrl
+        self._tip_v = d.site_xpos[a.tip_site]
+        self._n_t = tuple(BORE_AXIS_W.tolist())
+        self._entry_t = tuple(self.entry_w.tolist())
+        self._peg = int(a.peg_geom)
         self.q_start = self._start_configuration()
         self.reset()
 
@@ -117,19 +130,22 @@ class PegInHoleSim:
     # -- the interface a real robot offers ---------------------------------------------
     def sense(self) -> SensorSample:
         """Encoders and the raw F/T reading (copies)."""
-        d = self.data
-        a = self.ids
-        return SensorSample(
-            q_rad=d.qpos[a.qpos_adr].copy(),
-            qdot_rad_s=d.qvel[a.dof_adr].copy(),
-            wrench_raw_f=np.concatenate(
+        d, a = self.data, self.ids
+        if self._wrench_v is not None:  # force and torque adjacent in sensordata (the scene's order)
+            wrench = self._wrench_v.copy()
+        else:
+            wrench = np.concatenate(
                 [d.sensordata[a.force_adr : a.force_adr + 3], d.sensordata[a.torque_adr : a.torque_adr + 3]]
-            ),
-        )
+            )
+        if self._views:
+            return SensorSample(self._q_v.copy(), self._qdot_v.copy(), wrench)
+        return SensorSample(d.qpos[a.qpos_adr], d.qvel[a.dof_adr], wrench)  # fancy indexing copies
 
     def apply(self, q_ref: np.ndarray, qdot_ref: np.ndarray) -> None:
         """Joint servo set-point with velocity feed-forward (q_ref + kv/kp qdot_ref)."""
-        self.data.ctrl[:] = q_ref + self._kv_over_kp * qdot_ref
+        u = self._ctrl_v
+        np.multiply(qdot_ref, self._kv_over_kp, out=u)
+        u += q_ref
 
     def step(self) -> None:
         if self._socket:
@@ -169,28 +185,40 @@ class PegInHoleSim:
 
     # -- ground truth (evaluation only) ------------------------------------------------
     def truth(self) -> TruthSample:
-        d, m = self.data, self.model
-        tip = d.site_xpos[self.ids.tip_site].copy()
-        depth = float(BORE_AXIS_W @ (tip - self.entry_w))
+        """Called every logged step: Python floats on the few contacts (only peg <-> block
+        contacts exist in this scene; the check is kept), ``mj_contactForce`` for the normal."""
+        d = self.data
+        tip = self._tip_v.copy()
+        t0, t1, t2 = tip.tolist()
+        (n0, n1, n2), (e0, e1, e2) = self._n_t, self._entry_t
+        depth = n0 * (t0 - e0) + n1 * (t1 - e1) + n2 * (t2 - e2)  # BORE_AXIS_W . (tip - entry)
         face = bore = False
         fsum = 0.0
-        top = self.entry_w[2]
-        hw = self.cfg.scene.bore_half_width_m
-        peg = self.ids.peg_geom
-        f6 = np.zeros(6)
-        for i in range(d.ncon):
-            c = d.contact[i]
-            g1, g2 = int(c.geom1), int(c.geom2)
-            if not ((g1 == peg and g2 in self._block_set) or (g2 == peg and g1 in self._block_set)):
-                continue
-            mujoco.mj_contactForce(m, d, i, f6)
-            fsum += abs(f6[0])
-            p = c.pos
-            lat = np.abs(p[:2] - self.entry_w[:2])
-            on_top = abs(p[2] - top) < 1.5e-3 and (lat.max() > hw + 0.5e-3)
-            face |= bool(on_top)
-            bore |= not on_top
+        ncon = d.ncon
+        if ncon:
+            hw = self.cfg.scene.bore_half_width_m + 0.5e-3
+            con = d.contact
+            geoms, pos = con.geom.tolist(), con.pos.tolist()
+            peg, block, f6, m = self._peg, self._block_set, self._f6, self.model
+            for i in range(ncon):
+                g1, g2 = geoms[i]
+                if not ((g1 == peg and g2 in block) or (g2 == peg and g1 in block)):
+                    continue
+                mujoco.mj_contactForce(m, d, i, f6)
+                fsum += abs(float(f6[0]))
+                px, py, pz = pos[i]
+                on_top = abs(pz - e2) < 1.5e-3 and max(abs(px - e0), abs(py - e1)) > hw
+                face |= on_top
+                bore |= not on_top
         if self._socket:
             bore = self._anchor is not None
             fsum = self._socket_force
         return TruthSample(tip, depth, face, bore, fsum)
+
+
+def _as_slice(adr: np.ndarray) -> slice | np.ndarray:
+    """A slice for contiguous addresses (indexing with it gives a view), else the index array."""
+    adr = np.asarray(adr)
+    if len(adr) and np.array_equal(adr, np.arange(adr[0], adr[0] + len(adr))):
+        return slice(int(adr[0]), int(adr[0]) + len(adr))
+    return adr
