@@ -81,7 +81,7 @@ class PegInHoleSim:
 
     def __init__(self, cfg: ExperimentCfg) -> None:
         self.cfg = cfg
-        self.model, self.ids = build_model(cfg.tool, cfg.scene)
+        self.model, self.ids = build_model(cfg.tool, cfg.scene, arm=cfg.arm)
         self.model.opt.timestep = cfg.run.dt_s
         self.data = mujoco.MjData(self.model)
         self.entry_w = np.asarray(cfg.scene.bore_entry_w_m, dtype=float)
