@@ -298,12 +298,13 @@ class Controller:
         s = self._s
         np.dot(self._G, w_env, out=self._s_tail)  # F_lat = P f_on_tool = -P w_env_f ; M = -w_env_m
         p0, p1, p2 = kin.p_w_O.tolist()
-        l0, l1, l2 = R.dot(self.l_nom_f).tolist()
+        lw = R.dot(self.l_nom_f).tolist()  # nominal lever R l_nom, shared with the fused kernels
+        l0, l1, l2 = lw
         n0, n1, n2 = self._n_t
         s[0] = n0 * (p0 + l0) + n1 * (p1 + l1) + n2 * (p2 + l2) - self._n_entry  # n . (p_O + R l_nom) - n . p_entry
         # -- regressor on the realised velocity (rows 1: of the filter input)
         if self._fused:
-            self.features.regressor_rows(kin, qdot, self._known, self._Phi_T)
+            self.features.regressor_rows(kin, qdot, self._known, self._Phi_T, lw)
         else:
             reg = self.features.regressor(kin, qdot)
             self._known[:] = reg.known
@@ -325,7 +326,7 @@ class Controller:
         self._L_diag += self._damp
         mujoco.mju_cholFactor(L, 0.0)
         if self._fused:
-            drive = self.features.twist_drive(kin, self.theta, F)  # (S Ad)^T F: wrench at O
+            drive = self.features.twist_drive(kin, self.theta, F, lw)  # (S Ad)^T F: wrench at O
         else:
             J_xi = self.features.twist_jacobian(kin, self.theta)  # (m, 6) or None
             if J_xi is not None:
@@ -334,12 +335,20 @@ class Controller:
                 dr = np.empty(6)
                 mujoco.mju_cholSolve(dr, L, J.dot(self.features.jacobian(kin, self.theta).T.dot(F)))
                 drive = dr.tolist()
-        # M (xi+ - xi)/dt + D xi+ = rho drive - w_env   (implicit in the damping), per channel
+        # M (xi+ - xi)/dt + D xi+ = rho drive - w_env   (implicit in the damping), per channel,
+        # unrolled on Python floats (same operations, in the same order, as the vector form)
         dt = self.dt
-        x0, x1, x2, x3, x4, x5 = (
-            (m * x + dt * (rho * dr - we)) * iv
-            for m, x, dr, we, iv in zip(self._M_t, self._xi_t, drive, w_env.tolist(), self._inv_den_t)
-        )
+        m0, m1, m2, m3, m4, m5 = self._M_t
+        i0, i1, i2, i3, i4, i5 = self._inv_den_t
+        x0, x1, x2, x3, x4, x5 = self._xi_t
+        d0, d1, d2, d3, d4, d5 = drive
+        w0, w1, w2, w3, w4, w5 = w_env.tolist()
+        x0 = (m0 * x0 + dt * (rho * d0 - w0)) * i0
+        x1 = (m1 * x1 + dt * (rho * d1 - w1)) * i1
+        x2 = (m2 * x2 + dt * (rho * d2 - w2)) * i2
+        x3 = (m3 * x3 + dt * (rho * d3 - w3)) * i3
+        x4 = (m4 * x4 + dt * (rho * d4 - w4)) * i4
+        x5 = (m5 * x5 + dt * (rho * d5 - w5)) * i5
         vn = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
         if vn > self.v_max:
             c = self.v_max / vn

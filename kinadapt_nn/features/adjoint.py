@@ -74,27 +74,30 @@ class AdjointFeatures(Features):
         cls = type(self)
         return cls.regressor is AdjointFeatures.regressor and cls.twist_jacobian is AdjointFeatures.twist_jacobian
 
-    def regressor_rows(self, kin: KinState, qdot: np.ndarray, known_out: np.ndarray, Phi_T_out: np.ndarray) -> None:
+    def regressor_rows(
+        self, kin: KinState, qdot: np.ndarray, known_out: np.ndarray, Phi_T_out: np.ndarray, lw: list | None = None
+    ) -> None:
         """``regressor(kin, qdot)`` written in place: ``known_out`` (m,) and ``Phi_T_out`` (3, m)
-        = Phi^T, both C-contiguous (rows of the controller's filter buffer)."""
+        = Phi^T, both C-contiguous (rows of the controller's filter buffer). ``lw``: ``R_wf l_nom``
+        (3 floats) if the caller has it."""
         xi = np.dot(kin.J_arm, qdot, out=self._xi)  # realised twist [v; w]
         np.dot(self.S, xi, out=known_out)
         np.dot(self._w, self._T, out=self._B)  # [w]x S_v^T, negated, flattened
         np.dot(kin.R_wf.T, self._B3m, out=Phi_T_out)  # Phi^T = -R^T [w]x S_v^T
         # depth row on the nominal offset: S_0 Ad(R l_nom) xi = S_0 xi + n . (w x R l_nom)
         w0, w1, w2 = self._w.tolist()
-        l0, l1, l2 = kin.R_wf.dot(self.l_nom_f).tolist()
+        l0, l1, l2 = kin.R_wf.dot(self.l_nom_f).tolist() if lw is None else lw
         n0, n1, n2 = self._n
         known_out[0] += n0 * (w1 * l2 - w2 * l1) + n1 * (w2 * l0 - w0 * l2) + n2 * (w0 * l1 - w1 * l0)
 
-    def twist_drive(self, kin: KinState, theta: np.ndarray, F: np.ndarray) -> list[float]:
+    def twist_drive(self, kin: KinState, theta: np.ndarray, F: np.ndarray, lw: list | None = None) -> list[float]:
         """``twist_jacobian(kin, theta)^T F`` (6 floats) without forming it: with ``a = R theta``,
-        ``lw = R l_nom``, ``u = S_v^T F`` and ``f0 = F_0 n`` (the depth row),
-        ``[S_v^T F + f0; S_w^T F + a x u + lw x f0]`` since ``(S_v [a]x)^T F = -[a]x u``."""
+        ``lw = R l_nom`` (3 floats, if the caller has it), ``u = S_v^T F`` and ``f0 = F_0 n`` (the
+        depth row), ``[S_v^T F + f0; S_w^T F + a x u + lw x f0]`` since ``(S_v [a]x)^T F = -[a]x u``."""
         g = self._K.dot(F).tolist()  # [S^T F (6); u (3)]
         R = kin.R_wf
         a0, a1, a2 = R.dot(theta).tolist()
-        l0, l1, l2 = R.dot(self.l_nom_f).tolist()
+        l0, l1, l2 = R.dot(self.l_nom_f).tolist() if lw is None else lw
         u0, u1, u2 = g[6], g[7], g[8]
         f0 = float(F[0])
         m0, m1, m2 = f0 * self._n[0], f0 * self._n[1], f0 * self._n[2]
