@@ -115,6 +115,26 @@ def cmd_compare(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_view(args: argparse.Namespace) -> int:
+    import os
+
+    run = Path(args.run)
+    if args.out is None and os.environ.get("DISPLAY"):
+        from kinadapt_nn.view import view_interactive
+
+        view_interactive(run)
+        return 0
+    from kinadapt_nn.view import render_run
+
+    out = Path(args.out) if args.out else run / "rollout.gif"
+    if out.exists() and not args.overwrite:
+        raise OutputExistsError(f"video '{out}' already exists (pass --overwrite or choose another --out)")
+    n = render_run(run, out, fps=args.fps, width=args.width, height=args.height, camera=args.camera, max_s=args.max_s)
+    if not args.quiet:
+        print(f"kinadapt view: wrote {out} ({n} frames at {args.fps:g} fps)")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="kinadapt", description="Online kinematic adaptation by feel (MuJoCo Panda).")
     sub = p.add_subparsers(dest="command", required=True)
@@ -139,6 +159,17 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     cp.add_argument("--quiet", action="store_true", help="no progress bar, no table")
     cp.set_defaults(func=cmd_compare)
+    vw = sub.add_parser("view", help="render a run to GIF/MP4 offscreen, or open the viewer when a display exists")
+    vw.add_argument("run", help="a run folder written by kinadapt online")
+    vw.add_argument("--out", help="video file (.gif or .mp4); default: RUN/rollout.gif when headless")
+    vw.add_argument("--fps", type=float, default=25.0)
+    vw.add_argument("--width", type=int, default=480)
+    vw.add_argument("--height", type=int, default=360)
+    vw.add_argument("--camera", default="side")
+    vw.add_argument("--max-s", dest="max_s", type=float, default=None, help="render only the first seconds")
+    vw.add_argument("--overwrite", action="store_true")
+    vw.add_argument("--quiet", action="store_true")
+    vw.set_defaults(func=cmd_view)
     return p
 
 

@@ -164,9 +164,22 @@ def build_spec(
         name=TORQUE_SENSOR, type=mujoco.mjtSensor.mjSENS_TORQUE, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=FT_SITE
     )
     spec.worldbody.add_light(pos=[0.4, -0.6, 1.5], dir=[0, 0.5, -1])
+    spec.visual.headlight.ambient = [0.35, 0.35, 0.35]
+    spec.visual.rgba.haze = [0.55, 0.6, 0.68, 1.0]
+    spec.worldbody.add_geom(  # visual floor only (no collisions)
+        name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[1.0, 1.0, 0.01], pos=[0, 0, 0],
+        contype=0, conaffinity=0, rgba=[0.42, 0.45, 0.5, 1.0],
+    )
+    if scene.contact_model == "bore":  # pedestal under the block (visual only)
+        cx, cy, top = scene.bore_entry_w_m
+        h = max(top - scene.bore_depth_m - 0.02, 0.0)
+        if h > 0:
+            spec.worldbody.add_geom(name="pedestal", type=mujoco.mjtGeom.mjGEOM_BOX,
+                                    size=[scene.block_half_size_m, scene.block_half_size_m, h / 2],
+                                    pos=[cx, cy, h / 2], contype=0, conaffinity=0, rgba=[0.3, 0.32, 0.36, 1])
     spec.worldbody.add_camera(
-        name="side", pos=[scene.bore_entry_w_m[0] + 0.0, scene.bore_entry_w_m[1] - 0.45, scene.bore_entry_w_m[2] + 0.12],
-        xyaxes=[1, 0, 0, 0, 0.25, 1],
+        name="side", pos=[scene.bore_entry_w_m[0] + 0.0, scene.bore_entry_w_m[1] - 0.55, scene.bore_entry_w_m[2] + 0.18],
+        xyaxes=[1, 0, 0, 0, 0.3, 1],
     )
     return spec
 
