@@ -117,6 +117,7 @@ class ControlCfg(_Cfg):
     w_max_rad_per_s: float = Field(0.5, gt=0.0)  # [rad/s] angular speed limit of the twist
     ramp_s: float = Field(0.3, ge=0.0)  # [s] the drive is ramped in over this time after tare
     nullspace_gain: float = Field(2.0, ge=0.0)  # [1/s] posture pull in the null space of J_arm
+    loop: Literal["admittance", "rigid"] = "admittance"  # rigid: eq. ft_control, no contact feedback
     dither_rad_s: Vec3 = (0.0, 0.0, 0.0)  # [rad/s] commanded angular excitation about world x, y, z
     dither_hz: float = Field(1.0, gt=0.0)  # [Hz] dither frequency (x: sin, y: cos, z: sin at 1.7 f)
 

@@ -140,7 +140,7 @@ def rank_margin(W: np.ndarray, J_hat: np.ndarray) -> float:
     """``lambda_min(W J_hat J_hat^T W)`` on W-scaled rows: the online proxy of the full-row-rank
     hypothesis of Theorem ft_rigid (paper: gate 1e-6). W (m,), J_hat (m, n) -> float."""
     WJ = W[:, None] * J_hat
-    return float(np.linalg.eigvalsh(WJ @ WJ.T)[0])
+    return float(np.linalg.eigvalsh(WJ.dot(WJ.T))[0])
 
 
 class Controller:
@@ -184,6 +184,8 @@ class Controller:
         self.M_virt = tau / gain  # [kg | kg m^2] virtual inertia per twist channel
         self.D_virt = (1.0 + beta) / gain  # [N s/m | N m s/rad] damping (I + beta) / g
         self._inv_den = 1.0 / (self.M_virt + self.dt * self.D_virt)
+        self._rigid = c.loop == "rigid"
+        self._gain_t = tuple((gain / (1.0 + beta)).tolist())  # rigid: xi = g/(1+beta) (S Ad)^T F, the admittance's DC gain
         self.v_max, self.w_max = c.v_max_m_per_s, c.w_max_rad_per_s
         self.k_ns = c.nullspace_gain
         self._dither = np.asarray(c.dither_rad_s, dtype=float)
@@ -343,12 +345,16 @@ class Controller:
         x0, x1, x2, x3, x4, x5 = self._xi_t
         d0, d1, d2, d3, d4, d5 = drive
         w0, w1, w2, w3, w4, w5 = w_env.tolist()
-        x0 = (m0 * x0 + dt * (rho * d0 - w0)) * i0
-        x1 = (m1 * x1 + dt * (rho * d1 - w1)) * i1
-        x2 = (m2 * x2 + dt * (rho * d2 - w2)) * i2
-        x3 = (m3 * x3 + dt * (rho * d3 - w3)) * i3
-        x4 = (m4 * x4 + dt * (rho * d4 - w4)) * i4
-        x5 = (m5 * x5 + dt * (rho * d5 - w5)) * i5
+        if self._rigid:  # eq. ft_control: the commanded twist is realised, no contact feedback
+            g0, g1, g2, g3, g4, g5 = self._gain_t
+            x0, x1, x2, x3, x4, x5 = g0 * rho * d0, g1 * rho * d1, g2 * rho * d2, g3 * rho * d3, g4 * rho * d4, g5 * rho * d5
+        else:
+            x0 = (m0 * x0 + dt * (rho * d0 - w0)) * i0
+            x1 = (m1 * x1 + dt * (rho * d1 - w1)) * i1
+            x2 = (m2 * x2 + dt * (rho * d2 - w2)) * i2
+            x3 = (m3 * x3 + dt * (rho * d3 - w3)) * i3
+            x4 = (m4 * x4 + dt * (rho * d4 - w4)) * i4
+            x5 = (m5 * x5 + dt * (rho * d5 - w5)) * i5
         vn = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
         if vn > self.v_max:
             c = self.v_max / vn
