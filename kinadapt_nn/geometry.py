@@ -9,13 +9,10 @@ from __future__ import annotations
 import numpy as np
 
 
-_SKEW_IDX = np.array([[0, 2, 1], [2, 0, 0], [1, 0, 0]])
-_SKEW_SIGN = np.array([[0.0, -1.0, 1.0], [1.0, 0.0, -1.0], [-1.0, 1.0, 0.0]])
-
-
 def skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrix: ``skew(a) @ b == np.cross(a, b)``. (3,) -> (3, 3)."""
-    return np.asarray(v, dtype=float)[_SKEW_IDX] * _SKEW_SIGN
+    x, y, z = np.asarray(v, dtype=float).ravel().tolist()  # Python floats: one array build (~1 us)
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
 def rot_x(angle_rad: float) -> np.ndarray:

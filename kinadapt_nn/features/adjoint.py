@@ -50,10 +50,13 @@ class AdjointFeatures(Features):
     def twist_jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray:
         """``S Ad(R_wf theta)`` with the depth row on the nominal offset. -> (m, 6)."""
         R = kin.R_wf
-        # S Ad(l) = [S_v, S_w - S_v [l]x]  (geometry.adjoint_offset)
+        # S Ad(l) = [S_v, S_w - S_v [l]x]  (geometry.adjoint_offset), with S_v [a]x = (sum_k a_k T_k)^T
         J_xi = self.S.copy()
-        J_xi[:, 3:] -= self.S_v.dot(skew(R.dot(theta)))
-        J_xi[0, 3:] -= self.S[0, :3].dot(skew(R.dot(self.l_nom_f)))
+        J_xi[:, 3:] -= R.dot(theta).dot(self._T).reshape(3, -1).T
+        # depth row on the nominal offset: S_0v^T [lw]x = (n x lw)^T
+        l0, l1, l2 = R.dot(self.l_nom_f).tolist()
+        n0, n1, n2 = self._n
+        J_xi[0, 3:] -= (n1 * l2 - n2 * l1, n2 * l0 - n0 * l2, n0 * l1 - n1 * l0)
         return J_xi
 
     def jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray:
