@@ -63,12 +63,10 @@ class AdjointFeatures(Features):
         return self.twist_jacobian(kin, theta).dot(kin.J_arm)
 
     def regressor(self, kin: KinState, qdot: np.ndarray) -> Regressor:
-        xi = kin.J_arm.dot(qdot)
-        w = xi[3:]
-        known = self.S.dot(xi)
-        known[0] += self.S[0, :3] @ np.cross(w, kin.R_wf @ self.l_nom_f)
-        Phi = self.S_v @ skew(w) @ kin.R_wf
-        return Regressor(known=known, Phi=Phi)
+        # known = S xi + e_0 n . (w x R l_nom),  Phi = S_v [w]x R  (xi = J_arm qdot = [v; w])
+        known, Phi_T = np.empty(self.S.shape[0]), np.empty((3, self.S.shape[0]))
+        self.regressor_rows(kin, qdot, known, Phi_T)
+        return Regressor(known=known, Phi=Phi_T.T)
 
     # -- hot-path kernels ------------------------------------------------------------------
     def has_fused_kernels(self) -> bool:
