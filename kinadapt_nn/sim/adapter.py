@@ -103,6 +103,7 @@ class PegInHoleSim:
         self._n_t = tuple(BORE_AXIS_W.tolist())
         self._entry_t = tuple(self.entry_w.tolist())
         self._peg = int(a.peg_geom)
+        self._face_lat = cfg.scene.bore_half_width_m + 0.5e-3  # truth(): contact outside the bore mouth
         self.q_start = self._start_configuration()
         self.reset()
 
@@ -196,7 +197,7 @@ class PegInHoleSim:
         fsum = 0.0
         ncon = d.ncon
         if ncon:
-            hw = self.cfg.scene.bore_half_width_m + 0.5e-3
+            hw = self._face_lat
             con = d.contact
             geoms, pos = con.geom.tolist(), con.pos.tolist()
             peg, block, f6, m = self._peg, self._block_set, self._f6, self.model
