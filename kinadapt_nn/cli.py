@@ -135,6 +135,23 @@ def cmd_view(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    from kinadapt_nn.reproduce import PARTS, run_reproduce
+    from kinadapt_nn.runio import check_output_dir, staged_output
+
+    if args.only and args.only not in PARTS:
+        raise KinadaptError(f"--only {args.only!r}: choose one of {', '.join(PARTS)}")
+    out = Path(args.out) if args.out else _default_out("reproduce")
+    check_output_dir(out, args.overwrite)
+    t0 = time.perf_counter()
+    with staged_output(out, args.overwrite) as stage:
+        run_reproduce(stage, only=args.only, jobs=args.jobs)
+    if not args.quiet:
+        print((out / "reproduce.md").read_text())
+        print(f"wrote {out}/ in {time.perf_counter() - t0:.0f} s (reproduce.json, reproduce.md, figures)")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="kinadapt", description="Online kinematic adaptation by feel (MuJoCo Panda).")
     sub = p.add_subparsers(dest="command", required=True)
@@ -170,6 +187,13 @@ def build_parser() -> argparse.ArgumentParser:
     vw.add_argument("--overwrite", action="store_true")
     vw.add_argument("--quiet", action="store_true")
     vw.set_defaults(func=cmd_view)
+    rp = sub.add_parser("reproduce", help="check the paper's claims by running code; figures + paper-vs-ours table")
+    rp.add_argument("--only", help="one part: rollout, observability, gain_sweep, ablations, qp, video")
+    rp.add_argument("--out", help="output folder (default: runs/reproduce-<timestamp>)")
+    rp.add_argument("--jobs", type=int, default=2, help="worker processes")
+    rp.add_argument("--overwrite", action="store_true")
+    rp.add_argument("--quiet", action="store_true")
+    rp.set_defaults(func=cmd_reproduce)
     return p
 
 

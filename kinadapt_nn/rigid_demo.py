@@ -67,17 +67,19 @@ class RigidDemoResult(NamedTuple):
     error_norm: np.ndarray  #: (N,) |e| [m]
     predicted_rate: np.ndarray  #: (N,) gamma |psi|^2 |K e|^2 (per-entry) [1/s]
     jacobian_error: np.ndarray  #: (N,) |J_hat - J| / |J|
+    V_aug: np.ndarray  #: (N,) 1/2 e^T K e + |theta - l|^2 / (2 gamma) (adjoint only; NaN otherwise)
 
 
 def run_rigid_demo(
     features: str = "per_entry",
     mode: str = "tracking",
-    gamma: float = 50.0,
+    gamma: float = 50.0,  # negative: the myopic sign of eq. adapt_law
     k_gain: float = 10.0,
     duration_s: float = 2.0,
     dt_s: float = 1e-3,
     target_m: tuple[float, float, float] = (0.03, 0.02, -0.04),
     n_centres: int = 5,
+    theta_error_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
 ) -> RigidDemoResult:
     """Simulate the rigid loop; ``J_hat`` starts exact at q0 (so only the law moves it)."""
     model = mujoco.MjModel.from_xml_path(str(PANDA_MJCF))
@@ -108,14 +110,14 @@ def run_rigid_demo(
         lo, hi = np.full(feats.n_params, -np.inf), np.full(feats.n_params, np.inf)
     else:
         feats = _AdjointTip()
-        theta = l_true.copy()
-        lo, hi = theta - 0.05, theta + 0.05
+        theta = l_true + np.asarray(theta_error_m)
+        lo, hi = l_true - 0.05, l_true + 0.05
     law = CompositeLaw(features=feats, mode=mode, gamma=gamma, gamma_d=1.0, eta=0.5, eps_norm=1e-6,
                        W=np.ones(3), filter_tau_s=1e-12, dt_s=dt_s, theta_nominal=np.zeros(feats.n_params),
                        omega_half_width=np.full(feats.n_params, np.inf), contact_force_N=0.0, contact_moment_Nm=0.0)
     law.lo, law.hi = lo, hi  # Omega: unbounded for the RBF weights, +-5 cm about the truth for the offset
     n = int(round(duration_s / dt_s))
-    out = {k: np.zeros(n) for k in ("t", "c", "e", "r", "j")}
+    out = {k: np.zeros(n) for k in ("t", "c", "e", "r", "j", "v")}
     on = np.ones(6)
     for k in range(n):
         e = x_d - x
@@ -128,7 +130,9 @@ def run_rigid_demo(
         out["t"][k], out["c"][k], out["e"][k] = k * dt_s, np.linalg.norm(qdot), np.linalg.norm(e)
         out["r"][k] = gamma * psi2 * (F @ F)
         out["j"][k] = np.linalg.norm(J_hat - Jt) / np.linalg.norm(Jt)
+        out["v"][k] = (0.5 * k_gain * (e @ e) + 0.5 * np.sum((theta - l_true) ** 2) / abs(gamma)
+                       if features == "adjoint" else np.nan)
         theta, _ = law.update(kin, qdot, theta, x, x_dot, F, on)
         q = q + dt_s * qdot
         kin, x = kin_at(q)
-    return RigidDemoResult(out["t"], out["c"], out["e"], out["r"], out["j"])
+    return RigidDemoResult(out["t"], out["c"], out["e"], out["r"], out["j"], out["v"])

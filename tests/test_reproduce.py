@@ -1,0 +1,47 @@
+"""kinadapt reproduce: the QP identities, the static estimator foil, the outputs."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from kinadapt_nn.cli import main
+from kinadapt_nn.config import load_config
+from kinadapt_nn.episode import make_controller, run_episode
+from kinadapt_nn.qp_check import run_qp_checks
+from kinadapt_nn.static_estimator import static_offset_estimate
+
+
+def test_qp_identities_with_a_real_solver():
+    """quadprog's solution of eq. ident_qp equals the closed forms; QPaug gives thetadot = 0."""
+    checks = {c.features: c for c in run_qp_checks(seed=3)}
+    assert set(checks) == {"adjoint", "rbf", "neural"}
+    for c in checks.values():
+        assert c.ident_qp_max_abs_error <= 1e-8
+        assert c.qpaug_thetadot_max_abs <= 1e-10
+        assert c.qpaug_qdot_max_abs_error <= 1e-8
+    assert checks["rbf"].scalar_closed_form_max_abs_error <= 1e-8
+
+
+def test_static_wrench_balance_is_driven_off_by_a_contact_couple():
+    """Remark ft_static: with the socket's angular spring (a couple) the static balance misses
+    the offset by far more than the prediction-error law; without the couple it is exact."""
+    base = ["scene.contact_model=socket", "control.dither_rad_s=[0.05,0.05,0.05]", "run.duration_s=3.0"]
+    true = np.asarray(load_config(None, base).tool.offset_f_m)
+    with_couple = run_episode(load_config(None, base))
+    st = static_offset_estimate(with_couple.trace, make_controller(load_config(None, base)).kin)
+    law_err = np.linalg.norm(with_couple.summary["offset_error_final_m"])
+    assert np.linalg.norm(st - true) > 5 * law_err and np.linalg.norm(st - true) > 5e-3
+    no_couple = run_episode(load_config(None, [*base, "scene.socket_k_rot_Nm_per_rad=0"]))
+    st0 = static_offset_estimate(no_couple.trace, make_controller(load_config(None, base)).kin)
+    assert np.linalg.norm(st0 - true) < 1e-4
+
+
+def test_reproduce_only_qp_writes_json_and_markdown(tmp_path, capsys):
+    out = tmp_path / "rep"
+    assert main(["reproduce", "--only", "qp", "--out", str(out), "--quiet", "--jobs", "1"]) == 0
+    r = json.loads((out / "reproduce.json").read_text())
+    assert r["qp_max_abs_error"] <= 1e-8
+    assert "| identification QP" in (out / "reproduce.md").read_text()
+    assert main(["reproduce", "--only", "nonsense", "--out", str(tmp_path / "x"), "--quiet"]) == 2
