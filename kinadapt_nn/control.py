@@ -196,16 +196,16 @@ class Controller:
         self.t_tare0 = max(0.0, self.t_settle - sc.tare_window_s)
         self.ramp_s = c.ramp_s
         # -- work buffers of step() (allocated once; step() fills them in place)
-        p = features.n_params
+        p, m = features.n_params, self.S.shape[0]
         # One filter pass for every filtered channel (README: the prediction goes through the
         # *same* filter as the measured rate): rows [s; known; Phi^T] -> states
         # [y (rate filter of s); known_f; Phi_f^T] (the law's LowPass states are views of rows 1:).
-        self._U = np.zeros((2 + p, 6))  # filter inputs this step
-        self._Z = np.zeros((2 + p, 6))  # filter states
-        self._D = np.zeros((2 + p, 6))  # scratch: U - Z
+        self._U = np.zeros((2 + p, m))  # filter inputs this step
+        self._Z = np.zeros((2 + p, m))  # filter states
+        self._D = np.zeros((2 + p, m))  # scratch: U - Z
         self._s, self._s_tail, self._known, self._Phi_T = self._U[0], self._U[0, 1:], self._U[1], self._U[2:]
         self._D0 = self._D[0]
-        self.rate_meas = RateFilter(sc.filter_tau_s, self.dt, 6, y=self._Z[0])
+        self.rate_meas = RateFilter(sc.filter_tau_s, self.dt, m, y=self._Z[0])
         self._alpha, self._inv_tau = self.rate_meas.alpha, self.rate_meas.inv
         self._dw = np.zeros(6)  # wrench - tare
         self._dw23 = self._dw.reshape(2, 3)
@@ -216,7 +216,6 @@ class Controller:
         # adjoint features: fused kernels (no J_hat_xi formed); other features: generic path
         self._fused = bool(getattr(features, "has_fused_kernels", lambda: False)())
         self._n_t = tuple(self.n_axis.tolist())
-        self._l_nom_t = tuple(self.l_nom_f.tolist())
         self._M_t = tuple(self.M_virt.tolist())
         self._inv_den_t = tuple(self._inv_den.tolist())
         ad = cfg.adaptation
