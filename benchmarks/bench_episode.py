@@ -1,10 +1,11 @@
 """Time the default episode against raw MuJoCo physics in the same scene, in one run.
 
-Prints, last two lines:
+Prints, per features type (adjoint, rbf, neural; the neural pair last), a comment line and:
     step_latency_p50_us=<a> step_latency_p99_us=<b>
     episode_wall_s=<x> sim_time_s=<t> raw_physics_s=<y> ratio=<x/y>
 
-Targets (issue 2): <= 0.3 s wall per 5 s simulated, ratio <= 5, controller p99 <= 100 us.
+Targets: adjoint (issues 2/3) <= 0.3 s wall per 5 s simulated, ratio <= 5, controller p99 <= 100 us;
+neural (issue 4) <= 0.6 s per 5 s episode, ratio <= 10.
 Run single-threaded for a "one core" figure:  taskset -c 0 python benchmarks/bench_episode.py
 
 Measured (2-core VM, timing noise +-30 %; A/B in one session, three alternating runs each):
@@ -73,30 +74,36 @@ def step_latencies_us(cfg) -> np.ndarray:
     return lat * 1e6
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--repeats", type=int, default=3, help="best-of-N for the wall times")
-    ap.add_argument("--set", action="append", default=[], help="config override key=value")
-    args = ap.parse_args()
-    cfg = load_config(None, ["run.progress=false", "run.stop_after_seat_s=0.0", *args.set])
+def bench_one(features: str, repeats: int, extra: list[str]) -> None:
+    """Print the two lines for one features type."""
+    cfg = load_config(None, ["run.progress=false", "run.stop_after_seat_s=0.0", f"run.features={features}", *extra])
     walls = []
     res = None
-    for _ in range(args.repeats):
+    for _ in range(repeats):
         t0 = time.perf_counter()
         res = run_episode(cfg)
         walls.append(time.perf_counter() - t0)
     tr = res.trace
     steps = res.summary["steps"]
     sim_time = res.summary["sim_time_s"]
-    ctrl_traj = tr["q_ref_rad"] + (450.0 / 4500.0) * 0.0  # position set-points replayed open loop
-    raw = min(raw_physics_seconds(cfg, tr["q_rad"], ctrl_traj) for _ in range(args.repeats))
-    lat = step_latencies_us(load_config(None, ["run.progress=false", "run.duration_s=5.0", *args.set]))
+    raw = min(raw_physics_seconds(cfg, tr["q_rad"], tr["q_ref_rad"]) for _ in range(repeats))
+    lat = step_latencies_us(load_config(None, ["run.progress=false", "run.duration_s=5.0", f"run.features={features}", *extra]))
     wall = min(walls)
-    print(f"features={res.summary['features']} success={res.summary['success']} "
-          f"seat_time_s={res.summary['seat_time_s']} steps={steps}")
-    print(f"wall_per_5s_sim={wall * 5.0 / sim_time:.3f} (target <= 0.3 s)")
+    print(f"# features={features} n_params={res.summary['n_params']} success={res.summary['success']} "
+          f"seat_time_s={res.summary['seat_time_s']} steps={steps} wall_per_5s_sim={wall * 5.0 / sim_time:.3f}")
     print(f"step_latency_p50_us={np.percentile(lat, 50):.1f} step_latency_p99_us={np.percentile(lat, 99):.1f}")
     print(f"episode_wall_s={wall:.3f} sim_time_s={sim_time:.3f} raw_physics_s={raw:.3f} ratio={wall / raw:.2f}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--repeats", type=int, default=3, help="best-of-N for the wall times")
+    ap.add_argument("--features", nargs="+", default=["adjoint", "rbf", "neural"],
+                    help="features types, one pair of lines each (the neural line last by default)")
+    ap.add_argument("--set", action="append", default=[], help="config override key=value")
+    args = ap.parse_args()
+    for f in args.features:
+        bench_one(f, args.repeats, args.set)
 
 
 if __name__ == "__main__":

@@ -58,7 +58,7 @@ CHANNELS: dict[str, tuple[tuple[int, ...], str, str, str]] = {
     "truth_contact_force_N": ((), "N", "-", "TRUTH: total normal contact force"),
     "phi_norm2": ((), "1/s^2", "-", "||W Phi_f||_2^2 of the prediction step (0 when not adapting)"),
     "truth_bias_w": ((6,), "-", "bore", "TRUTH: W-scaled bias b = eps_w - W Phi_f (theta_true - theta)"),
-    "truth_jacobian_rel_error": ((), "-", "-", "TRUTH: |W (J_hat - J_true)| / |W J_true| (100 Hz, held)"),
+    "truth_jacobian_rel_error": ((), "-", "-", "TRUTH: |W (J_hat - J_true)| / |W J_true| (40 Hz, held)"),
     "truth_V_tot": ((), "-", "-", "TRUTH: V_tot = gamma_d (V + kinetic + contact) + |theta~|^2/(2 Gamma)"),
 }
 

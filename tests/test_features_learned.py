@@ -83,6 +83,7 @@ def test_body_is_bit_identical_after_an_online_run():
     ctrl = make_controller(cfg)
     feats = ctrl.features
     before = [a.copy() for a in (feats.W1, feats.b1, feats.W2, feats.b2, feats.W3, feats.b3)]
+    ckpt_before = {k: v.clone() for k, v in __import__("torch").load(feats.checkpoint, weights_only=True)["state_dict"].items()}
     from kinadapt_nn.sim.adapter import PegInHoleSim
 
     sim = PegInHoleSim(cfg)
@@ -94,6 +95,8 @@ def test_body_is_bit_identical_after_an_online_run():
         obs = sim.sense()
     after = (feats.W1, feats.b1, feats.W2, feats.b2, feats.W3, feats.b3)
     assert all(np.array_equal(a, b) for a, b in zip(before, after))
+    ckpt_after = __import__("torch").load(feats.checkpoint, weights_only=True)["state_dict"]
+    assert all(torch.equal(ckpt_before[k], ckpt_after[k]) for k in ckpt_before)
     assert not np.array_equal(ctrl.theta, ctrl.theta0)  # ... while theta did move
 
 

@@ -47,7 +47,12 @@ class NeuralFeatures(Features):
                 f"{np.asarray(W[1:]).tolist()} (retrain, or keep sensing.channel_scale as in training)"
             )
         self.inv_w = (1.0 / w_rows)[:, None, None]  # (5, 1, 1)
+        if self.structure == "basis":  # fold W^-1 into the last layer: Y = (W3 h + b3) / w_row
+            row_scale = np.repeat(1.0 / w_rows, N_JOINTS * self.K)  # (5 n p,), output order (i, j, k)
+            self.W3, self.b3 = self.W3 * row_scale[:, None], self.b3 * row_scale
         self.theta_mean = np.asarray(meta["theta_mean"], dtype=float)
+        self._cache_key: bytes | None = None
+        self._cache_val: np.ndarray | None = None
         self.theta_std = np.asarray(meta.get("theta_std", np.full(self.n_params, np.inf)), dtype=float)
 
     def omega(self) -> tuple[np.ndarray, np.ndarray]:
@@ -55,12 +60,22 @@ class NeuralFeatures(Features):
         return self.theta_mean, 3.0 * self.theta_std
 
     def body(self, q: np.ndarray) -> np.ndarray:
-        """The MLP output in raw sensor units: Y (5, n, p) for ``basis``, psi (K,) for ``per_entry``."""
+        """The MLP output in raw sensor units: Y (5, n, p) for ``basis``, psi (K,) for ``per_entry``.
+
+        The last result is cached by the bytes of ``q`` (the controller asks twice per step:
+        for J_hat and for the regressor); the returned array must not be modified."""
+        key = q.tobytes()
+        if key == self._cache_key:
+            return self._cache_val
+        self._cache_key, self._cache_val = key, self._body(q)
+        return self._cache_val
+
+    def _body(self, q: np.ndarray) -> np.ndarray:
         x = (q - self.q_mean) * self.q_inv_std
-        h = np.tanh(self.W2 @ np.tanh(self.W1 @ x + self.b1) + self.b2)
-        y = self.W3 @ h + self.b3
+        h = np.tanh(self.W2.dot(np.tanh(self.W1.dot(x) + self.b1)) + self.b2)
+        y = self.W3.dot(h) + self.b3
         if self.structure == "basis":
-            return y.reshape(N_ROWS, N_JOINTS, self.K) * self.inv_w
+            return y.reshape(N_ROWS, N_JOINTS, self.K)
         return y
 
     def jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray:
@@ -78,7 +93,7 @@ class NeuralFeatures(Features):
         y = self.body(kin.q_rad)
         Phi = np.zeros((N_ROWS + 1, self.n_params))
         if self.structure == "basis":
-            Phi[1:] = np.einsum("ijk,j->ik", y, qdot)
+            Phi[1:] = qdot @ y  # (n,) @ (5, n, p) -> (5, p): Y_k(q) qdot per row
         else:
             block = np.outer(qdot, y).ravel()
             w = block.size

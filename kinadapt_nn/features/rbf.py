@@ -33,11 +33,16 @@ class RBFFeatures(Features):
         self.inv2w2 = 1.0 / (2.0 * width_rad**2)
         self.width = float(width_rad)
         self.n_params = N_ROWS * self.n * self.K
+        self._cache_key: bytes | None = None
+        self._cache_val: np.ndarray | None = None
 
     def psi(self, q: np.ndarray) -> np.ndarray:
-        """RBF activations. (n,) -> (K,)."""
-        d = self.centres - q
-        return np.exp(-np.einsum("kj,kj->k", d, d) * self.inv2w2)
+        """RBF activations (cached for the last q; do not modify the result). (n,) -> (K,)."""
+        key = q.tobytes()
+        if key != self._cache_key:
+            d = self.centres - q
+            self._cache_key, self._cache_val = key, np.exp(-np.einsum("kj,kj->k", d, d) * self.inv2w2)
+        return self._cache_val
 
     def jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray:
         J = self.known.jacobian(kin, self.prior)
