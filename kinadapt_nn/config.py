@@ -91,6 +91,7 @@ class SensingCfg(_Cfg):
     # channel metric W = diag(1/scale): [d m, F_lat N, F_lat N, M N m, M N m, M N m]
     channel_scale: Vec6 = (0.01, 10.0, 10.0, 1.0, 1.0, 1.0)
     tare_window_s: float = Field(0.1, gt=0.0)  # [s] free-space window averaged for the tare
+    max_dropout_s: float = Field(0.02, ge=0.0)  # [s] NaN/inf samples bridged by holding the last valid one
 
     @model_validator(mode="after")
     def _positive_scales(self) -> SensingCfg:
@@ -148,6 +149,19 @@ class AdaptationCfg(_Cfg):
     contact_moment_Nm: float = Field(0.05, ge=0.0)  # [N m] ... or when |M| exceeds this
 
 
+class FaultsCfg(_Cfg):
+    """Sensor faults and disturbances (truth side, kinadapt_nn.sim.faults); all off by default."""
+
+    ft_noise_N: float = Field(0.0, ge=0.0)  # [N] std of white force noise per axis
+    ft_noise_Nm: float = Field(0.0, ge=0.0)  # [N m] std of white torque noise per axis
+    ft_bias_N: Vec3 = (0.0, 0.0, 0.0)  # [N] force bias in f, appearing at bias_onset_s (after the tare)
+    bias_onset_s: float | None = None  # [s] when the bias appears (None = end of the settle/tare window)
+    ft_dropout_prob: float = Field(0.0, ge=0.0, le=0.5)  # [-] probability a sample is NaN (dropout)
+    ft_saturation_N: float = Field(0.0, ge=0.0)  # [N] clip force components (0 = off)
+    encoder_resolution_rad: float = Field(0.0, ge=0.0)  # [rad] encoder quantisation step (0 = off)
+    latency_steps: int = Field(0, ge=0, le=10)  # [steps] delivery delay of every sample
+
+
 class SuccessCfg(_Cfg):
     """Success and failure classification, judged from sensor-side signals only."""
 
@@ -189,6 +203,7 @@ class ExperimentCfg(_Cfg):
     control: ControlCfg = ControlCfg()
     features: FeaturesCfg = FeaturesCfg()
     adaptation: AdaptationCfg = AdaptationCfg()
+    faults: FaultsCfg = FaultsCfg()
     success: SuccessCfg = SuccessCfg()
 
 

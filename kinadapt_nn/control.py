@@ -166,6 +166,9 @@ class Controller:
         self.features = features
         self.theta = np.asarray(theta0, dtype=float).copy()
         self.kin = ArmKinematics(arm_mjcf_path(cfg.scene))
+        self.kin_n = self.kin.model.nq
+        #: longest run of non-finite samples bridged by holding the last valid one [steps]
+        self.max_hold_steps = max(0, int(round(cfg.sensing.max_dropout_s / cfg.run.dt_s)))
         self.n_axis = np.asarray(bore_axis_w, dtype=float)
         self.entry_w = np.asarray(cfg.scene.bore_entry_w_m, dtype=float)  # known bore pose
         self.l_nom_f = np.asarray(sc.nominal_offset_f_m, dtype=float)
@@ -240,6 +243,12 @@ class Controller:
         self.reset()
 
     def reset(self) -> None:
+        self.dropouts = 0
+        self._bad_run = 0
+        self._held = (np.zeros(self.kin_n), np.zeros(self.kin_n), np.zeros(6))
+        self._have_held = False
+        p = self.features.n_params
+        self._hold_step = AdaptStep(np.zeros(6), np.zeros(6), np.zeros(p), np.zeros(p), 0.0, 0.0)
         self.xi = np.zeros(6)
         self.q_ref: np.ndarray | None = None
         self.q_posture: np.ndarray | None = None
@@ -270,10 +279,23 @@ class Controller:
         Hot path (1 kHz): numpy calls cost ~0.3-1 us each whatever the size here, so small
         vectors are handled as Python floats and the rest is fused into few calls on
         preallocated buffers; the comments name what each fused line implements."""
-        if not math.isfinite(q.dot(q) + qdot.dot(qdot) + wrench.dot(wrench)):
-            raise SensorError(
-                f"non-finite sensor sample at t={t:.3f} s (check the encoders and the F/T sensor for NaN/inf)"
-            )
+        if math.isfinite(q.dot(q) + qdot.dot(qdot) + wrench.dot(wrench)):
+            holding = False
+            self._bad_run = 0
+            self._held[0][:] = q
+            self._held[1][:] = qdot
+            self._held[2][:] = wrench
+            self._have_held = True
+        else:  # a dropout: hold the last valid sample (no adaptation on it); never let NaN in
+            self.dropouts += 1
+            self._bad_run += 1
+            if not self._have_held or self._bad_run > self.max_hold_steps:
+                raise SensorError(
+                    f"non-finite sensor sample at t={t:.3f} s ({self._bad_run} in a row; check the encoders and "
+                    "the F/T sensor for NaN/inf)"
+                )
+            holding = True
+            q, qdot, wrench = self._held
         kin = self.kin.update(q)  # views, valid for this step
         R, J = kin.R_wf, kin.J_arm
         if self.q_ref is None:
@@ -380,7 +402,10 @@ class Controller:
         self.q_ref = self.q_ref + dt * qdot_ref
         # -- adaptation (eq. ft_composite) on the realised velocity; theta_{k+1} is used next step
         theta = self.theta
-        self.theta, a = self.law.step_filtered(theta, self._Phi_T, s_dot_meas, F, w_env)
+        if holding:  # a held sample carries no new information: theta stays
+            a = self._hold_step._replace(s_dot_pred=s_dot_meas.copy())
+        else:
+            self.theta, a = self.law.step_filtered(theta, self._Phi_T, s_dot_meas, F, w_env)
         # -- diagnostics for the trace (V and lambda_min are evaluated off the hot path)
         self.last = StepLog(s, s_dot_meas, a.s_dot_pred, F, xi, w_env, theta, rho, a)
         return JointCommand(self.q_ref, qdot_ref)

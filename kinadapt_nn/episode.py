@@ -22,6 +22,7 @@ from kinadapt_nn.features import AdjointFeatures
 from kinadapt_nn.features.base import Features
 from kinadapt_nn.sensing import CHANNEL_NAMES, channel_metric, nominal_sensor_map
 from kinadapt_nn.sim.adapter import BORE_AXIS_W, PegInHoleSim
+from kinadapt_nn.sim.faults import SensorFaults
 from kinadapt_nn.trace import Trace, TraceRecorder
 from kinadapt_nn.truth import TrueSensorJacobian
 
@@ -152,7 +153,8 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
     every = cfg.run.log_every
     rec = TraceRecorder(n_steps // every + 1, ctrl.features.n_params)
     monitor = SeatMonitor(cfg)
-    obs = sim.sense()
+    faults = SensorFaults(cfg.faults, cfg.run.seed, cfg.start.settle_s) if SensorFaults.active(cfg.faults) else None
+    obs = sim.sense() if faults is None else faults(sim.time_s, sim.sense())
     theta_true = np.asarray(cfg.tool.offset_f_m, dtype=float) if isinstance(ctrl.features, AdjointFeatures) else None
     nan6 = np.full(6, np.nan)
     diverged = False
@@ -208,7 +210,7 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
                 truth_contact_force_N=tr.contact_force_N,
             )
         sim.step()
-        obs = sim.sense()
+        obs = sim.sense() if faults is None else faults(sim.time_s, sim.sense())
         if bar is not None and k % 250 == 0:
             bar.update(250 if k else 1)
         if monitor.seat_time is not None and stop_at is None:
@@ -239,6 +241,7 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
     certificate = certificate_check(cfg, trace, ctrl)
     summary = summarize(cfg, trace, ctrl, monitor, diverged, steps, sim.time_s, wall)
     summary["certificate"] = certificate
+    summary["sensor_dropouts"] = int(ctrl.dropouts)
     return EpisodeResult(trace, summary)
 
 
