@@ -152,6 +152,35 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_sweep(args: argparse.Namespace) -> int:
+    import shutil
+
+    from kinadapt_nn.sweep import load_sweep_config, run_sweep
+
+    cfg = load_sweep_config(Path(args.config) if args.config else None, args.set or [])
+    out = Path(args.out) if args.out else _default_out("sweep")
+    if out.exists() and not (out / "sweep_config.json").is_file() and any(out.iterdir()):
+        if not args.overwrite:
+            raise OutputExistsError(f"output folder '{out}' exists and is not a sweep (pass --overwrite or another --out)")
+        shutil.rmtree(out)
+    try:
+        s = run_sweep(cfg, out, executor=args.executor, address=args.address, progress=not args.quiet)
+    except KeyboardInterrupt:
+        print(f"kinadapt: interrupted; finished episodes are kept in {out}/episodes; rerun to complete", file=sys.stderr)
+        return 130
+    if not args.quiet:
+        lo, hi = s["success_rate_ci95"]
+        print(f"kinadapt sweep: {s['episodes']}/{s['episodes_expected']} episodes, success rate "
+              f"{s['success_rate']:.3f} (95% CI {lo:.3f}-{hi:.3f})")
+        for g, st in s["groups"].items():
+            lo, hi = st["success_rate_ci95"]
+            med = st["seat_time_s_quantiles"].get("p50")
+            print(f"  {g:40s} {st['successes']:4d}/{st['episodes']:<4d} {st['success_rate']:.3f} [{lo:.3f}, {hi:.3f}] "
+                  f"seat p50 {med if med is None else round(med, 3)} failures {st['failures']}")
+        print(f"wrote {out}/ (sweep.csv, sweep.json, episodes/)")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="kinadapt", description="Online kinematic adaptation by feel (MuJoCo Panda).")
     sub = p.add_subparsers(dest="command", required=True)
@@ -194,6 +223,15 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--overwrite", action="store_true")
     rp.add_argument("--quiet", action="store_true")
     rp.set_defaults(func=cmd_reproduce)
+    sw = sub.add_parser("sweep", help="many episodes over groups x seeds, locally or on a Ray cluster (resumable)")
+    sw.add_argument("--config", help="sweep TOML (default: built-in defaults = online/sweep.toml)")
+    sw.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a sweep key, e.g. seeds=5")
+    sw.add_argument("--out", help="output folder (default: runs/sweep-<timestamp>); rerun to resume")
+    sw.add_argument("--executor", choices=["local", "ray"], default="local")
+    sw.add_argument("--address", help="Ray cluster address (default: auto, e.g. a local 'ray start --head')")
+    sw.add_argument("--overwrite", action="store_true")
+    sw.add_argument("--quiet", action="store_true")
+    sw.set_defaults(func=cmd_sweep)
     return p
 
 

@@ -155,7 +155,7 @@ class FaultsCfg(_Cfg):
     ft_noise_N: float = Field(0.0, ge=0.0)  # [N] std of white force noise per axis
     ft_noise_Nm: float = Field(0.0, ge=0.0)  # [N m] std of white torque noise per axis
     ft_bias_N: Vec3 = (0.0, 0.0, 0.0)  # [N] force bias in f, appearing at bias_onset_s (after the tare)
-    bias_onset_s: float | None = None  # [s] when the bias appears (None = end of the settle/tare window)
+    bias_onset_s: float = Field(0.0, ge=0.0)  # [s] bias appears this long after the tare (end of settle)
     ft_dropout_prob: float = Field(0.0, ge=0.0, le=0.5)  # [-] probability a sample is NaN (dropout)
     ft_saturation_N: float = Field(0.0, ge=0.0)  # [N] clip force components (0 = off)
     encoder_resolution_rad: float = Field(0.0, ge=0.0)  # [rad] encoder quantisation step (0 = off)

@@ -105,14 +105,24 @@ class Trace:
         try:
             with np.load(path, allow_pickle=False) as z:
                 arrays = {k: z[k] for k in z.files}
-        except (OSError, ValueError, zipfile.BadZipFile) as exc:
-            raise KinadaptError(f"trace file '{path}' is not a readable .npz archive ({exc})") from None
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError, RuntimeError) as exc:
+            first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:120]
+            raise KinadaptError(f"trace file '{path}' is not a readable .npz archive ({first})") from None
         if "meta" not in arrays:
             raise KinadaptError(f"trace file '{path}' has no 'meta' entry (not a kinadapt trace)")
-        meta = json.loads(str(arrays.pop("meta")))
+        try:
+            meta = json.loads(str(arrays.pop("meta")))
+            if not isinstance(meta, dict):
+                raise ValueError("meta is not a JSON object")
+        except ValueError:
+            raise KinadaptError(f"trace file '{path}': its 'meta' entry is not valid JSON (not a kinadapt trace)") from None
         if meta.get("format") != TRACE_FORMAT:
             raise KinadaptError(f"trace file '{path}': format {meta.get('format')!r}, expected {TRACE_FORMAT!r}")
-        if int(meta.get("version", -1)) > TRACE_VERSION:
+        try:
+            version = int(meta.get("version", -1))
+        except (TypeError, ValueError):
+            version = TRACE_VERSION + 1
+        if version > TRACE_VERSION:
             raise KinadaptError(
                 f"trace file '{path}' has version {meta.get('version')}; this kinadapt reads <= {TRACE_VERSION}"
             )

@@ -1,7 +1,7 @@
 """Sensor faults and disturbances between the simulator and the controller (truth side).
 
 Applied to each ``SensorSample`` in this order: encoder quantisation, F/T bias (from
-``bias_onset_s``, i.e. after the tare), Gaussian F/T noise, saturation, dropouts (the whole
+``bias_onset_s`` after the tare), Gaussian F/T noise, saturation, dropouts (the whole
 sample becomes NaN), latency (the controller receives the sample of ``latency_steps`` earlier).
 Seeded from ``run.seed`` so a run is reproducible.
 """
@@ -20,7 +20,7 @@ class SensorFaults:
     def __init__(self, cfg: FaultsCfg, seed: int, bias_onset_s: float) -> None:
         self.cfg = cfg
         self.rng = np.random.default_rng(np.random.SeedSequence([seed, 0xFA017]))
-        self.onset = cfg.bias_onset_s if cfg.bias_onset_s is not None else bias_onset_s
+        self.onset = bias_onset_s + cfg.bias_onset_s  # after the tare window ends
         self.bias = np.concatenate([np.asarray(cfg.ft_bias_N, dtype=float), np.zeros(3)])
         self.noise = np.array([cfg.ft_noise_N] * 3 + [cfg.ft_noise_Nm] * 3)
         self.queue: deque = deque()

@@ -1,0 +1,243 @@
+"""``kinadapt sweep``: many episodes over groups (named override sets) x seeds, locally or on Ray.
+
+Each episode is identified by ``<group>-s<seed>``; its summary is written atomically to
+``OUT/episodes/<id>.json`` the moment it finishes, so an interrupted sweep loses no finished
+episode and a re-run skips every episode already written. ``sweep.csv`` (one row per episode)
+and ``sweep.json`` (success rate with a 95 % Wilson interval, seat-time quantiles, failure
+counts, overall and per group) are rebuilt from the episode files at the end.
+
+With ``random_tools = true`` each seed also draws its tool (lateral offset in a disc, length
+100 mm +- spread) from its own seed, so seeds x groups is a randomised-tool sweep.
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import json
+import math
+import os
+import re
+import tempfile
+import time
+import tomllib
+from pathlib import Path
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from kinadapt_nn.config import _format_validation_error, _parse_value, _set_dotted, load_config
+from kinadapt_nn.errors import ConfigError, KinadaptError
+
+
+class SweepCfg(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    seeds: int = Field(20, ge=1, le=100000)  # seeds 0..seeds-1 per group
+    seed_offset: int = Field(0, ge=0)  # first seed
+    base: list[str] = []  # overrides applied to every episode (online config keys)
+    groups: dict[str, list[str]] = {"default": []}  # named conditions: name -> overrides
+    grid: dict[str, list] = {}  # key -> values; the cartesian product is added as groups
+    random_tools: bool = True  # each seed draws its tool from its own seed
+    lateral_radius_m: float = Field(0.004, ge=0.0)  # [m] random tools: lateral offset disc
+    length_spread_m: float = Field(0.002, ge=0.0, le=0.004)  # [m] random tools: length 0.100 +- this
+    jobs: int = Field(2, ge=1, le=256)  # local worker processes
+
+
+def load_sweep_config(path: Path | None, overrides=()) -> SweepCfg:
+    tree: dict = {}
+    if path is not None:
+        path = Path(path)
+        if not path.is_file():
+            raise ConfigError(f"config file '{path}' not found (pass an existing .toml file)")
+        try:
+            tree = tomllib.loads(path.read_text())
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"config file '{path}' is not valid TOML: {exc}") from None
+    for item in overrides:
+        if "=" not in item:
+            raise ConfigError(f"--set '{item}': expected key=value, e.g. --set seeds=5")
+        key, _, text = item.partition("=")
+        _set_dotted(tree, key.strip(), _parse_value(text.strip()))
+    try:
+        cfg = SweepCfg.model_validate(tree)
+    except ValidationError as err:
+        raise ConfigError(_format_validation_error(err).replace("online/rollout.toml", "online/sweep.toml")) from None
+    # every group's overrides must make a valid online config (fail before running anything)
+    for name, over in expand_groups(cfg).items():
+        load_config(None, [*cfg.base, *over])
+        if not re.fullmatch(r"[A-Za-z0-9_.=+\-, \[\]]+", name):
+            raise ConfigError(f"sweep group name {name!r}: use letters, digits, spaces and _ . = + - , [ ]")
+    return cfg
+
+
+def expand_groups(cfg: SweepCfg) -> dict[str, list[str]]:
+    groups = dict(cfg.groups)
+    if cfg.grid:
+        keys = list(cfg.grid)
+        for values in itertools.product(*(cfg.grid[k] for k in keys)):
+            over = [f"{k}={json.dumps(v)}" for k, v in zip(keys, values)]
+            groups[",".join(over)] = over
+    return groups
+
+
+def _slug(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.=+\-]+", "_", name).strip("_") or "group"
+
+
+def tool_overrides(cfg: SweepCfg, seed: int) -> list[str]:
+    if not cfg.random_tools:
+        return []
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x7001]))
+    rad = cfg.lateral_radius_m * math.sqrt(rng.random())
+    ang = 2 * math.pi * rng.random()
+    length = 0.100 + rng.uniform(-cfg.length_spread_m, cfg.length_spread_m)
+    return [f"tool.offset_f_m=[{rad * math.cos(ang):.7f}, {rad * math.sin(ang):.7f}, {length:.7f}]"]
+
+
+def episode_jobs(cfg: SweepCfg) -> list[dict]:
+    jobs = []
+    for name, over in expand_groups(cfg).items():
+        for seed in range(cfg.seed_offset, cfg.seed_offset + cfg.seeds):
+            full = [*cfg.base, *over, *tool_overrides(cfg, seed), f"run.seed={seed}", "run.progress=false"]
+            jobs.append({"id": f"{_slug(name)}-s{seed}", "group": name, "seed": seed, "overrides": full})
+    return jobs
+
+
+def run_job(job: dict) -> dict:
+    """One episode -> a flat record (no files, so it can run anywhere: a local worker or Ray)."""
+    from kinadapt_nn.episode import run_episode
+
+    s = run_episode(load_config(None, job["overrides"])).summary
+    rec = {"id": job["id"], "group": job["group"], "seed": job["seed"], "overrides": " ".join(job["overrides"])}
+    for k, v in s.items():
+        if isinstance(v, (bool, int, float, str)) or v is None:
+            rec[k] = v
+        elif isinstance(v, list) and len(v) <= 3 and all(isinstance(x, (int, float)) for x in v):
+            for i, x in enumerate(v):
+                rec[f"{k}_{i}"] = x
+    return rec
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def wilson_interval(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """95 % Wilson score interval of a binomial proportion."""
+    if n == 0:
+        return (0.0, 1.0)
+    p = k / n
+    den = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / den
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def _stats(recs: list[dict]) -> dict:
+    n = len(recs)
+    k = sum(1 for r in recs if r.get("success"))
+    lo, hi = wilson_interval(k, n)
+    seats = np.array([r["seat_time_s"] for r in recs if r.get("seat_time_s") is not None])
+    fails: dict[str, int] = {}
+    for r in recs:
+        if not r.get("success"):
+            fails[r.get("failure", "?")] = fails.get(r.get("failure", "?"), 0) + 1
+    q = {f"p{p}": float(np.percentile(seats, p)) for p in (5, 25, 50, 75, 95)} if len(seats) else {}
+    return {"episodes": n, "successes": k, "success_rate": k / n if n else None, "success_rate_ci95": [lo, hi],
+            "seat_time_s_quantiles": q, "failures": fails}
+
+
+def aggregate(out: Path, jobs: list[dict]) -> dict:
+    recs = []
+    for j in jobs:
+        p = out / "episodes" / f"{j['id']}.json"
+        if p.is_file():
+            recs.append(json.loads(p.read_text()))
+    cols: list[str] = []
+    for r in recs:
+        for k in r:
+            if k not in cols and k != "wall_time_s":
+                cols.append(k)
+    cols.append("wall_time_s")
+    fd_text = []
+    import io
+
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=cols, extrasaction="ignore")
+    w.writeheader()
+    for r in recs:
+        w.writerow(r)
+    fd_text.append(buf.getvalue())
+    _write_atomic(out / "sweep.csv", fd_text[0])
+    groups = {}
+    for g in dict.fromkeys(r["group"] for r in recs):
+        groups[g] = _stats([r for r in recs if r["group"] == g])
+    summary = {"total": _stats(recs), "groups": groups, "episodes_expected": len(jobs)}
+    summary["episodes"] = summary["total"]["episodes"]
+    summary["success_rate"] = summary["total"]["success_rate"]
+    summary["success_rate_ci95"] = summary["total"]["success_rate_ci95"]
+    _write_atomic(out / "sweep.json", json.dumps(summary, indent=1) + "\n")
+    return summary
+
+
+def run_sweep(cfg: SweepCfg, out: Path, executor: str = "local", address: str | None = None,
+              progress: bool = True) -> dict:
+    out = Path(out)
+    (out / "episodes").mkdir(parents=True, exist_ok=True)
+    cfg_text = json.dumps(cfg.model_dump(mode="json"), indent=1, sort_keys=True)
+    cfg_path = out / "sweep_config.json"
+    if cfg_path.is_file() and cfg_path.read_text() != cfg_text:
+        raise KinadaptError(f"'{out}' holds a different sweep (sweep_config.json differs); use another --out")
+    _write_atomic(cfg_path, cfg_text)
+    jobs = episode_jobs(cfg)
+    todo = [j for j in jobs if not (out / "episodes" / f"{j['id']}.json").is_file()]
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="sweep", unit="episode")
+
+    def done(rec: dict) -> None:
+        _write_atomic(out / "episodes" / f"{rec['id']}.json", json.dumps(rec) + "\n")
+        if bar is not None:
+            bar.update(1)
+
+    t0 = time.perf_counter()
+    if executor == "local":
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        with ProcessPoolExecutor(max_workers=cfg.jobs) as ex:
+            futs = [ex.submit(run_job, j) for j in todo]
+            for f in as_completed(futs):
+                done(f.result())
+    elif executor == "ray":
+        try:
+            import ray
+        except ImportError:
+            raise KinadaptError("--executor ray needs the [ray] extra: pip install -e \".[ray]\"") from None
+        try:
+            ray.init(address=address or "auto", ignore_reinit_error=True, log_to_driver=False)
+        except Exception as exc:  # ray raises ConnectionError and friends
+            raise KinadaptError(f"cannot connect to a Ray cluster at {address or 'auto'} ({str(exc).splitlines()[0]}); "
+                                "start one with 'ray start --head' or pass --address") from None
+        remote = ray.remote(run_job)
+        pending = [remote.remote(j) for j in todo]
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            done(ray.get(ready[0]))
+    else:
+        raise KinadaptError(f"--executor {executor!r}: choose local or ray")
+    if bar is not None:
+        bar.close()
+    summary = aggregate(out, jobs)
+    summary["wall_time_s_this_run"] = time.perf_counter() - t0
+    return summary

@@ -1,0 +1,158 @@
+"""Sweeps (resumable, aggregated), sensor faults, and bad input everywhere (property-based)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from kinadapt_nn.cli import main
+from kinadapt_nn.config import load_config
+from kinadapt_nn.episode import run_episode
+from kinadapt_nn.errors import ConfigError, KinadaptError
+from kinadapt_nn.sweep import load_sweep_config, run_sweep, wilson_interval
+
+
+def test_wilson_interval_against_known_values():
+    """Wilson 95 %: 0/10 -> [0, 0.278]; 10/10 -> [0.722, 1]; 50/100 -> [0.404, 0.596]."""
+    assert wilson_interval(0, 10) == pytest.approx((0.0, 0.2775), abs=1e-3)
+    assert wilson_interval(10, 10) == pytest.approx((0.7225, 1.0), abs=1e-3)
+    assert wilson_interval(50, 100) == pytest.approx((0.4038, 0.5962), abs=1e-3)
+
+
+def test_faults_never_let_nan_into_theta_or_the_command():
+    """10 % dropouts (NaN samples) plus noise: the episode runs, theta and q_ref stay finite, the
+    dropouts are counted; a long NaN burst stops the episode cleanly as divergence."""
+    r = run_episode(load_config(None, ["faults.ft_dropout_prob=0.1", "faults.ft_noise_N=0.5", "run.duration_s=3.0"]))
+    assert r.summary["sensor_dropouts"] > 100
+    assert np.isfinite(r.trace["theta"]).all() and np.isfinite(r.trace["q_ref_rad"]).all()
+    assert np.isfinite(r.trace["xi"]).all()
+    from kinadapt_nn.episode import make_controller
+
+    ctrl = make_controller(load_config(None, []))
+    q = np.array([0.0, -0.5, 0.0, -2.3, 0.0, 1.8, 0.8])
+    ctrl.step(0.0, q, np.zeros(7), np.zeros(6))
+    bad = np.full(6, np.nan)
+    for k in range(ctrl.max_hold_steps):
+        cmd = ctrl.step(0.001 * (k + 1), q, np.zeros(7), bad)
+        assert np.isfinite(cmd.q_ref_rad).all()
+    with pytest.raises(KinadaptError, match="in a row"):
+        ctrl.step(1.0, q, np.zeros(7), bad)
+
+
+def test_fault_latency_delays_the_samples():
+    from kinadapt_nn.config import FaultsCfg
+    from kinadapt_nn.sim.adapter import SensorSample
+    from kinadapt_nn.sim.faults import SensorFaults
+
+    f = SensorFaults(FaultsCfg(latency_steps=2), seed=0, bias_onset_s=0.3)
+    seen = [f(0.001 * k, SensorSample(np.full(7, k), np.zeros(7), np.zeros(6))).q_rad[0] for k in range(6)]
+    assert seen == [0, 0, 0, 1, 2, 3]
+
+
+def test_sweep_aggregates_and_resumes(tmp_path):
+    cfg = load_sweep_config(None, ["seeds=2", "jobs=1", "base=['run.duration_s=1.0']",
+                                   "groups={a=[], b=['faults.ft_noise_N=0.5']}"])
+    out = tmp_path / "sw"
+    s = run_sweep(cfg, out, progress=False)
+    assert s["episodes"] == 4 == s["episodes_expected"]
+    assert set(s["groups"]) == {"a", "b"} and s["groups"]["a"]["failures"] == {"timeout": 2}
+    lines = (out / "sweep.csv").read_text().strip().splitlines()
+    assert len(lines) == 5 and lines[0].startswith("id,group,seed")
+    first = (out / "episodes" / "a-s0.json").stat().st_mtime_ns
+    (out / "episodes" / "b-s1.json").unlink()
+    s2 = run_sweep(cfg, out, progress=False)  # only b-s1 is run again
+    assert s2["episodes"] == 4 and (out / "episodes" / "a-s0.json").stat().st_mtime_ns == first
+    other = load_sweep_config(None, ["seeds=3"])
+    with pytest.raises(KinadaptError, match="different sweep"):
+        run_sweep(other, out, progress=False)
+
+
+def test_killed_sweep_completes_every_episode_exactly_once(tmp_path):
+    """SIGINT mid-way, then the same command: every episode once, finished ones not rerun."""
+    out = tmp_path / "kill"
+    cmd = [sys.executable, "-m", "kinadapt_nn.cli", "sweep", "--out", str(out), "--quiet",
+           "--set", "seeds=6", "--set", "jobs=1", "--set", "base=['run.duration_s=1.5']"]
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    t0 = time.time()
+    while time.time() - t0 < 60:
+        if len(list((out / "episodes").glob("*.json"))) >= 2:
+            break
+        time.sleep(0.05)
+    p.send_signal(signal.SIGINT)
+    p.wait(timeout=60)
+    before = {f.name: f.stat().st_mtime_ns for f in (out / "episodes").glob("*.json")}
+    assert 2 <= len(before) < 6
+    assert subprocess.run(cmd, capture_output=True).returncode == 0
+    after = {f.name: f.stat().st_mtime_ns for f in (out / "episodes").glob("*.json")}
+    assert len(after) == 6 and all(after[k] == v for k, v in before.items())
+    rows = (out / "sweep.csv").read_text().strip().splitlines()[1:]
+    ids = [r.split(",")[0] for r in rows]
+    assert sorted(ids) == sorted(set(ids)) and len(ids) == 6
+    assert not list(out.rglob("*.tmp"))
+
+
+# ------------------------------------------------------------------ property-based bad input
+KEYS = ["run.seed", "run.dt_s", "run.duration_s", "control.gain_trans", "tool.offset_f_m", "start.tilt_deg",
+        "adaptation.eta", "adaptation.mode", "sensing.channel_scale", "faults.latency_steps", "nonsense.key",
+        "arm.joint_offset_rad", "features.rbf_n_centres", "scene.friction"]
+VALUES = st.one_of(st.integers(-10**6, 10**6), st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=12),
+                   st.lists(st.floats(-1, 1), max_size=9), st.booleans())
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(key=st.sampled_from(KEYS), value=VALUES)
+def test_any_override_is_valid_or_a_one_line_config_error(key, value):
+    text = json.dumps(value) if not isinstance(value, str) else value
+    try:
+        load_config(None, [f"{key}={text}"])
+    except ConfigError as exc:
+        assert "\n" not in str(exc) and len(str(exc)) < 400
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(blob=st.binary(max_size=400))
+def test_garbage_config_trace_and_checkpoint_files_are_one_line_errors(tmp_path, blob):
+    from kinadapt_nn.pretrain import load_checkpoint
+    from kinadapt_nn.trace import Trace
+
+    p = tmp_path / "f"
+    p.write_bytes(blob)
+    for loader in (lambda: load_config(p), lambda: Trace.load(p), lambda: load_checkpoint(p)):
+        try:
+            loader()
+        except KinadaptError as exc:
+            assert "\n" not in str(exc).strip()
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(members=st.dictionaries(st.sampled_from(["meta", "t_s", "q_rad", "x"]), st.binary(max_size=64), max_size=4))
+def test_zip_files_that_are_not_traces(tmp_path, members):
+    from kinadapt_nn.trace import Trace
+
+    p = tmp_path / "t.npz"
+    with zipfile.ZipFile(p, "w") as z:
+        for k, v in members.items():
+            z.writestr(k + ".npy", v)
+    with pytest.raises(KinadaptError):
+        Trace.load(p)
+
+
+def test_cli_exit_2_on_bad_sweep_and_compare_configs(tmp_path, capsys):
+    assert main(["sweep", "--out", str(tmp_path / "s"), "--set", "groups={g=['tool.side_m=1']}", "--quiet"]) == 2
+    assert main(["compare", "--out", str(tmp_path / "c"), "--set", "features=['bogus']", "--quiet"]) == 2
+    assert main(["pretrain", "--out", str(tmp_path / "p"), "--set", "train.steps=-1", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("kinadapt: error:") == 3 and "Traceback" not in err
+    assert not any(tmp_path.iterdir())
+    _ = os
