@@ -289,13 +289,17 @@ class Controller:
         else:  # a dropout: hold the last valid sample (no adaptation on it); never let NaN in
             self.dropouts += 1
             self._bad_run += 1
-            if not self._have_held or self._bad_run > self.max_hold_steps:
+            enc_ok = math.isfinite(q.dot(q) + qdot.dot(qdot))
+            if self._bad_run > self.max_hold_steps or not (self._have_held or enc_ok):
                 raise SensorError(
                     f"non-finite sensor sample at t={t:.3f} s ({self._bad_run} in a row; check the encoders and "
                     "the F/T sensor for NaN/inf)"
                 )
             holding = True
-            q, qdot, wrench = self._held
+            if self._have_held:
+                q, qdot, wrench = self._held
+            else:  # the very first samples: valid encoders, no valid wrench yet -> zero wrench, no tare
+                wrench = self._zero6
         kin = self.kin.update(q)  # views, valid for this step
         R, J = kin.R_wf, kin.J_arm
         if self.q_ref is None:
@@ -303,7 +307,7 @@ class Controller:
             self.q_posture = q.copy()
         # -- tare: average the free-space reading (tool weight) while holding still
         if t < self.t_settle:
-            if t >= self.t_tare0:
+            if t >= self.t_tare0 and not holding:
                 self.tare_sum += wrench
                 self.tare_n += 1
             rho = 0.0

@@ -420,7 +420,9 @@ def summarize(
     jerr = trace["truth_jacobian_rel_error"]
     jac_err = float(jerr[-1]) if len(trace) else None
     # offset: the estimate itself (adjoint) or the offset implied by a LS fit of J_hat (others)
-    if isinstance(ctrl.features, AdjointFeatures):
+    if not len(trace):
+        off0 = off_T = np.full(3, np.nan)
+    elif isinstance(ctrl.features, AdjointFeatures):
         off0, off_T = trace["theta"][0], theta
     elif len(trace):
         off0 = implied_offset(ctrl, trace["q_rad"][0], trace["theta"][0])
