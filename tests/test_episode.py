@@ -126,6 +126,7 @@ def test_non_finite_sensor_sample_is_refused(bad):
     qd[2] = bad
     with pytest.raises(SensorError, match="non-finite sensor sample at t=0.000"):
         ctrl.step(0.0, q, qd, np.zeros(6))
+    ctrl = make_controller(cfg)
     w = np.zeros(6)
     w[4] = bad
     for k in range(ctrl.max_hold_steps):
