@@ -41,7 +41,8 @@ class SceneCfg(_Cfg):
 
     arm_mjcf: str = ""  # arm MJCF path ("" = the shipped models/panda.xml); known to both sides
 
-    bore_entry_w_m: Vec3 = (0.45, 0.0, 0.30)  # [m] centre of the bore entrance, world frame
+    bore_entry_w_m: Vec3 = (0.45, 0.0, 0.30)  # [m] centre of the bore entrance, world frame (KNOWN)
+    bore_pose_error_m: Vec3 = (0.0, 0.0, 0.0)  # [m] true bore = known pose + this (hidden)
     bore_half_width_m: float = Field(0.011, gt=0.0)  # [m] wall position about the bore centre
     bore_depth_m: float = Field(0.050, gt=0.0)  # [m] bore depth (floor below the entrance)
     block_half_size_m: float = Field(0.06, gt=0.0)  # [m] half side of the block (x and y)
@@ -205,6 +206,11 @@ class ExperimentCfg(_Cfg):
     adaptation: AdaptationCfg = AdaptationCfg()
     faults: FaultsCfg = FaultsCfg()
     success: SuccessCfg = SuccessCfg()
+
+
+def true_bore_entry(scene: SceneCfg) -> tuple[float, float, float]:
+    """The TRUE bore entrance (truth side): the known pose plus the hidden pose error."""
+    return tuple(a + b for a, b in zip(scene.bore_entry_w_m, scene.bore_pose_error_m))
 
 
 def arm_mjcf_path(scene: SceneCfg) -> Path:

@@ -14,7 +14,7 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
-from kinadapt_nn.config import ExperimentCfg
+from kinadapt_nn.config import ExperimentCfg, true_bore_entry
 from kinadapt_nn.errors import KinadaptError
 from kinadapt_nn.geometry import rotvec_from_matrix, tilt_rotation
 from kinadapt_nn.robot import JOINT_LIMITS_RAD, Q_HOME_RAD, SERVO_KP, SERVO_KV
@@ -84,7 +84,7 @@ class PegInHoleSim:
         self.model, self.ids = build_model(cfg.tool, cfg.scene, arm=cfg.arm)
         self.model.opt.timestep = cfg.run.dt_s
         self.data = mujoco.MjData(self.model)
-        self.entry_w = np.asarray(cfg.scene.bore_entry_w_m, dtype=float)
+        self.entry_w = np.asarray(true_bore_entry(cfg.scene), dtype=float)  # the TRUE bore
         self._block_set = frozenset(int(g) for g in self.ids.block_geoms)
         self._kv_over_kp = SERVO_KV / SERVO_KP
         self._socket = cfg.scene.contact_model == "socket"
@@ -115,7 +115,9 @@ class PegInHoleSim:
         tilt = np.asarray(st.tilt_deg) + rng.uniform(-1.0, 1.0, 2) * st.tilt_jitter_deg
         self.start_lateral_w_m, self.start_tilt_deg = lat, tilt
         R_target = tilt_rotation(tilt) @ R_W_F_DOWN
-        tip_target = self.entry_w + np.array([lat[0], lat[1], st.tip_height_m])
+        # the start is planned from the KNOWN bore pose (a bore-pose error shows up as misalignment)
+        known = np.asarray(self.cfg.scene.bore_entry_w_m, dtype=float)
+        tip_target = known + np.array([lat[0], lat[1], st.tip_height_m])
         return solve_start_ik(self.model, self.ids, tip_target, R_target, Q_HOME_RAD)
 
     def reset(self) -> SensorSample:

@@ -17,7 +17,7 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
-from kinadapt_nn.config import ArmCfg, SceneCfg, ToolCfg, arm_mjcf_path
+from kinadapt_nn.config import ArmCfg, SceneCfg, ToolCfg, arm_mjcf_path, true_bore_entry
 from kinadapt_nn.errors import ModelFileError
 from kinadapt_nn.geometry import quat_from_matrix, tilt_rotation
 from kinadapt_nn.robot import FLANGE_BODY
@@ -91,7 +91,7 @@ def _convex_prism(spec: mujoco.MjSpec, name: str, profile_xz: np.ndarray, y0: fl
 
 
 def _add_block(spec: mujoco.MjSpec, scene: SceneCfg) -> None:
-    cx, cy, top = scene.bore_entry_w_m
+    cx, cy, top = true_bore_entry(scene)
     hw, B, depth, c = scene.bore_half_width_m, scene.block_half_size_m, scene.bore_depth_m, scene.chamfer_m
     floor_t = 0.02
     bottom = top - depth - floor_t
@@ -171,7 +171,7 @@ def build_spec(
         contype=0, conaffinity=0, rgba=[0.42, 0.45, 0.5, 1.0],
     )
     if scene.contact_model == "bore":  # pedestal under the block (visual only)
-        cx, cy, top = scene.bore_entry_w_m
+        cx, cy, top = true_bore_entry(scene)
         h = max(top - scene.bore_depth_m - 0.02, 0.0)
         if h > 0:
             spec.worldbody.add_geom(name="pedestal", type=mujoco.mjtGeom.mjGEOM_BOX,
