@@ -156,3 +156,27 @@ def test_cli_exit_2_on_bad_sweep_and_compare_configs(tmp_path, capsys):
     assert err.count("kinadapt: error:") == 3 and "Traceback" not in err
     assert not any(tmp_path.iterdir())
     _ = os
+
+
+@pytest.mark.slow
+def test_ray_sweep_matches_the_local_sweep(tmp_path):
+    """For real: a local Ray head (ray start --head), 32 episodes, same rows as the local executor."""
+    pytest.importorskip("ray")
+    import csv
+
+    started = subprocess.run(["ray", "start", "--head", "--num-cpus=2", "--include-dashboard=false",
+                              "--disable-usage-stats"], capture_output=True)
+    if started.returncode != 0:
+        pytest.skip("could not start a local Ray head")
+    try:
+        sets = ["--set", "seeds=16", "--set", "groups={a=[], b=['faults.ft_noise_N=0.5']}", "--quiet"]
+        assert main(["sweep", "--out", str(tmp_path / "ray"), "--executor", "ray", *sets]) == 0
+        assert main(["sweep", "--out", str(tmp_path / "local"), *sets]) == 0
+    finally:
+        subprocess.run(["ray", "stop"], capture_output=True)
+
+    def rows(p):
+        return {r["id"]: {k: v for k, v in r.items() if k != "wall_time_s"} for r in csv.DictReader(open(p))}
+
+    a, b = rows(tmp_path / "ray" / "sweep.csv"), rows(tmp_path / "local" / "sweep.csv")
+    assert len(a) == 32 and a == b

@@ -1,0 +1,31 @@
+"""Batched simulation agrees with the single-episode path."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kinadapt_nn.batch import run_batch
+from kinadapt_nn.config import load_config
+from kinadapt_nn.episode import run_episode
+from kinadapt_nn.sweep import SweepCfg, tool_overrides
+
+
+def test_batch_equals_single_episodes():
+    """Randomised tools and starts: the same outcome and seat time as run_episode (the contact is
+    chaotic, so this is a strong check that the vectorised controller is the same controller)."""
+    base = ["run.progress=false", "start.lateral_jitter_m=0.0003", "start.tilt_jitter_deg=0.5", "run.stop_after_seat_s=0.05"]
+    cfgs = [load_config(None, [*base, *tool_overrides(SweepCfg(), s), f"run.seed={s}"]) for s in range(4)]
+    res = run_batch(cfgs, nthread=1)
+    assert res.sim_steps > 4 * 4000
+    for c, b in zip(cfgs, res.summaries):
+        e = run_episode(c).summary
+        assert b["success"] == e["success"]
+        assert b["seat_time_s"] == pytest.approx(e["seat_time_s"], abs=2e-3)
+        assert b["max_lateral_force_N"] == pytest.approx(e["max_lateral_force_N"], rel=0.05, abs=0.2)
+        np.testing.assert_allclose(b["offset_error_final_m"], e["offset_error_final_m"], atol=1e-3)
+
+
+def test_batch_refuses_unsupported_settings():
+    with pytest.raises(ValueError, match="adjoint"):
+        run_batch([load_config(None, ["run.features=rbf"])])
