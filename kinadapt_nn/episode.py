@@ -27,6 +27,8 @@ from kinadapt_nn.trace import Trace, TraceRecorder
 from kinadapt_nn.truth import TrueSensorJacobian
 
 FAILURES = ("none", "timeout", "jam", "block_face", "divergence")
+#: the paper's kinematic gate on lambda_min(W J_hat J_hat^T W) (Results, "A separate kinematic gate")
+RANK_GATE = 1e-6
 
 
 class SeatMonitor:
@@ -158,6 +160,8 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
     theta_true = np.asarray(cfg.tool.offset_f_m, dtype=float) if isinstance(ctrl.features, AdjointFeatures) else None
     nan6 = np.full(6, np.nan)
     diverged = False
+    divergence_reason = None
+    warn0 = int(sim.data.warning.number.sum())
     stop_at: float | None = None
     bar = None
     if progress:
@@ -169,8 +173,9 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
         t = sim.time_s
         try:
             cmd = ctrl.step(t, obs.q_rad, obs.qdot_rad_s, obs.wrench_raw_f)
-        except SensorError:
+        except SensorError as exc:
             diverged = True
+            divergence_reason = f"non-finite sensor sample: {exc}"
             break
         sim.apply(cmd.q_ref_rad, cmd.qdot_ref_rad_s)
         lg = ctrl.last
@@ -218,6 +223,16 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
         if stop_at is not None and sim.time_s >= stop_at:
             break
         # (a non-finite simulator state reaches the controller as a sensor sample: SensorError)
+        if k % 100 == 0:  # divergence watch at 10 Hz: MuJoCo warnings, the rank gate
+            nwarn = int(sim.data.warning.number.sum())
+            if nwarn > warn0:
+                diverged = True
+                divergence_reason = f"MuJoCo warning(s) at t={sim.time_s:.3f} s"
+                break
+            if lg.drive_scale > 0 and rank_margin(ctrl.W, ctrl.features.jacobian(ctrl.kin(obs.q_rad), ctrl.theta)) < RANK_GATE:
+                diverged = True
+                divergence_reason = f"rank gate breached (lambda_min < {RANK_GATE:g}) at t={sim.time_s:.3f} s"
+                break
     if bar is not None:
         bar.close()
     steps = k + 1
@@ -242,6 +257,7 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
     summary = summarize(cfg, trace, ctrl, monitor, diverged, steps, sim.time_s, wall)
     summary["certificate"] = certificate
     summary["sensor_dropouts"] = int(ctrl.dropouts)
+    summary["divergence_reason"] = divergence_reason
     return EpisodeResult(trace, summary)
 
 

@@ -393,7 +393,11 @@ def pretrain(cfg: PretrainCfg, out: Path, progress: bool = True, stop_after: int
         "adjoint_best_fit_rel_error_median_arm_errors": float(np.median(adj_err[held_arm])) if held_arm.any() else None,
         "history": hist,
     }
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=1) + "\n")
+    fd, tmp = tempfile.mkstemp(dir=out, prefix="metrics.json", suffix=".tmp")
+    with os.fdopen(fd, "w") as fh:
+        fh.write(json.dumps(metrics, indent=1) + "\n")
+    os.chmod(tmp, 0o644)
+    os.replace(tmp, out / "metrics.json")
     state_path.unlink(missing_ok=True)
     return metrics
 

@@ -144,3 +144,12 @@ def test_entrance_chamfer_guides_a_misaligned_peg():
     chamfered = run_episode(load_config(None, ["start.lateral_w_m=[0.002, 0.0]", "scene.chamfer_m=0.002"])).summary
     assert not plain["success"] and plain["failure"] == "block_face"
     assert chamfered["success"] and chamfered["true_depth_at_seat_m"] > 0.044
+
+
+def test_rank_gate_breach_stops_the_episode_cleanly():
+    """A sensor map without force/moment stiffness makes J_hat rank-deficient: the episode stops
+    as a failure (divergence, reason named) instead of running on, and its trace is kept."""
+    r = run_episode(load_config(None, ["sensing.stiffness_rot_Nm_per_rad=0", "sensing.stiffness_lat_N_per_m=1e-9"]))
+    assert not r.summary["success"] and r.summary["failure"] == "divergence"
+    assert "rank gate" in r.summary["divergence_reason"]
+    assert 0 < len(r.trace) < 1000
