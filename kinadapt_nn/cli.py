@@ -108,7 +108,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else _default_out("compare")
     check_output_dir(out, args.overwrite)
     with staged_output(out, args.overwrite) as stage:
-        rows = run_compare(cfg, stage, progress=not args.quiet)
+        run_compare(cfg, stage, progress=not args.quiet)
     if not args.quiet:
         print((out / "comparison.md").read_text())
         print(f"wrote {out}/ (comparison.csv, comparison.md, jacobian_error.png, tb/)")

@@ -17,14 +17,13 @@ from __future__ import annotations
 
 import csv
 import math
-import tomllib
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 
-from kinadapt_nn.config import _format_validation_error, _parse_value, _set_dotted
+from kinadapt_nn.config import load_toml_model
 from kinadapt_nn.errors import ConfigError
 
 FEATURES = ("adjoint", "rbf", "neural")
@@ -51,24 +50,7 @@ class CompareCfg(BaseModel):
 
 
 def load_compare_config(path: Path | None, overrides=()) -> CompareCfg:
-    tree: dict = {}
-    if path is not None:
-        path = Path(path)
-        if not path.is_file():
-            raise ConfigError(f"config file '{path}' not found (pass an existing .toml file)")
-        try:
-            tree = tomllib.loads(path.read_text())
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"config file '{path}' is not valid TOML: {exc}") from None
-    for item in overrides:
-        if "=" not in item:
-            raise ConfigError(f"--set '{item}': expected key=value, e.g. --set n_tools=2")
-        key, _, text = item.partition("=")
-        _set_dotted(tree, key.strip(), _parse_value(text.strip()))
-    try:
-        cfg = CompareCfg.model_validate(tree)
-    except ValidationError as err:
-        raise ConfigError(_format_validation_error(err).replace("online/rollout.toml", "online/compare.toml")) from None
+    cfg = load_toml_model(CompareCfg, path, overrides, "online/compare.toml")
     for f in cfg.features:
         if f not in FEATURES:
             raise ConfigError(f"compare: unknown features {f!r} (choose from {', '.join(FEATURES)})")

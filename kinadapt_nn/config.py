@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import tomllib
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 import tomli_w
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -252,12 +252,19 @@ def _set_dotted(tree: dict[str, Any], dotted: str, value: Any) -> None:
 SET_ALIASES: dict[str, str] = {"features": "run.features", "seed": "run.seed", "mode": "adaptation.mode"}
 
 
-def load_config(path: Path | None, overrides: list[str] | tuple[str, ...] = ()) -> ExperimentCfg:
-    """Load an experiment config from TOML (``None``: defaults) and apply ``key=value`` overrides.
+M = TypeVar("M", bound=BaseModel)
 
-    Raises ``ConfigError`` (one line) for a missing/unparsable file, an unknown key, a wrong
-    type or an out-of-range value.
-    """
+
+def load_toml_model(
+    model: type[M],
+    path: Path | None,
+    overrides: list[str] | tuple[str, ...] = (),
+    example_file: str = "online/rollout.toml",
+    aliases: dict[str, str] | None = None,
+) -> M:
+    """Load any config model from TOML (``None``: defaults), apply ``key=value`` overrides and
+    validate. Raises ``ConfigError`` (one line) for a missing/unparsable file, a malformed
+    override, an unknown key, a wrong type or an out-of-range value."""
     tree: dict[str, Any] = {}
     if path is not None:
         path = Path(path)
@@ -269,14 +276,19 @@ def load_config(path: Path | None, overrides: list[str] | tuple[str, ...] = ()) 
             raise ConfigError(f"config file '{path}' is not valid TOML: {exc}") from None
     for item in overrides:
         if "=" not in item:
-            raise ConfigError(f"--set '{item}': expected key=value, e.g. --set run.seed=3")
+            raise ConfigError(f"--set '{item}': expected key=value (see {example_file})")
         key, _, text = item.partition("=")
-        key = SET_ALIASES.get(key.strip(), key.strip())
+        key = (aliases or {}).get(key.strip(), key.strip())
         _set_dotted(tree, key, _parse_value(text.strip()))
     try:
-        return ExperimentCfg.model_validate(tree)
+        return model.model_validate(tree)
     except ValidationError as err:
-        raise ConfigError(_format_validation_error(err)) from None
+        raise ConfigError(_format_validation_error(err).replace("online/rollout.toml", example_file)) from None
+
+
+def load_config(path: Path | None, overrides: list[str] | tuple[str, ...] = ()) -> ExperimentCfg:
+    """Load an experiment config (``kinadapt online``); see ``load_toml_model``."""
+    return load_toml_model(ExperimentCfg, path, overrides, "online/rollout.toml", SET_ALIASES)
 
 
 def config_to_toml(cfg: BaseModel) -> str:

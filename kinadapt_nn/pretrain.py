@@ -21,19 +21,16 @@ import hashlib
 
 import json
 import math
-import os
-import tempfile
 import time
-import tomllib
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 
 import kinadapt_nn
-from kinadapt_nn.config import ExperimentCfg, _format_validation_error, _parse_value, _set_dotted
+from kinadapt_nn.config import ExperimentCfg, load_toml_model
 from kinadapt_nn.errors import ConfigError, ModelFileError
 from kinadapt_nn.nets import N_JOINTS, N_ROWS, JacobianBasisNet, least_squares_heads
 from kinadapt_nn.robot import PANDA_MJCF
@@ -98,24 +95,7 @@ class PretrainCfg(_P):
 
 
 def load_pretrain_config(path: Path | None, overrides=()) -> PretrainCfg:
-    tree: dict = {}
-    if path is not None:
-        path = Path(path)
-        if not path.is_file():
-            raise ConfigError(f"config file '{path}' not found (pass an existing .toml file)")
-        try:
-            tree = tomllib.loads(path.read_text())
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"config file '{path}' is not valid TOML: {exc}") from None
-    for item in overrides:
-        if "=" not in item:
-            raise ConfigError(f"--set '{item}': expected key=value, e.g. --set train.steps=200")
-        key, _, text = item.partition("=")
-        _set_dotted(tree, key.strip(), _parse_value(text.strip()))
-    try:
-        cfg = PretrainCfg.model_validate(tree)
-    except ValidationError as err:
-        raise ConfigError(_format_validation_error(err).replace("online/rollout.toml", "pretrain/default.toml")) from None
+    cfg = load_toml_model(PretrainCfg, path, overrides, "pretrain/default.toml")
     if cfg.tools.length_max_m < cfg.tools.length_min_m:
         raise ConfigError("tools.length_max_m must be >= tools.length_min_m")
     return cfg
@@ -178,15 +158,9 @@ def make_dataset(cfg: PretrainCfg, exp: ExperimentCfg | None = None) -> dict[str
 
 # ----------------------------------------------------------------------------------- checkpoints
 def _atomic_torch_save(obj, path: Path) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    os.close(fd)
-    try:
-        torch.save(obj, tmp)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    from kinadapt_nn.runio import atomic_write
+
+    atomic_write(Path(path), lambda tmp: torch.save(obj, tmp))
 
 
 def state_hash(state: dict[str, torch.Tensor], meta: dict) -> str:
@@ -393,11 +367,9 @@ def pretrain(cfg: PretrainCfg, out: Path, progress: bool = True, stop_after: int
         "adjoint_best_fit_rel_error_median_arm_errors": float(np.median(adj_err[held_arm])) if held_arm.any() else None,
         "history": hist,
     }
-    fd, tmp = tempfile.mkstemp(dir=out, prefix="metrics.json", suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        fh.write(json.dumps(metrics, indent=1) + "\n")
-    os.chmod(tmp, 0o644)
-    os.replace(tmp, out / "metrics.json")
+    from kinadapt_nn.runio import write_text_atomic
+
+    write_text_atomic(out / "metrics.json", json.dumps(metrics, indent=1) + "\n")
     state_path.unlink(missing_ok=True)
     return metrics
 

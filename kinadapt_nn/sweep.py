@@ -16,17 +16,14 @@ import csv
 import itertools
 import json
 import math
-import os
 import re
-import tempfile
 import time
-import tomllib
 from pathlib import Path
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 
-from kinadapt_nn.config import _format_validation_error, _parse_value, _set_dotted, load_config
+from kinadapt_nn.config import load_config, load_toml_model
 from kinadapt_nn.errors import ConfigError, KinadaptError
 
 
@@ -45,24 +42,7 @@ class SweepCfg(BaseModel):
 
 
 def load_sweep_config(path: Path | None, overrides=()) -> SweepCfg:
-    tree: dict = {}
-    if path is not None:
-        path = Path(path)
-        if not path.is_file():
-            raise ConfigError(f"config file '{path}' not found (pass an existing .toml file)")
-        try:
-            tree = tomllib.loads(path.read_text())
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"config file '{path}' is not valid TOML: {exc}") from None
-    for item in overrides:
-        if "=" not in item:
-            raise ConfigError(f"--set '{item}': expected key=value, e.g. --set seeds=5")
-        key, _, text = item.partition("=")
-        _set_dotted(tree, key.strip(), _parse_value(text.strip()))
-    try:
-        cfg = SweepCfg.model_validate(tree)
-    except ValidationError as err:
-        raise ConfigError(_format_validation_error(err).replace("online/rollout.toml", "online/sweep.toml")) from None
+    cfg = load_toml_model(SweepCfg, path, overrides, "online/sweep.toml")
     # every group's overrides must make a valid online config (fail before running anything)
     for name, over in expand_groups(cfg).items():
         load_config(None, [*cfg.base, *over])
@@ -120,15 +100,9 @@ def run_job(job: dict) -> dict:
 
 
 def _write_atomic(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    from kinadapt_nn.runio import write_text_atomic
+
+    write_text_atomic(path, text)
 
 
 def wilson_interval(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:

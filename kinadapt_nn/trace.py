@@ -13,8 +13,6 @@ Channel table (``CHANNELS`` below is the single source; the README lists it):
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -85,16 +83,13 @@ class Trace:
             version=TRACE_VERSION,
             channels={k: {"unit": v[1], "frame": v[2], "description": v[3]} for k, v in CHANNELS.items()},
         )
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-        os.close(fd)
-        try:
+        from kinadapt_nn.runio import atomic_write
+
+        def write(tmp: str) -> None:
             with open(tmp, "wb") as fh:
                 np.savez_compressed(fh, meta=np.array(json.dumps(meta)), **self.arrays)
-            os.chmod(tmp, 0o644)
-            os.replace(tmp, path)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
+
+        atomic_write(path, write)
 
     @classmethod
     def load(cls, path: Path) -> Trace:

@@ -10,7 +10,6 @@ OpenGL backend: ``MUJOCO_GL=egl`` (Debian: ``libegl1`` + ``libgl1-mesa-dri``) or
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -60,28 +59,25 @@ def render_run(run: Path, out: Path, fps: float = 25.0, width: int = 480, height
     os.environ.setdefault("MUJOCO_GL", "egl")
     frames = list(_frames(run, fps, width, height, camera, max_s))
     out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=out.name, suffix=suffix)
-    os.close(fd)
-    try:
+    from kinadapt_nn.runio import atomic_write
+
+    def write(tmp: str) -> None:
         if suffix == ".gif":
             from PIL import Image
 
             imgs = [Image.fromarray(f) for f in frames]
-            imgs[0].save(tmp, save_all=True, append_images=imgs[1:], duration=int(1000 / fps), loop=0)
+            imgs[0].save(tmp, format="GIF", save_all=True, append_images=imgs[1:], duration=int(1000 / fps), loop=0)
         else:
             try:
                 import imageio.v2 as imageio
             except ImportError:
                 raise KinadaptError("MP4 needs imageio + imageio-ffmpeg (pip install imageio imageio-ffmpeg); "
                                     "or write a .gif") from None
-            with imageio.get_writer(tmp, fps=fps) as w:
+            with imageio.get_writer(tmp, fps=fps, format="FFMPEG") as w:
                 for f in frames:
                     w.append_data(f)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, out)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+
+    atomic_write(out, write, suffix=suffix)
     return len(frames)
 
 

@@ -45,3 +45,26 @@ def test_reproduce_only_qp_writes_json_and_markdown(tmp_path, capsys):
     assert r["qp_max_abs_error"] <= 1e-8
     assert "| identification QP" in (out / "reproduce.md").read_text()
     assert main(["reproduce", "--only", "nonsense", "--out", str(tmp_path / "x"), "--quiet"]) == 2
+
+
+def test_view_renders_a_gif_or_says_why(tmp_path):
+    """kinadapt view on a real (short) run: a GIF with frames, or one line naming the GL problem."""
+    import os
+    import subprocess
+    import sys
+
+    run = tmp_path / "run"
+    assert main(["online", "--out", str(run), "--quiet", "--set", "run.duration_s=0.4",
+                 "--set", "run.tensorboard=false", "--set", "run.figure=false"]) == 1
+    env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
+    env.pop("DISPLAY", None)
+    p = subprocess.run([sys.executable, "-m", "kinadapt_nn.cli", "view", str(run), "--out", str(tmp_path / "v.gif"),
+                        "--fps", "10", "--quiet"], env=env, capture_output=True, text=True)
+    if p.returncode == 0:
+        from PIL import Image
+
+        im = Image.open(tmp_path / "v.gif")
+        assert im.n_frames >= 3 and im.size == (480, 360)
+    else:
+        assert p.returncode == 2 and p.stderr.count("\n") == 1 and "MUJOCO_GL" in p.stderr
+    assert main(["view", str(tmp_path / "nope"), "--out", str(tmp_path / "x.gif"), "--quiet"]) == 2
