@@ -20,9 +20,8 @@ import argparse
 import json
 from concurrent.futures import ProcessPoolExecutor
 
-import numpy as np
 
-from kinadapt_nn.floor import LADDER, measure  # noqa: E402
+from kinadapt_nn.floor import LADDER, floor_figure, measure  # noqa: E402
 
 
 def main() -> None:
@@ -43,26 +42,7 @@ def main() -> None:
         with open(args.json, "w") as fh:
             json.dump(rows, fh, indent=1)
     if args.png:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        fig, ax = plt.subplots(figsize=(6, 4.5), constrained_layout=True)
-        x = np.array([r["b_over_sigma_m"] for r in rows]) * 1e3
-        y = np.array([r["lateral_error_rms_last_m"] for r in rows]) * 1e3
-        ax.loglog(x, y, "o")
-        for r, xi, yi in zip(rows, x, y):
-            ax.annotate(r["scenario"], (xi, yi), fontsize=6)
-        lo, hi = np.nanmin(x) / 2, np.nanmax(x) * 2
-        ax.loglog([lo, hi], [lo, hi], "k:", lw=0.8, label="err = b / sigma_min")
-        ax.axhline(5.0, color="r", lw=0.8, ls="--", label="initial error 5 mm")
-        ax.axhline(1e3 * np.hypot(0.015 + 0.003, 0.015 + 0.002), color="gray", lw=0.8, ls="-.",
-                   label="Omega box reached (estimate pinned)")
-        ax.set_xlabel("b_rms / sigma_min [mm] (oracle run)")
-        ax.set_ylabel("lateral offset error, last 1.5 s RMS [mm]")
-        ax.legend(fontsize=8)
-        fig.savefig(args.png, dpi=130)
+        floor_figure(rows, args.png)
 
 
 if __name__ == "__main__":

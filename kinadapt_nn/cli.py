@@ -181,30 +181,26 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def _job_parser(sub, name: str, help_: str, config_default: str, set_example: str, func) -> argparse.ArgumentParser:
+    """The options every job command shares: --config, --set, --out, --overwrite, --quiet."""
+    sp = sub.add_parser(name, help=help_)
+    sp.add_argument("--config", help=f"TOML config (default: built-in defaults = {config_default})")
+    sp.add_argument("--set", action="append", metavar="KEY=VALUE", help=f"override a key, e.g. {set_example}")
+    sp.add_argument("--out", help=f"output folder (default: runs/{name}-<timestamp>)")
+    sp.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    sp.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
+    sp.set_defaults(func=func)
+    return sp
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="kinadapt", description="Online kinematic adaptation by feel (MuJoCo Panda).")
     sub = p.add_subparsers(dest="command", required=True)
-    on = sub.add_parser("online", help="run one insertion episode")
-    on.add_argument("--config", help="experiment TOML (default: built-in defaults = online/rollout.toml)")
-    on.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a config key, e.g. run.seed=3")
-    on.add_argument("--out", help="output folder (default: runs/online-<timestamp>)")
-    on.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
-    on.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
-    on.set_defaults(func=cmd_online)
-    pt = sub.add_parser("pretrain", help="train the neural Jacobian basis on randomised tools and arms")
-    pt.add_argument("--config", help="pretraining TOML (default: built-in defaults = pretrain/default.toml)")
-    pt.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key, e.g. train.steps=200")
-    pt.add_argument("--out", help="output folder (default: runs/pretrain-<timestamp>); rerun to resume")
-    pt.add_argument("--overwrite", action="store_true", help="replace an existing finished output folder")
-    pt.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
-    pt.set_defaults(func=cmd_pretrain)
-    cp = sub.add_parser("compare", help="adjoint vs RBF vs neural features on the same held-out tools")
-    cp.add_argument("--config", help="compare TOML (default: built-in defaults = online/compare.toml)")
-    cp.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key, e.g. n_tools=2")
-    cp.add_argument("--out", help="output folder (default: runs/compare-<timestamp>)")
-    cp.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
-    cp.add_argument("--quiet", action="store_true", help="no progress bar, no table")
-    cp.set_defaults(func=cmd_compare)
+    _job_parser(sub, "online", "run one insertion episode", "online/rollout.toml", "run.seed=3", cmd_online)
+    _job_parser(sub, "pretrain", "train the neural Jacobian basis on randomised tools and arms (rerun to resume)",
+                "pretrain/default.toml", "train.steps=200", cmd_pretrain)
+    _job_parser(sub, "compare", "adjoint vs RBF vs neural features on the same held-out tools",
+                "online/compare.toml", "n_tools=2", cmd_compare)
     vw = sub.add_parser("view", help="render a run to GIF/MP4 offscreen, or open the viewer when a display exists")
     vw.add_argument("run", help="a run folder written by kinadapt online")
     vw.add_argument("--out", help="video file (.gif or .mp4); default: RUN/rollout.gif when headless")
@@ -223,15 +219,10 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--overwrite", action="store_true")
     rp.add_argument("--quiet", action="store_true")
     rp.set_defaults(func=cmd_reproduce)
-    sw = sub.add_parser("sweep", help="many episodes over groups x seeds, locally or on a Ray cluster (resumable)")
-    sw.add_argument("--config", help="sweep TOML (default: built-in defaults = online/sweep.toml)")
-    sw.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a sweep key, e.g. seeds=5")
-    sw.add_argument("--out", help="output folder (default: runs/sweep-<timestamp>); rerun to resume")
+    sw = _job_parser(sub, "sweep", "many episodes over groups x seeds, locally or on a Ray cluster (rerun to resume)",
+                     "online/sweep.toml", "seeds=5", cmd_sweep)
     sw.add_argument("--executor", choices=["local", "ray"], default="local")
     sw.add_argument("--address", help="Ray cluster address (default: auto, e.g. a local 'ray start --head')")
-    sw.add_argument("--overwrite", action="store_true")
-    sw.add_argument("--quiet", action="store_true")
-    sw.set_defaults(func=cmd_sweep)
     return p
 
 

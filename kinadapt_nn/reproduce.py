@@ -223,25 +223,11 @@ def part_ablations(out: Path, ex) -> dict:
         "no_couple_static_error_m": (st0 - true).tolist(), "no_couple_law_error_m": s0["offset_error_final_m"],
     }
     # (c) the bias floor ladder
-    from kinadapt_nn.floor import LADDER, measure
+    from kinadapt_nn.floor import LADDER, floor_figure, measure
 
     rows = list(ex.map(measure, LADDER))
     res["bias_floor"] = rows
-    fig, ax = plt.subplots(figsize=(6.5, 4.8), constrained_layout=True)
-    x = np.array([r["b_over_sigma_m"] for r in rows]) * 1e3
-    y = np.array([r["lateral_error_rms_last_m"] for r in rows]) * 1e3
-    ax.loglog(x, y, "o")
-    for r, xi, yi in zip(rows, x, y):
-        ax.annotate(r["scenario"], (xi, yi), fontsize=6)
-    ax.loglog([0.3, 1e6], [0.3, 1e6], "k:", lw=0.8, label="error = b / sigma_min")
-    ax.axhline(5.0, color="r", ls="--", lw=0.8, label="initial error 5 mm")
-    ax.axhline(1e3 * np.hypot(0.018, 0.017), color="gray", ls="-.", lw=0.8, label="estimate pinned at the Omega box")
-    ax.set_xlabel("b_rms / sigma_min [mm] (oracle run)")
-    ax.set_ylabel("lateral offset error, last 1.5 s RMS [mm]")
-    ax.legend(fontsize=8)
-    ax.set_title("Bias floor O(b / sigma_min) as the contact model is made less ideal")
-    fig.savefig(out / "bias_floor.png", dpi=120)
-    plt.close(fig)
+    floor_figure(rows, out / "bias_floor.png")
     return res
 
 
