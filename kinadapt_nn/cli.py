@@ -181,6 +181,44 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from kinadapt_nn.config import config_to_toml, load_config
+    from kinadapt_nn.diagnostics.report import residual_figure, write_tb
+    from kinadapt_nn.diagnostics.residual import analyse, load_log, plain_summary, replay
+    from kinadapt_nn.runio import check_output_dir, staged_output, write_json
+    from kinadapt_nn.sensing import channel_metric
+
+    src = Path(args.log)
+    cfg_path = Path(args.config) if args.config else (src / "config.toml" if (src / "config.toml").is_file() else None)
+    cfg = load_config(cfg_path, args.set or [])
+    theta = None
+    if args.theta:
+        try:
+            theta = np.array([float(x) for x in args.theta.split(",")])
+        except ValueError:
+            raise KinadaptError(f"--theta {args.theta!r}: give three numbers in metres, e.g. 0.003,-0.002,0.1") from None
+        if theta.shape != (3,):
+            raise KinadaptError(f"--theta {args.theta!r}: give three numbers in metres, e.g. 0.003,-0.002,0.1")
+    out = Path(args.out) if args.out else _default_out("diagnose")
+    check_output_dir(out, args.overwrite)
+    log = load_log(src)
+    rep = replay(log, cfg, theta)
+    a = analyse(rep, channel_metric(cfg.sensing))
+    summary = plain_summary(a)
+    with staged_output(out, args.overwrite) as stage:
+        (stage / "config.toml").write_text(config_to_toml(cfg))
+        write_json(stage / "diagnosis.json", {"summary": summary, "source": log.source, "format": "kinadapt-diagnosis",
+                                               "version": 1, **a})
+        residual_figure(rep, stage / "residual.png")
+        write_tb(stage / "tb", rep)
+    if not args.quiet:
+        print(summary)
+        print(f"wrote {out}/ (diagnosis.json, residual.png, tb/)")
+    return 0
+
+
 def _job_parser(sub, name: str, help_: str, config_default: str, set_example: str, func) -> argparse.ArgumentParser:
     """The options every job command shares: --config, --set, --out, --overwrite, --quiet."""
     sp = sub.add_parser(name, help=help_)
@@ -221,6 +259,15 @@ def build_parser() -> argparse.ArgumentParser:
     rp.set_defaults(func=cmd_reproduce)
     sw = _job_parser(sub, "sweep", "many episodes over groups x seeds, locally or on a Ray cluster (rerun to resume)",
                      "online/sweep.toml", "seeds=5", cmd_sweep)
+    dg = sub.add_parser("diagnose", help="model vs measurement: where the prediction misses the sensor (run folder, trace or CSV)")
+    dg.add_argument("log", help="a run folder, a trace.npz, or a CSV log (see kinadapt_nn/diagnostics/importers.py)")
+    dg.add_argument("--config", help="the known model (default: the run's config.toml, else built-in defaults)")
+    dg.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a model key")
+    dg.add_argument("--theta", help="offset estimate x,y,z [m] to evaluate (default: the run's final estimate)")
+    dg.add_argument("--out", help="output folder (default: runs/diagnose-<timestamp>)")
+    dg.add_argument("--overwrite", action="store_true")
+    dg.add_argument("--quiet", action="store_true")
+    dg.set_defaults(func=cmd_diagnose)
     sw.add_argument("--executor", choices=["local", "ray"], default="local")
     sw.add_argument("--address", help="Ray cluster address (default: auto, e.g. a local 'ray start --head')")
     return p
