@@ -13,6 +13,7 @@ With ``random_tools = true`` each seed also draws its tool (lateral offset in a 
 from __future__ import annotations
 
 import csv
+import io
 import itertools
 import json
 import math
@@ -25,6 +26,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from kinadapt_nn.config import load_config, load_toml_model
 from kinadapt_nn.errors import ConfigError, KinadaptError
+from kinadapt_nn.runio import write_text_atomic
 
 
 class SweepCfg(BaseModel):
@@ -99,12 +101,6 @@ def run_job(job: dict) -> dict:
     return rec
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    from kinadapt_nn.runio import write_text_atomic
-
-    write_text_atomic(path, text)
-
-
 def wilson_interval(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
     """95 % Wilson score interval of a binomial proportion."""
     if n == 0:
@@ -142,16 +138,11 @@ def aggregate(out: Path, jobs: list[dict]) -> dict:
             if k not in cols and k != "wall_time_s":
                 cols.append(k)
     cols.append("wall_time_s")
-    fd_text = []
-    import io
-
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=cols, extrasaction="ignore")
     w.writeheader()
-    for r in recs:
-        w.writerow(r)
-    fd_text.append(buf.getvalue())
-    _write_atomic(out / "sweep.csv", fd_text[0])
+    w.writerows(recs)
+    write_text_atomic(out / "sweep.csv", buf.getvalue())
     groups = {}
     for g in dict.fromkeys(r["group"] for r in recs):
         groups[g] = _stats([r for r in recs if r["group"] == g])
@@ -159,7 +150,7 @@ def aggregate(out: Path, jobs: list[dict]) -> dict:
     summary["episodes"] = summary["total"]["episodes"]
     summary["success_rate"] = summary["total"]["success_rate"]
     summary["success_rate_ci95"] = summary["total"]["success_rate_ci95"]
-    _write_atomic(out / "sweep.json", json.dumps(summary, indent=1) + "\n")
+    write_text_atomic(out / "sweep.json", json.dumps(summary, indent=1) + "\n")
     return summary
 
 
@@ -171,7 +162,7 @@ def run_sweep(cfg: SweepCfg, out: Path, executor: str = "local", address: str | 
     cfg_path = out / "sweep_config.json"
     if cfg_path.is_file() and cfg_path.read_text() != cfg_text:
         raise KinadaptError(f"'{out}' holds a different sweep (sweep_config.json differs); use another --out")
-    _write_atomic(cfg_path, cfg_text)
+    write_text_atomic(cfg_path, cfg_text)
     jobs = episode_jobs(cfg)
     todo = [j for j in jobs if not (out / "episodes" / f"{j['id']}.json").is_file()]
     bar = None
@@ -181,7 +172,7 @@ def run_sweep(cfg: SweepCfg, out: Path, executor: str = "local", address: str | 
         bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="sweep", unit="episode")
 
     def done(rec: dict) -> None:
-        _write_atomic(out / "episodes" / f"{rec['id']}.json", json.dumps(rec) + "\n")
+        write_text_atomic(out / "episodes" / f"{rec['id']}.json", json.dumps(rec) + "\n")
         if bar is not None:
             bar.update(1)
 

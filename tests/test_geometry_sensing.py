@@ -54,6 +54,13 @@ def _set_state(sim: PegInHoleSim, q: np.ndarray, qdot: np.ndarray | None = None)
     mujoco.mj_forward(sim.model, d)
 
 
+def _site_twist(sim, site_id: int) -> np.ndarray:
+    """World-frame twist [v; omega] of a site (mj_objectVelocity with flg_local=0 gives [omega; v])."""
+    res = np.zeros(6)
+    mujoco.mj_objectVelocity(sim.model, sim.data, mujoco.mjtObj.mjOBJ_SITE, site_id, res, 0)
+    return np.concatenate([res[3:], res[:3]])
+
+
 def _lateral_projector_independent(n: np.ndarray) -> np.ndarray:
     """P (2, 3) for the vertical bore n = -z: world x and y (module docstring of sensing)."""
     assert np.allclose(n, [0.0, 0.0, -1.0])
@@ -68,7 +75,6 @@ def test_adjoint_offset_matches_simulated_tip_velocity(cfg, sim):
     m, d, ids = sim.model, sim.data, sim.ids
     rng = np.random.default_rng(101)
     offset_f = np.asarray(cfg.tool.offset_f_m)
-    res = np.zeros(6)
     h = 1e-6
     max_rel_vel, max_rel_fd = 0.0, 0.0
     try:
@@ -76,10 +82,8 @@ def test_adjoint_offset_matches_simulated_tip_velocity(cfg, sim):
             qdot = rng.normal(0.0, 1.0, N_JOINTS)
             _set_state(sim, q, qdot)
             # flange (= ft_site, origin O) twist; mj_objectVelocity(flg_local=0) -> [omega; v] at the site
-            mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_SITE, ids.ft_site, res, 0)
-            xi_O = np.concatenate([res[3:], res[:3]])
-            mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_SITE, ids.tip_site, res, 0)
-            tip_true = np.concatenate([res[3:], res[:3]])
+            xi_O = _site_twist(sim, ids.ft_site)
+            tip_true = _site_twist(sim, ids.tip_site)
             R_wf = d.site_xmat[ids.ft_site].reshape(3, 3).copy()
             # the site convention itself, independently: mj_jacSite at the tip site
             jacp, jacr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
@@ -268,16 +272,14 @@ def test_regressor_identity_and_fd_in_theta(ctrl):
 
 def test_oracle_jacobian_matches_simulated_tip_twist(cfg, sim, ctrl):
     """Rows 1:6 of J_hat(theta = true offset) qdot vs S @ [true tip velocity; omega] read from the simulator."""
-    m, d, ids = sim.model, sim.data, sim.ids
+    ids = sim.ids
     rng = np.random.default_rng(607)
     theta_true = np.asarray(cfg.tool.offset_f_m)
-    res = np.zeros(6)
     try:
         for q in _random_q(rng, N_CONFIGS):
             qdot = rng.normal(0.0, 1.0, N_JOINTS)
             _set_state(sim, q, qdot)
-            mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_SITE, ids.tip_site, res, 0)
-            tip_twist = np.concatenate([res[3:], res[:3]])
+            tip_twist = _site_twist(sim, ids.tip_site)
             pred = ctrl.features.jacobian(ctrl.kin(q.copy()), theta_true) @ qdot
             expect = ctrl.S @ tip_twist
             assert_allclose(pred[1:], expect[1:], rtol=0, atol=1e-10 * np.abs(expect).max())

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -154,7 +153,6 @@ def test_cli_exit_2_on_bad_sweep_and_compare_configs(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("kinadapt: error:") == 3 and "Traceback" not in err
     assert not any(tmp_path.iterdir())
-    _ = os
 
 
 @pytest.mark.slow
