@@ -201,21 +201,44 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             raise KinadaptError(f"--theta {args.theta!r}: give three numbers in metres, e.g. 0.003,-0.002,0.1") from None
         if theta.shape != (3,):
             raise KinadaptError(f"--theta {args.theta!r}: give three numbers in metres, e.g. 0.003,-0.002,0.1")
+    from kinadapt_nn.diagnostics import library as lib
+    from kinadapt_nn.diagnostics import ranking as rk
+    from kinadapt_nn.diagnostics.effects import build_signals
+
     out = Path(args.out) if args.out else _default_out("diagnose")
     check_output_dir(out, args.overwrite)
     log = load_log(src)
     rep = replay(log, cfg, theta)
     a = analyse(rep, channel_metric(cfg.sensing))
-    summary = plain_summary(a)
+    rc = rk.RankCfg()
+    # the effect library is fitted on the nominal model (the CAD offset), not the run's estimate
+    rep_nom = rep if theta is None and log.theta is None else replay(log, cfg, np.asarray(cfg.sensing.nominal_offset_f_m))
+    sig = build_signals(rep_nom, log, cfg)
+    program = cfg.control.program
+    if args.baseline:
+        calib = lib.baseline_calibration(Path(args.baseline), cfg, rc)
+        calib_src = str(args.baseline)
+    elif args.no_calibration:
+        calib, calib_src = None, "none"
+    else:
+        calib = rk.load_calibration(Path(args.calibration) if args.calibration else rk.DEFAULT_CALIBRATION, program)
+        calib_src = str(args.calibration or "shipped models/nominal_calibration.json") + f" [{program}]"
+    fx = lib.analyse_effects(sig, cfg, calib, list(args.add or []), rc)
+    series = fx.pop("_series", None)
+    summary = lib.summary_sentence(fx) + " " + plain_summary(a)
     with staged_output(out, args.overwrite) as stage:
         (stage / "config.toml").write_text(config_to_toml(cfg))
         write_json(stage / "diagnosis.json", {"summary": summary, "source": log.source, "format": "kinadapt-diagnosis",
-                                               "version": 1, **a})
+                                               "version": 2, "calibration": calib_src, **fx, **a})
         residual_figure(rep, stage / "residual.png")
+        lib.effects_figure({**fx, **({"_series": series} if series else {})}, stage / "effects.png")
         write_tb(stage / "tb", rep)
+    if args.save_calibration:
+        lib.save_calibration(Path(args.save_calibration), program,
+                             rk.calibrate(rk.build_design(sig, channel_metric(cfg.sensing), rc), rc), log.source)
     if not args.quiet:
         print(summary)
-        print(f"wrote {out}/ (diagnosis.json, residual.png, tb/)")
+        print(f"wrote {out}/ (diagnosis.json, residual.png, effects.png, tb/)")
     return 0
 
 
@@ -264,6 +287,15 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--config", help="the known model (default: the run's config.toml, else built-in defaults)")
     dg.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a model key")
     dg.add_argument("--theta", help="offset estimate x,y,z [m] to evaluate (default: the run's final estimate)")
+    dg.add_argument("--add", action="append", metavar="EFFECT",
+                    help="refit with this library effect added and report the residual before/after (repeatable)")
+    dg.add_argument("--baseline", metavar="RUN", help="calibrate the nominal model on this run without hidden effects "
+                    "(default: the shipped calibration for the run's control.program)")
+    dg.add_argument("--calibration", metavar="FILE", help="a calibration file written by --save-calibration")
+    dg.add_argument("--no-calibration", action="store_true", help="judge effects against the bare nominal model")
+    dg.add_argument("--save-calibration", metavar="FILE",
+                    help="also fit the whole library on this log (a run without hidden effects) and store it as the "
+                         "calibration of its control.program in FILE")
     dg.add_argument("--out", help="output folder (default: runs/diagnose-<timestamp>)")
     dg.add_argument("--overwrite", action="store_true")
     dg.add_argument("--quiet", action="store_true")

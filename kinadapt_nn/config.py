@@ -54,6 +54,8 @@ class SceneCfg(_Cfg):
     socket_k_lat_N_per_m: float = Field(2.0e4, gt=0.0)  # [N/m] socket: lateral spring at the tip
     socket_k_rot_Nm_per_rad: float = Field(20.0, ge=0.0)  # [N m/rad] socket: angular spring
     socket_damping_ratio: float = Field(0.05, ge=0.0)  # [-] socket: damping (x critical, 3 kg)
+    socket_engage: Literal["drive", "depth"] = "drive"  # socket anchors at drive start | when the tip enters
+    socket_k_axial_N_per_m: float = Field(0.0, ge=0.0)  # [N/m] socket "depth": axial spring below the entrance
 
 
 class ArmCfg(_Cfg):
@@ -122,6 +124,7 @@ class ControlCfg(_Cfg):
     loop: Literal["admittance", "rigid"] = "admittance"  # rigid: eq. ft_control, no contact feedback
     dither_rad_s: Vec3 = (0.0, 0.0, 0.0)  # [rad/s] commanded angular excitation about world x, y, z
     dither_hz: float = Field(1.0, gt=0.0)  # [Hz] dither frequency (x: sin, y: cos, z: sin at 1.7 f)
+    program: Literal["insert", "excite"] = "insert"  # insert: descend V's gradient | excite: [excite] script
 
 
 class FeaturesCfg(_Cfg):
@@ -161,6 +164,97 @@ class FaultsCfg(_Cfg):
     ft_saturation_N: float = Field(0.0, ge=0.0)  # [N] clip force components (0 = off)
     encoder_resolution_rad: float = Field(0.0, ge=0.0)  # [rad] encoder quantisation step (0 = off)
     latency_steps: int = Field(0, ge=0, le=10)  # [steps] delivery delay of every sample
+
+
+class ToolGravityCfg(_Cfg):
+    """Effect ``tool_gravity``: an extra payload on the tool (e.g. a heavier tool than the tared one)."""
+
+    enabled: bool = False
+    mass_kg: float = Field(0.5, gt=0.0, le=5.0)  # [kg] payload mass
+    com_f_m: Vec3 = (0.0, 0.0, 0.05)  # [m] payload centre of mass from O, flange frame
+
+
+class FtBiasDriftCfg(_Cfg):
+    """Effect ``ft_bias_drift``: the F/T offset drifts linearly in time (after the tare it shows)."""
+
+    enabled: bool = False
+    rate_f: Vec6 = (0.2, 0.0, 0.0, 0.0, 0.0, 0.0)  # [N/s, N m/s] drift of the reading, sensor frame
+
+
+class FtFrameRotationCfg(_Cfg):
+    """Effect ``ft_frame_rotation``: the sensor is mounted slightly rotated about O."""
+
+    enabled: bool = False
+    rotvec_deg: Vec3 = (1.41, 0.0, 1.41)  # [deg] rotation vector of the sensor frame in f (2 deg total)
+
+
+class ToolTiltCfg(_Cfg):
+    """Effect ``tool_tilt``: the tool sits rotated in the grasp (its tip moves with it)."""
+
+    enabled: bool = False
+    tilt_deg: Vec2 = (2.0, 0.0)  # [deg] rotation of the tool about f x, then f y
+
+
+class ContactStiffnessCfg(_Cfg):
+    """Effect ``contact_stiffness``: the contact is stiffer/softer than the model's S."""
+
+    enabled: bool = False
+    factor: float = Field(0.5, gt=0.05, le=5.0)  # [-] true stiffness / nominal stiffness
+
+
+class ContactFrictionCoupleCfg(_Cfg):
+    """Effect ``contact_friction_couple``: a torsional friction couple opposing rotation in contact."""
+
+    enabled: bool = False
+    radius_m: float = Field(0.005, gt=0.0, le=0.05)  # [m] couple = radius x |contact force|
+    omega_eps_rad_s: float = Field(0.005, gt=0.0)  # [rad/s] smoothing of sign(omega) (known to the model)
+
+
+class GraspComplianceCfg(_Cfg):
+    """Effect ``grasp_compliance``: the tool yields in the grasp under moment (hinges about f x, y at O)."""
+
+    enabled: bool = False
+    stiffness_Nm_per_rad: float = Field(50.0, gt=1.0)  # [N m/rad] grasp rotational stiffness
+
+
+class EncoderOffsetCfg(_Cfg):
+    """Effect ``encoder_offset``: one joint's encoder zero is off."""
+
+    enabled: bool = False
+    joint: int = Field(4, ge=1, le=7)  # [-] which joint (1..7)
+    offset_deg: float = Field(0.5, ge=-5.0, le=5.0)  # [deg] true angle = reading + offset
+
+
+class EffectsCfg(_Cfg):
+    """Hidden physical effects (truth side; ``kinadapt_nn.diagnostics.effects`` has the model side).
+
+    Enable one with ``--set effects.NAME.enabled=true``; the controller and the model do not know it."""
+
+    tool_gravity: ToolGravityCfg = ToolGravityCfg()
+    ft_bias_drift: FtBiasDriftCfg = FtBiasDriftCfg()
+    ft_frame_rotation: FtFrameRotationCfg = FtFrameRotationCfg()
+    tool_tilt: ToolTiltCfg = ToolTiltCfg()
+    contact_stiffness: ContactStiffnessCfg = ContactStiffnessCfg()
+    contact_friction_couple: ContactFrictionCoupleCfg = ContactFrictionCoupleCfg()
+    grasp_compliance: GraspComplianceCfg = GraspComplianceCfg()
+    encoder_offset: EncoderOffsetCfg = EncoderOffsetCfg()
+
+    def enabled(self) -> list[str]:
+        return [k for k in type(self).model_fields if getattr(self, k).enabled]
+
+
+class ExciteCfg(_Cfg):
+    """The scripted excitation program (``control.program = "excite"``): segments of a commanded
+    nominal-tip twist, tracked through the same admittance (so contact stays compliant)."""
+
+    # each row: [duration s, v_x, v_y, v_z m/s, w_x, w_y, w_z rad/s], world axes, about the nominal tip
+    segments: tuple[tuple[float, float, float, float, float, float, float], ...] = ()
+
+    @model_validator(mode="after")
+    def _durations(self) -> ExciteCfg:
+        if any(seg[0] <= 0.0 for seg in self.segments):
+            raise ValueError("excite.segments: every row starts with a duration > 0 s")
+        return self
 
 
 class SuccessCfg(_Cfg):
@@ -205,6 +299,8 @@ class ExperimentCfg(_Cfg):
     features: FeaturesCfg = FeaturesCfg()
     adaptation: AdaptationCfg = AdaptationCfg()
     faults: FaultsCfg = FaultsCfg()
+    effects: EffectsCfg = EffectsCfg()
+    excite: ExciteCfg = ExciteCfg()
     success: SuccessCfg = SuccessCfg()
 
 

@@ -195,6 +195,11 @@ class Controller:
         self._dither_on = bool(np.any(self._dither))
         self._two_pi_f = 2.0 * math.pi * c.dither_hz
         self._damp = 1e-6  # Tikhonov term of J_arm^+ = J^T (J J^T + 1e-6 I)^-1
+        # scripted excitation (control.program = "excite"): a commanded nominal-tip twist per segment
+        self._excite = c.program == "excite"
+        segs = np.asarray(cfg.excite.segments, dtype=float).reshape(-1, 7)
+        self._seg_end = np.cumsum(segs[:, 0])
+        self._seg_twist = segs[:, 1:]
         self.t_settle = cfg.start.settle_s
         self.t_tare0 = max(0.0, self.t_settle - sc.tare_window_s)
         self.ramp_s = c.ramp_s
@@ -272,6 +277,22 @@ class Controller:
         s[0] = self.n_axis @ (kin.p_w_O + kin.R_wf @ self.l_nom_f) - self._n_entry
         s[1:] = self._G @ w_env_w  # F_lat = P f_on_tool = -P w_env_f ; M = -w_env_m
         return s
+
+    def excite_twist(self, t_rel: float) -> np.ndarray:
+        """The excitation program's commanded nominal-tip twist [v_tip; omega] (world) at time
+        ``t_rel`` after the settle. -> (6,); zero before and after the program."""
+        if t_rel < 0.0 or not len(self._seg_end):
+            return np.zeros(6)
+        k = int(np.searchsorted(self._seg_end, t_rel, side="right"))
+        return self._seg_twist[k].copy() if k < len(self._seg_end) else np.zeros(6)
+
+    def _excite_drive(self, t_rel: float, lever_w: list[float]) -> list[float]:
+        """``D xi_ref`` for the admittance: in free space the wrist twist follows ``xi_ref``
+        (time constant M/D), in contact the contact wrench balances it (compliant). The tip
+        twist is moved to O: ``v_O = v_tip - omega x (R l_nom)``."""
+        x = self.excite_twist(t_rel)
+        x[:3] -= np.cross(x[3:], lever_w)
+        return (self.D_virt * x).tolist()
 
     def step(self, t: float, q: np.ndarray, qdot: np.ndarray, wrench: np.ndarray) -> JointCommand:
         """One control period. Inputs: time [s], encoders (n,), raw F/T reading (6,) in f.
@@ -362,6 +383,8 @@ class Controller:
                 dr = np.empty(6)
                 mujoco.mju_cholSolve(dr, L, J.dot(self.features.jacobian(kin, self.theta).T.dot(F)))
                 drive = dr.tolist()
+        if self._excite:
+            drive = self._excite_drive(t - self.t_settle, lw)
         # M (xi+ - xi)/dt + D xi+ = rho drive - w_env   (implicit in the damping), per channel,
         # unrolled on Python floats (same operations, in the same order, as the vector form)
         dt = self.dt

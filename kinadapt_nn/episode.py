@@ -150,6 +150,7 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
     wall0 = time.perf_counter()
     sim = PegInHoleSim(cfg)
     ctrl = make_controller(cfg)
+    tcfg = sim.cfg  # the truth-side config (hidden effects folded in): evaluation only
     dt = cfg.run.dt_s
     n_steps = int(round(cfg.run.duration_s / dt))
     every = cfg.run.log_every
@@ -157,7 +158,7 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
     monitor = SeatMonitor(cfg)
     faults = SensorFaults(cfg.faults, cfg.run.seed, cfg.start.settle_s) if SensorFaults.active(cfg.faults) else None
     obs = sim.sense() if faults is None else faults(sim.time_s, sim.sense())
-    theta_true = np.asarray(cfg.tool.offset_f_m, dtype=float) if isinstance(ctrl.features, AdjointFeatures) else None
+    theta_true = np.asarray(tcfg.tool.offset_f_m, dtype=float) if isinstance(ctrl.features, AdjointFeatures) else None
     nan6 = np.full(6, np.nan)
     diverged = False
     divergence_reason = None
@@ -241,7 +242,7 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
         "dt_s": dt * every,
         "features": cfg.run.features,
         "seed": cfg.run.seed,
-        "truth_offset_f_m": list(cfg.tool.offset_f_m),
+        "truth_offset_f_m": list(tcfg.tool.offset_f_m),
         "channel_names": list(CHANNEL_NAMES),
         "bore_entry_w_m": list(cfg.scene.bore_entry_w_m),
         "start_lateral_w_m": [float(x) for x in sim.start_lateral_w_m],
@@ -249,12 +250,12 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
     }
     trace = rec.finish(meta)
     truth_jac = TrueSensorJacobian(
-        ctrl.S, ctrl.l_nom_f, np.asarray(cfg.tool.offset_f_m), arm_mjcf_path(cfg.scene),
-        cfg.arm.link_length_error_m, cfg.arm.joint_offset_rad,
+        ctrl.S, ctrl.l_nom_f, np.asarray(tcfg.tool.offset_f_m), arm_mjcf_path(cfg.scene),
+        tcfg.arm.link_length_error_m, tcfg.arm.joint_offset_rad,
     )
     evaluate_offline(trace, ctrl, truth_jac=truth_jac)
-    certificate = certificate_check(cfg, trace, ctrl)
-    summary = summarize(cfg, trace, ctrl, monitor, diverged, steps, sim.time_s, wall)
+    certificate = certificate_check(tcfg, trace, ctrl)
+    summary = summarize(tcfg, trace, ctrl, monitor, diverged, steps, sim.time_s, wall)
     summary["certificate"] = certificate
     summary["sensor_dropouts"] = int(ctrl.dropouts)
     summary["divergence_reason"] = divergence_reason
@@ -425,6 +426,9 @@ def summarize(
     active = trace["drive_scale"] > 0
     success = monitor.seat_time is not None and not diverged
     failure = "none" if success else classify_failure(cfg, t[active], s[active], w[active], diverged)
+    if cfg.control.program == "excite":  # an identification experiment: it completes, it does not seat
+        success = not diverged and failure != "divergence"
+        failure = "none" if success else failure
     fmag = np.linalg.norm(w[:, :3], axis=1)
     mmag = np.linalg.norm(w[:, 3:], axis=1)
     flat = np.hypot(s[:, 1], s[:, 2])
@@ -449,15 +453,16 @@ def summarize(
     touched = trace["truth_contact_face"] | trace["truth_contact_bore"]
     first_touch = int(np.argmax(touched)) if touched.any() else len(trace)
     drift = np.linalg.norm(tip[:, :2] - tip[0, :2], axis=1) if len(trace) else np.zeros(1)
-    seat_idx = int(np.searchsorted(t, monitor.seat_time)) if success else None
+    seated = success and monitor.seat_time is not None
+    seat_idx = int(np.searchsorted(t, monitor.seat_time)) if seated else None
     ident = identification_report(trace, ctrl, true_off)
     return {
         "success": bool(success),
         "failure": failure,
-        "seat_time_s": monitor.seat_time if success else None,
+        "seat_time_s": monitor.seat_time if seated else None,
         "final_depth_m": float(s[-1, 0]) if len(trace) else None,
         "true_final_depth_m": float(trace["truth_tip_depth_m"][-1]) if len(trace) else None,
-        "true_depth_at_seat_m": float(trace["truth_tip_depth_m"][min(seat_idx, len(trace) - 1)]) if success else None,
+        "true_depth_at_seat_m": float(trace["truth_tip_depth_m"][min(seat_idx, len(trace) - 1)]) if seated else None,
         "max_force_N": float(fmag.max()) if len(fmag) else None,
         "max_lateral_force_N": float(flat.max()) if len(flat) else None,
         "max_moment_Nm": float(mmag.max()) if len(mmag) else None,
@@ -475,6 +480,8 @@ def summarize(
         "truth_touched_block_face": bool(trace["truth_contact_face"].any()),
         "truth_touched_bore": bool(trace["truth_contact_bore"].any()),
         "features": cfg.run.features,
+        "program": cfg.control.program,
+        "hidden_effects": cfg.effects.enabled(),
         "law": law_name(cfg),
         "n_params": int(ctrl.features.n_params),
         "seed": cfg.run.seed,

@@ -18,6 +18,7 @@ from kinadapt_nn.config import ExperimentCfg, true_bore_entry
 from kinadapt_nn.errors import KinadaptError
 from kinadapt_nn.geometry import rotvec_from_matrix, tilt_rotation
 from kinadapt_nn.robot import JOINT_LIMITS_RAD, Q_HOME_RAD, SERVO_KP, SERVO_KV
+from kinadapt_nn.sim.effects import SensorEffects, truth_config
 from kinadapt_nn.sim.scene import SceneIds, build_model
 
 #: Bore axis in the world frame: into the hole.
@@ -80,8 +81,12 @@ class PegInHoleSim:
     """MuJoCo Panda + peg + bore. Truth side: the controller never holds a reference to it."""
 
     def __init__(self, cfg: ExperimentCfg) -> None:
+        cfg = truth_config(cfg)  # hidden effects with a truth-side knob folded in (sim.effects)
         self.cfg = cfg
-        self.model, self.ids = build_model(cfg.tool, cfg.scene, arm=cfg.arm)
+        self.model, self.ids = build_model(cfg.tool, cfg.scene, arm=cfg.arm, effects=cfg.effects)
+        self._sensor_fx = SensorEffects(cfg)
+        fc = cfg.effects.contact_friction_couple
+        self._couple = (fc.radius_m, fc.omega_eps_rad_s) if fc.enabled else None
         self.model.opt.timestep = cfg.run.dt_s
         self.data = mujoco.MjData(self.model)
         self.entry_w = np.asarray(true_bore_entry(cfg.scene), dtype=float)  # the TRUE bore
@@ -140,6 +145,8 @@ class PegInHoleSim:
             wrench = np.concatenate(
                 [d.sensordata[a.force_adr : a.force_adr + 3], d.sensordata[a.torque_adr : a.torque_adr + 3]]
             )
+        if self._sensor_fx.active:
+            self._sensor_fx(float(d.time), wrench)
         if self._views:
             return SensorSample(self._q_v.copy(), self._qdot_v.copy(), wrench)
         return SensorSample(d.qpos[a.qpos_adr], d.qvel[a.dof_adr], wrench)  # fancy indexing copies
@@ -157,15 +164,25 @@ class PegInHoleSim:
 
     def _socket_wrench(self) -> None:
         """Low-bias contact (``scene.contact_model = "socket"``): a lateral spring-damper at the
-        true tip and an angular spring-damper, anchored where they are when the drive starts
-        (end of the settle/tare window). It is the nominal map S's own contact model, so the
-        bias b is what remains: the lever (true offset vs nominal), the F-dependent terms, and
-        any stiffness mismatch set in the config."""
+        true tip and an angular spring-damper. ``socket_engage = "drive"``: anchored where they
+        are when the drive starts (end of the settle/tare window); ``"depth"``: anchored when the
+        true tip crosses the entrance plane, released when it is back 1 mm above it, with an
+        axial spring ``socket_k_axial`` pushing the tip out below the plane (a compliant
+        fixture). It is the nominal map S's own contact model, so the bias b is what remains:
+        the lever (true offset vs nominal), the F-dependent terms, and any stiffness mismatch
+        set in the config. Effect ``contact_friction_couple`` adds ``-radius |f| w/(|w|+eps)``."""
         d, sc = self.data, self.cfg.scene
-        if d.time < self.cfg.start.settle_s:
-            return
         tip = d.site_xpos[self.ids.tip_site]
         R = d.xmat[self._tool_body].reshape(3, 3)
+        depth = float(BORE_AXIS_W @ (tip - self.entry_w))
+        if sc.socket_engage == "drive":
+            if d.time < self.cfg.start.settle_s:
+                return
+        elif self._anchor is None and depth < 0.0 or self._anchor is not None and depth < -1e-3:
+            self._anchor = None
+            d.xfrc_applied[self._tool_body] = 0.0
+            self._socket_force = 0.0
+            return
         if self._anchor is None:
             self._anchor = (tip.copy(), R.copy())
         p0, R0 = self._anchor
@@ -175,12 +192,19 @@ class PegInHoleSim:
         c_lat = 2.0 * sc.socket_damping_ratio * np.sqrt(sc.socket_k_lat_N_per_m * m_eff)
         f = np.zeros(3)
         f[:2] = -sc.socket_k_lat_N_per_m * (tip[:2] - p0[:2]) - c_lat * v[:2]
+        if sc.socket_k_axial_N_per_m > 0.0 and depth > 0.0:  # pushes the tip back out (-n)
+            c_ax = 2.0 * sc.socket_damping_ratio * np.sqrt(sc.socket_k_axial_N_per_m * m_eff)
+            f -= BORE_AXIS_W * (sc.socket_k_axial_N_per_m * depth + c_ax * float(BORE_AXIS_W @ v))
         c_rot = 2.0 * sc.socket_damping_ratio * np.sqrt(max(sc.socket_k_rot_Nm_per_rad, 0.0) * 0.01)
         tau = -sc.socket_k_rot_Nm_per_rad * rotvec_from_matrix(R @ R0.T) - c_rot * w
+        fn = float(np.linalg.norm(f))
+        if self._couple is not None:  # effect contact_friction_couple
+            radius, eps = self._couple
+            tau -= radius * fn * w / (float(np.linalg.norm(w)) + eps)
         com = d.xipos[self._tool_body]
         d.xfrc_applied[self._tool_body, :3] = f
         d.xfrc_applied[self._tool_body, 3:] = tau + np.cross(tip - com, f)
-        self._socket_force = float(np.linalg.norm(f))
+        self._socket_force = fn
 
     @property
     def time_s(self) -> float:

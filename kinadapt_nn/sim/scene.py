@@ -17,7 +17,7 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
-from kinadapt_nn.config import ArmCfg, SceneCfg, ToolCfg, arm_mjcf_path, true_bore_entry
+from kinadapt_nn.config import ArmCfg, EffectsCfg, SceneCfg, ToolCfg, arm_mjcf_path, true_bore_entry
 from kinadapt_nn.errors import ModelFileError
 from kinadapt_nn.geometry import quat_from_matrix, tilt_rotation
 from kinadapt_nn.robot import FLANGE_BODY
@@ -51,10 +51,26 @@ def _box_inertia(mass: float, half: np.ndarray) -> np.ndarray:
     return mass / 12.0 * np.array([b * b + c * c, a * a + c * c, a * a + b * b])
 
 
-def _add_tool(spec: mujoco.MjSpec, tool: ToolCfg) -> None:
+def _add_tool(spec: mujoco.MjSpec, tool: ToolCfg, effects: EffectsCfg | None = None) -> None:
     link7 = spec.body(FLANGE_BODY)
     flange_site = spec.site("flange")
-    body = link7.add_body(name=TOOL_BODY, pos=list(flange_site.pos))
+    gc = effects.grasp_compliance if effects is not None else None
+    if gc is not None and gc.enabled:
+        # effect grasp_compliance: the F/T sensor sits on a rigid plate at the flange; the tool
+        # hangs below it on two damped hinges about f x and f y through O
+        plate = link7.add_body(name="ft_plate", pos=list(flange_site.pos))
+        plate.explicitinertial = True
+        plate.mass = 1e-4
+        plate.inertia = [1e-8, 1e-8, 1e-8]
+        plate.add_site(name=FT_SITE, pos=[0, 0, 0], size=[0.006, 0, 0], rgba=[0.8, 0.3, 0.3, 1])
+        body = plate.add_body(name=TOOL_BODY, pos=[0, 0, 0])
+        inertia_O = tool.mass_kg * tool.length_m**2 / 3.0 + 1e-5  # [kg m^2] about a hinge at O
+        damping = 2.0 * 0.7 * np.sqrt(gc.stiffness_Nm_per_rad * inertia_O)
+        for name, axis in (("grasp_x", [1, 0, 0]), ("grasp_y", [0, 1, 0])):
+            body.add_joint(name=name, type=mujoco.mjtJoint.mjJNT_HINGE, axis=axis, pos=[0, 0, 0],
+                           stiffness=gc.stiffness_Nm_per_rad, damping=damping)
+    else:
+        body = link7.add_body(name=TOOL_BODY, pos=list(flange_site.pos))
     R_f_t = tilt_rotation(tool.tilt_deg)  # tool axes in f (grasp tilt)
     axis_f = R_f_t[:, 2]
     tip_f = np.asarray(tool.offset_f_m, dtype=float)
@@ -69,7 +85,7 @@ def _add_tool(spec: mujoco.MjSpec, tool: ToolCfg) -> None:
         quat=list(quat),
         contype=1,
         conaffinity=1,
-        condim=3,
+        condim=4 if (effects is not None and effects.contact_friction_couple.enabled) else 3,
         density=0.0,
         rgba=[0.35, 0.47, 0.75, 1.0],
     )
@@ -78,8 +94,17 @@ def _add_tool(spec: mujoco.MjSpec, tool: ToolCfg) -> None:
     body.ipos = list(centre_f)
     body.iquat = list(quat)
     body.inertia = list(_box_inertia(tool.mass_kg, half))
-    body.add_site(name=FT_SITE, pos=[0, 0, 0], size=[0.006, 0, 0], rgba=[0.8, 0.3, 0.3, 1])
+    if gc is None or not gc.enabled:
+        body.add_site(name=FT_SITE, pos=[0, 0, 0], size=[0.006, 0, 0], rgba=[0.8, 0.3, 0.3, 1])
     body.add_site(name=TIP_SITE, pos=list(tip_f), size=[0.003, 0, 0], rgba=[1, 0.8, 0.2, 1])
+    if effects is not None and effects.tool_gravity.enabled:  # effect tool_gravity: a rigid payload
+        g = effects.tool_gravity
+        pay = body.add_body(name="payload", pos=list(g.com_f_m))
+        pay.explicitinertial = True
+        pay.mass = g.mass_kg
+        pay.ipos = [0.0, 0.0, 0.0]  # the payload body sits at its COM
+        r = 0.02  # [m] a small solid sphere's inertia
+        pay.inertia = [0.4 * g.mass_kg * r * r] * 3
 
 
 def _convex_prism(spec: mujoco.MjSpec, name: str, profile_xz: np.ndarray, y0: float, y1: float) -> None:
@@ -137,7 +162,8 @@ def _add_block(spec: mujoco.MjSpec, scene: SceneCfg) -> None:
 
 
 def build_spec(
-    tool: ToolCfg, scene: SceneCfg, mjcf_path: Path | None = None, arm: ArmCfg | None = None
+    tool: ToolCfg, scene: SceneCfg, mjcf_path: Path | None = None, arm: ArmCfg | None = None,
+    effects: EffectsCfg | None = None,
 ) -> mujoco.MjSpec:
     """The full scene spec: Panda + tool + bore block + wrist F/T sensor."""
     mjcf_path = Path(mjcf_path) if mjcf_path is not None else arm_mjcf_path(scene)
@@ -149,12 +175,13 @@ def build_spec(
         raise ModelFileError(f"model file '{mjcf_path}' could not be parsed: {str(exc).splitlines()[0]}") from None
     spec.option.o_solref = [scene.contact_timeconst_s, scene.contact_dampratio]
     spec.option.enableflags |= int(mujoco.mjtEnableBit.mjENBL_OVERRIDE)
-    spec.option.o_friction = [scene.friction, scene.friction, 0.005, 0.0001, 0.0001]
+    torsion = effects.contact_friction_couple.radius_m if effects is not None and effects.contact_friction_couple.enabled else 0.005
+    spec.option.o_friction = [scene.friction, scene.friction, torsion, 0.0001, 0.0001]
     spec.option.o_margin = 0.0
     spec.option.o_solimp = [0.95, 0.99, 0.001, 0.5, 2.0]
     if arm is not None:
         apply_arm_errors(spec, arm.link_length_error_m, arm.joint_offset_rad)
-    _add_tool(spec, tool)
+    _add_tool(spec, tool, effects)
     if scene.contact_model == "bore":
         _add_block(spec, scene)
     spec.add_sensor(
@@ -184,9 +211,10 @@ def build_spec(
     return spec
 
 
-def build_model(tool: ToolCfg, scene: SceneCfg, mjcf_path: Path | None = None, arm: ArmCfg | None = None) -> tuple[mujoco.MjModel, SceneIds]:
+def build_model(tool: ToolCfg, scene: SceneCfg, mjcf_path: Path | None = None, arm: ArmCfg | None = None,
+                effects: EffectsCfg | None = None) -> tuple[mujoco.MjModel, SceneIds]:
     """Compile the scene and look every id/address up once."""
-    spec = build_spec(tool, scene, mjcf_path, arm)
+    spec = build_spec(tool, scene, mjcf_path, arm, effects)
     try:
         model = spec.compile()
     except Exception as exc:

@@ -1,0 +1,384 @@
+"""The effect library, model side: each named physical effect as regressor columns linear in
+physical parameters (the simulator side is ``kinadapt_nn.sim.effects``).
+
+Everything here is computed from what a real robot logs (encoders, the raw F/T reading, time)
+and the known model (nominal tool offset ``l_nom``, the nominal map ``S``, the bore pose, the
+arm's nominal kinematics); nothing reads the simulator or the truth.
+
+Level domain. The nominal model predicts the *rate* of the sensor vector ``s = [d, F_lat, M]``
+(eq. ft_pred): ``s_dot = S [v_tip; omega]`` with ``[v_tip; omega] = Ad(R l_nom) J_arm qdot``.
+The contact rows of ``S`` apply only where the nominal tip is at or below the bore entrance
+(``d >= 0``, proprioceptive); above it the model predicts no change of the wrench. Its level
+prediction is the integral of that rate. The residual level ``L(t) = s(t) - s(t0) - int s_dot``
+is compared with each effect's level signature ``C_e(t) p_e`` (channels ``LEVEL_CHANNELS``: F_lat
+x/y, the axial force outside contact, M x/y/z; ``d`` is a kinematic identity of the encoders). Effects that act on the
+wrench directly (gravity, drift, sensor rotation, friction couple) give ``C_e`` in closed form;
+effects that change the contact kinematics (stiffness, tool tilt, grasp yield, encoder offset)
+give ``C_e`` as the integral of their rate signature, gated like ``S``.
+
+=========================  ==========================================  ========================
+effect                     parameters (units)                          level signature
+=========================  ==========================================  ========================
+tool_gravity               m [kg], m c_f x/y/z [kg m]                  w += R (G(q) - G(q_tare)):
+                                                                       payload weight at c_f
+ft_bias_drift              rate_f: 3 [N/s] + 3 [N m/s]                 w += R rate (t - t_tare)
+ft_frame_rotation          rotation vector in f, 3 [rad]               r -> r x delta (tared r)
+tool_tilt                  tilt about f x, f y, 2 [rad]                lever R (delta x l_nom):
+                                                                       tip velocity + F x lever
+contact_stiffness          factor - 1 [-]                              int S_c v (gated)
+contact_friction_couple    radius [m]                                  M -= radius |f| w/(|w|+e)
+grasp_compliance           compliance [rad/(N m)]                      S_c [M_perp x R l; M_perp]
+encoder_offset             joint 1..6 zero offsets, 6 [rad]            d/dq_j of the model
+=========================  ==========================================  ========================
+
+A joint-7 zero offset is not in the library: it turns the reading about the flange axis exactly
+like a sensor rotation about z_f (the nominal tip is on that axis), so no force/encoder
+experiment can tell them apart; it shows up as ``ft_frame_rotation``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, NamedTuple
+
+import numpy as np
+
+from kinadapt_nn.config import EffectsCfg, ExperimentCfg
+from kinadapt_nn.geometry import skew
+
+#: smoothing of sign(omega) in the friction-couple columns [rad/s] (a model constant)
+OMEGA_EPS_RAD_S = 0.005
+#: the level channels the library fits: s's wrench rows plus the axial force (d is an encoder
+#: identity). The nominal model predicts the axial force only outside contact (zero), so F_axial
+#: rows are used only where the contact gate is off.
+LEVEL_CHANNELS: tuple[str, ...] = ("F_lat_x", "F_lat_y", "F_axial", "M_x", "M_y", "M_z")
+LEVEL_UNITS: tuple[str, ...] = ("N", "N", "N", "N m", "N m", "N m")
+AXIAL = 2
+G_W = np.array([0.0, 0.0, -9.81])  # [m/s^2] gravity, world
+
+
+class Signals(NamedTuple):
+    """Per-sample quantities of a replayed log that the columns need (N samples)."""
+
+    t_s: np.ndarray  #: (N,) time from the start of the log [s]
+    dt_s: float  #: sample time [s]
+    s: np.ndarray  #: (N, 6) sensor vector
+    w_env_w: np.ndarray  #: (N, 6) tared wrench tool -> environment, world, about O [N, N m]
+    r_tared_f: np.ndarray  #: (N, 6) tared raw reading in f (flange on tool) [N, N m]
+    R_wf: np.ndarray  #: (N, 3, 3) flange orientation (encoders)
+    twist_tip_w: np.ndarray  #: (N, 6) nominal-tip twist [v_tip; omega] (world)
+    gate: np.ndarray  #: (N,) float: 1 where S's contact rows apply (d >= 0 and active)
+    active: np.ndarray  #: (N,) bool: drive on (after the tare)
+    t_tare_s: float  #: middle of the tare window [s]
+    R_tare: np.ndarray  #: (3, 3) flange orientation during the tare
+    S: np.ndarray  #: (6, 6) nominal map
+    l_nom_f: np.ndarray  #: (3,) nominal offset
+    q_rad: np.ndarray  #: (N, 7)
+    qdot_rad_s: np.ndarray  #: (N, 7)
+    kin: object  #: the controller's ArmKinematics (bare arm, nominal)
+
+
+def cumulative(rate: np.ndarray, dt: float) -> np.ndarray:
+    """Rectangle-rule integral along axis 0, starting at 0 (same rule as the nominal level)."""
+    out = np.cumsum(rate, axis=0) * dt
+    out -= out[0]
+    return out
+
+
+def build_signals(rep, log, cfg: ExperimentCfg) -> Signals:
+    """From a ``residual.Replay`` and its ``RawLog``: kinematics per sample (the controller's own
+    bare-arm MuJoCo model), the tared reading, the contact gate."""
+    from kinadapt_nn.control import ArmKinematics
+    from kinadapt_nn.config import arm_mjcf_path
+    from kinadapt_nn.sensing import nominal_sensor_map
+    from kinadapt_nn.sim.adapter import BORE_AXIS_W
+
+    kin = ArmKinematics(arm_mjcf_path(cfg.scene))
+    n = len(rep.t_s)
+    R = np.empty((n, 3, 3))
+    twist = np.empty((n, 6))
+    l_nom = np.asarray(cfg.sensing.nominal_offset_f_m, dtype=float)
+    for i in range(n):
+        k = kin.update(log.q_rad[i])
+        R[i] = k.R_wf
+        xi = k.J_arm @ log.qdot_rad_s[i]
+        twist[i, 3:] = xi[3:]
+        twist[i, :3] = xi[:3] + np.cross(xi[3:], k.R_wf @ l_nom)
+    r_tared = np.einsum("nji,nj->ni", R, rep.w_env[:, :3]), np.einsum("nji,nj->ni", R, rep.w_env[:, 3:])
+    r_tared = np.concatenate(r_tared, axis=1)
+    dt = float(np.median(np.diff(rep.t_s))) if n > 1 else cfg.run.dt_s
+    t_tare = cfg.start.settle_s - 0.5 * cfg.sensing.tare_window_s
+    i_tare = int(np.clip(np.searchsorted(rep.t_s, t_tare), 0, n - 1))
+    gate = (rep.active & (rep.s[:, 0] >= 0.0)).astype(float)
+    return Signals(rep.t_s, dt, rep.s, rep.w_env, r_tared, R, twist, gate, rep.active, t_tare, R[i_tare].copy(),
+                   nominal_sensor_map(cfg.sensing, BORE_AXIS_W), l_nom, log.q_rad, log.qdot_rad_s, kin)
+
+
+def _contact_rate_to_level(sig: Signals, tip_twist_w: np.ndarray) -> np.ndarray:
+    """``int gate S_c [v; omega]`` for a perturbation twist (N, 6) -> (N, 6) level channels
+    (S has no axial row: F_axial stays 0)."""
+    r = sig.gate[:, None] * (tip_twist_w @ sig.S[1:].T)  # (N, 5): F_lat x, y, M x, y, z
+    out = np.zeros((len(r), 6))
+    out[:, :2], out[:, 3:] = r[:, :2], r[:, 2:]
+    return cumulative(out, sig.dt_s)
+
+
+def nominal_parts(sig: Signals) -> tuple[np.ndarray, np.ndarray]:
+    """The measured level channels (tared: absolute) and the integral of the nominal contact
+    prediction ``int gate S_c [v; omega]``; ``ranking.build_design`` combines them (free space:
+    the model predicts a zero tared wrench; contact: the level at entry plus the integral).
+    -> two (N, 6) arrays in LEVEL_CHANNELS."""
+    return _wrench_to_s(sig.w_env_w, sig.S), _contact_rate_to_level(sig, sig.twist_tip_w)
+
+
+def _wrench_to_s(w_w: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """Level channels from a world wrench tool -> env: F_lat = -P f, F_axial = -n.f (the force
+    on the tool along the bore axis), M = -m. (N, 6) -> (N, 6)."""
+    P = -S[1:3, :3] / np.linalg.norm(S[1, :3])  # lateral projector (rows unit)
+    n = S[0, :3]
+    out = np.empty((len(w_w), 6))
+    out[:, :2] = -w_w[:, :3] @ P.T
+    out[:, 2] = -w_w[:, :3] @ n
+    out[:, 3:] = -w_w[:, 3:]
+    return out
+
+
+def _rot(R: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """R_n v_n for (N, 3, 3), (N, 3) -> (N, 3)."""
+    return np.einsum("nij,nj->ni", R, v)
+
+
+# ---------------------------------------------------------------------------------------- columns
+def _cols_tool_gravity(sig: Signals) -> tuple:
+    up = -G_W  # flange on payload holds its weight: f_w = -m g
+    df_w = up[None, :] - _rot(sig.R_wf, np.broadcast_to(sig.R_tare.T @ up, (len(sig.t_s), 3)))  # R(R^T - R0^T) up
+    cols = np.zeros((len(sig.t_s), 6, 4))
+    w = np.zeros((len(sig.t_s), 6))
+    w[:, :3] = df_w  # reading change is the flange's force ON the tool; w_env = R r: same sign
+    cols[:, :, 0] = _wrench_to_s(w, sig.S)
+    for j in range(3):
+        e_w = sig.R_wf[:, :, j]  # R e_j
+        w = np.zeros((len(sig.t_s), 6))
+        w[:, 3:] = np.cross(e_w, df_w)  # moment of (m c) about O: (R m c) x delta f
+        cols[:, :, 1 + j] = _wrench_to_s(w, sig.S)
+    return cols, None
+
+
+def _cols_ft_bias_drift(sig: Signals) -> tuple:
+    cols = np.zeros((len(sig.t_s), 6, 6))
+    dtau = (sig.t_s - sig.t_tare_s)[:, None]
+    for j in range(6):
+        w = np.zeros((len(sig.t_s), 6))
+        part = slice(0, 3) if j < 3 else slice(3, 6)
+        w[:, part] = sig.R_wf[:, :, j % 3] * dtau
+        cols[:, :, j] = _wrench_to_s(w, sig.S)
+    return cols, None
+
+
+def _cols_ft_frame_rotation(sig: Signals) -> tuple:
+    cols = np.zeros((len(sig.t_s), 6, 3))
+    for j in range(3):
+        e = np.zeros(3)
+        e[j] = 1.0
+        w = np.zeros((len(sig.t_s), 6))
+        w[:, :3] = _rot(sig.R_wf, np.cross(sig.r_tared_f[:, :3], e))  # measured = true x delta
+        w[:, 3:] = _rot(sig.R_wf, np.cross(sig.r_tared_f[:, 3:], e))
+        cols[:, :, j] = _wrench_to_s(w, sig.S)
+    return cols, None
+
+
+def _cols_tool_tilt(sig: Signals) -> tuple:
+    lev = np.zeros((len(sig.t_s), 6, 2))
+    integ = np.zeros((len(sig.t_s), 6, 2))
+    f_tool = -sig.w_env_w[:, :3]
+    for j in range(2):
+        e = np.zeros(3)
+        e[j] = 1.0
+        dl_w = _rot(sig.R_wf, np.broadcast_to(np.cross(e, sig.l_nom_f), (len(sig.t_s), 3)))
+        tw = np.zeros((len(sig.t_s), 6))
+        tw[:, :3] = np.cross(sig.twist_tip_w[:, 3:], dl_w)  # the true tip's extra velocity
+        integ[:, :, j] = _contact_rate_to_level(sig, tw)
+        lev[:, 3:, j] = sig.gate[:, None] * np.cross(dl_w, f_tool)  # moment of the contact force about O
+    return lev, integ
+
+
+def _cols_contact_stiffness(sig: Signals) -> tuple:
+    return None, _contact_rate_to_level(sig, sig.twist_tip_w)[:, :, None]
+
+
+def _cols_contact_friction_couple(sig: Signals) -> tuple:
+    w = sig.twist_tip_w[:, 3:]
+    fn = np.linalg.norm(sig.w_env_w[:, :3], axis=1)
+    cols = np.zeros((len(sig.t_s), 6, 1))
+    cols[:, 3:, 0] = -(sig.gate * fn)[:, None] * w / (np.linalg.norm(w, axis=1) + OMEGA_EPS_RAD_S)[:, None]
+    return cols, None
+
+
+def _cols_grasp_compliance(sig: Signals) -> tuple:
+    M = sig.s[:, 3:]  # contact moment on the tool about O (world)
+    z = sig.R_wf[:, :, 2]
+    M_perp = M - np.sum(M * z, axis=1)[:, None] * z  # the hinges yield about f x, f y only
+    lever = _rot(sig.R_wf, np.broadcast_to(sig.l_nom_f, (len(sig.t_s), 3)))
+    disp = np.concatenate([np.cross(M_perp, lever), M_perp], axis=1)  # tip displacement + rotation per unit compliance
+    r = sig.gate[:, None] * (disp @ sig.S[1:].T)
+    out = np.zeros((len(r), 6, 1))
+    out[:, :2, 0], out[:, 3:, 0] = r[:, :2], r[:, 2:]
+    return out, None
+
+
+def _cols_encoder_offset(sig: Signals, eps: float = 1e-6, grid_s: float = 0.005) -> tuple:
+    """Finite differences of the model in each joint's zero (``q -> q + eps e_j``): the
+    derivative of the tip-twist map ``Ad(R l_nom) J_arm`` and of ``R_wf`` depend on ``q`` only,
+    so they are evaluated on a ``grid_s`` grid and interpolated, then applied to the full-rate
+    ``qdot`` and tared reading."""
+    n = len(sig.t_s)
+    lev = np.zeros((n, 6, 6))
+    integ = np.zeros((n, 6, 6))
+    step = max(1, int(round(grid_s / sig.dt_s)))
+    grid = np.r_[np.arange(0, n, step), n - 1] if n > 1 else np.zeros(1, int)
+    grid = np.unique(grid)
+
+    def tip_map(k) -> np.ndarray:  # (6, 7): [v_tip; omega] = A qdot
+        A = k.J_arm.copy()
+        A[:3] -= skew(k.R_wf @ sig.l_nom_f) @ k.J_arm[3:]  # v_tip = v_O + omega x (R l) = v_O - [R l]x omega
+        return A
+
+    base_A = np.empty((len(grid), 6, 7))
+    base_R = np.empty((len(grid), 3, 3))
+    for gi, i in enumerate(grid):
+        k = sig.kin.update(sig.q_rad[i])
+        base_A[gi], base_R[gi] = tip_map(k), k.R_wf
+    for j in range(6):
+        dA = np.empty((len(grid), 6, 7))
+        dR = np.empty((len(grid), 3, 3))
+        for gi, i in enumerate(grid):
+            q = sig.q_rad[i].copy()
+            q[j] += eps
+            k = sig.kin.update(q)
+            dA[gi] = (tip_map(k) - base_A[gi]) / eps
+            dR[gi] = (k.R_wf - base_R[gi]) / eps
+        t = sig.t_s
+        dA_f = np.stack([np.interp(t, t[grid], dA[:, a, b]) for a in range(6) for b in range(7)], axis=1).reshape(n, 6, 7)
+        dR_f = np.stack([np.interp(t, t[grid], dR[:, a, b]) for a in range(3) for b in range(3)], axis=1).reshape(n, 3, 3)
+        dtw = np.einsum("nij,nj->ni", dA_f, sig.qdot_rad_s)
+        dRr = np.concatenate([_rot(dR_f, sig.r_tared_f[:, :3]), _rot(dR_f, sig.r_tared_f[:, 3:])], axis=1)
+        integ[:, :, j] = _contact_rate_to_level(sig, dtw)
+        lev[:, :, j] = -_wrench_to_s(dRr, sig.S)
+    return lev, integ
+
+
+# ---------------------------------------------------------------------------------------- library
+@dataclass(frozen=True)
+class Effect:
+    """One library entry: columns, parameter names/units, the default magnitude, the
+    injected truth in the same parameters (for validation) and what motion excites it."""
+
+    name: str
+    params: tuple[str, ...]
+    units: tuple[str, ...]
+    #: Signals -> (level, integral): (N, 6, k) each or None, in LEVEL_CHANNELS. ``level`` is the
+    #: closed-form change of the tared levels; ``integral`` the integral of a gated rate signature
+    columns: Callable[[Signals], tuple]
+    default: Callable[[EffectsCfg], np.ndarray]  #: the config's magnitude as model parameters (k,)
+    excite_hint: str
+    doc: str
+    #: True: the effect is "one of" its columns (e.g. one joint's offset): the ranking fits each
+    #: column alone, keeps the best held-out one and pays for the choice (Bonferroni x k)
+    one_of: bool = False
+
+    @property
+    def k(self) -> int:
+        return len(self.params)
+
+
+def _p_gravity(e: EffectsCfg) -> np.ndarray:
+    g = e.tool_gravity
+    return np.array([g.mass_kg, *(g.mass_kg * np.asarray(g.com_f_m))])
+
+
+def _p_tilt(e: EffectsCfg) -> np.ndarray:
+    return np.deg2rad(np.asarray(e.tool_tilt.tilt_deg, dtype=float))
+
+
+def _p_encoder(e: EffectsCfg) -> np.ndarray:
+    p = np.zeros(6)
+    if e.encoder_offset.joint <= 6:
+        p[e.encoder_offset.joint - 1] = np.deg2rad(e.encoder_offset.offset_deg)
+    return p
+
+
+LIBRARY: dict[str, Effect] = {
+    e.name: e
+    for e in (
+        Effect("tool_gravity", ("mass", "mass*com_x_f", "mass*com_y_f", "mass*com_z_f"), ("kg", "kg m", "kg m", "kg m"),
+               _cols_tool_gravity, _p_gravity,
+               "reorient the tool in free space through several poses (tilts of 20-30 deg about two axes)",
+               "tool mass and centre of mass loading the wrist sensor"),
+        Effect("ft_bias_drift", ("rate_fx", "rate_fy", "rate_fz", "rate_tx", "rate_ty", "rate_tz"),
+               ("N/s", "N/s", "N/s", "N m/s", "N m/s", "N m/s"), _cols_ft_bias_drift,
+               lambda e: np.asarray(e.ft_bias_drift.rate_f, dtype=float),
+               "hold still in free space for several seconds, at more than one orientation",
+               "the F/T offset drifts linearly in time"),
+        Effect("ft_frame_rotation", ("rot_x_f", "rot_y_f", "rot_z_f"), ("rad", "rad", "rad"), _cols_ft_frame_rotation,
+               lambda e: np.deg2rad(np.asarray(e.ft_frame_rotation.rotvec_deg, dtype=float)),
+               "press axially and push laterally in both directions (large forces along several axes)",
+               "the sensor is mounted slightly rotated"),
+        Effect("tool_tilt", ("tilt_x_f", "tilt_y_f"), ("rad", "rad"), _cols_tool_tilt, _p_tilt,
+               "rotate about the tip in contact and push laterally (the tip lever shows in the moment)",
+               "the tool sits rotated in the grasp"),
+        Effect("contact_stiffness", ("stiffness_factor_minus_1",), ("-",), _cols_contact_stiffness,
+               lambda e: np.array([e.contact_stiffness.factor - 1.0]),
+               "push laterally into the contact and rotate about the tip in contact",
+               "the contact stiffness differs from the model's S"),
+        Effect("contact_friction_couple", ("radius",), ("m",), _cols_contact_friction_couple,
+               lambda e: np.array([e.contact_friction_couple.radius_m]),
+               "rotate back and forth in contact under a steady normal force (a couple that flips with omega)",
+               "a torsional friction couple opposing rotation in contact"),
+        Effect("grasp_compliance", ("compliance",), ("rad/(N m)",), _cols_grasp_compliance,
+               lambda e: np.array([1.0 / e.grasp_compliance.stiffness_Nm_per_rad]),
+               "load the tool with a moment in contact (lateral pushes at the tip)",
+               "the tool yields in the grasp under moment"),
+        Effect("encoder_offset", tuple(f"offset_joint{j}" for j in range(1, 7)), ("rad",) * 6, _cols_encoder_offset,
+               _p_encoder,
+               "push in contact at two tool-axis angles (turn the tool between contacts) and move the arm",
+               "a joint encoder zero offset (one of joints 1-6)", one_of=True),
+    )
+}
+
+
+def physical_report(name: str, p: np.ndarray, sd: np.ndarray) -> dict:
+    """The estimate in physical quantities with units and 1-sigma uncertainty."""
+    def q(v, s, unit):
+        return {"value": float(v), "sd": float(s), "unit": unit}
+
+    if name == "tool_gravity":
+        m, sm = p[0], sd[0]
+        mc, smc = p[1:], sd[1:]
+        com = mc / m if abs(m) > 1e-9 else np.full(3, np.nan)
+        scom = np.abs(com) * np.sqrt((smc / np.maximum(np.abs(mc), 1e-12)) ** 2 + (sm / max(abs(m), 1e-12)) ** 2)
+        return {"mass": q(m, sm, "kg"), **{f"com_{a}_f": q(1e3 * c, 1e3 * s, "mm") for a, c, s in zip("xyz", com, scom)}}
+    if name in ("ft_frame_rotation", "tool_tilt", "encoder_offset"):
+        lib = LIBRARY[name]
+        return {pn: q(np.rad2deg(v), np.rad2deg(s), "deg") for pn, v, s in zip(lib.params, p, sd)}
+    if name == "contact_stiffness":
+        return {"stiffness_factor": q(1.0 + p[0], sd[0], "-")}
+    if name == "contact_friction_couple":
+        return {"radius": q(1e3 * p[0], 1e3 * sd[0], "mm")}
+    if name == "grasp_compliance":
+        return {"compliance": q(p[0], sd[0], "rad/(N m)"),
+                "stiffness": q(1.0 / p[0] if p[0] > 0 else np.inf, sd[0] / max(p[0], 1e-12) ** 2, "N m/rad")}
+    lib = LIBRARY[name]
+    return {pn: q(v, s, u) for pn, v, s, u in zip(lib.params, p, sd, lib.units)}
+
+
+def headline_errors(name: str, p_hat: np.ndarray, p_true: np.ndarray) -> dict[str, float]:
+    """Relative errors of the physical quantities the injected effect set (for validation)."""
+    def rel(a, b):
+        return float(np.linalg.norm(a - b) / max(np.linalg.norm(b), 1e-12))
+
+    if name == "tool_gravity":
+        com_hat = p_hat[1:] / p_hat[0] if abs(p_hat[0]) > 1e-9 else np.full(3, np.inf)
+        return {"mass": rel(p_hat[:1], p_true[:1]), "com": rel(com_hat, p_true[1:] / p_true[0])}
+    if name == "ft_bias_drift":
+        return {"rate": rel(p_hat, p_true)}
+    return {"params": rel(p_hat, p_true)}

@@ -1,0 +1,125 @@
+"""``kinadapt diagnose`` effect part: calibration, ranking, confusion, ``--add`` (see
+``kinadapt_nn.diagnostics.ranking`` for the method and ``.effects`` for the library)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from kinadapt_nn.config import ExperimentCfg, load_config
+from kinadapt_nn.diagnostics import ranking as rk
+from kinadapt_nn.diagnostics.effects import LIBRARY, Signals, build_signals
+from kinadapt_nn.diagnostics.residual import load_log, replay
+from kinadapt_nn.errors import KinadaptError
+from kinadapt_nn.runio import atomic_write
+from kinadapt_nn.sensing import channel_metric
+
+
+def signals_of(path_or_log, cfg: ExperimentCfg) -> Signals:
+    """Replay a log (run folder, trace, CSV or a RawLog) and build the effect signals."""
+    log = load_log(Path(path_or_log)) if isinstance(path_or_log, (str, Path)) else path_or_log
+    rep = replay(log, cfg, np.asarray(cfg.sensing.nominal_offset_f_m, dtype=float))
+    return build_signals(rep, log, cfg)
+
+
+def baseline_calibration(baseline: Path, cfg: ExperimentCfg, rc: rk.RankCfg) -> dict[str, list[float]]:
+    """Calibrate the nominal model on a reference run (its own config.toml when it has one)."""
+    b = Path(baseline)
+    bcfg = load_config(b / "config.toml") if (b.is_dir() and (b / "config.toml").is_file()) else cfg
+    if bcfg.effects.enabled():
+        raise KinadaptError(f"--baseline {b}: that run has hidden effects {bcfg.effects.enabled()}; "
+                            "calibrate on a run without any")
+    sig = signals_of(b, bcfg)
+    return rk.calibrate(rk.build_design(sig, channel_metric(bcfg.sensing), rc), rc)
+
+
+def save_calibration(path: Path, program: str, calib: dict, source: str) -> None:
+    """Merge one program's calibration into a calibration file (atomic)."""
+    path = Path(path)
+    data = {"format": "kinadapt-calibration", "version": 1, "programs": {}}
+    if path.is_file():
+        try:
+            data = json.loads(path.read_text())
+            data.setdefault("programs", {})
+        except ValueError:
+            raise KinadaptError(f"calibration '{path}' is not JSON; remove it or pick another file") from None
+    data["programs"][program] = {"source": source, "params": calib}
+    atomic_write(path, lambda p: Path(p).write_text(json.dumps(data, indent=1)))
+
+
+def analyse_effects(sig: Signals, cfg: ExperimentCfg, calib: dict | None, add: list[str], rc: rk.RankCfg) -> dict:
+    """Ranking, confusion and (for ``add``) the refit with residual before/after."""
+    for a in add:
+        if a not in LIBRARY:
+            raise KinadaptError(f"--add {a}: unknown effect (choose from {', '.join(LIBRARY)})")
+    des = rk.build_design(sig, channel_metric(cfg.sensing), rc)
+    y = rk.calibrated_residual(des, calib)
+    ranking = rk.rank(des, y, rc, calib)
+    out = {"ranking": ranking, "confusion": rk.confusion(des),
+           "residual_level_rms": rk.rms_by_channel(des, y),
+           "method": {**rc._asdict(), "calibrated": calib is not None}}
+    if add:
+        e_after, params = rk.refit(des, y, add, rc)
+        out["residual_rms_before"] = rk.rms_by_channel(des, y)
+        out["residual_rms_after"] = rk.rms_by_channel(des, e_after)
+        out["added"] = {n: {"params": dict(zip(LIBRARY[n].params, (float(v) for v in p))),
+                            "units": list(LIBRARY[n].units)} for n, p in params.items()}
+        out["_series"] = (des, y, e_after)
+    return out
+
+
+def summary_sentence(res: dict) -> str:
+    top = res["ranking"][0] if res["ranking"] else None
+    sig = [r for r in res["ranking"] if r["significant"]]
+    if not sig:
+        txt = "No library effect is significant (relative to the calibrated nominal model)"
+        if top is not None:
+            txt += f"; the best candidate, {top['effect']}, explains {100 * top['explained_fraction']:.0f}% held-out"
+        txt += "."
+    else:
+        parts = []
+        for r in sig[:3]:
+            est = ", ".join(f"{k} {v['value']:.3g} ± {v['sd']:.2g} {v['unit']}" for k, v in list(r["estimate"].items())[:4]
+                            if abs(v["value"]) > 2 * v["sd"] or k in ("mass", "stiffness_factor", "radius", "compliance"))
+            parts.append(f"{r['effect']} explains {100 * r['explained_fraction']:.0f}% of it ({est})")
+        txt = "; ".join(parts) + "."
+    weak = [r["effect"] for r in res["ranking"] if not r["excitation"]["enough"]]
+    if weak:
+        txt += f" Not excited enough to decide: {', '.join(weak)} (see 'to_excite')."
+    if "residual_rms_after" in res:
+        b, a = res["residual_rms_before"]["total_w"], res["residual_rms_after"]["total_w"]
+        txt += f" With {', '.join(res['added'])} added, the level residual falls from {b:.3g} to {a:.3g} (W-scaled RMS)."
+    return txt
+
+
+def effects_figure(res: dict, path: Path) -> None:
+    """Ranking bars (held-out explained fraction, significance) and, after --add, the residual before/after."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = res["ranking"]
+    has_add = "_series" in res
+    fig, ax = plt.subplots(1, 2 if has_add else 1, figsize=(13 if has_add else 7, 4.5), constrained_layout=True, squeeze=False)
+    a = ax[0, 0]
+    names = [r["effect"] for r in rows][::-1]
+    vals = [r["explained_fraction"] for r in rows][::-1]
+    cols = ["C3" if r["significant"] else "0.6" for r in rows][::-1]
+    a.barh(names, vals, color=cols)
+    a.axvline(0, color="k", lw=0.8)
+    a.set_xlabel("held-out explained fraction of the residual (block CV)")
+    a.set_title("which effect is missing (red = significant)")
+    if has_add:
+        des, y, e = res["_series"]
+        a = ax[0, 1]
+        a.plot(y / des.W, lw=0.5, label="before")
+        a.plot(e / des.W, lw=0.5, label="after --add")
+        a.set_xlabel("row (channels interleaved, time order)")
+        a.set_ylabel("level residual [N | N m]")
+        a.legend()
+        a.set_title("residual before / after adding " + ", ".join(res["added"]))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

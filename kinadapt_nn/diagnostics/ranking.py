@@ -1,0 +1,310 @@
+"""Which effect is missing: rank the library by the residual each explains *out of sample*.
+
+Data. The level residual of the nominal model and each effect's level columns
+(``kinadapt_nn.diagnostics.effects``) are taken as *anchored increments*: rows every
+``stride_s``, each minus its value at the start of its ``anchor_s`` window. Anchoring removes
+what the model cannot know (the level at the start of a window, a constant offset) and bounds
+the integration drift of the contact prediction; within a window the level is kept, so a slow
+effect (drift, gravity) is fitted on levels, not on noisy rates. Channels ``F_lat``, ``M``,
+scaled by the channel metric ``W``.
+
+Calibrated nominal model. MuJoCo's contact is never exactly the nominal spring, and the real
+tool is never the CAD tool: part of the residual of a run with *no* hidden effect is fitted by
+library columns. The whole library is fitted once, jointly, on a reference run without a hidden
+effect (``--baseline RUN`` or the shipped ``models/nominal_calibration.json``, per program) and
+that fit is part of the nominal model: a later run is judged on ``r' = r - sum_e C_e p_e^base``,
+so an effect is "missing" only if its parameters moved away from the calibration.
+
+Criterion (per effect, alone on ``r'``): block cross-validation over ``n_blocks`` contiguous
+time blocks (whole anchor windows, so a block's correlated residual stays together): fit on the
+other blocks, predict the held-out one. ``explained_fraction`` = sum of held-out SSE reductions /
+SSE of ``r'`` (negative when the columns only fit noise: extra columns are not free). The
+estimate's change from the calibration is tested with its block-jackknife covariance (a
+Hotelling-type F test over the blocks, so the residual's correlation within a block is
+honoured), and the p-values of the whole library are corrected together (Benjamini-Hochberg,
+``scipy.stats.false_discovery_control``).
+``significant`` = adjusted p < ``alpha`` and explained_fraction >= ``min_explained``.
+Uncertainty: block jackknife over the leave-one-block-out fits. Excitation: the smallest
+eigenvalue of the effect's W-scaled Gram, with the parameters at their default magnitude,
+relative to the SSE of ``r'`` (``excitation_ratio``): below ``min_excitation`` the data cannot
+decide about the effect's weakest direction, and the hint says which motion would excite it.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from kinadapt_nn.config import EffectsCfg
+from kinadapt_nn.diagnostics.effects import AXIAL, LEVEL_CHANNELS, LIBRARY, Signals, headline_errors, nominal_parts, physical_report
+from kinadapt_nn.errors import KinadaptError
+
+DEFAULT_CALIBRATION = Path(__file__).resolve().parents[2] / "models" / "nominal_calibration.json"
+
+
+class RankCfg(NamedTuple):
+    anchor_s: float = 1.0  #: [s] anchor window of the increments
+    stride_s: float = 0.005  #: [s] row spacing
+    n_blocks: int = 40  #: CV blocks at most (contiguous, whole anchor windows)
+    alpha: float = 0.01  #: false-discovery level of the library test
+    min_explained: float = 0.05  #: [-] smallest held-out explained fraction called an effect
+    min_excitation: float = 0.05  #: [-] excitation_ratio below which the data cannot decide
+    ridge: float = 1e-8  #: [-] relative Tikhonov term (default-magnitude scaled columns)
+    guard_s: float = 0.3  #: [s] rows this close to a contact-gate change are left out
+
+
+class Design(NamedTuple):
+    y: np.ndarray  #: (R,) W-scaled anchored residual increments, rows x channels flattened
+    X: dict  #: effect -> (R, k) columns in the same rows
+    block: np.ndarray  #: (R,) block index of each row
+    n_blocks: int
+    channel: np.ndarray  #: (R,) index into LEVEL_CHANNELS of each row
+    W: np.ndarray  #: (R,) the metric weight of each row
+
+
+def build_design(sig: Signals, W6: np.ndarray, rc: RankCfg, names: list[str] | None = None) -> Design:
+    """Rows of the regression (module docstring): free-space rows are tared levels (the model
+    predicts zero), contact rows are increments from ``max(contact entry, anchor window start)``
+    of the level minus the integrated nominal prediction. Rows within ``guard_s`` of a contact
+    gate change are left out (the gate is proprioceptive and the contact does not switch at
+    exactly d = 0)."""
+    names = list(LIBRARY) if names is None else names
+    n = len(sig.t_s)
+    gate = sig.gate > 0
+    change = np.flatnonzero(np.diff(gate.astype(int)) != 0) + 1
+    guard_n = int(round(rc.guard_s / sig.dt_s))
+    near = np.zeros(n, bool)
+    for c in change:
+        near[max(0, c - guard_n):c + guard_n] = True
+    ok = sig.active & ~near
+    if ok.sum() < 10:
+        raise KinadaptError("the log has too little data after the tare to fit effects (need at least 10 samples)")
+    # start index of the current constant-gate run, and of the current anchor window
+    idx = np.arange(n)
+    run_start = np.maximum.accumulate(np.where(np.r_[True, np.diff(gate.astype(int)) != 0], idx, 0))
+    win = np.floor((sig.t_s - sig.t_s[0]) / rc.anchor_s).astype(int)
+    win_start = np.maximum.accumulate(np.where(np.r_[True, np.diff(win) != 0], idx, 0))
+    anchor = np.minimum(np.maximum(run_start + guard_n, win_start), n - 1)
+    stride = max(1, int(round(rc.stride_s / sig.dt_s)))
+    rows = np.flatnonzero(ok)[::stride]
+    rows = rows[~gate[rows] | (rows > anchor[rows])]
+    a = anchor[rows]
+    con = gate[rows][:, None]
+    nc = len(LEVEL_CHANNELS)
+    w = np.array([W6[1], W6[2], W6[1], W6[3], W6[4], W6[5]])  # F_axial weighted like F_lat
+    use = np.ones((len(rows), nc), bool)
+    use[:, AXIAL] = ~gate[rows]  # no axial model in contact
+    use = use.ravel()
+    meas, pint = nominal_parts(sig)
+    y = np.where(con, (meas[rows] - meas[a]) - (pint[rows] - pint[a]), meas[rows])
+    y = (y * w).ravel()[use]
+    X = {}
+    con3 = con[:, :, None]
+    for name in names:
+        lev, integ = LIBRARY[name].columns(sig)  # (N, 6, k) or None each
+        k = LIBRARY[name].k
+        C = np.zeros((len(rows), nc, k))
+        if lev is not None:
+            C += np.where(con3, lev[rows] - lev[a], lev[rows])
+        if integ is not None:
+            C += np.where(con3, integ[rows] - integ[a], 0.0)
+        X[name] = (C * w[None, :, None]).reshape(-1, k)[use]
+    n_win = int(win[rows].max()) + 1 if len(rows) else 1
+    nb = max(2, min(rc.n_blocks, n_win))
+    block = np.repeat(np.minimum((win[rows] * nb) // n_win, nb - 1), nc)[use]
+    return Design(y, X, block, nb, np.tile(np.arange(nc), len(rows))[use], np.tile(w, len(rows))[use])
+
+
+def _solve(X: np.ndarray, y: np.ndarray, scale: np.ndarray, ridge: float) -> np.ndarray:
+    Xs = X * scale
+    G = Xs.T @ Xs
+    lam = ridge * (np.trace(G) / max(len(G), 1) + 1e-300)
+    return scale * np.linalg.solve(G + lam * np.eye(len(G)), Xs.T @ y)
+
+
+def _scale(name: str, X: np.ndarray) -> np.ndarray:
+    """Column scaling for conditioning: the default magnitude of each parameter (or 1/column norm)."""
+    d = np.abs(LIBRARY[name].default(EffectsCfg()))
+    norm = np.linalg.norm(X, axis=0)
+    fallback = 1.0 / np.where(norm > 0, norm, 1.0)
+    return np.where(d > 0, d, fallback * (np.linalg.norm(X @ d) if d.any() else 1.0))
+
+
+def calibrate(des: Design, rc: RankCfg) -> dict[str, list[float]]:
+    """Joint fit of the whole library on a run without hidden effects (the calibrated nominal)."""
+    names = list(des.X)
+    X = np.concatenate([des.X[n] for n in names], axis=1)
+    scale = np.concatenate([_scale(n, des.X[n]) for n in names])
+    p = _solve(X, des.y, scale, max(rc.ridge, 1e-4))
+    out, i = {}, 0
+    for n in names:
+        out[n] = [float(v) for v in p[i:i + LIBRARY[n].k]]
+        i += LIBRARY[n].k
+    return out
+
+
+def calibrated_residual(des: Design, calib: dict[str, list[float]] | None) -> np.ndarray:
+    y = des.y.copy()
+    for n, p in (calib or {}).items():
+        if n in des.X:
+            y -= des.X[n] @ np.asarray(p)
+    return y
+
+
+def _cv_fit(name: str, X_all: np.ndarray, cols: list[int], des: Design, y: np.ndarray, rc: RankCfg):
+    """Leave-one-block-out fits of the columns ``cols``: (held-out SSE reductions per block,
+    full-data estimate, block-jackknife covariance, number of blocks)."""
+    X = X_all[:, cols]
+    scale = _scale(name, X_all)[cols]
+    d_sse, reps = [], []
+    for b in range(des.n_blocks):
+        m = des.block == b
+        if not m.any():
+            continue
+        p_b = _solve(X[~m], y[~m], scale, rc.ridge)
+        reps.append(p_b)
+        e0 = y[m]
+        e1 = e0 - X[m] @ p_b
+        d_sse.append(float(e0 @ e0 - e1 @ e1))
+    reps = np.array(reps)
+    B = len(reps)
+    dev = reps - reps.mean(axis=0)
+    cov = (B - 1) / B * dev.T @ dev  # block-jackknife covariance of the estimate
+    return np.array(d_sse), _solve(X, y, scale, rc.ridge), cov, B
+
+
+def _wald_pvalue(p: np.ndarray, cov: np.ndarray, B: int) -> float:
+    """Hotelling-type test of ``p = 0`` (no change from the calibration) with the block-jackknife
+    covariance from ``B`` blocks: ``F = (B - r) / (r (B - 1)) p^T cov^+ p ~ F(r, B - r)``, ``r`` the
+    numerical rank of ``cov`` (directions the data does not move are not tested)."""
+    from scipy.stats import f as f_dist
+
+    lam, V = np.linalg.eigh(cov)
+    keep = lam > 1e-12 * max(lam.max(), 1e-300)
+    r = int(keep.sum())
+    if r == 0 or B - r < 1:
+        return 1.0
+    z = V[:, keep].T @ p
+    t2 = float(np.sum(z**2 / lam[keep]))
+    F = (B - r) / (r * (B - 1)) * t2
+    return float(f_dist.sf(F, r, B - r))
+
+
+def rank(des: Design, y: np.ndarray, rc: RankCfg, calib: dict | None = None) -> list[dict]:
+    """The ranking (best first) of ``{effect, explained_fraction, p_value, p_adjusted, significant,
+    estimate, estimate_params, excitation}``; estimates are deviations from the calibration."""
+    from scipy.stats import false_discovery_control
+
+    sse_tot = float(y @ y) or 1e-300
+    res = []
+    for n, X_all in des.X.items():
+        choices = [[j] for j in range(X_all.shape[1])] if LIBRARY[n].one_of else [list(range(X_all.shape[1]))]
+        fits = [_cv_fit(n, X_all, cols, des, y, rc) for cols in choices]
+        best = max(range(len(fits)), key=lambda i: fits[i][0].sum())
+        d_sse, p_sub, cov, B = fits[best]
+        cols = choices[best]
+        p_full = np.zeros(X_all.shape[1])
+        p_full[cols] = p_sub
+        sd = np.zeros(X_all.shape[1])
+        sd[cols] = np.sqrt(np.diag(cov))
+        pval = min(1.0, _wald_pvalue(p_sub, cov, B) * len(choices))  # Bonferroni for the choice
+        scale = _scale(n, X_all)[cols]
+        d = np.abs(LIBRARY[n].default(EffectsCfg()))
+        dc = np.full(len(cols), d.max()) if LIBRARY[n].one_of else d[cols]
+        Xd = X_all[:, cols] * np.where(dc != 0, dc, scale)
+        lam = np.linalg.eigvalsh(Xd.T @ Xd)
+        exc = float(lam[0] / sse_tot)
+        res.append({
+            "effect": n,
+            "explained_fraction": float(d_sse.sum() / sse_tot),
+            "p_value": pval,
+            "estimate": physical_report(n, p_full, sd),
+            "columns_used": [LIBRARY[n].params[c] for c in cols],
+            "estimate_params": {"names": list(LIBRARY[n].params), "units": list(LIBRARY[n].units),
+                                "value": [float(v) for v in p_full], "sd": [float(v) for v in sd],
+                                "calibration": list((calib or {}).get(n, [0.0] * LIBRARY[n].k))},
+            "excitation": {"ratio": exc, "enough": bool(exc >= rc.min_excitation),
+                           "gram_eigenvalues_rel": [float(v / sse_tot) for v in lam],
+                           **({} if exc >= rc.min_excitation else {"to_excite": LIBRARY[n].excite_hint})},
+        })
+    padj = false_discovery_control([r["p_value"] for r in res], method="bh") if res else []
+    for r, pa in zip(res, padj):
+        r["p_adjusted"] = float(pa)
+        r["significant"] = bool(pa < rc.alpha and r["explained_fraction"] >= rc.min_explained)
+    res.sort(key=lambda r: -r["explained_fraction"])
+    return res
+
+
+def refit(des: Design, y: np.ndarray, names: list[str], rc: RankCfg) -> tuple[np.ndarray, dict]:
+    """Fit the named effects jointly on all rows (``--add``). -> (residual after, params per effect)."""
+    cols = {}
+    for n in names:  # a "one of" effect keeps its best single column
+        X = des.X[n]
+        if LIBRARY[n].one_of:
+            sc = _scale(n, X)
+            sse = [float(np.sum((y - X[:, [j]] @ _solve(X[:, [j]], y, sc[[j]], rc.ridge)) ** 2)) for j in range(X.shape[1])]
+            cols[n] = [int(np.argmin(sse))]
+        else:
+            cols[n] = list(range(X.shape[1]))
+    X = np.concatenate([des.X[n][:, cols[n]] for n in names], axis=1)
+    scale = np.concatenate([_scale(n, des.X[n])[cols[n]] for n in names])
+    p = _solve(X, y, scale, rc.ridge)
+    out, i = {}, 0
+    for n in names:
+        full = np.zeros(LIBRARY[n].k)
+        full[cols[n]] = p[i:i + len(cols[n])]
+        out[n] = full
+        i += len(cols[n])
+    return y - X @ p, out
+
+
+def rms_by_channel(des: Design, e: np.ndarray) -> dict:
+    """RMS of the anchored level residual per channel, in channel units (W undone)."""
+    out = {}
+    for c, name in enumerate(LEVEL_CHANNELS):
+        m = des.channel == c
+        out[name] = float(np.sqrt(np.mean((e[m] / des.W[m]) ** 2))) if m.any() else None
+    out["total_w"] = float(np.sqrt(np.mean(e**2))) if len(e) else None
+    return out
+
+
+def confusion(des: Design) -> dict:
+    """Regressor overlap: ``c[i][j]`` = share of effect i's default-magnitude signature that effect
+    j's columns can fit (1 = indistinguishable on this data, 0 = orthogonal)."""
+    names = list(des.X)
+    out = {}
+    for i in names:
+        d = LIBRARY[i].default(EffectsCfg())
+        sig_i = des.X[i] @ d
+        den = float(sig_i @ sig_i)
+        row = {}
+        for j in names:
+            if den == 0.0:
+                row[j] = None
+                continue
+            Xj = des.X[j]
+            coef, *_ = np.linalg.lstsq(Xj, sig_i, rcond=None)
+            fit = Xj @ coef
+            row[j] = float(fit @ fit / den)
+        out[i] = row
+    return out
+
+
+def load_calibration(path: Path, program: str) -> dict[str, list[float]]:
+    """A calibration file: ``{"format": "kinadapt-calibration", "programs": {program: {effect: [..]}}}``."""
+    try:
+        data = json.loads(Path(path).read_text())
+        return {k: [float(x) for x in v] for k, v in data["programs"][program]["params"].items()}
+    except FileNotFoundError:
+        raise KinadaptError(f"calibration '{path}' not found (give --baseline RUN or restore models/)") from None
+    except KeyError:
+        raise KinadaptError(f"calibration '{path}' has no entry for program '{program}' (give --baseline RUN)") from None
+    except (ValueError, TypeError, AttributeError) as exc:
+        raise KinadaptError(f"calibration '{path}' is malformed ({exc}); regenerate it (README)") from None
+
+
+__all__ = ["RankCfg", "build_design", "calibrate", "calibrated_residual", "rank", "refit", "rms_by_channel",
+           "confusion", "load_calibration", "headline_errors", "DEFAULT_CALIBRATION"]
