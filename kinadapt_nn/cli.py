@@ -22,7 +22,10 @@ def _default_out(kind: str) -> Path:
 
 
 def _summary_lines(summary: dict, out: Path) -> list[str]:
-    ok = "SEATED" if summary["success"] else f"NOT SEATED ({summary['failure']})"
+    if summary.get("program") == "excite":
+        ok = "EXCITATION COMPLETED" if summary["success"] else f"EXCITATION FAILED ({summary['failure']})"
+    else:
+        ok = "SEATED" if summary["success"] else f"NOT SEATED ({summary['failure']})"
     seat = f"{summary['seat_time_s']:.3f} s" if summary["seat_time_s"] is not None else "-"
     err = summary["offset_error_final_m"]
     return [

@@ -214,7 +214,7 @@ class GraspComplianceCfg(_Cfg):
     """Effect ``grasp_compliance``: the tool yields in the grasp under moment (hinges about f x, y at O)."""
 
     enabled: bool = False
-    stiffness_Nm_per_rad: float = Field(50.0, gt=1.0)  # [N m/rad] grasp rotational stiffness
+    stiffness_Nm_per_rad: float = Field(200.0, gt=1.0)  # [N m/rad] grasp rotational stiffness
 
 
 class EncoderOffsetCfg(_Cfg):
@@ -243,12 +243,23 @@ class EffectsCfg(_Cfg):
         return [k for k in type(self).model_fields if getattr(self, k).enabled]
 
 
+EffectName = Literal["tool_gravity", "ft_bias_drift", "ft_frame_rotation", "tool_tilt", "contact_stiffness",
+                     "contact_friction_couple", "grasp_compliance", "encoder_offset"]
+
+
+class ModelCfg(_Cfg):
+    """The controller's model beyond the features: library effects adapted online."""
+
+    effects: tuple[EffectName, ...] = ()  # e.g. ["contact_stiffness"]: columns adapted by the prediction law
+
+
 class ExciteCfg(_Cfg):
     """The scripted excitation program (``control.program = "excite"``): segments of a commanded
     nominal-tip twist, tracked through the same admittance (so contact stays compliant)."""
 
     # each row: [duration s, v_x, v_y, v_z m/s, w_x, w_y, w_z rad/s], world axes, about the nominal tip
     segments: tuple[tuple[float, float, float, float, float, float, float], ...] = ()
+    blend_s: float = Field(0.2, ge=0.0, le=2.0)  # [s] linear blend from one segment's twist to the next (bounded accelerations)
 
     @model_validator(mode="after")
     def _durations(self) -> ExciteCfg:
@@ -300,6 +311,7 @@ class ExperimentCfg(_Cfg):
     adaptation: AdaptationCfg = AdaptationCfg()
     faults: FaultsCfg = FaultsCfg()
     effects: EffectsCfg = EffectsCfg()
+    model: ModelCfg = ModelCfg()
     excite: ExciteCfg = ExciteCfg()
     success: SuccessCfg = SuccessCfg()
 

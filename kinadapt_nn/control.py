@@ -200,6 +200,7 @@ class Controller:
         segs = np.asarray(cfg.excite.segments, dtype=float).reshape(-1, 7)
         self._seg_end = np.cumsum(segs[:, 0])
         self._seg_twist = segs[:, 1:]
+        self._blend = cfg.excite.blend_s
         self.t_settle = cfg.start.settle_s
         self.t_tare0 = max(0.0, self.t_settle - sc.tare_window_s)
         self.ramp_s = c.ramp_s
@@ -223,6 +224,9 @@ class Controller:
         self._L_diag = self._L.reshape(-1)[::7]
         # adjoint features: fused kernels (no J_hat_xi formed); other features: generic path
         self._fused = bool(getattr(features, "has_fused_kernels", lambda: False)())
+        self._observe = getattr(features, "observe", None)
+        track_rows = getattr(features, "track_rows", None)  # rows of Phi the tracking term uses
+        self._track_mask = None if track_rows is None else np.asarray(track_rows, dtype=float)[:, None]
         self._n_t = tuple(self.n_axis.tolist())
         self._M_t = tuple(self.M_virt.tolist())
         self._inv_den_t = tuple(self._inv_den.tolist())
@@ -280,11 +284,18 @@ class Controller:
 
     def excite_twist(self, t_rel: float) -> np.ndarray:
         """The excitation program's commanded nominal-tip twist [v_tip; omega] (world) at time
-        ``t_rel`` after the settle. -> (6,); zero before and after the program."""
+        ``t_rel`` after the settle, blended linearly from the previous segment's over
+        ``excite.blend_s``. -> (6,); zero before the program, ramping to zero after it."""
         if t_rel < 0.0 or not len(self._seg_end):
             return np.zeros(6)
         k = int(np.searchsorted(self._seg_end, t_rel, side="right"))
-        return self._seg_twist[k].copy() if k < len(self._seg_end) else np.zeros(6)
+        cur = self._seg_twist[k] if k < len(self._seg_end) else np.zeros(6)
+        start = self._seg_end[k - 1] if k > 0 else 0.0
+        prev = self._seg_twist[k - 1] if k > 0 else np.zeros(6)
+        if self._blend > 0.0 and t_rel - start < self._blend:  # linear blend: bounded acceleration
+            a = (t_rel - start) / self._blend
+            return prev + a * (cur - prev)
+        return cur.copy()
 
     def _excite_drive(self, t_rel: float, lever_w: list[float]) -> list[float]:
         """``D xi_ref`` for the admittance: in free space the wrist twist follows ``xi_ref``
@@ -354,6 +365,8 @@ class Controller:
         if self._fused:
             self.features.regressor_rows(kin, qdot, self._known, self._Phi_T, lw)
         else:
+            if self._observe is not None:  # effect columns need the sensor-side context
+                self._observe(t, s, w_env, rho > 0.0)
             reg = self.features.regressor(kin, qdot)
             self._known[:] = reg.known
             self._Phi_T[:] = reg.Phi.T
@@ -432,7 +445,8 @@ class Controller:
         if holding:  # a held sample carries no new information: theta stays
             a = self._hold_step._replace(s_dot_pred=s_dot_meas.copy())
         else:
-            self.theta, a = self.law.step_filtered(theta, self._Phi_T, s_dot_meas, F, w_env)
+            Phi_r = self._Phi_T if self._track_mask is None else self._Phi_T * self._track_mask
+            self.theta, a = self.law.step_filtered(theta, Phi_r, s_dot_meas, F, w_env)
         # -- diagnostics for the trace (V and lambda_min are evaluated off the hot path)
         self.last = StepLog(s, s_dot_meas, a.s_dot_pred, F, xi, w_env, theta, rho, a)
         return JointCommand(self.q_ref, qdot_ref)

@@ -94,6 +94,18 @@ def initial_estimate(cfg: ExperimentCfg) -> np.ndarray:
 
 
 def make_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
+    """``_base_features`` plus, with ``model.effects``, the library effects' columns
+    (``kinadapt_nn.features.effects``; their parameters start at 0)."""
+    feats, theta0 = _base_features(cfg)
+    if cfg.model.effects:
+        from kinadapt_nn.features.effects import EffectFeatures
+
+        feats = EffectFeatures(feats, list(cfg.model.effects), cfg, nominal_sensor_map(cfg.sensing, BORE_AXIS_W))
+        theta0 = np.r_[theta0, np.zeros(feats.k)]
+    return feats, theta0
+
+
+def _base_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
     """Features object and the initial parameters for ``run.features``.
 
     Nothing here uses the truth except the two declared cases: ``oracle`` (the true offset) and
@@ -435,6 +447,10 @@ def summarize(
     # prediction error through the same filter on both sides
     eps = trace["s_dot_meas"][active] - trace["s_dot_pred"][active]
     pred_rms = {name: float(np.sqrt(np.mean(eps[:, i] ** 2))) if len(eps) else None for i, name in enumerate(CHANNEL_NAMES)}
+    in_contact = trace["adapt_gate"][active] > 0  # where the law adapts (S's contact model applies)
+    eps_c = eps[in_contact]
+    pred_rms_contact = {name: float(np.sqrt(np.mean(eps_c[:, i] ** 2))) if len(eps_c) else None
+                        for i, name in enumerate(CHANNEL_NAMES)}
     theta = trace["theta"][-1] if len(trace) else ctrl.theta
     true_off = np.asarray(cfg.tool.offset_f_m)
     jerr = trace["truth_jacobian_rel_error"]
@@ -472,6 +488,7 @@ def summarize(
         "jacobian_rel_error_initial": float(jerr[0]) if len(trace) else None,
         "jacobian_rel_error_final": jac_err,
         "pred_error_rms": pred_rms,
+        "pred_error_rms_contact": pred_rms_contact,
         "offset_error_lateral_initial_m": float(np.hypot(*(off0[:2] - true_off[:2]))),
         "offset_error_lateral_final_m": float(np.hypot(*(off_T[:2] - true_off[:2]))),
         **ident,
@@ -484,6 +501,8 @@ def summarize(
         "hidden_effects": cfg.effects.enabled(),
         "law": law_name(cfg),
         "n_params": int(ctrl.features.n_params),
+        "model_effects": list(cfg.model.effects),
+        "model_effect_params": [float(x) for x in theta[getattr(ctrl.features, "p0", len(theta)):]],
         "seed": cfg.run.seed,
         "start_lateral_w_m": trace.meta.get("start_lateral_w_m"),
         "start_tilt_deg": trace.meta.get("start_tilt_deg"),

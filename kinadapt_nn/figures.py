@@ -106,7 +106,8 @@ def rollout_figure(trace: Trace, summary: dict, cfg: ExperimentCfg) -> plt.Figur
         a.set_title("prediction error (W-scaled)")
         for a in (ax[2, 1], ax[2, 2]):
             a.axis("off")
-    status = "SEATED" if summary["success"] else f"FAILED ({summary['failure']})"
+    done = "COMPLETED" if summary.get("program") == "excite" else "SEATED"
+    status = done if summary["success"] else f"FAILED ({summary['failure']})"
     fig.suptitle(
         f"kinadapt online - features={summary['features']}, law={summary['law']}, seed={summary['seed']}: {status}"
     )

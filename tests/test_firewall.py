@@ -40,6 +40,10 @@ _OTHER_TRUTH = [
     "scene.contact_timeconst_s=0.005",
     "start.lateral_w_m=[-0.0005, 0.0004]",
     "start.tilt_deg=[0.5, 1.0]",
+    # and every hidden effect of the library (kinadapt_nn.sim.effects)
+    *[f"effects.{n}.enabled=true" for n in ("tool_gravity", "ft_bias_drift", "ft_frame_rotation", "tool_tilt",
+                                            "contact_stiffness", "contact_friction_couple", "grasp_compliance",
+                                            "encoder_offset")],
 ]
 
 

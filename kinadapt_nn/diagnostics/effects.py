@@ -5,11 +5,12 @@ Everything here is computed from what a real robot logs (encoders, the raw F/T r
 and the known model (nominal tool offset ``l_nom``, the nominal map ``S``, the bore pose, the
 arm's nominal kinematics); nothing reads the simulator or the truth.
 
-Level domain. The nominal model predicts the *rate* of the sensor vector ``s = [d, F_lat, M]``
-(eq. ft_pred): ``s_dot = S [v_tip; omega]`` with ``[v_tip; omega] = Ad(R l_nom) J_arm qdot``.
-The contact rows of ``S`` apply only where the nominal tip is at or below the bore entrance
-(``d >= 0``, proprioceptive); above it the model predicts no change of the wrench. Its level
-prediction is the integral of that rate. The residual level ``L(t) = s(t) - s(t0) - int s_dot``
+Level domain. The nominal model is S's contact at the nominal tip (eq. ft_pred, ``s_dot = S
+[v_tip; omega]``, ``[v_tip; omega] = Ad(R l_nom) J_arm qdot``) without S's linearised lever: the
+measured force acts at the nominal tip ``R l_nom`` (so the measured level of the moment channels
+is ``Z_M = M - (R l_nom) x f_tool``), the lateral force follows ``-k_t P v_tip`` and the couple
+``-k_r omega``. It applies only where the nominal tip is at or below the bore entrance (``d >=
+0``, proprioceptive); above it the model predicts a zero tared wrench. The residual level ``L(t) = s(t) - s(t0) - int s_dot``
 is compared with each effect's level signature ``C_e(t) p_e`` (channels ``LEVEL_CHANNELS``: F_lat
 x/y, the axial force outside contact, M x/y/z; ``d`` is a kinematic identity of the encoders). Effects that act on the
 wrench directly (gravity, drift, sensor rotation, friction couple) give ``C_e`` in closed form;
@@ -114,21 +115,42 @@ def build_signals(rep, log, cfg: ExperimentCfg) -> Signals:
                    nominal_sensor_map(cfg.sensing, BORE_AXIS_W), l_nom, log.q_rad, log.qdot_rad_s, kin)
 
 
+def _contact_rate(sig: Signals, tip_twist_w: np.ndarray) -> np.ndarray:
+    """Rate of the tip-contact model for a tip twist (N, 6) -> (N, 6) level-channel rates,
+    gated: lateral force ``-k_t P v_tip`` and the couple ``-k_r omega`` (S's rows without the
+    lever term, which the level ``Z`` takes from the measured force; no axial row)."""
+    out = np.zeros((len(tip_twist_w), 6))
+    out[:, :2] = sig.gate[:, None] * (tip_twist_w[:, :3] @ sig.S[1:3, :3].T)
+    out[:, 3:] = sig.gate[:, None] * (tip_twist_w[:, 3:] @ sig.S[3:6, 3:].T)
+    return out
+
+
 def _contact_rate_to_level(sig: Signals, tip_twist_w: np.ndarray) -> np.ndarray:
-    """``int gate S_c [v; omega]`` for a perturbation twist (N, 6) -> (N, 6) level channels
-    (S has no axial row: F_axial stays 0)."""
-    r = sig.gate[:, None] * (tip_twist_w @ sig.S[1:].T)  # (N, 5): F_lat x, y, M x, y, z
-    out = np.zeros((len(r), 6))
-    out[:, :2], out[:, 3:] = r[:, :2], r[:, 2:]
-    return cumulative(out, sig.dt_s)
+    """``int gate S_c [v; omega]`` -> (N, 6) level channels."""
+    return cumulative(_contact_rate(sig, tip_twist_w), sig.dt_s)
+
+
+def _lever_w(sig: Signals) -> np.ndarray:
+    """The nominal lever ``R_wf l_nom`` (N, 3), world."""
+    return _rot(sig.R_wf, np.broadcast_to(sig.l_nom_f, (len(sig.t_s), 3)))
+
+
+def to_level(sig: Signals, w_w: np.ndarray) -> np.ndarray:
+    """The measured level ``Z`` of a world wrench tool -> env (N, 6): ``_wrench_to_s`` with, in
+    contact, the moment of the force at the nominal tip taken out, ``M - gate (R l_nom) x f_tool``
+    (the tip-contact model: the force acts at the tip, the rest is a couple)."""
+    out = _wrench_to_s(w_w, sig.S)
+    f_tool = -w_w[:, :3]
+    out[:, 3:] -= sig.gate[:, None] * np.cross(_lever_w(sig), f_tool)
+    return out
 
 
 def nominal_parts(sig: Signals) -> tuple[np.ndarray, np.ndarray]:
-    """The measured level channels (tared: absolute) and the integral of the nominal contact
-    prediction ``int gate S_c [v; omega]``; ``ranking.build_design`` combines them (free space:
-    the model predicts a zero tared wrench; contact: the level at entry plus the integral).
+    """The measured level ``Z`` (tared: absolute) and the integral of the nominal tip-contact
+    prediction (``_contact_rate``); ``ranking.build_design`` combines them (free space: the model
+    predicts a zero tared wrench; contact: the level at entry plus the integral).
     -> two (N, 6) arrays in LEVEL_CHANNELS."""
-    return _wrench_to_s(sig.w_env_w, sig.S), _contact_rate_to_level(sig, sig.twist_tip_w)
+    return to_level(sig, sig.w_env_w), _contact_rate_to_level(sig, sig.twist_tip_w)
 
 
 def _wrench_to_s(w_w: np.ndarray, S: np.ndarray) -> np.ndarray:
@@ -149,18 +171,38 @@ def _rot(R: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------- columns
+def _smooth_derivative(x: np.ndarray, dt: float, width_s: float = 0.002) -> np.ndarray:
+    """d/dt of a (N, 3) series, central differences then a ``width_s`` moving average."""
+    if len(x) < 3:
+        return np.zeros_like(x)
+    d = np.gradient(x, dt, axis=0)
+    k = max(1, int(round(width_s / dt)))
+    ker = np.ones(k) / k
+    return np.stack([np.convolve(d[:, i], ker, "same") for i in range(3)], axis=1)
+
+
 def _cols_tool_gravity(sig: Signals) -> tuple:
-    up = -G_W  # flange on payload holds its weight: f_w = -m g
-    df_w = up[None, :] - _rot(sig.R_wf, np.broadcast_to(sig.R_tare.T @ up, (len(sig.t_s), 3)))  # R(R^T - R0^T) up
-    cols = np.zeros((len(sig.t_s), 6, 4))
-    w = np.zeros((len(sig.t_s), 6))
-    w[:, :3] = df_w  # reading change is the flange's force ON the tool; w_env = R r: same sign
-    cols[:, :, 0] = _wrench_to_s(w, sig.S)
+    """Payload (m, m c_f) on the tool: the flange holds ``m (a_com - g)`` with
+    ``a_com = a_O + alpha x (R c) + w x (w x (R c))`` (encoder accelerations), tared at the still
+    tare pose: linear in m and m c (the payload's own rotational inertia, quadratic in c, is
+    left out)."""
+    n = len(sig.t_s)
+    w = sig.twist_tip_w[:, 3:]
+    v_O = sig.twist_tip_w[:, :3] - np.cross(w, _lever_w(sig))
+    a_O = _smooth_derivative(v_O, sig.dt_s) * sig.active[:, None]
+    alpha = _smooth_derivative(w, sig.dt_s) * sig.active[:, None]
+    # force per unit mass, tared: (a_O - g) - R R0^T (-g)
+    df_w = a_O - G_W[None, :] + _rot(sig.R_wf, np.broadcast_to(sig.R_tare.T @ G_W, (n, 3)))
+    cols = np.zeros((n, 6, 4))
+    wr = np.zeros((n, 6))
+    wr[:, :3] = df_w  # w_env = R (r - r0) is the flange's force ON the tool: same sign
+    cols[:, :, 0] = to_level(sig, wr)
     for j in range(3):
         e_w = sig.R_wf[:, :, j]  # R e_j
-        w = np.zeros((len(sig.t_s), 6))
-        w[:, 3:] = np.cross(e_w, df_w)  # moment of (m c) about O: (R m c) x delta f
-        cols[:, :, 1 + j] = _wrench_to_s(w, sig.S)
+        wr = np.zeros((n, 6))
+        wr[:, :3] = np.cross(alpha, e_w) + np.cross(w, np.cross(w, e_w))
+        wr[:, 3:] = np.cross(e_w, df_w)  # moment of (m c) about O: (R m c) x (a_O - g ...)
+        cols[:, :, 1 + j] = to_level(sig, wr)
     return cols, None
 
 
@@ -171,7 +213,7 @@ def _cols_ft_bias_drift(sig: Signals) -> tuple:
         w = np.zeros((len(sig.t_s), 6))
         part = slice(0, 3) if j < 3 else slice(3, 6)
         w[:, part] = sig.R_wf[:, :, j % 3] * dtau
-        cols[:, :, j] = _wrench_to_s(w, sig.S)
+        cols[:, :, j] = to_level(sig, w)
     return cols, None
 
 
@@ -183,13 +225,13 @@ def _cols_ft_frame_rotation(sig: Signals) -> tuple:
         w = np.zeros((len(sig.t_s), 6))
         w[:, :3] = _rot(sig.R_wf, np.cross(sig.r_tared_f[:, :3], e))  # measured = true x delta
         w[:, 3:] = _rot(sig.R_wf, np.cross(sig.r_tared_f[:, 3:], e))
-        cols[:, :, j] = _wrench_to_s(w, sig.S)
+        cols[:, :, j] = to_level(sig, w)
     return cols, None
 
 
 def _cols_tool_tilt(sig: Signals) -> tuple:
     lev = np.zeros((len(sig.t_s), 6, 2))
-    integ = np.zeros((len(sig.t_s), 6, 2))
+    integ = np.zeros((len(sig.t_s), 6, 2))  # rates
     f_tool = -sig.w_env_w[:, :3]
     for j in range(2):
         e = np.zeros(3)
@@ -197,13 +239,13 @@ def _cols_tool_tilt(sig: Signals) -> tuple:
         dl_w = _rot(sig.R_wf, np.broadcast_to(np.cross(e, sig.l_nom_f), (len(sig.t_s), 3)))
         tw = np.zeros((len(sig.t_s), 6))
         tw[:, :3] = np.cross(sig.twist_tip_w[:, 3:], dl_w)  # the true tip's extra velocity
-        integ[:, :, j] = _contact_rate_to_level(sig, tw)
+        integ[:, :, j] = _contact_rate(sig, tw)
         lev[:, 3:, j] = sig.gate[:, None] * np.cross(dl_w, f_tool)  # moment of the contact force about O
     return lev, integ
 
 
 def _cols_contact_stiffness(sig: Signals) -> tuple:
-    return None, _contact_rate_to_level(sig, sig.twist_tip_w)[:, :, None]
+    return None, _contact_rate(sig, sig.twist_tip_w)[:, :, None]
 
 
 def _cols_contact_friction_couple(sig: Signals) -> tuple:
@@ -220,10 +262,7 @@ def _cols_grasp_compliance(sig: Signals) -> tuple:
     M_perp = M - np.sum(M * z, axis=1)[:, None] * z  # the hinges yield about f x, f y only
     lever = _rot(sig.R_wf, np.broadcast_to(sig.l_nom_f, (len(sig.t_s), 3)))
     disp = np.concatenate([np.cross(M_perp, lever), M_perp], axis=1)  # tip displacement + rotation per unit compliance
-    r = sig.gate[:, None] * (disp @ sig.S[1:].T)
-    out = np.zeros((len(r), 6, 1))
-    out[:, :2, 0], out[:, 3:, 0] = r[:, :2], r[:, 2:]
-    return out, None
+    return _contact_rate(sig, disp)[:, :, None], None  # the map is linear: displacement -> level change
 
 
 def _cols_encoder_offset(sig: Signals, eps: float = 1e-6, grid_s: float = 0.005) -> tuple:
@@ -262,8 +301,10 @@ def _cols_encoder_offset(sig: Signals, eps: float = 1e-6, grid_s: float = 0.005)
         dR_f = np.stack([np.interp(t, t[grid], dR[:, a, b]) for a in range(3) for b in range(3)], axis=1).reshape(n, 3, 3)
         dtw = np.einsum("nij,nj->ni", dA_f, sig.qdot_rad_s)
         dRr = np.concatenate([_rot(dR_f, sig.r_tared_f[:, :3]), _rot(dR_f, sig.r_tared_f[:, 3:])], axis=1)
-        integ[:, :, j] = _contact_rate_to_level(sig, dtw)
-        lev[:, :, j] = -_wrench_to_s(dRr, sig.S)
+        integ[:, :, j] = _contact_rate(sig, dtw)
+        dZ = to_level(sig, dRr)  # d/dq_j of Z = to_level(R r) with the lever R l_nom:
+        dZ[:, 3:] -= sig.gate[:, None] * np.cross(_rot(dR_f, np.broadcast_to(sig.l_nom_f, (n, 3))), -sig.w_env_w[:, :3])
+        lev[:, :, j] = -dZ
     return lev, integ
 
 
@@ -276,9 +317,10 @@ class Effect:
     name: str
     params: tuple[str, ...]
     units: tuple[str, ...]
-    #: Signals -> (level, integral): (N, 6, k) each or None, in LEVEL_CHANNELS. ``level`` is the
-    #: closed-form change of the tared levels; ``integral`` the integral of a gated rate signature
-    columns: Callable[[Signals], tuple]
+    #: Signals -> (level, rate): (N, 6, k) each or None, in LEVEL_CHANNELS. ``level`` is the
+    #: closed-form change of the tared levels; ``rate`` a gated rate signature (integrated by
+    #: ``columns``; used as is by the online regressor, ``kinadapt_nn.features.effects``)
+    terms: Callable[[Signals], tuple]
     default: Callable[[EffectsCfg], np.ndarray]  #: the config's magnitude as model parameters (k,)
     excite_hint: str
     doc: str
@@ -289,6 +331,11 @@ class Effect:
     @property
     def k(self) -> int:
         return len(self.params)
+
+    def columns(self, sig: Signals) -> tuple:
+        """(level, integral of the rate): (N, 6, k) each or None."""
+        lev, rate = self.terms(sig)
+        return lev, (None if rate is None else cumulative(rate, sig.dt_s))
 
 
 def _p_gravity(e: EffectsCfg) -> np.ndarray:
