@@ -7,6 +7,7 @@ line on stderr and exit code 2.
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import sys
 import time
@@ -43,6 +44,30 @@ def _summary_lines(summary: dict, out: Path) -> list[str]:
     ]
 
 
+def _write_online(stage: Path, cfg, result) -> None:
+    """The run folder contents (config, summary, trace, figure, TensorBoard) into ``stage``."""
+    from kinadapt_nn.config import config_to_toml
+    from kinadapt_nn.runio import write_json
+
+    (stage / "config.toml").write_text(config_to_toml(cfg))
+    write_json(stage / "summary.json", result.summary)
+    result.trace.save(stage / "trace.npz")
+    fig = None
+    if cfg.run.figure:
+        from kinadapt_nn.figures import rollout_figure, save_figure
+
+        fig = rollout_figure(result.trace, result.summary, cfg)
+    if cfg.run.tensorboard:
+        from kinadapt_nn.tb import write_tensorboard
+
+        hp = {"features": cfg.run.features, "law": result.summary["law"], "seed": cfg.run.seed}
+        write_tensorboard(stage / "tb", result.trace, result.summary, hp, figure=fig)
+    if fig is not None:
+        from kinadapt_nn.figures import save_figure
+
+        save_figure(fig, stage / "rollout.png")
+
+
 def cmd_online(args: argparse.Namespace) -> int:
     from kinadapt_nn.config import config_to_toml, load_config
     from kinadapt_nn.episode import run_episode
@@ -53,21 +78,7 @@ def cmd_online(args: argparse.Namespace) -> int:
     check_output_dir(out, args.overwrite)
     result = run_episode(cfg, progress=cfg.run.progress and not args.quiet)
     with staged_output(out, args.overwrite) as stage:
-        (stage / "config.toml").write_text(config_to_toml(cfg))
-        write_json(stage / "summary.json", result.summary)
-        result.trace.save(stage / "trace.npz")
-        fig = None
-        if cfg.run.figure:
-            from kinadapt_nn.figures import rollout_figure, save_figure
-
-            fig = rollout_figure(result.trace, result.summary, cfg)
-        if cfg.run.tensorboard:
-            from kinadapt_nn.tb import write_tensorboard
-
-            hp = {"features": cfg.run.features, "law": result.summary["law"], "seed": cfg.run.seed}
-            write_tensorboard(stage / "tb", result.trace, result.summary, hp, figure=fig)
-        if fig is not None:
-            save_figure(fig, stage / "rollout.png")
+        _write_online(stage, cfg, result)
     if not args.quiet:
         print("\n".join(_summary_lines(result.summary, out)))
     return 0 if result.summary["success"] else 1
@@ -228,7 +239,27 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         calib_src = str(args.calibration or "shipped models/nominal_calibration.json") + f" [{program}]"
     fx = lib.analyse_effects(sig, cfg, calib, list(args.add or []), rc)
     series = fx.pop("_series", None)
-    summary = lib.summary_sentence(fx) + " " + plain_summary(a)
+    rerun = None
+    if args.rerun:
+        if not args.add:
+            raise KinadaptError("--rerun needs --add EFFECT (the effect to put into the online model)")
+        if not (src.is_dir() and (src / "config.toml").is_file()):
+            raise KinadaptError(f"--rerun needs a simulated run folder with config.toml (got '{src}')")
+        from kinadapt_nn.episode import run_episode
+
+        run_cfg = load_config(src / "config.toml")
+        over = {"model": run_cfg.model.model_copy(update={"effects": tuple(dict.fromkeys((*run_cfg.model.effects, *args.add)))})}
+        if run_cfg.adaptation.mode in ("frozen", "tracking"):  # the effect columns adapt by the prediction step
+            over["adaptation"] = run_cfg.adaptation.model_copy(update={"mode": "prediction"})
+        rerun_cfg = run_cfg.model_copy(update=over)
+        rerun = run_episode(rerun_cfg)
+        before = json.loads((src / "summary.json").read_text()) if (src / "summary.json").is_file() else {}
+        fx["rerun"] = {"model_effects": list(rerun_cfg.model.effects), "adaptation_mode": rerun_cfg.adaptation.mode,
+                       "model_effect_params": rerun.summary["model_effect_params"],
+                       "pred_error_rms_contact_w": {"original": before.get("pred_error_rms_contact_w"),
+                                                    "rerun": rerun.summary["pred_error_rms_contact_w"]},
+                       "folder": "rerun/ (tensorboard --logdir_spec original:RUN/tb,rerun:OUT/rerun/tb)"}
+    summary = plain_summary(a) + " " + lib.summary_sentence(fx)
     with staged_output(out, args.overwrite) as stage:
         (stage / "config.toml").write_text(config_to_toml(cfg))
         write_json(stage / "diagnosis.json", {"summary": summary, "source": log.source, "format": "kinadapt-diagnosis",
@@ -236,6 +267,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         residual_figure(rep, stage / "residual.png")
         lib.effects_figure({**fx, **({"_series": series} if series else {})}, stage / "effects.png")
         write_tb(stage / "tb", rep)
+        if rerun is not None:
+            (stage / "rerun").mkdir()
+            _write_online(stage / "rerun", rerun_cfg, rerun)
     if args.save_calibration:
         lib.save_calibration(Path(args.save_calibration), program,
                              rk.calibrate(rk.build_design(sig, channel_metric(cfg.sensing), rc), rc), log.source)
@@ -292,6 +326,9 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--theta", help="offset estimate x,y,z [m] to evaluate (default: the run's final estimate)")
     dg.add_argument("--add", action="append", metavar="EFFECT",
                     help="refit with this library effect added and report the residual before/after (repeatable)")
+    dg.add_argument("--rerun", action="store_true",
+                    help="simulated runs: repeat the online run with the --add effects in the model (model.effects), "
+                         "written to OUT/rerun/ with the same TensorBoard tags")
     dg.add_argument("--baseline", metavar="RUN", help="calibrate the nominal model on this run without hidden effects "
                     "(default: the shipped calibration for the run's control.program)")
     dg.add_argument("--calibration", metavar="FILE", help="a calibration file written by --save-calibration")

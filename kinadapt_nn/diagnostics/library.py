@@ -83,8 +83,9 @@ def summary_sentence(res: dict) -> str:
         for r in sig[:3]:
             est = ", ".join(f"{k} {v['value']:.3g} ± {v['sd']:.2g} {v['unit']}" for k, v in list(r["estimate"].items())[:4]
                             if abs(v["value"]) > 2 * v["sd"] or k in ("mass", "stiffness_factor", "radius", "compliance"))
-            parts.append(f"{r['effect']} explains {100 * r['explained_fraction']:.0f}% of it ({est})")
-        txt = "; ".join(parts) + "."
+            parts.append(f"{r['effect']} explains {100 * r['explained_fraction']:.0f}% ({est})")
+        txt = ("Of the level residual the calibrated nominal model leaves (held-out, block CV): "
+               + "; then ".join(parts) + ".")
     weak = [r["effect"] for r in res["ranking"] if not r["excitation"]["enough"]]
     if weak:
         txt += f" Not excited enough to decide: {', '.join(weak)} (see 'to_excite')."

@@ -15,10 +15,13 @@ effect (``--baseline RUN`` or the shipped ``models/nominal_calibration.json``, p
 that fit is part of the nominal model: a later run is judged on ``r' = r - sum_e C_e p_e^base``,
 so an effect is "missing" only if its parameters moved away from the calibration.
 
-Criterion (per effect, alone on ``r'``): block cross-validation over ``n_blocks`` contiguous
-time blocks (whole anchor windows, so a block's correlated residual stays together): fit on the
-other blocks, predict the held-out one. ``explained_fraction`` = sum of held-out SSE reductions /
-SSE of ``r'`` (negative when the columns only fit noise: extra columns are not free). The
+Criterion: block cross-validation over ``n_blocks`` contiguous time blocks (whole anchor
+windows, so a block's correlated residual stays together): fit on the other blocks, predict the
+held-out one. ``explained_fraction`` = sum of held-out SSE reductions / SSE of ``r'`` (negative
+when the columns only fit noise: extra columns are not free). Effects are selected forward
+(``rank``): each round tests the remaining effects given the selected ones, so an effect that
+only looks like the one already found is not reported as a second discovery, while two
+separable effects are both found. The
 estimate's change from the calibration is tested with its block-jackknife covariance (a
 Hotelling-type F test over the blocks, so the residual's correlation within a block is
 honoured), and the p-values of the whole library are corrected together (Benjamini-Hochberg,
@@ -26,7 +29,7 @@ honoured), and the p-values of the whole library are corrected together (Benjami
 ``significant`` = adjusted p < ``alpha`` and explained_fraction >= ``min_explained``.
 Uncertainty: block jackknife over the leave-one-block-out fits. Excitation: the smallest
 eigenvalue of the effect's W-scaled Gram, with the parameters at their default magnitude,
-relative to the SSE of ``r'`` (``excitation_ratio``): below ``min_excitation`` the data cannot
+relative to the held-out SSE the selected model leaves (``excitation.ratio``): below ``min_excitation`` the data cannot
 decide about the effect's weakest direction, and the hint says which motion would excite it.
 """
 
@@ -154,26 +157,29 @@ def calibrated_residual(des: Design, calib: dict[str, list[float]] | None) -> np
     return y
 
 
-def _cv_fit(name: str, X_all: np.ndarray, cols: list[int], des: Design, y: np.ndarray, rc: RankCfg):
-    """Leave-one-block-out fits of the columns ``cols``: (held-out SSE reductions per block,
-    full-data estimate, block-jackknife covariance, number of blocks)."""
-    X = X_all[:, cols]
-    scale = _scale(name, X_all)[cols]
-    d_sse, reps = [], []
+def _cv(X: np.ndarray, scale: np.ndarray, des: Design, y: np.ndarray, rc: RankCfg):
+    """Leave-one-block-out fits of ``X`` (R, k) (k may be 0): (held-out SSE per block, the
+    leave-one-block-out estimates (B, k), the full-data estimate (k,))."""
+    sse, reps = [], []
     for b in range(des.n_blocks):
         m = des.block == b
         if not m.any():
             continue
-        p_b = _solve(X[~m], y[~m], scale, rc.ridge)
+        if X.shape[1]:
+            p_b = _solve(X[~m], y[~m], scale, rc.ridge)
+            e = y[m] - X[m] @ p_b
+        else:
+            p_b, e = np.zeros(0), y[m]
         reps.append(p_b)
-        e0 = y[m]
-        e1 = e0 - X[m] @ p_b
-        d_sse.append(float(e0 @ e0 - e1 @ e1))
-    reps = np.array(reps)
+        sse.append(float(e @ e))
+    p = _solve(X, y, scale, rc.ridge) if X.shape[1] else np.zeros(0)
+    return np.array(sse), np.array(reps).reshape(len(reps), X.shape[1]), p
+
+
+def _jackknife_cov(reps: np.ndarray) -> np.ndarray:
     B = len(reps)
     dev = reps - reps.mean(axis=0)
-    cov = (B - 1) / B * dev.T @ dev  # block-jackknife covariance of the estimate
-    return np.array(d_sse), _solve(X, y, scale, rc.ridge), cov, B
+    return (B - 1) / B * dev.T @ dev  # block-jackknife covariance of the estimate
 
 
 def _wald_pvalue(p: np.ndarray, cov: np.ndarray, B: int) -> float:
@@ -193,48 +199,100 @@ def _wald_pvalue(p: np.ndarray, cov: np.ndarray, B: int) -> float:
     return float(f_dist.sf(F, r, B - r))
 
 
+def _choices(name: str, k: int) -> list[list[int]]:
+    return [[j] for j in range(k)] if LIBRARY[name].one_of else [list(range(k))]
+
+
+def _test_given(name: str, sel: list[tuple[str, list[int]]], des: Design, y: np.ndarray, rc: RankCfg,
+                sse_sel: np.ndarray) -> dict:
+    """Effect ``name`` given the already selected effects ``sel``: held-out SSE reduction over
+    the selected model, Wald test of its parameters in the joint fit, its estimate."""
+    X_sel = [des.X[n][:, c] for n, c in sel]
+    sc_sel = [_scale(n, des.X[n])[c] for n, c in sel]
+    k_sel = sum(len(c) for _, c in sel)
+    best = None
+    choices = _choices(name, des.X[name].shape[1])
+    for cols in choices:
+        X = np.concatenate([*X_sel, des.X[name][:, cols]], axis=1)
+        sc = np.concatenate([*sc_sel, _scale(name, des.X[name])[cols]])
+        sse, reps, p = _cv(X, sc, des, y, rc)
+        gain = sse_sel - sse
+        if best is None or gain.sum() > best["gain"].sum():
+            best = {"cols": cols, "gain": gain, "sse": sse, "reps": reps[:, k_sel:], "p": p[k_sel:], "p_all": p}
+    cov = _jackknife_cov(best["reps"])
+    best["cov"] = cov
+    best["p_value"] = min(1.0, _wald_pvalue(best["p"], cov, len(best["reps"])) * len(choices))  # Bonferroni for the choice
+    return best
+
+
 def rank(des: Design, y: np.ndarray, rc: RankCfg, calib: dict | None = None) -> list[dict]:
-    """The ranking (best first) of ``{effect, explained_fraction, p_value, p_adjusted, significant,
-    estimate, estimate_params, excitation}``; estimates are deviations from the calibration."""
+    """Forward selection over the library (module docstring), then every effect's entry.
+
+    Round r tests every unselected effect *given* the selected ones (held-out SSE reduction over
+    the selected model; Wald test of its parameters in the joint fit), corrects the round's
+    p-values together (Benjamini-Hochberg), and selects the best one if it is significant
+    (adjusted p < alpha) and explains >= min_explained of the residual held-out; else it stops.
+    Entries: ``explained_fraction`` (held-out, given the effects selected before it),
+    ``explained_fraction_alone``, ``p_value``/``p_adjusted`` (its last test), ``significant``
+    (selected), ``estimate`` (physical, +- block-jackknife sd, from its last test: deviations from
+    the calibration), ``excitation``. Selected effects come first, in selection order, then the
+    rest by explained fraction."""
     from scipy.stats import false_discovery_control
 
+    names = list(des.X)
     sse_tot = float(y @ y) or 1e-300
+    sse0, _, _ = _cv(np.zeros((len(y), 0)), np.zeros(0), des, y, rc)
+    alone = {n: _test_given(n, [], des, y, rc, sse0) for n in names}
+    last = dict(alone)
+    selected: list[tuple[str, list[int]]] = []
+    sse_sel = sse0
+    while len(selected) < len(names):
+        cand = [n for n in names if n not in {s for s, _ in selected}]
+        tests = alone if not selected else {n: _test_given(n, selected, des, y, rc, sse_sel) for n in cand}
+        tests = {n: tests[n] for n in cand}
+        padj = false_discovery_control([tests[n]["p_value"] for n in cand], method="bh")
+        for n, pa in zip(cand, padj):
+            tests[n]["p_adjusted"] = float(pa)
+            last[n] = tests[n]
+        best = max(cand, key=lambda n: tests[n]["gain"].sum())
+        t = tests[best]
+        if not (t["p_adjusted"] < rc.alpha and t["gain"].sum() / sse_tot >= rc.min_explained):
+            break
+        t["selected_round"] = len(selected)
+        selected.append((best, t["cols"]))
+        sse_sel = t["sse"]
+    sse_ref = float(sse_sel.sum()) or 1e-300  # what the selected model leaves held-out
     res = []
-    for n, X_all in des.X.items():
-        choices = [[j] for j in range(X_all.shape[1])] if LIBRARY[n].one_of else [list(range(X_all.shape[1]))]
-        fits = [_cv_fit(n, X_all, cols, des, y, rc) for cols in choices]
-        best = max(range(len(fits)), key=lambda i: fits[i][0].sum())
-        d_sse, p_sub, cov, B = fits[best]
-        cols = choices[best]
-        p_full = np.zeros(X_all.shape[1])
-        p_full[cols] = p_sub
-        sd = np.zeros(X_all.shape[1])
-        sd[cols] = np.sqrt(np.diag(cov))
-        pval = min(1.0, _wald_pvalue(p_sub, cov, B) * len(choices))  # Bonferroni for the choice
-        scale = _scale(n, X_all)[cols]
+    for n in names:
+        t = last[n]
+        k = des.X[n].shape[1]
+        cols = t["cols"]
+        p_full, sd = np.zeros(k), np.zeros(k)
+        p_full[cols] = t["p"]
+        sd[cols] = np.sqrt(np.clip(np.diag(t["cov"]), 0.0, None))
         d = np.abs(LIBRARY[n].default(EffectsCfg()))
         dc = np.full(len(cols), d.max()) if LIBRARY[n].one_of else d[cols]
-        Xd = X_all[:, cols] * np.where(dc != 0, dc, scale)
+        Xd = des.X[n][:, cols] * np.where(dc != 0, dc, _scale(n, des.X[n])[cols])
         lam = np.linalg.eigvalsh(Xd.T @ Xd)
-        exc = float(lam[0] / sse_tot)
+        exc = float(lam[0] / sse_ref)
         res.append({
             "effect": n,
-            "explained_fraction": float(d_sse.sum() / sse_tot),
-            "p_value": pval,
+            "explained_fraction": float(t["gain"].sum() / sse_tot),
+            "explained_fraction_alone": float(alone[n]["gain"].sum() / sse_tot),
+            "p_value": t["p_value"],
+            "p_adjusted": t.get("p_adjusted", 1.0),
+            "significant": "selected_round" in t,
+            "selected_round": t.get("selected_round"),
             "estimate": physical_report(n, p_full, sd),
             "columns_used": [LIBRARY[n].params[c] for c in cols],
             "estimate_params": {"names": list(LIBRARY[n].params), "units": list(LIBRARY[n].units),
                                 "value": [float(v) for v in p_full], "sd": [float(v) for v in sd],
-                                "calibration": list((calib or {}).get(n, [0.0] * LIBRARY[n].k))},
+                                "calibration": list((calib or {}).get(n, [0.0] * k))},
             "excitation": {"ratio": exc, "enough": bool(exc >= rc.min_excitation),
-                           "gram_eigenvalues_rel": [float(v / sse_tot) for v in lam],
+                           "gram_eigenvalues_rel": [float(v / sse_ref) for v in lam],
                            **({} if exc >= rc.min_excitation else {"to_excite": LIBRARY[n].excite_hint})},
         })
-    padj = false_discovery_control([r["p_value"] for r in res], method="bh") if res else []
-    for r, pa in zip(res, padj):
-        r["p_adjusted"] = float(pa)
-        r["significant"] = bool(pa < rc.alpha and r["explained_fraction"] >= rc.min_explained)
-    res.sort(key=lambda r: -r["explained_fraction"])
+    res.sort(key=lambda r: (r["selected_round"] is None, r["selected_round"] or 0, -r["explained_fraction"]))
     return res
 
 
