@@ -2,6 +2,7 @@
 
     python benchmarks/effect_library.py --calibrate        # writes models/nominal_calibration.json
     python benchmarks/effect_library.py [--jobs 2] [--seeds 20] [--out benchmarks/results]
+    python benchmarks/effect_library.py --insert-fp        # false positives on the plain insertion
 
 Measures, with the shipped calibration:
 * every effect at its default magnitude on the excitation experiment (online/excite.toml),
@@ -77,6 +78,22 @@ def calibrate() -> None:
         print(program, json.dumps(calib))
 
 
+def insert_fp(a) -> None:
+    """False positives on the plain insertion: no hidden effect, start jitter, both noise levels."""
+    jobs = {f"{noise}/{s}": ("insert", [f"run.seed={s}", "start.lateral_jitter_m=0.0003", "start.tilt_jitter_deg=0.5", *nz], [])
+            for noise, nz in (("clean", []), ("noise", NOISE)) for s in range(1, a.seeds + 1)}
+    with ProcessPoolExecutor(max_workers=a.jobs) as ex:
+        res = dict(zip(jobs, ex.map(diagnose, jobs.values())))
+    out = {}
+    for noise in ("clean", "noise"):
+        flagged = [[x["effect"] for x in r["ranking"] if x["significant"]] for k, r in res.items() if k.startswith(noise)]
+        out[noise] = {"runs": len(flagged), "runs_with_any_significant": sum(bool(f) for f in flagged), "flagged": flagged}
+        print(f"insert, {noise}: {out[noise]['runs_with_any_significant']}/{out[noise]['runs']} runs with a significant effect "
+              f"{flagged}")
+    Path(a.out).mkdir(parents=True, exist_ok=True)
+    (Path(a.out) / "effect_library_insert_fp.json").write_text(json.dumps(out, indent=1))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--calibrate", action="store_true")
@@ -84,9 +101,14 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--out", default=str(REPO / "benchmarks" / "results"))
     ap.add_argument("--skip-plain", action="store_true")
+    ap.add_argument("--insert-fp", action="store_true",
+                    help="only the false-positive rate on the plain insertion (seeds x noise, start jitter)")
     a = ap.parse_args()
     if a.calibrate:
         calibrate()
+        return
+    if a.insert_fp:
+        insert_fp(a)
         return
     from kinadapt_nn.diagnostics.effects import LIBRARY, headline_errors
     from kinadapt_nn.config import EffectsCfg

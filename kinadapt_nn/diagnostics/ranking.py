@@ -1,6 +1,7 @@
 """Which effect is missing: rank the library by the residual each explains *out of sample*.
 
-Data. The level residual of the nominal model and each effect's level columns
+Data. The level residual of the nominal model and each effect's level columns (both through the
+same ``smooth_s`` moving average: white sensor noise averages out, the linear model is unchanged)
 (``kinadapt_nn.diagnostics.effects``) are taken as *anchored increments*: rows every
 ``stride_s``, each minus its value at the start of its ``anchor_s`` window. Anchoring removes
 what the model cannot know (the level at the start of a window, a constant offset) and bounds
@@ -57,6 +58,7 @@ class RankCfg(NamedTuple):
     min_excitation: float = 0.05  #: [-] excitation_ratio below which the data cannot decide
     ridge: float = 1e-8  #: [-] relative Tikhonov term (default-magnitude scaled columns)
     guard_s: float = 0.3  #: [s] rows this close to a contact-gate change are left out
+    smooth_s: float = 0.02  #: [s] centred moving average applied to the levels AND the columns (same linear operator)
 
 
 class Design(NamedTuple):
@@ -101,13 +103,14 @@ def build_design(sig: Signals, W6: np.ndarray, rc: RankCfg, names: list[str] | N
     use = np.ones((len(rows), nc), bool)
     use[:, AXIAL] = ~gate[rows]  # no axial model in contact
     use = use.ravel()
-    meas, pint = nominal_parts(sig)
+    k_s = max(1, int(round(rc.smooth_s / sig.dt_s)))
+    meas, pint = (_smooth(x, k_s) for x in nominal_parts(sig))
     y = np.where(con, (meas[rows] - meas[a]) - (pint[rows] - pint[a]), meas[rows])
     y = (y * w).ravel()[use]
     X = {}
     con3 = con[:, :, None]
     for name in names:
-        lev, integ = LIBRARY[name].columns(sig)  # (N, 6, k) or None each
+        lev, integ = (None if c is None else _smooth(c, k_s) for c in LIBRARY[name].columns(sig))  # (N, 6, k)
         k = LIBRARY[name].k
         C = np.zeros((len(rows), nc, k))
         if lev is not None:
@@ -119,6 +122,18 @@ def build_design(sig: Signals, W6: np.ndarray, rc: RankCfg, names: list[str] | N
     nb = max(2, min(rc.n_blocks, n_win))
     block = np.repeat(np.minimum((win[rows] * nb) // n_win, nb - 1), nc)[use]
     return Design(y, X, block, nb, np.tile(np.arange(nc), len(rows))[use], np.tile(w, len(rows))[use])
+
+
+def _smooth(x: np.ndarray, k: int) -> np.ndarray:
+    """Centred moving average over ``k`` samples along axis 0 (edges: shorter windows)."""
+    if k <= 1 or len(x) < 2:
+        return x
+    c = np.cumsum(np.concatenate([np.zeros((1, *x.shape[1:])), x]), axis=0)
+    i = np.arange(len(x))
+    lo = np.clip(i - k // 2, 0, len(x))
+    hi = np.clip(i + (k - k // 2), 0, len(x))
+    shape = (-1,) + (1,) * (x.ndim - 1)
+    return (c[hi] - c[lo]) / (hi - lo).reshape(shape)
 
 
 def _solve(X: np.ndarray, y: np.ndarray, scale: np.ndarray, ridge: float) -> np.ndarray:
@@ -231,7 +246,8 @@ def rank(des: Design, y: np.ndarray, rc: RankCfg, calib: dict | None = None) -> 
     Round r tests every unselected effect *given* the selected ones (held-out SSE reduction over
     the selected model; Wald test of its parameters in the joint fit), corrects the round's
     p-values together (Benjamini-Hochberg), and selects the best one if it is significant
-    (adjusted p < alpha) and explains >= min_explained of the residual held-out; else it stops.
+    (adjusted p < alpha) and explains >= min_explained of what the selected model leaves
+    held-out; else it stops.
     Entries: ``explained_fraction`` (held-out, given the effects selected before it),
     ``explained_fraction_alone``, ``p_value``/``p_adjusted`` (its last test), ``significant``
     (selected), ``estimate`` (physical, +- block-jackknife sd, from its last test: deviations from
@@ -256,7 +272,7 @@ def rank(des: Design, y: np.ndarray, rc: RankCfg, calib: dict | None = None) -> 
             last[n] = tests[n]
         best = max(cand, key=lambda n: tests[n]["gain"].sum())
         t = tests[best]
-        if not (t["p_adjusted"] < rc.alpha and t["gain"].sum() / sse_tot >= rc.min_explained):
+        if not (t["p_adjusted"] < rc.alpha and t["gain"].sum() / float(sse_sel.sum() or 1e-300) >= rc.min_explained):
             break
         t["selected_round"] = len(selected)
         selected.append((best, t["cols"]))
@@ -279,6 +295,7 @@ def rank(des: Design, y: np.ndarray, rc: RankCfg, calib: dict | None = None) -> 
             "effect": n,
             "explained_fraction": float(t["gain"].sum() / sse_tot),
             "explained_fraction_alone": float(alone[n]["gain"].sum() / sse_tot),
+            "explained_fraction_of_remaining": float(t["gain"].sum() / (float(t["sse"].sum() + t["gain"].sum()) or 1e-300)),
             "p_value": t["p_value"],
             "p_adjusted": t.get("p_adjusted", 1.0),
             "significant": "selected_round" in t,
