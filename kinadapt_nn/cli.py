@@ -248,7 +248,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         from kinadapt_nn.episode import run_episode
 
         run_cfg = load_config(src / "config.toml")
-        over = {"model": run_cfg.model.model_copy(update={"effects": tuple(dict.fromkeys((*run_cfg.model.effects, *args.add)))})}
+        over = {"model": run_cfg.model.model_copy(update={"effects": tuple(dict.fromkeys((*run_cfg.model.effects, *args.add)))}),
+                "run": run_cfg.run.model_copy(update={"tensorboard": True, "progress": False})}  # TB: the point of a rerun
         if run_cfg.adaptation.mode in ("frozen", "tracking"):  # the effect columns adapt by the prediction step
             over["adaptation"] = run_cfg.adaptation.model_copy(update={"mode": "prediction"})
         rerun_cfg = run_cfg.model_copy(update=over)

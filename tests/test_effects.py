@@ -128,6 +128,25 @@ def test_diagnose_cli_add_baseline_and_errors(tmp_path, capsys):
     assert len(err) == 1 and "unknown effect" in err[0] and not (tmp_path / "x").exists()
     assert main(["diagnose", str(run), "--baseline", str(run), "--out", str(tmp_path / "y")]) == 2
     assert "hidden effects" in capsys.readouterr().err
+    # a calibration file: written from the baseline, used instead of --baseline, refused when corrupt
+    cal = tmp_path / "cal.json"
+    assert main(["diagnose", str(base), "--no-calibration", "--save-calibration", str(cal), "--out",
+                 str(tmp_path / "c0"), "--quiet"]) == 0
+    assert "excite" in json.loads(cal.read_text())["programs"]
+    assert main(["diagnose", str(run), "--calibration", str(cal), "--out", str(tmp_path / "c1"), "--quiet"]) == 0
+    d1 = json.loads((tmp_path / "c1" / "diagnosis.json").read_text())
+    assert d1["ranking"][0]["effect"] == "tool_gravity"
+    cal.write_text('{"programs": {"excite": {"params": {"tool_gravity": "x"}}}}')
+    capsys.readouterr()
+    assert main(["diagnose", str(run), "--calibration", str(cal), "--out", str(tmp_path / "c2")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "malformed" in err[0] and not (tmp_path / "c2").exists()
+    # --rerun: the online run again with the effect in the model, same TensorBoard tags
+    assert main(["diagnose", str(run), "--baseline", str(base), "--add", "tool_gravity", "--rerun", "--out",
+                 str(tmp_path / "r"), "--quiet"]) == 0
+    rr = json.loads((tmp_path / "r" / "diagnosis.json").read_text())["rerun"]
+    assert rr["model_effects"] == ["tool_gravity"] and len(rr["model_effect_params"]) == 4
+    assert (tmp_path / "r" / "rerun" / "summary.json").is_file() and (tmp_path / "r" / "rerun" / "tb").is_dir()
 
 
 def test_effects_config_errors_are_one_line():

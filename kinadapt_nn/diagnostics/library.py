@@ -96,31 +96,42 @@ def summary_sentence(res: dict) -> str:
 
 
 def effects_figure(res: dict, path: Path) -> None:
-    """Ranking bars (held-out explained fraction, significance) and, after --add, the residual before/after."""
+    """Ranking bars (held-out explained fraction alone and given the effects selected before it;
+    red = significant) and, after --add, the level residual before/after per channel over time."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from kinadapt_nn.diagnostics.effects import LEVEL_CHANNELS
+
     rows = res["ranking"]
     has_add = "_series" in res
-    fig, ax = plt.subplots(1, 2 if has_add else 1, figsize=(13 if has_add else 7, 4.5), constrained_layout=True, squeeze=False)
+    fig, ax = plt.subplots(1, 3 if has_add else 1, figsize=(17 if has_add else 7, 4.5), constrained_layout=True,
+                           squeeze=False)
     a = ax[0, 0]
     names = [r["effect"] for r in rows][::-1]
-    vals = [r["explained_fraction"] for r in rows][::-1]
-    cols = ["C3" if r["significant"] else "0.6" for r in rows][::-1]
-    a.barh(names, vals, color=cols)
+    yy = np.arange(len(names))
+    a.barh(yy + 0.2, [r["explained_fraction_alone"] for r in rows][::-1], height=0.4, color="0.8", label="alone")
+    a.barh(yy - 0.2, [r["explained_fraction"] for r in rows][::-1], height=0.4,
+           color=["C3" if r["significant"] else "0.45" for r in rows][::-1], label="given the selected before it")
+    a.set_yticks(yy, names)
+    a.set_xlim(-0.1, 1.05)
     a.axvline(0, color="k", lw=0.8)
-    a.set_xlabel("held-out explained fraction of the residual (block CV)")
+    a.set_xlabel("held-out explained fraction of the level residual (block CV)")
     a.set_title("which effect is missing (red = significant)")
+    a.legend(fontsize=8, loc="lower right")
     if has_add:
         des, y, e = res["_series"]
-        a = ax[0, 1]
-        a.plot(y / des.W, lw=0.5, label="before")
-        a.plot(e / des.W, lw=0.5, label="after --add")
-        a.set_xlabel("row (channels interleaved, time order)")
-        a.set_ylabel("level residual [N | N m]")
-        a.legend()
-        a.set_title("residual before / after adding " + ", ".join(res["added"]))
+        for col, (chans, unit) in enumerate((((0, 1, 2), "N"), ((3, 4, 5), "N m"))):
+            a = ax[0, 1 + col]
+            for c in chans:
+                m = des.channel == c
+                line, = a.plot(des.t_s[m], y[m] / des.W[m], lw=0.6, alpha=0.5)
+                a.plot(des.t_s[m], e[m] / des.W[m], lw=0.9, color=line.get_color(), label=LEVEL_CHANNELS[c])
+            a.set_xlabel("time [s]")
+            a.set_ylabel(f"level residual [{unit}]")
+            a.set_title(f"before (faint) / after adding {', '.join(res['added'])}")
+            a.legend(fontsize=8)
     fig.savefig(path, dpi=110)
     plt.close(fig)

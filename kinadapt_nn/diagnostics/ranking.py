@@ -68,6 +68,7 @@ class Design(NamedTuple):
     n_blocks: int
     channel: np.ndarray  #: (R,) index into LEVEL_CHANNELS of each row
     W: np.ndarray  #: (R,) the metric weight of each row
+    t_s: np.ndarray  #: (R,) time of each row [s]
 
 
 def build_design(sig: Signals, W6: np.ndarray, rc: RankCfg, names: list[str] | None = None) -> Design:
@@ -121,7 +122,8 @@ def build_design(sig: Signals, W6: np.ndarray, rc: RankCfg, names: list[str] | N
     n_win = int(win[rows].max()) + 1 if len(rows) else 1
     nb = max(2, min(rc.n_blocks, n_win))
     block = np.repeat(np.minimum((win[rows] * nb) // n_win, nb - 1), nc)[use]
-    return Design(y, X, block, nb, np.tile(np.arange(nc), len(rows))[use], np.tile(w, len(rows))[use])
+    return Design(y, X, block, nb, np.tile(np.arange(nc), len(rows))[use], np.tile(w, len(rows))[use],
+                  np.repeat(sig.t_s[rows], nc)[use])
 
 
 def _smooth(x: np.ndarray, k: int) -> np.ndarray:
