@@ -234,6 +234,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         calib_src = str(args.baseline)
     elif args.no_calibration:
         calib, calib_src = None, "none"
+    elif src.suffix.lower() == ".csv" and not args.calibration:  # an external log: the shipped one is for our sim
+        calib, calib_src = None, "none (external log: give --baseline RUN or --calibration FILE for a calibrated model)"
     else:
         calib = rk.load_calibration(Path(args.calibration) if args.calibration else rk.DEFAULT_CALIBRATION, program)
         calib_src = str(args.calibration or "shipped models/nominal_calibration.json") + f" [{program}]"
@@ -261,6 +263,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                                                     "rerun": rerun.summary["pred_error_rms_contact_w"]},
                        "folder": "rerun/ (tensorboard --logdir_spec original:RUN/tb,rerun:OUT/rerun/tb)"}
     summary = plain_summary(a) + " " + lib.summary_sentence(fx)
+    if calib is None:
+        summary += " (Effects judged against the bare nominal model, not a calibrated one.)"
     with staged_output(out, args.overwrite) as stage:
         (stage / "config.toml").write_text(config_to_toml(cfg))
         write_json(stage / "diagnosis.json", {"summary": summary, "source": log.source, "format": "kinadapt-diagnosis",
@@ -331,7 +335,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="simulated runs: repeat the online run with the --add effects in the model (model.effects), "
                          "written to OUT/rerun/ with the same TensorBoard tags")
     dg.add_argument("--baseline", metavar="RUN", help="calibrate the nominal model on this run without hidden effects "
-                    "(default: the shipped calibration for the run's control.program)")
+                    "(default: the shipped calibration for the run's control.program; none for a CSV log)")
     dg.add_argument("--calibration", metavar="FILE", help="a calibration file written by --save-calibration")
     dg.add_argument("--no-calibration", action="store_true", help="judge effects against the bare nominal model")
     dg.add_argument("--save-calibration", metavar="FILE",

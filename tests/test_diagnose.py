@@ -93,5 +93,11 @@ def test_diagnose_cli_outputs(oracle_run, tmp_path, capsys):
     assert set(d["residual_rms_by_channel"]) == {"d", "F_lat_x", "F_lat_y", "M_x", "M_y", "M_z"}
     assert (out / "residual.png").stat().st_size > 20_000
     assert "% of the (W-scaled) residual" in capsys.readouterr().out
+    assert d["calibration"].startswith("shipped")  # a simulated run: the shipped nominal calibration
+    csv = tmp_path / "log.csv"  # an external (e.g. real-robot) log: no calibration unless one is given
+    write_csv_log(csv, load_log(oracle_run))
+    assert main(["diagnose", str(csv), "--out", str(tmp_path / "dcsv"), "--quiet"]) == 0
+    dc = json.loads((tmp_path / "dcsv" / "diagnosis.json").read_text())
+    assert dc["calibration"].startswith("none") and "bare nominal model" in dc["summary"] and dc["ranking"]
     assert main(["diagnose", str(tmp_path / "nothing"), "--out", str(tmp_path / "x"), "--quiet"]) == 2
     assert main(["diagnose", str(oracle_run), "--theta", "1,2", "--out", str(tmp_path / "y"), "--quiet"]) == 2
