@@ -7,7 +7,6 @@ line on stderr and exit code 2.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 import time
@@ -53,8 +52,8 @@ def _write_online(stage: Path, cfg, result) -> None:
     write_json(stage / "summary.json", result.summary)
     result.trace.save(stage / "trace.npz")
     fig = None
-    if cfg.run.figure:
-        from kinadapt_nn.figures import rollout_figure, save_figure
+    if cfg.run.figure:  # (matplotlib is imported only when a figure is wanted)
+        from kinadapt_nn.figures import rollout_figure
 
         fig = rollout_figure(result.trace, result.summary, cfg)
     if cfg.run.tensorboard:
@@ -69,9 +68,9 @@ def _write_online(stage: Path, cfg, result) -> None:
 
 
 def cmd_online(args: argparse.Namespace) -> int:
-    from kinadapt_nn.config import config_to_toml, load_config
+    from kinadapt_nn.config import load_config
     from kinadapt_nn.episode import run_episode
-    from kinadapt_nn.runio import check_output_dir, staged_output, write_json
+    from kinadapt_nn.runio import check_output_dir, staged_output
 
     cfg = load_config(Path(args.config) if args.config else None, args.set or [])
     out = Path(args.out) if args.out else _default_out("online")
@@ -221,47 +220,23 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
     out = Path(args.out) if args.out else _default_out("diagnose")
     check_output_dir(out, args.overwrite)
+    lib.check_effect_names(args.add or [])
+    if args.rerun:
+        lib.check_rerun(src, args.add or [])
     log = load_log(src)
     rep = replay(log, cfg, theta)
     a = analyse(rep, channel_metric(cfg.sensing))
     rc = rk.RankCfg()
-    # the effect library is fitted on the nominal model (the CAD offset), not the run's estimate
-    rep_nom = rep if theta is None and log.theta is None else replay(log, cfg, np.asarray(cfg.sensing.nominal_offset_f_m))
-    sig = build_signals(rep_nom, log, cfg)
-    program = cfg.control.program
-    if args.baseline:
-        calib = lib.baseline_calibration(Path(args.baseline), cfg, rc)
-        calib_src = str(args.baseline)
-    elif args.no_calibration:
-        calib, calib_src = None, "none"
-    elif src.suffix.lower() == ".csv" and not args.calibration:  # an external log: the shipped one is for our sim
-        calib, calib_src = None, "none (external log: give --baseline RUN or --calibration FILE for a calibrated model)"
-    else:
-        calib = rk.load_calibration(Path(args.calibration) if args.calibration else rk.DEFAULT_CALIBRATION, program)
-        calib_src = str(args.calibration or "shipped models/nominal_calibration.json") + f" [{program}]"
+    # the effect library works on the nominal model (the CAD offset; the channels it takes from the
+    # replay -- s, the tared wrench, the drive flag -- do not depend on theta)
+    sig = build_signals(rep, log, cfg)
+    calib, calib_src = lib.choose_calibration(src, cfg, rc, Path(args.baseline) if args.baseline else None,
+                                              Path(args.calibration) if args.calibration else None, args.no_calibration)
     fx = lib.analyse_effects(sig, cfg, calib, list(args.add or []), rc)
     series = fx.pop("_series", None)
-    rerun = None
+    rerun_cfg = rerun = None
     if args.rerun:
-        if not args.add:
-            raise KinadaptError("--rerun needs --add EFFECT (the effect to put into the online model)")
-        if not (src.is_dir() and (src / "config.toml").is_file()):
-            raise KinadaptError(f"--rerun needs a simulated run folder with config.toml (got '{src}')")
-        from kinadapt_nn.episode import run_episode
-
-        run_cfg = load_config(src / "config.toml")
-        over = {"model": run_cfg.model.model_copy(update={"effects": tuple(dict.fromkeys((*run_cfg.model.effects, *args.add)))}),
-                "run": run_cfg.run.model_copy(update={"tensorboard": True, "progress": False})}  # TB: the point of a rerun
-        if run_cfg.adaptation.mode in ("frozen", "tracking"):  # the effect columns adapt by the prediction step
-            over["adaptation"] = run_cfg.adaptation.model_copy(update={"mode": "prediction"})
-        rerun_cfg = run_cfg.model_copy(update=over)
-        rerun = run_episode(rerun_cfg)
-        before = json.loads((src / "summary.json").read_text()) if (src / "summary.json").is_file() else {}
-        fx["rerun"] = {"model_effects": list(rerun_cfg.model.effects), "adaptation_mode": rerun_cfg.adaptation.mode,
-                       "model_effect_params": rerun.summary["model_effect_params"],
-                       "pred_error_rms_contact_w": {"original": before.get("pred_error_rms_contact_w"),
-                                                    "rerun": rerun.summary["pred_error_rms_contact_w"]},
-                       "folder": "rerun/ (tensorboard --logdir_spec original:RUN/tb,rerun:OUT/rerun/tb)"}
+        rerun_cfg, rerun, fx["rerun"] = lib.rerun_with_effects(src, list(args.add or []))
     summary = plain_summary(a) + " " + lib.summary_sentence(fx)
     if calib is None:
         summary += " (Effects judged against the bare nominal model, not a calibrated one.)"
@@ -276,7 +251,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             (stage / "rerun").mkdir()
             _write_online(stage / "rerun", rerun_cfg, rerun)
     if args.save_calibration:
-        lib.save_calibration(Path(args.save_calibration), program,
+        lib.save_calibration(Path(args.save_calibration), cfg.control.program,
                              rk.calibrate(rk.build_design(sig, channel_metric(cfg.sensing), rc), rc), log.source)
     if not args.quiet:
         print(summary)

@@ -79,6 +79,13 @@ class Signals(NamedTuple):
     kin: object  #: the controller's ArmKinematics (bare arm, nominal)
 
 
+class Terms(NamedTuple):
+    """An effect's signature on a ``Signals`` (N samples, k parameters), in LEVEL_CHANNELS."""
+
+    level: np.ndarray | None  #: (N, 6, k) closed-form change of the tared levels, or None
+    rate: np.ndarray | None  #: (N, 6, k) gated rate signature (integrated by ``Effect.columns``), or None
+
+
 def cumulative(rate: np.ndarray, dt: float) -> np.ndarray:
     """Rectangle-rule integral along axis 0, starting at 0 (same rule as the nominal level)."""
     out = np.cumsum(rate, axis=0) * dt
@@ -145,12 +152,19 @@ def to_level(sig: Signals, w_w: np.ndarray) -> np.ndarray:
     return out
 
 
-def nominal_parts(sig: Signals) -> tuple[np.ndarray, np.ndarray]:
+class LevelParts(NamedTuple):
+    """The nominal model's two level series (N samples, LEVEL_CHANNELS)."""
+
+    measured: np.ndarray  #: (N, 6) the measured level Z (tared wrench, tip-contact moment form)
+    predicted_integral: np.ndarray  #: (N, 6) integral of the nominal tip-contact rate (gated)
+
+
+def nominal_parts(sig: Signals) -> LevelParts:
     """The measured level ``Z`` (tared: absolute) and the integral of the nominal tip-contact
     prediction (``_contact_rate``); ``ranking.build_design`` combines them (free space: the model
     predicts a zero tared wrench; contact: the level at entry plus the integral).
-    -> two (N, 6) arrays in LEVEL_CHANNELS."""
-    return to_level(sig, sig.w_env_w), _contact_rate_to_level(sig, sig.twist_tip_w)
+    -> ``LevelParts``."""
+    return LevelParts(to_level(sig, sig.w_env_w), _contact_rate_to_level(sig, sig.twist_tip_w))
 
 
 def _wrench_to_s(w_w: np.ndarray, S: np.ndarray) -> np.ndarray:
@@ -181,7 +195,7 @@ def _smooth_derivative(x: np.ndarray, dt: float, width_s: float = 0.002) -> np.n
     return np.stack([np.convolve(d[:, i], ker, "same") for i in range(3)], axis=1)
 
 
-def _cols_tool_gravity(sig: Signals) -> tuple:
+def _cols_tool_gravity(sig: Signals) -> Terms:
     """Payload (m, m c_f) on the tool: the flange holds ``m (a_com - g)`` with
     ``a_com = a_O + alpha x (R c) + w x (w x (R c))`` (encoder accelerations), tared at the still
     tare pose: linear in m and m c (the payload's own rotational inertia, quadratic in c, is
@@ -203,10 +217,10 @@ def _cols_tool_gravity(sig: Signals) -> tuple:
         wr[:, :3] = np.cross(alpha, e_w) + np.cross(w, np.cross(w, e_w))
         wr[:, 3:] = np.cross(e_w, df_w)  # moment of (m c) about O: (R m c) x (a_O - g ...)
         cols[:, :, 1 + j] = to_level(sig, wr)
-    return cols, None
+    return Terms(cols, None)
 
 
-def _cols_ft_bias_drift(sig: Signals) -> tuple:
+def _cols_ft_bias_drift(sig: Signals) -> Terms:
     cols = np.zeros((len(sig.t_s), 6, 6))
     dtau = (sig.t_s - sig.t_tare_s)[:, None]
     for j in range(6):
@@ -214,10 +228,10 @@ def _cols_ft_bias_drift(sig: Signals) -> tuple:
         part = slice(0, 3) if j < 3 else slice(3, 6)
         w[:, part] = sig.R_wf[:, :, j % 3] * dtau
         cols[:, :, j] = to_level(sig, w)
-    return cols, None
+    return Terms(cols, None)
 
 
-def _cols_ft_frame_rotation(sig: Signals) -> tuple:
+def _cols_ft_frame_rotation(sig: Signals) -> Terms:
     cols = np.zeros((len(sig.t_s), 6, 3))
     for j in range(3):
         e = np.zeros(3)
@@ -226,10 +240,10 @@ def _cols_ft_frame_rotation(sig: Signals) -> tuple:
         w[:, :3] = _rot(sig.R_wf, np.cross(sig.r_tared_f[:, :3], e))  # measured = true x delta
         w[:, 3:] = _rot(sig.R_wf, np.cross(sig.r_tared_f[:, 3:], e))
         cols[:, :, j] = to_level(sig, w)
-    return cols, None
+    return Terms(cols, None)
 
 
-def _cols_tool_tilt(sig: Signals) -> tuple:
+def _cols_tool_tilt(sig: Signals) -> Terms:
     lev = np.zeros((len(sig.t_s), 6, 2))
     integ = np.zeros((len(sig.t_s), 6, 2))  # rates
     f_tool = -sig.w_env_w[:, :3]
@@ -241,31 +255,31 @@ def _cols_tool_tilt(sig: Signals) -> tuple:
         tw[:, :3] = np.cross(sig.twist_tip_w[:, 3:], dl_w)  # the true tip's extra velocity
         integ[:, :, j] = _contact_rate(sig, tw)
         lev[:, 3:, j] = sig.gate[:, None] * np.cross(dl_w, f_tool)  # moment of the contact force about O
-    return lev, integ
+    return Terms(lev, integ)
 
 
-def _cols_contact_stiffness(sig: Signals) -> tuple:
-    return None, _contact_rate(sig, sig.twist_tip_w)[:, :, None]
+def _cols_contact_stiffness(sig: Signals) -> Terms:
+    return Terms(None, _contact_rate(sig, sig.twist_tip_w)[:, :, None])
 
 
-def _cols_contact_friction_couple(sig: Signals) -> tuple:
+def _cols_contact_friction_couple(sig: Signals) -> Terms:
     w = sig.twist_tip_w[:, 3:]
     fn = np.linalg.norm(sig.w_env_w[:, :3], axis=1)
     cols = np.zeros((len(sig.t_s), 6, 1))
     cols[:, 3:, 0] = -(sig.gate * fn)[:, None] * w / (np.linalg.norm(w, axis=1) + OMEGA_EPS_RAD_S)[:, None]
-    return cols, None
+    return Terms(cols, None)
 
 
-def _cols_grasp_compliance(sig: Signals) -> tuple:
+def _cols_grasp_compliance(sig: Signals) -> Terms:
     M = sig.s[:, 3:]  # contact moment on the tool about O (world)
     z = sig.R_wf[:, :, 2]
     M_perp = M - np.sum(M * z, axis=1)[:, None] * z  # the hinges yield about f x, f y only
     lever = _rot(sig.R_wf, np.broadcast_to(sig.l_nom_f, (len(sig.t_s), 3)))
     disp = np.concatenate([np.cross(M_perp, lever), M_perp], axis=1)  # tip displacement + rotation per unit compliance
-    return _contact_rate(sig, disp)[:, :, None], None  # the map is linear: displacement -> level change
+    return Terms(_contact_rate(sig, disp)[:, :, None], None)  # the map is linear: displacement -> level change
 
 
-def _cols_encoder_offset(sig: Signals, eps: float = 1e-6, grid_s: float = 0.005) -> tuple:
+def _cols_encoder_offset(sig: Signals, eps: float = 1e-6, grid_s: float = 0.005) -> Terms:
     """Finite differences of the model in each joint's zero (``q -> q + eps e_j``): the
     derivative of the tip-twist map ``Ad(R l_nom) J_arm`` and of ``R_wf`` depend on ``q`` only,
     so they are evaluated on a ``grid_s`` grid and interpolated, then applied to the full-rate
@@ -305,7 +319,7 @@ def _cols_encoder_offset(sig: Signals, eps: float = 1e-6, grid_s: float = 0.005)
         dZ = to_level(sig, dRr)  # d/dq_j of Z = to_level(R r) with the lever R l_nom:
         dZ[:, 3:] -= sig.gate[:, None] * np.cross(_rot(dR_f, np.broadcast_to(sig.l_nom_f, (n, 3))), -sig.w_env_w[:, :3])
         lev[:, :, j] = -dZ
-    return lev, integ
+    return Terms(lev, integ)
 
 
 # ---------------------------------------------------------------------------------------- library
@@ -317,10 +331,9 @@ class Effect:
     name: str
     params: tuple[str, ...]
     units: tuple[str, ...]
-    #: Signals -> (level, rate): (N, 6, k) each or None, in LEVEL_CHANNELS. ``level`` is the
-    #: closed-form change of the tared levels; ``rate`` a gated rate signature (integrated by
-    #: ``columns``; used as is by the online regressor, ``kinadapt_nn.features.effects``)
-    terms: Callable[[Signals], tuple]
+    #: Signals -> Terms(level, rate); the rate part is integrated by ``columns`` and used as is by
+    #: the online regressor (``kinadapt_nn.features.effects``)
+    terms: Callable[[Signals], "Terms"]
     default: Callable[[EffectsCfg], np.ndarray]  #: the config's magnitude as model parameters (k,)
     excite_hint: str
     doc: str
@@ -332,10 +345,10 @@ class Effect:
     def k(self) -> int:
         return len(self.params)
 
-    def columns(self, sig: Signals) -> tuple:
-        """(level, integral of the rate): (N, 6, k) each or None."""
+    def columns(self, sig: Signals) -> Terms:
+        """Level columns: (closed-form level, integral of the rate), (N, 6, k) each or None."""
         lev, rate = self.terms(sig)
-        return lev, (None if rate is None else cumulative(rate, sig.dt_s))
+        return Terms(lev, None if rate is None else cumulative(rate, sig.dt_s))
 
 
 def _p_gravity(e: EffectsCfg) -> np.ndarray:

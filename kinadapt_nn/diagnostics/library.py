@@ -49,11 +49,63 @@ def save_calibration(path: Path, program: str, calib: dict, source: str) -> None
     atomic_write(path, lambda p: Path(p).write_text(json.dumps(data, indent=1)))
 
 
-def analyse_effects(sig: Signals, cfg: ExperimentCfg, calib: dict | None, add: list[str], rc: rk.RankCfg) -> dict:
-    """Ranking, confusion and (for ``add``) the refit with residual before/after."""
-    for a in add:
+def check_effect_names(names: list[str]) -> None:
+    for a in names:
         if a not in LIBRARY:
             raise KinadaptError(f"--add {a}: unknown effect (choose from {', '.join(LIBRARY)})")
+
+
+def choose_calibration(src: Path, cfg: ExperimentCfg, rc: rk.RankCfg, baseline: Path | None, calibration: Path | None,
+                       none: bool) -> tuple[dict | None, str]:
+    """The calibrated nominal model for ``src`` and where it came from: ``--baseline RUN`` (fitted
+    now), ``--no-calibration``, an external CSV log (none unless a file is given), else a
+    calibration file (default: the shipped one) for the run's ``control.program``."""
+    program = cfg.control.program
+    if baseline is not None:
+        return baseline_calibration(baseline, cfg, rc), str(baseline)
+    if none:
+        return None, "none"
+    if Path(src).suffix.lower() == ".csv" and calibration is None:  # the shipped one is for our simulator
+        return None, "none (external log: give --baseline RUN or --calibration FILE for a calibrated model)"
+    path = calibration if calibration is not None else rk.DEFAULT_CALIBRATION
+    label = str(calibration) if calibration is not None else "shipped models/nominal_calibration.json"
+    return rk.load_calibration(path, program), f"{label} [{program}]"
+
+
+def check_rerun(src: Path, add: list[str]) -> None:
+    if not add:
+        raise KinadaptError("--rerun needs --add EFFECT (the effect to put into the online model)")
+    if not (Path(src).is_dir() and (Path(src) / "config.toml").is_file()):
+        raise KinadaptError(f"--rerun needs a simulated run folder with config.toml (got '{src}')")
+
+
+def rerun_with_effects(src: Path, add: list[str]):
+    """Repeat the simulated run ``src`` with ``model.effects += add`` (adapted by the prediction
+    step: a frozen or tracking-only run becomes ``prediction``), TensorBoard on.
+    -> (config, EpisodeResult, the ``rerun`` entry of diagnosis.json)."""
+    from kinadapt_nn.episode import run_episode
+
+    check_rerun(src, add)
+    src = Path(src)
+    run_cfg = load_config(src / "config.toml")
+    over = {"model": run_cfg.model.model_copy(update={"effects": tuple(dict.fromkeys((*run_cfg.model.effects, *add)))}),
+            "run": run_cfg.run.model_copy(update={"tensorboard": True, "progress": False})}  # TB: the point of a rerun
+    if run_cfg.adaptation.mode in ("frozen", "tracking"):
+        over["adaptation"] = run_cfg.adaptation.model_copy(update={"mode": "prediction"})
+    cfg = run_cfg.model_copy(update=over)
+    result = run_episode(cfg)
+    before = json.loads((src / "summary.json").read_text()) if (src / "summary.json").is_file() else {}
+    info = {"model_effects": list(cfg.model.effects), "adaptation_mode": cfg.adaptation.mode,
+            "model_effect_params": result.summary["model_effect_params"],
+            "pred_error_rms_contact_w": {"original": before.get("pred_error_rms_contact_w"),
+                                         "rerun": result.summary["pred_error_rms_contact_w"]},
+            "folder": "rerun/ (tensorboard --logdir_spec original:RUN/tb,rerun:OUT/rerun/tb)"}
+    return cfg, result, info
+
+
+def analyse_effects(sig: Signals, cfg: ExperimentCfg, calib: dict | None, add: list[str], rc: rk.RankCfg) -> dict:
+    """Ranking, confusion and (for ``add``) the refit with residual before/after."""
+    check_effect_names(add)
     des = rk.build_design(sig, channel_metric(cfg.sensing), rc)
     y = rk.calibrated_residual(des, calib)
     ranking = rk.rank(des, y, rc, calib)

@@ -37,6 +37,7 @@ decide about the effect's weakest direction, and the hint says which motion woul
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
 
@@ -220,8 +221,23 @@ def _choices(name: str, k: int) -> list[list[int]]:
     return [[j] for j in range(k)] if LIBRARY[name].one_of else [list(range(k))]
 
 
+@dataclass
+class EffectTest:
+    """One effect tested given a selected set (``_test_given``); R rows, B blocks, k columns used."""
+
+    cols: list[int]  #: the effect's columns used (all, or the best one for a "one of" effect)
+    gain: np.ndarray  #: (B,) held-out SSE reduction over the selected model, per block
+    sse: np.ndarray  #: (B,) held-out SSE of the selected model plus this effect
+    reps: np.ndarray  #: (B, k) leave-one-block-out estimates of this effect's parameters
+    p: np.ndarray  #: (k,) full-data estimate (joint with the selected effects)
+    cov: np.ndarray  #: (k, k) block-jackknife covariance of ``p``
+    p_value: float  #: Wald test of p = 0 (Bonferroni over a "one of" choice)
+    p_adjusted: float = 1.0  #: Benjamini-Hochberg across the round
+    selected_round: int | None = None  #: the forward-selection round that selected it
+
+
 def _test_given(name: str, sel: list[tuple[str, list[int]]], des: Design, y: np.ndarray, rc: RankCfg,
-                sse_sel: np.ndarray) -> dict:
+                sse_sel: np.ndarray) -> EffectTest:
     """Effect ``name`` given the already selected effects ``sel``: held-out SSE reduction over
     the selected model, Wald test of its parameters in the joint fit, its estimate."""
     X_sel = [des.X[n][:, c] for n, c in sel]
@@ -230,16 +246,16 @@ def _test_given(name: str, sel: list[tuple[str, list[int]]], des: Design, y: np.
     best = None
     choices = _choices(name, des.X[name].shape[1])
     for cols in choices:
-        X = np.concatenate([*X_sel, des.X[name][:, cols]], axis=1)
+        X = np.concatenate([*X_sel, des.X[name][:, cols]], axis=1)  # (R, k_sel + k)
         sc = np.concatenate([*sc_sel, _scale(name, des.X[name])[cols]])
         sse, reps, p = _cv(X, sc, des, y, rc)
         gain = sse_sel - sse
-        if best is None or gain.sum() > best["gain"].sum():
-            best = {"cols": cols, "gain": gain, "sse": sse, "reps": reps[:, k_sel:], "p": p[k_sel:], "p_all": p}
-    cov = _jackknife_cov(best["reps"])
-    best["cov"] = cov
-    best["p_value"] = min(1.0, _wald_pvalue(best["p"], cov, len(best["reps"])) * len(choices))  # Bonferroni for the choice
-    return best
+        if best is None or gain.sum() > best[1].sum():
+            best = (cols, gain, sse, reps[:, k_sel:], p[k_sel:])
+    cols, gain, sse, reps, p = best
+    cov = _jackknife_cov(reps)
+    pval = min(1.0, _wald_pvalue(p, cov, len(reps)) * len(choices))  # Bonferroni for the choice
+    return EffectTest(cols, gain, sse, reps, p, cov, pval)
 
 
 def rank(des: Design, y: np.ndarray, rc: RankCfg, calib: dict | None = None) -> list[dict]:
@@ -268,26 +284,26 @@ def rank(des: Design, y: np.ndarray, rc: RankCfg, calib: dict | None = None) -> 
         cand = [n for n in names if n not in {s for s, _ in selected}]
         tests = alone if not selected else {n: _test_given(n, selected, des, y, rc, sse_sel) for n in cand}
         tests = {n: tests[n] for n in cand}
-        padj = false_discovery_control([tests[n]["p_value"] for n in cand], method="bh")
+        padj = false_discovery_control([tests[n].p_value for n in cand], method="bh")
         for n, pa in zip(cand, padj):
-            tests[n]["p_adjusted"] = float(pa)
+            tests[n].p_adjusted = float(pa)
             last[n] = tests[n]
-        best = max(cand, key=lambda n: tests[n]["gain"].sum())
+        best = max(cand, key=lambda n: tests[n].gain.sum())
         t = tests[best]
-        if not (t["p_adjusted"] < rc.alpha and t["gain"].sum() / float(sse_sel.sum() or 1e-300) >= rc.min_explained):
+        if not (t.p_adjusted < rc.alpha and t.gain.sum() / float(sse_sel.sum() or 1e-300) >= rc.min_explained):
             break
-        t["selected_round"] = len(selected)
-        selected.append((best, t["cols"]))
-        sse_sel = t["sse"]
+        t.selected_round = len(selected)
+        selected.append((best, t.cols))
+        sse_sel = t.sse
     sse_ref = float(sse_sel.sum()) or 1e-300  # what the selected model leaves held-out
     res = []
     for n in names:
         t = last[n]
         k = des.X[n].shape[1]
-        cols = t["cols"]
+        cols = t.cols
         p_full, sd = np.zeros(k), np.zeros(k)
-        p_full[cols] = t["p"]
-        sd[cols] = np.sqrt(np.clip(np.diag(t["cov"]), 0.0, None))
+        p_full[cols] = t.p
+        sd[cols] = np.sqrt(np.clip(np.diag(t.cov), 0.0, None))
         d = np.abs(LIBRARY[n].default(EffectsCfg()))
         dc = np.full(len(cols), d.max()) if LIBRARY[n].one_of else d[cols]
         Xd = des.X[n][:, cols] * np.where(dc != 0, dc, _scale(n, des.X[n])[cols])
@@ -295,13 +311,13 @@ def rank(des: Design, y: np.ndarray, rc: RankCfg, calib: dict | None = None) -> 
         exc = float(lam[0] / sse_ref)
         res.append({
             "effect": n,
-            "explained_fraction": float(t["gain"].sum() / sse_tot),
-            "explained_fraction_alone": float(alone[n]["gain"].sum() / sse_tot),
-            "explained_fraction_of_remaining": float(t["gain"].sum() / (float(t["sse"].sum() + t["gain"].sum()) or 1e-300)),
-            "p_value": t["p_value"],
-            "p_adjusted": t.get("p_adjusted", 1.0),
-            "significant": "selected_round" in t,
-            "selected_round": t.get("selected_round"),
+            "explained_fraction": float(t.gain.sum() / sse_tot),
+            "explained_fraction_alone": float(alone[n].gain.sum() / sse_tot),
+            "explained_fraction_of_remaining": float(t.gain.sum() / (float(t.sse.sum() + t.gain.sum()) or 1e-300)),
+            "p_value": t.p_value,
+            "p_adjusted": t.p_adjusted,
+            "significant": t.selected_round is not None,
+            "selected_round": t.selected_round,
             "estimate": physical_report(n, p_full, sd),
             "columns_used": [LIBRARY[n].params[c] for c in cols],
             "estimate_params": {"names": list(LIBRARY[n].params), "units": list(LIBRARY[n].units),
