@@ -156,3 +156,32 @@ def test_effects_config_errors_are_one_line():
         load_config(None, ["effects.contact_stiffness.factor=-1"])
     with pytest.raises(ConfigError, match="excite.segments"):
         load_config(None, ["excite.segments=[[0, 0, 0, 0, 0, 0, 0]]"])
+
+
+def test_effect_terms_batch_equals_a_loop_of_single_samples():
+    """The online model evaluates each effect on a one-sample Signals per control step
+    (kinadapt_nn.features.effects); the diagnosis on the whole log at once. Same numbers (gravity's
+    acceleration terms need a history, so samples are taken where the arm is still)."""
+    from kinadapt_nn.diagnostics.effects import Signals
+
+    _, sig, _ = _run(["effects.tool_gravity.enabled=true"], duration=11.5)  # free space, then contact
+    moving = np.linalg.norm(sig.twist_tip_w[:, 3:], axis=1) > 1e-3
+    still = (np.convolve(moving, np.ones(41), "same") == 0) & sig.active & (np.arange(len(moving)) % 5 == 0)
+    free, contact = np.flatnonzero(still & (sig.gate == 0)), np.flatnonzero(still & (sig.gate > 0))
+    assert len(free) > 10 and len(contact) > 10
+    # (encoder FD is evaluated on a 5 ms grid in the batch: the samples are on it)
+    idx = np.r_[free[:: len(free) // 6][:6], contact[:: len(contact) // 6][:6]]
+    for name, eff in LIBRARY.items():
+        batch = eff.terms(sig)
+        for i in idx:
+            one = Signals(sig.t_s[i:i + 1], sig.dt_s, sig.s[i:i + 1], sig.w_env_w[i:i + 1], sig.r_tared_f[i:i + 1],
+                          sig.R_wf[i:i + 1], sig.twist_tip_w[i:i + 1], sig.gate[i:i + 1], sig.active[i:i + 1],
+                          sig.t_tare_s, sig.R_tare, sig.S, sig.l_nom_f, sig.q_rad[i:i + 1], sig.qdot_rad_s[i:i + 1],
+                          sig.kin)
+            single = eff.terms(one)
+            for b, o in zip(batch, single):
+                assert (b is None) == (o is None), name
+                if b is not None:
+                    # gravity: the batch adds the residual servo accelerations (< 0.02 m/s^2 when still)
+                    atol = 0.02 if name == "tool_gravity" else 1e-9
+                    np.testing.assert_allclose(o[0], b[i], rtol=1e-6, atol=atol, err_msg=name)
