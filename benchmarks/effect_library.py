@@ -54,25 +54,25 @@ def _signals(program: str, sets: list[str]):
 def diagnose(job: tuple) -> dict:
     """One run + diagnosis. job = (program, sets, add)."""
     from kinadapt_nn.diagnostics import ranking as rk
-    from kinadapt_nn.diagnostics.library import analyse_effects
+    from kinadapt_nn.diagnostics.library import analyse_effects, design_of
 
     program, sets, add = job
     cfg, sig = _signals(program, sets)
     calib = rk.load_calibration(rk.DEFAULT_CALIBRATION, program)
-    res = analyse_effects(sig, cfg, calib, add, rk.RankCfg())
+    rc = rk.RankCfg()
+    res = analyse_effects(design_of(sig, cfg, rc), calib, add, rc)
     res.pop("_series", None)
     return {"program": program, "sets": sets, "add": add, **res}
 
 
 def calibrate() -> None:
     from kinadapt_nn.diagnostics import ranking as rk
-    from kinadapt_nn.diagnostics.library import save_calibration
-    from kinadapt_nn.sensing import channel_metric
+    from kinadapt_nn.diagnostics.library import design_of, save_calibration
 
     rc = rk.RankCfg()
     for program in ("insert", "excite"):
         cfg, sig = _signals(program, [])
-        calib = rk.calibrate(rk.build_design(sig, channel_metric(cfg.sensing), rc), rc)
+        calib = rk.calibrate(design_of(sig, cfg, rc), rc)
         save_calibration(rk.DEFAULT_CALIBRATION, program, calib,
                          f"benchmarks/effect_library.py --calibrate: {program}, seed 0, no hidden effect")
         print(program, json.dumps(calib))

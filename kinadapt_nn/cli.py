@@ -232,7 +232,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     sig = build_signals(rep, log, cfg)
     calib, calib_src = lib.choose_calibration(src, cfg, rc, Path(args.baseline) if args.baseline else None,
                                               Path(args.calibration) if args.calibration else None, args.no_calibration)
-    fx = lib.analyse_effects(sig, cfg, calib, list(args.add or []), rc)
+    des = lib.design_of(sig, cfg, rc)
+    fx = lib.analyse_effects(des, calib, list(args.add or []), rc)
     series = fx.pop("_series", None)
     rerun_cfg = rerun = None
     if args.rerun:
@@ -251,8 +252,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             (stage / "rerun").mkdir()
             _write_online(stage / "rerun", rerun_cfg, rerun)
     if args.save_calibration:
-        lib.save_calibration(Path(args.save_calibration), cfg.control.program,
-                             rk.calibrate(rk.build_design(sig, channel_metric(cfg.sensing), rc), rc), log.source)
+        lib.save_calibration(Path(args.save_calibration), cfg.control.program, rk.calibrate(des, rc), log.source)
     if not args.quiet:
         print(summary)
         print(f"wrote {out}/ (diagnosis.json, residual.png, effects.png, tb/)")

@@ -386,7 +386,9 @@ class Controller:
         mujoco.mju_mulMatMatT(L, J, J)
         self._L_diag += self._damp
         mujoco.mju_cholFactor(L, 0.0)
-        if self._fused:
+        if self._excite:  # the scripted program replaces V's drive (control.program = "excite")
+            drive = self._excite_drive(t - self.t_settle, lw)
+        elif self._fused:
             drive = self.features.twist_drive(kin, self.theta, F, lw)  # (S Ad)^T F: wrench at O
         else:
             J_xi = self.features.twist_jacobian(kin, self.theta)  # (m, 6) or None
@@ -396,8 +398,6 @@ class Controller:
                 dr = np.empty(6)
                 mujoco.mju_cholSolve(dr, L, J.dot(self.features.jacobian(kin, self.theta).T.dot(F)))
                 drive = dr.tolist()
-        if self._excite:
-            drive = self._excite_drive(t - self.t_settle, lw)
         # M (xi+ - xi)/dt + D xi+ = rho drive - w_env   (implicit in the damping), per channel,
         # unrolled on Python floats (same operations, in the same order, as the vector form)
         dt = self.dt

@@ -13,11 +13,10 @@ from kinadapt_nn.cli import main
 from kinadapt_nn.config import load_config
 from kinadapt_nn.diagnostics import ranking as rk
 from kinadapt_nn.diagnostics.effects import LIBRARY, nominal_parts
-from kinadapt_nn.diagnostics.library import analyse_effects, signals_of
+from kinadapt_nn.diagnostics.library import analyse_effects, design_of, signals_of
 from kinadapt_nn.diagnostics.residual import RawLog
 from kinadapt_nn.episode import run_episode
 from kinadapt_nn.errors import ConfigError
-from kinadapt_nn.sensing import channel_metric
 
 REPO = Path(__file__).resolve().parents[1]
 EXCITE = REPO / "online" / "excite.toml"
@@ -66,13 +65,13 @@ def ranked():
     without a hidden sensor rotation."""
     rc = rk.RankCfg()
     cfg0, sig0, _ = _run([])
-    calib = rk.calibrate(rk.build_design(sig0, channel_metric(cfg0.sensing), rc), rc)
+    calib = rk.calibrate(design_of(sig0, cfg0, rc), rc)
     jitter = ["run.seed=3", "start.lateral_jitter_m=0.0005", "start.tilt_jitter_deg=1.0"]
     out = {}
     for key, sets, add in (("none", jitter, []),
                            ("rot", [*jitter, "effects.ft_frame_rotation.enabled=true"], ["ft_frame_rotation"])):
         cfg, sig, _ = _run(sets)
-        out[key] = analyse_effects(sig, cfg, calib, add, rc)
+        out[key] = analyse_effects(design_of(sig, cfg, rc), calib, add, rc)
     return out
 
 

@@ -45,7 +45,8 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from kinadapt_nn.config import EffectsCfg, ExperimentCfg
-from kinadapt_nn.geometry import skew
+from kinadapt_nn.geometry import adjoint_offset
+from kinadapt_nn.sensing import lateral_projector
 
 #: smoothing of sign(omega) in the friction-couple columns [rad/s] (a model constant)
 OMEGA_EPS_RAD_S = 0.005
@@ -93,6 +94,28 @@ def cumulative(rate: np.ndarray, dt: float) -> np.ndarray:
     return out
 
 
+def tip_twist_map(R_wf: np.ndarray, J_arm: np.ndarray, l_nom_f: np.ndarray) -> np.ndarray:
+    """``Ad(R l_nom) J_arm``: joint velocities -> nominal-tip twist [v_tip; omega] (world),
+    eq. ft_factor's middle factor with the nominal offset. (3, 3), (6, n), (3,) -> (6, n)."""
+    return adjoint_offset(R_wf @ l_nom_f) @ J_arm
+
+
+def projector(S: np.ndarray) -> np.ndarray:
+    """S's lateral projector P (2, 3) (``sensing.lateral_projector`` with k_t = |row|)."""
+    return lateral_projector(S, float(np.linalg.norm(S[1, :3])))
+
+
+def moving_average(x: np.ndarray, k: int) -> np.ndarray:
+    """Centred moving average over ``k`` samples along axis 0 (edges: shorter windows)."""
+    if k <= 1 or len(x) < 2:
+        return x
+    c = np.cumsum(np.concatenate([np.zeros((1, *x.shape[1:])), x]), axis=0)
+    i = np.arange(len(x))
+    lo = np.clip(i - k // 2, 0, len(x))
+    hi = np.clip(i + (k - k // 2), 0, len(x))
+    return (c[hi] - c[lo]) / (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
+
+
 def build_signals(rep, log, cfg: ExperimentCfg) -> Signals:
     """From a ``residual.Replay`` and its ``RawLog``: kinematics per sample (the controller's own
     bare-arm MuJoCo model), the tared reading, the contact gate."""
@@ -109,9 +132,7 @@ def build_signals(rep, log, cfg: ExperimentCfg) -> Signals:
     for i in range(n):
         k = kin.update(log.q_rad[i])
         R[i] = k.R_wf
-        xi = k.J_arm @ log.qdot_rad_s[i]
-        twist[i, 3:] = xi[3:]
-        twist[i, :3] = xi[:3] + np.cross(xi[3:], k.R_wf @ l_nom)
+        twist[i] = tip_twist_map(k.R_wf, k.J_arm, l_nom) @ log.qdot_rad_s[i]
     r_tared = np.einsum("nji,nj->ni", R, rep.w_env[:, :3]), np.einsum("nji,nj->ni", R, rep.w_env[:, 3:])
     r_tared = np.concatenate(r_tared, axis=1)
     dt = float(np.median(np.diff(rep.t_s))) if n > 1 else cfg.run.dt_s
@@ -170,7 +191,7 @@ def nominal_parts(sig: Signals) -> LevelParts:
 def _wrench_to_s(w_w: np.ndarray, S: np.ndarray) -> np.ndarray:
     """Level channels from a world wrench tool -> env: F_lat = -P f, F_axial = -n.f (the force
     on the tool along the bore axis), M = -m. (N, 6) -> (N, 6)."""
-    P = -S[1:3, :3] / np.linalg.norm(S[1, :3])  # lateral projector (rows unit)
+    P = projector(S)
     n = S[0, :3]
     out = np.empty((len(w_w), 6))
     out[:, :2] = -w_w[:, :3] @ P.T
@@ -189,10 +210,7 @@ def _smooth_derivative(x: np.ndarray, dt: float, width_s: float = 0.002) -> np.n
     """d/dt of a (N, 3) series, central differences then a ``width_s`` moving average."""
     if len(x) < 3:
         return np.zeros_like(x)
-    d = np.gradient(x, dt, axis=0)
-    k = max(1, int(round(width_s / dt)))
-    ker = np.ones(k) / k
-    return np.stack([np.convolve(d[:, i], ker, "same") for i in range(3)], axis=1)
+    return moving_average(np.gradient(x, dt, axis=0), max(1, int(round(width_s / dt))))
 
 
 def _cols_tool_gravity(sig: Signals) -> Terms:
@@ -292,9 +310,7 @@ def _cols_encoder_offset(sig: Signals, eps: float = 1e-6, grid_s: float = 0.005)
     grid = np.unique(grid)
 
     def tip_map(k) -> np.ndarray:  # (6, 7): [v_tip; omega] = A qdot
-        A = k.J_arm.copy()
-        A[:3] -= skew(k.R_wf @ sig.l_nom_f) @ k.J_arm[3:]  # v_tip = v_O + omega x (R l) = v_O - [R l]x omega
-        return A
+        return tip_twist_map(k.R_wf, k.J_arm, sig.l_nom_f)
 
     base_A = np.empty((len(grid), 6, 7))
     base_R = np.empty((len(grid), 3, 3))

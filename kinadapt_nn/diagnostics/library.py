@@ -31,8 +31,7 @@ def baseline_calibration(baseline: Path, cfg: ExperimentCfg, rc: rk.RankCfg) -> 
     if bcfg.effects.enabled():
         raise KinadaptError(f"--baseline {b}: that run has hidden effects {bcfg.effects.enabled()}; "
                             "calibrate on a run without any")
-    sig = signals_of(b, bcfg)
-    return rk.calibrate(rk.build_design(sig, channel_metric(bcfg.sensing), rc), rc)
+    return rk.calibrate(design_of(signals_of(b, bcfg), bcfg, rc), rc)
 
 
 def save_calibration(path: Path, program: str, calib: dict, source: str) -> None:
@@ -103,10 +102,14 @@ def rerun_with_effects(src: Path, add: list[str]):
     return cfg, result, info
 
 
-def analyse_effects(sig: Signals, cfg: ExperimentCfg, calib: dict | None, add: list[str], rc: rk.RankCfg) -> dict:
+def design_of(sig: Signals, cfg: ExperimentCfg, rc: rk.RankCfg) -> rk.Design:
+    """The regression rows of a log (``ranking.build_design`` with the config's channel metric)."""
+    return rk.build_design(sig, channel_metric(cfg.sensing), rc)
+
+
+def analyse_effects(des: rk.Design, calib: dict | None, add: list[str], rc: rk.RankCfg) -> dict:
     """Ranking, confusion and (for ``add``) the refit with residual before/after."""
     check_effect_names(add)
-    des = rk.build_design(sig, channel_metric(cfg.sensing), rc)
     y = rk.calibrated_residual(des, calib)
     ranking = rk.rank(des, y, rc, calib)
     out = {"ranking": ranking, "confusion": rk.confusion(des),

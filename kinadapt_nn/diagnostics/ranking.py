@@ -44,7 +44,8 @@ from typing import NamedTuple
 import numpy as np
 
 from kinadapt_nn.config import EffectsCfg
-from kinadapt_nn.diagnostics.effects import AXIAL, LEVEL_CHANNELS, LIBRARY, Signals, headline_errors, nominal_parts, physical_report
+from kinadapt_nn.diagnostics.effects import (AXIAL, LEVEL_CHANNELS, LIBRARY, Signals, headline_errors, moving_average,
+                                             nominal_parts, physical_report)
 from kinadapt_nn.errors import KinadaptError
 
 DEFAULT_CALIBRATION = Path(__file__).resolve().parents[2] / "models" / "nominal_calibration.json"
@@ -106,13 +107,13 @@ def build_design(sig: Signals, W6: np.ndarray, rc: RankCfg, names: list[str] | N
     use[:, AXIAL] = ~gate[rows]  # no axial model in contact
     use = use.ravel()
     k_s = max(1, int(round(rc.smooth_s / sig.dt_s)))
-    meas, pint = (_smooth(x, k_s) for x in nominal_parts(sig))
+    meas, pint = (moving_average(x, k_s) for x in nominal_parts(sig))
     y = np.where(con, (meas[rows] - meas[a]) - (pint[rows] - pint[a]), meas[rows])
     y = (y * w).ravel()[use]
     X = {}
     con3 = con[:, :, None]
     for name in names:
-        lev, integ = (None if c is None else _smooth(c, k_s) for c in LIBRARY[name].columns(sig))  # (N, 6, k)
+        lev, integ = (None if c is None else moving_average(c, k_s) for c in LIBRARY[name].columns(sig))  # (N, 6, k)
         k = LIBRARY[name].k
         C = np.zeros((len(rows), nc, k))
         if lev is not None:
@@ -125,18 +126,6 @@ def build_design(sig: Signals, W6: np.ndarray, rc: RankCfg, names: list[str] | N
     block = np.repeat(np.minimum((win[rows] * nb) // n_win, nb - 1), nc)[use]
     return Design(y, X, block, nb, np.tile(np.arange(nc), len(rows))[use], np.tile(w, len(rows))[use],
                   np.repeat(sig.t_s[rows], nc)[use])
-
-
-def _smooth(x: np.ndarray, k: int) -> np.ndarray:
-    """Centred moving average over ``k`` samples along axis 0 (edges: shorter windows)."""
-    if k <= 1 or len(x) < 2:
-        return x
-    c = np.cumsum(np.concatenate([np.zeros((1, *x.shape[1:])), x]), axis=0)
-    i = np.arange(len(x))
-    lo = np.clip(i - k // 2, 0, len(x))
-    hi = np.clip(i + (k - k // 2), 0, len(x))
-    shape = (-1,) + (1,) * (x.ndim - 1)
-    return (c[hi] - c[lo]) / (hi - lo).reshape(shape)
 
 
 def _solve(X: np.ndarray, y: np.ndarray, scale: np.ndarray, ridge: float) -> np.ndarray:
@@ -154,17 +143,24 @@ def _scale(name: str, X: np.ndarray) -> np.ndarray:
     return np.where(d > 0, d, fallback * (np.linalg.norm(X @ d) if d.any() else 1.0))
 
 
+def _joint_fit(des: Design, y: np.ndarray, cols: dict[str, list[int]], ridge: float) -> tuple[np.ndarray, dict]:
+    """One least-squares fit of the named effects' chosen columns together.
+    -> (residual (R,), {effect: full parameter vector (k,), zero outside its chosen columns})."""
+    X = np.concatenate([des.X[n][:, c] for n, c in cols.items()], axis=1)
+    scale = np.concatenate([_scale(n, des.X[n])[c] for n, c in cols.items()])
+    p = _solve(X, y, scale, ridge)
+    out, i = {}, 0
+    for n, c in cols.items():
+        out[n] = np.zeros(LIBRARY[n].k)
+        out[n][c] = p[i:i + len(c)]
+        i += len(c)
+    return y - X @ p, out
+
+
 def calibrate(des: Design, rc: RankCfg) -> dict[str, list[float]]:
     """Joint fit of the whole library on a run without hidden effects (the calibrated nominal)."""
-    names = list(des.X)
-    X = np.concatenate([des.X[n] for n in names], axis=1)
-    scale = np.concatenate([_scale(n, des.X[n]) for n in names])
-    p = _solve(X, des.y, scale, max(rc.ridge, 1e-4))
-    out, i = {}, 0
-    for n in names:
-        out[n] = [float(v) for v in p[i:i + LIBRARY[n].k]]
-        i += LIBRARY[n].k
-    return out
+    _, p = _joint_fit(des, des.y, {n: list(range(X.shape[1])) for n, X in des.X.items()}, max(rc.ridge, 1e-4))
+    return {n: [float(v) for v in pn] for n, pn in p.items()}
 
 
 def calibrated_residual(des: Design, calib: dict[str, list[float]] | None) -> np.ndarray:
@@ -342,16 +338,7 @@ def refit(des: Design, y: np.ndarray, names: list[str], rc: RankCfg) -> tuple[np
             cols[n] = [int(np.argmin(sse))]
         else:
             cols[n] = list(range(X.shape[1]))
-    X = np.concatenate([des.X[n][:, cols[n]] for n in names], axis=1)
-    scale = np.concatenate([_scale(n, des.X[n])[cols[n]] for n in names])
-    p = _solve(X, y, scale, rc.ridge)
-    out, i = {}, 0
-    for n in names:
-        full = np.zeros(LIBRARY[n].k)
-        full[cols[n]] = p[i:i + len(cols[n])]
-        out[n] = full
-        i += len(cols[n])
-    return y - X @ p, out
+    return _joint_fit(des, y, cols, rc.ridge)
 
 
 def rms_by_channel(des: Design, e: np.ndarray) -> dict:

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from kinadapt_nn.config import ExperimentCfg, arm_mjcf_path
-from kinadapt_nn.diagnostics.effects import LIBRARY, Signals
+from kinadapt_nn.diagnostics.effects import LIBRARY, Signals, projector, tip_twist_map
 from kinadapt_nn.features.base import Features, KinState, Regressor
 
 #: s rows 1..5 (F_lat x, y, M x, y, z) <- level channels (F_lat x, y, F_axial, M x, y, z)
@@ -38,7 +38,7 @@ class EffectFeatures(Features):
         self.n_params = self.p0 + self.k
         self.name = base.name + "+" + "+".join(effects)
         self.S = S
-        self._P = -S[1:3, :3] / np.linalg.norm(S[1, :3])  # lateral projector (2, 3)
+        self._P = projector(S)  # lateral projector (2, 3)
         self._n = S[0, :3]  # bore axis
         self.l_nom = np.asarray(cfg.sensing.nominal_offset_f_m, dtype=float)
         self.dt = cfg.run.dt_s
@@ -79,8 +79,7 @@ class EffectFeatures(Features):
         if not active:
             self._prev_level = None
             return Regressor(reg.known, Phi)
-        xi = kin.J_arm @ qdot
-        twist = np.r_[xi[:3] + np.cross(xi[3:], R @ self.l_nom), xi[3:]]
+        twist = tip_twist_map(R, kin.J_arm, self.l_nom) @ qdot
         r_tared = np.r_[R.T @ w[:3], R.T @ w[3:]]
         sig = Signals(np.array([t]), self.dt, s[None], w[None], r_tared[None], R[None], twist[None],
                       np.array([1.0 if s[0] >= 0.0 else 0.0]), np.array([True]), self.t_tare, self._R_tare,
