@@ -1,0 +1,404 @@
+"""Which effect is missing, with an honest verdict: forward selection by block cross-validation.
+
+Data: rows ``y`` (R,) of a residual and, per effect, columns ``X_e`` (R, k_e) linear in its
+physical parameters, plus nuisance columns ``Z`` (R, z) that are always in the model (e.g. a tared
+log's unknown offset). Columns are scaled by each parameter's *relevant magnitude* (the smallest
+value worth reporting), so a parameter of 1 in scaled units is "just worth reporting".
+
+Criterion: block cross-validation over contiguous time blocks (a block's correlated residual
+stays together). Everything is computed from per-block Gram matrices (``A_b^T A_b``, ``A_b^T y_b``,
+``y_b^T y_b`` of all columns at once), so a leave-one-block-out fit of any column subset costs one
+small solve.
+
+Forward selection: each round tests every remaining candidate (an effect, or one column of a "one
+of" effect) *given* the selected ones: held-out SSE reduction (``gain``), and a Hotelling-type test
+of its parameters with the block-jackknife covariance (``p_value``; Bonferroni over a "one of"
+choice; Benjamini-Hochberg across the round). The best candidate is selected when adjusted p <
+``alpha``, it explains >= ``min_explained`` of what the selected model leaves held-out, and its
+estimate reaches its relevant magnitude somewhere.
+
+Verdicts (``verdict`` of each effect):
+* ``present``: selected, its jointly re-estimated parameters physically possible, no near-tie;
+* ``cannot_decide``: a near-tie (another candidate explains nearly as much and nothing more once
+  either is in the model: ``indistinguishable_from``), an impossible estimate, a failed sign
+  check, or not selected while some direction of it is too weakly excited to rule it out
+  (``unexcited`` + the motion that would excite it);
+* ``absent``: not selected, and a relevant-size effect in its weakest direction would have
+  explained at least ``min_excitation`` of the remaining residual.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, NamedTuple
+
+import numpy as np
+
+
+class SelCfg(NamedTuple):
+    alpha: float = 0.01  #: false-discovery level of each round's tests
+    min_explained: float = 0.05  #: [-] smallest held-out share of the remaining residual called an effect
+    min_excitation: float = 0.1  #: [-] a relevant-size effect must explain this share to call it absent
+    tie_ratio: float = 0.5  #: [-] a runner-up with this share of the best gain may be a near-tie
+    tie_p: float = 0.01  #: one-sided paired block test: best beats the runner-up below this p
+    ridge: float = 1e-9  #: [-] relative Tikhonov term on the scaled Gram
+
+
+class Design(NamedTuple):
+    """Regression rows (R) of a residual, effect columns and nuisance columns."""
+
+    y: np.ndarray  #: (R,) weighted residual rows
+    X: dict  #: effect -> (R, k) columns (weighted, unscaled: physical parameters)
+    Z: np.ndarray  #: (R, z) nuisance columns, always fitted
+    block: np.ndarray  #: (R,) block index
+    n_blocks: int
+    scale: dict  #: effect -> (k,) relevant magnitude of each parameter
+    one_of: dict  #: effect -> bool
+    W: np.ndarray  #: (R,) weight of each row (row value = W * physical residual)
+    channel: np.ndarray  #: (R,) channel index of each row
+    channel_names: tuple  #: names of the channels
+    t_s: np.ndarray  #: (R,) time of each row [s]
+
+
+class Stats:
+    """Per-block Gram statistics of ``[Z, X_e1 * d_e1, ...]`` (scaled columns) and ``y``."""
+
+    def __init__(self, des: Design) -> None:
+        self.names = list(des.X)
+        blocks = [des.Z * (1.0 / np.maximum(np.linalg.norm(des.Z, axis=0), 1e-300))] if des.Z.shape[1] else []
+        self.idx: dict[str, np.ndarray] = {}
+        k0 = des.Z.shape[1]
+        self.z_idx = np.arange(k0)
+        self.z_scale = 1.0 / np.maximum(np.linalg.norm(des.Z, axis=0), 1e-300) if k0 else np.zeros(0)
+        for n in self.names:
+            k = des.X[n].shape[1]
+            self.idx[n] = np.arange(k0, k0 + k)
+            k0 += k
+            blocks.append(des.X[n] * np.asarray(des.scale[n])[None, :])
+        A = np.concatenate(blocks, axis=1) if blocks else np.zeros((len(des.y), 0))
+        self.A = A
+        B = des.n_blocks
+        K = A.shape[1]
+        self.G = np.zeros((B, K, K))
+        self.h = np.zeros((B, K))
+        self.yy = np.zeros(B)
+        for b in range(B):
+            m = des.block == b
+            Ab, yb = A[m], des.y[m]
+            self.G[b] = Ab.T @ Ab
+            self.h[b] = Ab.T @ yb
+            self.yy[b] = float(yb @ yb)
+        self.Gt, self.ht, self.yyt = self.G.sum(0), self.h.sum(0), float(self.yy.sum())
+        self.present = np.array([self.yy[b] > 0 or np.any(self.G[b]) for b in range(B)])
+        #: absolute ridge floor: a column whose energy is this small (relative to the average
+        #: relevant-size column) is unexcited and its parameter stays at 0
+        self.ridge_abs = 1e-9 * (float(np.trace(self.Gt)) / max(K, 1) + 1e-300)
+        self.B = int(self.present.sum())
+
+    def solve(self, G: np.ndarray, h: np.ndarray, ridge: float) -> np.ndarray:
+        if len(h) == 0:
+            return np.zeros(0)
+        lam = ridge * (np.trace(G) / len(G)) + self.ridge_abs
+        try:
+            return np.linalg.solve(G + lam * np.eye(len(G)), h)
+        except np.linalg.LinAlgError:
+            return np.linalg.lstsq(G + lam * np.eye(len(G)), h, rcond=None)[0]
+
+    def cv(self, idx: np.ndarray, ridge: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Leave-one-block-out fits of the columns ``idx``: (held-out SSE per block (B,), the
+        estimates (B, k), the full-data estimate (k,)), parameters in scaled units."""
+        G, h = self.Gt[np.ix_(idx, idx)], self.ht[idx]
+        sse = np.zeros(len(self.yy))
+        reps = np.zeros((len(self.yy), len(idx)))
+        for b in range(len(self.yy)):
+            if not self.present[b]:
+                continue
+            Gb, hb = self.G[b][np.ix_(idx, idx)], self.h[b][idx]
+            p = self.solve(G - Gb, h - hb, ridge)
+            reps[b] = p
+            sse[b] = self.yy[b] - 2.0 * p @ hb + p @ Gb @ p
+        return sse, reps[self.present], self.solve(G, h, ridge)
+
+    def fit(self, idx: np.ndarray, ridge: float) -> np.ndarray:
+        return self.solve(self.Gt[np.ix_(idx, idx)], self.ht[idx], ridge)
+
+    def schur(self, cand: np.ndarray, base: np.ndarray) -> np.ndarray:
+        """Gram of ``cand`` columns with ``base`` columns projected out (scaled units)."""
+        Gcc = self.Gt[np.ix_(cand, cand)]
+        if len(base) == 0:
+            return Gcc
+        Gbb = self.Gt[np.ix_(base, base)]
+        Gbc = self.Gt[np.ix_(base, cand)]
+        lam = 1e-12 * (np.trace(Gbb) / len(Gbb) + 1e-300)
+        return Gcc - Gbc.T @ np.linalg.solve(Gbb + lam * np.eye(len(Gbb)), Gbc)
+
+
+def _wald_pvalue(p: np.ndarray, cov: np.ndarray, B: int) -> float:
+    """Hotelling-type test of ``p = 0`` with a block-jackknife covariance from B blocks:
+    ``F = (B - r) / (r (B - 1)) p^T cov^+ p ~ F(r, B - r)``, r the numerical rank of cov."""
+    from scipy.stats import f as f_dist
+
+    if len(p) == 0:
+        return 1.0
+    lam, V = np.linalg.eigh(cov)
+    keep = lam > 1e-10 * max(lam.max(), 1e-300)
+    r = int(keep.sum())
+    if r == 0 or B - r < 1:
+        return 1.0
+    z = V[:, keep].T @ p
+    t2 = float(np.sum(z**2 / lam[keep]))
+    return float(f_dist.sf((B - r) / (r * (B - 1)) * t2, r, B - r))
+
+
+def _jackknife_cov(reps: np.ndarray) -> np.ndarray:
+    B = len(reps)
+    dev = reps - reps.mean(axis=0)
+    return (B - 1) / B * dev.T @ dev
+
+
+@dataclass
+class Candidate:
+    """One candidate tested given the selected set."""
+
+    effect: str
+    cols: list[int]  #: the effect's columns used
+    gain: np.ndarray  #: (B,) held-out SSE reduction per block
+    sse: np.ndarray  #: (B,) held-out SSE with it
+    p: np.ndarray  #: (k_used,) full-data estimate (scaled units)
+    cov: np.ndarray  #: (k_used, k_used) block-jackknife covariance (scaled)
+    p_value: float
+    p_adjusted: float = 1.0
+    choice_gains: dict = field(default_factory=dict)  #: column -> total gain (one-of effects)
+
+
+def _test(st: Stats, des: Design, name: str, base: np.ndarray, sse_base: np.ndarray, rc: SelCfg,
+          only_cols: list[int] | None = None) -> Candidate:
+    k = des.X[name].shape[1]
+    choices = [[j] for j in range(k)] if des.one_of[name] else [list(range(k))]
+    if only_cols is not None:
+        choices = [only_cols]
+    best = None
+    gains = {}
+    for cols in choices:
+        idx = np.concatenate([base, st.idx[name][cols]])
+        sse, reps, p = st.cv(idx, rc.ridge)
+        gain = sse_base - sse
+        gains[tuple(cols)] = float(gain.sum())
+        if best is None or gain.sum() > best[1].sum():
+            best = (cols, gain, sse, reps[:, len(base):], p[len(base):])
+    cols, gain, sse, reps, p = best
+    cov = _jackknife_cov(reps)
+    pval = min(1.0, _wald_pvalue(p, cov, len(reps)) * (len(choices) if only_cols is None else 1))
+    return Candidate(name, list(cols), gain, sse, p, cov, pval, choice_gains=gains)
+
+
+def _paired_p(a: np.ndarray, b: np.ndarray) -> float:
+    """One-sided p that ``a`` (per-block SSE) is smaller than ``b`` on average (t over blocks)."""
+    from scipy.stats import t as t_dist
+
+    d = b - a
+    n = len(d)
+    if n < 3:
+        return 1.0
+    sd = float(np.std(d, ddof=1))
+    if sd == 0.0:
+        return 0.0 if d.mean() > 0 else 1.0
+    return float(t_dist.sf(d.mean() / (sd / np.sqrt(n)), n - 1))
+
+
+class Selection(NamedTuple):
+    """The outcome of ``select`` (everything in scaled units; ``report`` turns it physical)."""
+
+    entries: list  #: one dict per effect (see ``select``)
+    present: dict  #: effect -> (cols, joint estimate (k,) physical, sd (k,) physical)
+    sse_total: float  #: SSE of the residual after the nuisance fit
+    sse_after: float  #: held-out SSE of the final model
+    nuisance: np.ndarray  #: (z,) nuisance estimate (physical column units)
+
+
+def select(des: Design, rc: SelCfg = SelCfg(), plausible: Callable[[str, np.ndarray], str | None] | None = None,
+           hints: dict | None = None, block_all: str | None = None) -> Selection:
+    """Forward selection and verdicts (module docstring). ``plausible(effect, params_physical)``
+    returns why an estimate is impossible (or None); ``hints`` effect -> the motion that excites
+    it; ``block_all``: a reason that makes every verdict ``cannot_decide`` (e.g. a failed sign
+    check)."""
+    from scipy.stats import false_discovery_control
+
+    hints = hints or {}
+    st = Stats(des)
+    names = st.names
+    base = st.z_idx.copy()
+    sse0, _, _ = st.cv(base, rc.ridge)
+    sse_total = float(sse0.sum()) or 1e-300
+    alone = {n: _test(st, des, n, base, sse0, rc) for n in names}
+    last = dict(alone)
+    selected: list[tuple[str, list[int]]] = []
+    ties: dict[str, set[str]] = {}
+    tie_labels: dict[str, list[str]] = {}
+    sse_sel = sse0
+    rounds = 0
+    while len(selected) < len(names):
+        cand = [n for n in names if n not in {s for s, _ in selected}]
+        cur = np.concatenate([base, *[st.idx[s][c] for s, c in selected]]) if selected else base
+        tests = alone if not selected else {n: _test(st, des, n, cur, sse_sel, rc) for n in cand}
+        tests = {n: tests[n] for n in cand}
+        padj = false_discovery_control([tests[n].p_value for n in cand], method="bh") if cand else []
+        for n, pa in zip(cand, padj):
+            tests[n].p_adjusted = float(pa)
+            last[n] = tests[n]
+        rest = float(sse_sel.sum()) or 1e-300
+
+        def eligible(t: Candidate) -> bool:
+            big = np.max(np.abs(t.p)) >= 1.0 if len(t.p) else False  # scaled: 1 = relevant magnitude
+            return t.p_adjusted < rc.alpha and t.gain.sum() / rest >= rc.min_explained and big
+
+        ok = [n for n in cand if eligible(tests[n])]
+        if not ok:
+            break
+        best = max(ok, key=lambda n: tests[n].gain.sum())
+        t = tests[best]
+        # near-ties: another effect, or another column of a one-of effect, that explains nearly as much
+        # and nothing more once the best is in the model (and is not significantly worse block by block)
+        rivals: list[str] = []
+        for n in cand:
+            if n == best or tests[n].gain.sum() < rc.tie_ratio * t.gain.sum() or tests[n].gain.sum() <= 0:
+                continue
+            cur_b = np.concatenate([cur, st.idx[best][t.cols]])
+            given = _test(st, des, n, cur_b, t.sse, rc)
+            if given.gain.sum() / (float(t.sse.sum()) or 1e-300) < rc.min_explained and \
+                    _paired_p(t.sse, tests[n].sse) > rc.tie_p:
+                rivals.append(n)
+        if des.one_of[best]:
+            for cols, g in t.choice_gains.items():
+                if list(cols) == t.cols or g < rc.tie_ratio * t.gain.sum():
+                    continue
+                alt = _test(st, des, best, cur, sse_sel, rc, only_cols=list(cols))
+                if _paired_p(t.sse, alt.sse) > rc.tie_p:
+                    tie_labels.setdefault(best, []).append(
+                        f"{best}:{des_param(des, best, cols[0], hints)}")
+        if rivals:
+            grp = {best, *rivals}
+            for n in grp:
+                ties.setdefault(n, set()).update(grp - {n})
+        t.p_adjusted = float(t.p_adjusted)
+        selected.append((best, t.cols))
+        sse_sel = t.sse
+        rounds += 1
+    # joint re-estimate of everything selected
+    sel_idx = np.concatenate([base, *[st.idx[s][c] for s, c in selected]]) if selected else base
+    sse_fin, reps, p_all = st.cv(sel_idx, rc.ridge)
+    cov_all = _jackknife_cov(reps)
+    present: dict[str, tuple] = {}
+    joint: dict[str, tuple] = {}
+    i = len(base)
+    for s, c in selected:
+        sc = np.asarray(des.scale[s])[c]
+        k = len(c)
+        joint[s] = (c, p_all[i:i + k] * sc, np.sqrt(np.clip(np.diag(cov_all)[i:i + k], 0, None)) * sc)
+        i += k
+    nuis = p_all[:len(base)] * st.z_scale if len(base) else np.zeros(0)
+    sse_ref = max(float(sse_fin.sum()), 1e-4 * len(des.y))
+    entries = []
+    for n in names:
+        t = last[n]
+        k = des.X[n].shape[1]
+        scale = np.asarray(des.scale[n])
+        e: dict = {"effect": n, "explained_fraction": float(t.gain.sum() / sse_total),
+                   "explained_fraction_alone": float(alone[n].gain.sum() / sse_total),
+                   "p_value": float(t.p_value), "p_adjusted": float(t.p_adjusted)}
+        sel = n in joint
+        if sel:
+            c, pv, sd = joint[n]
+        else:
+            c = t.cols
+            pv = t.p * scale[c]
+            sd = np.sqrt(np.clip(np.diag(t.cov), 0, None)) * scale[c]
+        p_full, sd_full = np.zeros(k), np.zeros(k)
+        p_full[c], sd_full[c] = pv, sd
+        e["params"], e["sd"], e["columns_used"] = p_full, sd_full, list(c)
+        # excitation: a relevant-size effect in each column/direction, given the final model minus itself
+        others = np.concatenate([base, *[st.idx[s][cc] for s, cc in selected if s != n]])
+        if des.one_of[n]:
+            lam = np.array([float(st.schur(st.idx[n][[j]], others)[0, 0]) for j in range(k)])
+            weak = [j for j in range(k) if lam[j] / sse_ref < rc.min_excitation]
+            ratio = float(lam.min() / sse_ref)
+        else:
+            S = st.schur(st.idx[n], others)
+            ev, V = np.linalg.eigh(S)
+            ratio = float(ev[0] / sse_ref)
+            weak = sorted({int(np.argmax(np.abs(V[:, a]))) for a in range(k) if ev[a] / sse_ref < rc.min_excitation})
+        e["excitation"] = {"ratio": ratio, "enough": not weak, "weak_parameters": weak}
+        reason = None
+        if block_all:
+            verdict, reason = "cannot_decide", block_all
+        elif sel:
+            why = plausible(n, p_full) if plausible else None
+            if why:
+                verdict, reason = "cannot_decide", f"physically impossible estimate: {why}"
+            elif n in ties or n in tie_labels:
+                verdict = "cannot_decide"
+                reason = "a near-tie: another explanation fits the data as well"
+            else:
+                verdict = "present"
+        elif n in ties:
+            verdict, reason = "cannot_decide", "a near-tie: another explanation fits the data as well"
+        elif weak:
+            verdict = "cannot_decide"
+            reason = "not excited enough to rule out"
+        else:
+            verdict = "absent"
+        e["verdict"], e["reason"] = verdict, reason
+        e["significant"] = verdict == "present"
+        e["selected_round"] = next((r for r, (s, _) in enumerate(selected) if s == n), None)
+        if n in ties or n in tie_labels:
+            e["indistinguishable_from"] = sorted(ties.get(n, set())) + tie_labels.get(n, [])
+            e["to_separate"] = " / ".join(hints.get(x.split(":")[0], "") for x in [n, *sorted(ties.get(n, set()))])
+        if verdict == "cannot_decide" and weak and not sel:
+            e["to_excite"] = hints.get(n, "")
+        if verdict == "present":
+            present[n] = joint[n]
+        entries.append(e)
+    order = {"present": 0, "cannot_decide": 1, "absent": 2}
+    entries.sort(key=lambda e: (e["selected_round"] is None, e["selected_round"] or 0, order[e["verdict"]],
+                                -e["explained_fraction"]))
+    return Selection(entries, present, sse_total, float(sse_fin.sum()), nuis)
+
+
+def des_param(des: Design, name: str, col: int, hints: dict) -> str:
+    """Label of one column of a one-of effect (``param_names`` in ``hints['_params']``)."""
+    params = hints.get("_params", {}).get(name)
+    return params[col] if params else f"col{col}"
+
+
+def refit(des: Design, names: list[str], rc: SelCfg = SelCfg()) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Fit the nuisance alone and with ``names`` (a one-of effect keeps its best column) on all
+    rows. -> (residual rows before (R,), after (R,), {effect: (cols, params physical (k,))})."""
+    st = Stats(des)
+    base = st.z_idx
+    p0 = st.fit(base, rc.ridge)
+    before = des.y - st.A[:, base] @ p0
+    idx = [base]
+    chosen = {}
+    for n in names:
+        k = des.X[n].shape[1]
+        if des.one_of[n]:
+            sse = []
+            for j in range(k):
+                ii = np.concatenate([base, st.idx[n][[j]]])
+                p = st.fit(ii, rc.ridge)
+                sse.append(float(np.sum((des.y - st.A[:, ii] @ p) ** 2)))
+            chosen[n] = [int(np.argmin(sse))]
+        else:
+            chosen[n] = list(range(k))
+        idx.append(st.idx[n][chosen[n]])
+    ii = np.concatenate(idx)
+    p = st.fit(ii, rc.ridge)
+    after = des.y - st.A[:, ii] @ p
+    out, i = {}, len(base)
+    for n in names:
+        c = chosen[n]
+        full = np.zeros(des.X[n].shape[1])
+        full[c] = p[i:i + len(c)] * np.asarray(des.scale[n])[c]
+        out[n] = (c, full)
+        i += len(c)
+    return before, after, out

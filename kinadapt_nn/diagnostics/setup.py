@@ -1,0 +1,237 @@
+"""The setup file: what a user knows about *their* robot, sensor, tool and log (TOML).
+
+``kinadapt diagnose LOG --setup SETUP.toml`` judges the log against the physical nominal model
+this file declares (``kinadapt_nn.diagnostics.physical``): the declared tool's rigid-body wrench
+(gravity and inertia from the encoders) in free space, and "contacts act through the declared
+tip" in contact. Nothing here comes from this package's simulator. Validated like every config
+(frozen pydantic models, ``extra="forbid"``: an unknown key, a wrong type or an out-of-range value
+is a one-line ``ConfigError``), and written beside the result (``setup.toml``).
+
+Frames. ``f`` the flange frame of the arm model (``arm.flange_site``), ``s`` the F/T sensor frame
+(``sensor.position_flange_m``, ``sensor.rpy_flange_deg``: origin in ``f`` and the rotation
+``R_fs = Rz(yaw) Ry(pitch) Rx(roll)``, roll/pitch/yaw about the flange's fixed x, y, z axes). The
+tool is everything distal of the sensor, described in ``s``. Template (every key shown with its
+default; ``examples/setups/`` has complete ones)::
+
+    [log]
+    time = "t"                 # column names in the user's file (ROS 2 bag: see the topics)
+    time_scale_s = 1.0         # seconds per unit of the time column (1e-9 for nanosecond stamps)
+    q = ["q1", "q2", "q3", "q4", "q5", "q6", "q7"]
+    qdot = []                  # optional: 7 names; empty = differentiate q
+    angle_unit = "rad"         # or "deg" (q and qdot)
+    wrench = ["fx", "fy", "fz", "tx", "ty", "tz"]   # N, N m, sensor frame, about its origin
+    wrench_acts = "tool_on_sensor"                  # or "sensor_on_tool"
+    tared = false              # true: zeroed at an unknown pose (offset estimated jointly)
+    joint_state_topic = "/joint_states"             # ROS 2 bags: sensor_msgs/JointState
+    wrench_topic = "/ft_sensor/wrench"              # ROS 2 bags: geometry_msgs/WrenchStamped
+    [sensor]
+    position_flange_m = [0.0, 0.0, 0.0]
+    rpy_flange_deg = [0.0, 0.0, 0.0]
+    [tool]
+    mass_kg = 0.0
+    com_sensor_m = [0.0, 0.0, 0.0]
+    inertia_com_kg_m2 = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]   # ixx, iyy, izz, ixy, ixz, iyz about the COM, s axes
+    tip_sensor_m = [0.0, 0.0, 0.0]
+    [arm]
+    mjcf = ""                  # "" = the shipped Panda
+    flange_site = "flange"
+    [contact]
+    mode = "tip"               # "tip": contacts act through the declared tip; "none": free-space log
+    detect_force_N = 4.0       # a sample is in contact when the force beyond the tool model exceeds this
+    margin_s = 0.1             # contact windows are widened by this on each side
+    [analysis]
+    exclude_s = []             # [[t0, t1], ...] windows left out [s from the first sample]
+    effects = []               # only these effects (empty: all that apply)
+    exclude_effects = []       # leave these out
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from pydantic import Field, field_validator, model_validator
+
+from kinadapt_nn.config import Vec3, Vec6, _Cfg, load_toml_model
+from kinadapt_nn.errors import ConfigError
+
+SETUP_EXAMPLE = "examples/setups/panda_flat_contact.toml"
+#: the effects judged on a user's log (``kinadapt_nn.diagnostics.physical``)
+PHYSICAL_EFFECTS = ("tool_gravity", "ft_bias_drift", "ft_frame_rotation", "encoder_offset", "tool_tilt", "ft_offset")
+
+
+def rpy_matrix(rpy_rad: np.ndarray) -> np.ndarray:
+    """``Rz(yaw) Ry(pitch) Rx(roll)`` for ``rpy = (roll, pitch, yaw)`` [rad]. (3,) -> (3, 3)."""
+    r, p, y = (float(a) for a in rpy_rad)
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
+
+
+def inertia_matrix(v) -> np.ndarray:
+    """(ixx, iyy, izz, ixy, ixz, iyz) -> (3, 3) symmetric matrix."""
+    ixx, iyy, izz, ixy, ixz, iyz = (float(x) for x in v)
+    return np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+
+
+def _finite(v, name: str):
+    arr = np.atleast_1d(np.asarray(v, dtype=float))
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite")
+    return v
+
+
+class LogCfg(_Cfg):
+    """Where each quantity is in the user's file, and its conventions."""
+
+    time: str = "t"  # column name of the time stamps
+    time_scale_s: float = Field(1.0, gt=0.0)  # [s per unit] of the time column
+    q: tuple[str, str, str, str, str, str, str] = ("q1", "q2", "q3", "q4", "q5", "q6", "q7")  # joint positions
+    qdot: tuple[str, ...] = ()  # joint velocities (7 names) or empty: differentiate q
+    angle_unit: Literal["rad", "deg"] = "rad"  # unit of q and qdot (per s)
+    wrench: tuple[str, str, str, str, str, str] = ("fx", "fy", "fz", "tx", "ty", "tz")  # [N, N m] sensor frame
+    wrench_acts: Literal["tool_on_sensor", "sensor_on_tool"] = "tool_on_sensor"  # which body's wrench on which
+    tared: bool = False  # true: zeroed at an unknown pose before/while logging
+    joint_state_topic: str = "/joint_states"  # ROS 2 bag: sensor_msgs/msg/JointState topic
+    wrench_topic: str = "/ft_sensor/wrench"  # ROS 2 bag: geometry_msgs/msg/WrenchStamped topic
+
+    @field_validator("qdot")
+    @classmethod
+    def _qdot_len(cls, v):
+        if len(v) not in (0, 7):
+            raise ValueError(f"give 7 joint-velocity column names or none (got {len(v)})")
+        return v
+
+    @field_validator("time_scale_s")
+    @classmethod
+    def _ts_finite(cls, v):
+        return _finite(v, "time_scale_s")
+
+    @model_validator(mode="after")
+    def _distinct(self):
+        names = [self.time, *self.q, *self.qdot, *self.wrench]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"column '{dup[0]}' is named twice; every quantity needs its own column")
+        return self
+
+    @property
+    def sign(self) -> float:
+        """+1 when the log holds the wrench the tool exerts on the sensor, -1 for the reverse."""
+        return 1.0 if self.wrench_acts == "tool_on_sensor" else -1.0
+
+
+class SensorCfg(_Cfg):
+    """The F/T sensor frame s in the flange frame f."""
+
+    position_flange_m: Vec3 = (0.0, 0.0, 0.0)  # [m] origin of s in f
+    rpy_flange_deg: Vec3 = (0.0, 0.0, 0.0)  # [deg] R_fs = Rz(yaw) Ry(pitch) Rx(roll) (fixed flange axes)
+
+    @field_validator("position_flange_m", "rpy_flange_deg")
+    @classmethod
+    def _fin(cls, v):
+        return _finite(v, "the value")
+
+    def R_fs(self) -> np.ndarray:
+        """(3, 3) rotation of the sensor axes in the flange frame."""
+        return rpy_matrix(np.deg2rad(np.asarray(self.rpy_flange_deg, dtype=float)))
+
+
+class ToolDeclCfg(_Cfg):
+    """The nominal tool: everything distal of the sensor, in the sensor frame s."""
+
+    mass_kg: float = Field(0.0, ge=0.0)  # [kg]
+    com_sensor_m: Vec3 = (0.0, 0.0, 0.0)  # [m] centre of mass in s
+    inertia_com_kg_m2: Vec6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # [kg m^2] ixx, iyy, izz, ixy, ixz, iyz about the COM, s axes
+    tip_sensor_m: Vec3 = (0.0, 0.0, 0.0)  # [m] the tip (where contacts act) in s
+
+    @field_validator("mass_kg", "com_sensor_m", "inertia_com_kg_m2", "tip_sensor_m")
+    @classmethod
+    def _fin(cls, v):
+        return _finite(v, "the value")
+
+    @field_validator("inertia_com_kg_m2")
+    @classmethod
+    def _psd(cls, v):
+        ev = np.linalg.eigvalsh(inertia_matrix(v))
+        if ev.min() < -1e-12 * max(1.0, abs(ev).max()):
+            raise ValueError("the inertia is not positive semi-definite (check the order ixx, iyy, izz, ixy, ixz, iyz)")
+        return v
+
+    def inertia(self) -> np.ndarray:
+        """(3, 3) inertia about the COM in s axes [kg m^2]."""
+        return inertia_matrix(self.inertia_com_kg_m2)
+
+
+class ArmDeclCfg(_Cfg):
+    mjcf: str = ""  # arm model file; "" = the shipped Panda (models/panda.xml)
+    flange_site: str = "flange"  # the MJCF site whose frame is the flange f
+
+    def path(self) -> Path:
+        from kinadapt_nn.robot import PANDA_MJCF
+
+        return Path(self.mjcf) if self.mjcf else PANDA_MJCF
+
+
+class ContactDeclCfg(_Cfg):
+    mode: Literal["tip", "none"] = "tip"  # "tip": contacts act through the declared tip; "none": no contact in the log
+    detect_force_N: float = Field(4.0, gt=0.0)  # [N] force beyond the tool model that marks contact
+    margin_s: float = Field(0.1, ge=0.0)  # [s] contact windows widened by this on each side
+
+    @field_validator("detect_force_N", "margin_s")
+    @classmethod
+    def _fin(cls, v):
+        return _finite(v, "the value")
+
+
+class AnalysisCfg(_Cfg):
+    exclude_s: tuple[tuple[float, float], ...] = ()  # [s] windows [t0, t1] (from the first sample) left out
+    effects: tuple[str, ...] = ()  # only these effects (empty: every one that applies)
+    exclude_effects: tuple[str, ...] = ()  # leave these effects out
+
+    @field_validator("exclude_s")
+    @classmethod
+    def _windows(cls, v):
+        for a, b in v:
+            if not (math.isfinite(a) and math.isfinite(b)) or b <= a:
+                raise ValueError(f"window [{a}, {b}] must be finite with t0 < t1")
+        return v
+
+    @field_validator("effects", "exclude_effects")
+    @classmethod
+    def _known(cls, v):
+        for n in v:
+            if n not in PHYSICAL_EFFECTS:
+                raise ValueError(f"unknown effect '{n}' (choose from {', '.join(PHYSICAL_EFFECTS)})")
+        return v
+
+
+class SetupCfg(_Cfg):
+    """A user's set-up (module docstring)."""
+
+    log: LogCfg = LogCfg()
+    sensor: SensorCfg = SensorCfg()
+    tool: ToolDeclCfg = ToolDeclCfg()
+    arm: ArmDeclCfg = ArmDeclCfg()
+    contact: ContactDeclCfg = ContactDeclCfg()
+    analysis: AnalysisCfg = AnalysisCfg()
+
+
+def load_setup(path: Path | None, overrides: list[str] | tuple[str, ...] = ()) -> SetupCfg:
+    """Load and validate a setup file (``None``: defaults); one-line ``ConfigError`` otherwise."""
+    cfg = load_toml_model(SetupCfg, path, overrides, SETUP_EXAMPLE)
+    return cfg
+
+
+def setup_to_toml(cfg: SetupCfg) -> str:
+    from kinadapt_nn.config import config_to_toml
+
+    return config_to_toml(cfg)
+
+
+__all__ = ["SetupCfg", "LogCfg", "SensorCfg", "ToolDeclCfg", "ArmDeclCfg", "ContactDeclCfg", "AnalysisCfg",
+           "load_setup", "setup_to_toml", "rpy_matrix", "inertia_matrix", "ConfigError"]
