@@ -194,8 +194,74 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_diagnose_setup(args: argparse.Namespace) -> int:
+    """``kinadapt diagnose LOG --setup SETUP.toml``: a user's log against their declared set-up."""
+    import time
+
+    from kinadapt_nn.diagnostics import userfigures as uf
+    from kinadapt_nn.diagnostics.readers import read_log
+    from kinadapt_nn.diagnostics.setup import load_setup, setup_to_toml
+    from kinadapt_nn.diagnostics.userlog import diagnose
+    from kinadapt_nn.runio import check_output_dir, staged_output, write_json
+
+    for opt in ("config", "theta", "baseline", "calibration", "save_calibration"):
+        if getattr(args, opt, None):
+            raise KinadaptError(f"--{opt.replace('_', '-')} is for this package's own runs; with --setup the model is "
+                                "the declared set-up (drop the option)")
+    if args.rerun or args.no_calibration:
+        raise KinadaptError("--rerun/--no-calibration are for this package's own runs; drop them with --setup")
+    setup = load_setup(Path(args.setup), args.set or [])
+    out = Path(args.out) if args.out else _default_out("diagnose")
+    check_output_dir(out, args.overwrite)
+    t0 = time.perf_counter()
+
+    def progress(msg: str) -> None:
+        if not args.quiet:
+            print(f"kinadapt diagnose [{time.perf_counter() - t0:5.1f} s] {msg}", file=sys.stderr, flush=True)
+
+    progress(f"reading {args.log}")
+    log = read_log(Path(args.log), setup)
+    res = diagnose(log, setup, list(args.add or []), progress=progress)
+    progress("writing figures")
+    with staged_output(out, args.overwrite) as stage:
+        (stage / "setup.toml").write_text(setup_to_toml(setup))
+        write_json(stage / "diagnosis.json", {"format": "kinadapt-diagnosis", "version": 3, "kind": "user_log",
+                                               "source": log.source, "setup_file": str(args.setup),
+                                               "summary": res.report["summary"],
+                                               **{k: v for k, v in res.report.items() if k != "summary"},
+                                               "wall_time_s": time.perf_counter() - t0})
+        uf.model_vs_measurement(res, setup, stage / "residual.png")
+        uf.effects_figure(res, stage / "effects.png")
+    if not args.quiet:
+        if not res.report["sign_check"]["ok"]:
+            print(f"kinadapt: warning: {res.report['sign_check']['message']}", file=sys.stderr)
+        print(res.report["summary"])
+        print(f"wrote {out}/ (diagnosis.json, setup.toml, residual.png, effects.png)")
+    return 0
+
+
+def cmd_setup_template(args: argparse.Namespace) -> int:
+    """Print (or write) a setup-file template for ``kinadapt diagnose LOG --setup``."""
+    from kinadapt_nn.diagnostics.setup import template_text
+    from kinadapt_nn.runio import write_text_atomic
+
+    text = template_text()
+    if args.out:
+        p = Path(args.out)
+        if p.exists() and not args.overwrite:
+            raise KinadaptError(f"'{p}' already exists (pass --overwrite or choose another --out)")
+        write_text_atomic(p, text)
+        print(f"wrote {p}; edit it, then: kinadapt diagnose YOUR_LOG --setup {p} --out DIR")
+    else:
+        print(text, end="")
+    return 0
+
+
 def cmd_diagnose(args: argparse.Namespace) -> int:
     import numpy as np
+
+    if args.setup:
+        return cmd_diagnose_setup(args)
 
     from kinadapt_nn.config import config_to_toml, load_config
     from kinadapt_nn.diagnostics.report import residual_figure, write_tb
@@ -299,13 +365,19 @@ def build_parser() -> argparse.ArgumentParser:
     rp.set_defaults(func=cmd_reproduce)
     sw = _job_parser(sub, "sweep", "many episodes over groups x seeds, locally or on a Ray cluster (rerun to resume)",
                      "online/sweep.toml", "seeds=5", cmd_sweep)
-    dg = sub.add_parser("diagnose", help="model vs measurement: where the prediction misses the sensor (run folder, trace or CSV)")
-    dg.add_argument("log", help="a run folder, a trace.npz, or a CSV log (see kinadapt_nn/diagnostics/importers.py)")
+    dg = sub.add_parser("diagnose", help="model vs measurement: which physical effect is missing (your robot's log "
+                        "with --setup, or a run of this package)")
+    dg.add_argument("log", help="with --setup: .csv, .csv.gz, .parquet, a ROS 2 bag or a trace.npz; without: a run "
+                    "folder, a trace.npz, or a CSV in this package's format (kinadapt_nn/diagnostics/importers.py)")
+    dg.add_argument("--setup", metavar="SETUP.toml", help="your set-up: columns, wrench convention, sensor mount, tool "
+                    "(template: kinadapt setup-template; examples: examples/setups/)")
     dg.add_argument("--config", help="the known model (default: the run's config.toml, else built-in defaults)")
     dg.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a model key")
     dg.add_argument("--theta", help="offset estimate x,y,z [m] to evaluate (default: the run's final estimate)")
     dg.add_argument("--add", action="append", metavar="EFFECT",
-                    help="refit with this library effect added and report the residual before/after (repeatable)")
+                    help="refit with this library effect added and report the residual before/after (repeatable); "
+                    "with --setup: tool_gravity, ft_bias_drift, ft_frame_rotation, encoder_offset, tool_tilt, "
+                    "ft_offset; own runs also contact_stiffness, contact_friction_couple, grasp_compliance")
     dg.add_argument("--rerun", action="store_true",
                     help="simulated runs: repeat the online run with the --add effects in the model (model.effects), "
                          "written to OUT/rerun/ with the same TensorBoard tags")
@@ -320,6 +392,10 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--overwrite", action="store_true")
     dg.add_argument("--quiet", action="store_true")
     dg.set_defaults(func=cmd_diagnose)
+    st = sub.add_parser("setup-template", help="print a setup-file template for kinadapt diagnose LOG --setup")
+    st.add_argument("--out", help="write it to this file instead of printing it")
+    st.add_argument("--overwrite", action="store_true")
+    st.set_defaults(func=cmd_setup_template)
     sw.add_argument("--executor", choices=["local", "ray"], default="local")
     sw.add_argument("--address", help="Ray cluster address (default: auto, e.g. a local 'ray start --head')")
     return p

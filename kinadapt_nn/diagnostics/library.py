@@ -128,6 +128,7 @@ def analyse_effects(des: rk.Design, calib: dict | None, add: list[str], rc: rk.R
 def summary_sentence(res: dict) -> str:
     top = res["ranking"][0] if res["ranking"] else None
     sig = [r for r in res["ranking"] if r["significant"]]
+    undecided = [r for r in res["ranking"] if r.get("verdict") == "cannot_decide" and r.get("selected")]
     if not sig:
         txt = "No library effect is significant (relative to the calibrated nominal model)"
         if top is not None:
@@ -141,6 +142,10 @@ def summary_sentence(res: dict) -> str:
             parts.append(f"{r['effect']} explains {100 * r['explained_fraction']:.0f}% ({est})")
         txt = ("Of the level residual the calibrated nominal model leaves (held-out, block CV): "
                + "; then ".join(parts) + ".")
+    if undecided:
+        txt += " Cannot decide: " + "; ".join(
+            f"{r['effect']} ({r['reason']}" + (f": {', '.join(r['indistinguishable_from'])}" if r.get("indistinguishable_from")
+                                               else "") + ")" for r in undecided) + "."
     weak = [r["effect"] for r in res["ranking"] if not r["excitation"]["enough"]]
     if weak:
         txt += f" Not excited enough to decide: {', '.join(weak)} (see 'to_excite')."

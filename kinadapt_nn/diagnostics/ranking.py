@@ -275,6 +275,7 @@ def rank(des: Design, y: np.ndarray, rc: RankCfg, calib: dict | None = None) -> 
     alone = {n: _test_given(n, [], des, y, rc, sse0) for n in names}
     last = dict(alone)
     selected: list[tuple[str, list[int]]] = []
+    ties: dict[str, set[str]] = {}
     sse_sel = sse0
     while len(selected) < len(names):
         cand = [n for n in names if n not in {s for s, _ in selected}]
@@ -289,6 +290,15 @@ def rank(des: Design, y: np.ndarray, rc: RankCfg, calib: dict | None = None) -> 
         if not (t.p_adjusted < rc.alpha and t.gain.sum() / float(sse_sel.sum() or 1e-300) >= rc.min_explained):
             break
         t.selected_round = len(selected)
+        # near-ties: a rival that explains nearly as much alone and nothing more once the best is in
+        # the model, and is not beaten block by block (one-sided paired t over the blocks)
+        for n in cand:
+            if n == best or tests[n].gain.sum() < TIE_RATIO * t.gain.sum() or tests[n].gain.sum() <= 0:
+                continue
+            given = _test_given(n, [*selected, (best, t.cols)], des, y, rc, t.sse)
+            if given.gain.sum() / (float(t.sse.sum()) or 1e-300) < rc.min_explained and _paired_p(t.sse, tests[n].sse) > 0.01:
+                ties.setdefault(best, set()).add(n)
+                ties.setdefault(n, set()).add(best)
         selected.append((best, t.cols))
         sse_sel = t.sse
     sse_ref = float(sse_sel.sum()) or 1e-300  # what the selected model leaves held-out
@@ -305,14 +315,26 @@ def rank(des: Design, y: np.ndarray, rc: RankCfg, calib: dict | None = None) -> 
         Xd = des.X[n][:, cols] * np.where(dc != 0, dc, _scale(n, des.X[n])[cols])
         lam = np.linalg.eigvalsh(Xd.T @ Xd)
         exc = float(lam[0] / sse_ref)
+        impossible = implausible_own(n, p_full, np.asarray((calib or {}).get(n, [0.0] * k), dtype=float))
+        if t.selected_round is not None:
+            verdict = "cannot_decide" if (impossible or n in ties) else "present"
+        else:
+            verdict = "cannot_decide" if (n in ties or exc < rc.min_excitation) else "absent"
         res.append({
             "effect": n,
+            "verdict": verdict,
+            **({"reason": f"physically impossible estimate: {impossible}"} if impossible and t.selected_round is not None
+               else {"reason": "a near-tie: another explanation fits the data as well",
+                     "indistinguishable_from": sorted(ties[n]),
+                     "to_separate": " / ".join(LIBRARY[x].excite_hint for x in [n, *sorted(ties[n])])} if n in ties
+               else {"reason": "not excited enough to rule out"} if verdict == "cannot_decide" else {}),
             "explained_fraction": float(t.gain.sum() / sse_tot),
             "explained_fraction_alone": float(alone[n].gain.sum() / sse_tot),
             "explained_fraction_of_remaining": float(t.gain.sum() / (float(t.sse.sum() + t.gain.sum()) or 1e-300)),
             "p_value": t.p_value,
             "p_adjusted": t.p_adjusted,
-            "significant": t.selected_round is not None,
+            "significant": verdict == "present",
+            "selected": t.selected_round is not None,
             "selected_round": t.selected_round,
             "estimate": physical_report(n, p_full, sd),
             "columns_used": [LIBRARY[n].params[c] for c in cols],
@@ -325,6 +347,41 @@ def rank(des: Design, y: np.ndarray, rc: RankCfg, calib: dict | None = None) -> 
         })
     res.sort(key=lambda r: (r["selected_round"] is None, r["selected_round"] or 0, -r["explained_fraction"]))
     return res
+
+
+#: a rival with this share of the best effect's held-out gain is checked for a near-tie
+TIE_RATIO = 0.8
+
+
+def _paired_p(a: np.ndarray, b: np.ndarray) -> float:
+    """One-sided p that per-block SSE ``a`` is smaller than ``b`` on average (t over the blocks)."""
+    from scipy.stats import t as t_dist
+
+    d = np.asarray(b) - np.asarray(a)
+    if len(d) < 3:
+        return 1.0
+    sd = float(np.std(d, ddof=1))
+    if sd == 0.0:
+        return 0.0 if d.mean() > 0 else 1.0
+    return float(t_dist.sf(d.mean() / (sd / np.sqrt(len(d))), len(d) - 1))
+
+
+def implausible_own(name: str, p: np.ndarray, calib: np.ndarray) -> str | None:
+    """Why an estimate (a change from the calibration ``calib``) is physically impossible, or None."""
+    tot = p + calib
+    if not np.all(np.isfinite(p)):
+        return "the estimate is not finite"
+    if name == "contact_stiffness" and 1.0 + tot[0] <= 0:
+        return f"a stiffness factor of {1.0 + tot[0]:.3g} (must be > 0)"
+    if name == "grasp_compliance" and tot[0] < 0:
+        return f"a negative compliance {tot[0]:.3g} rad/(N m)"
+    if name == "contact_friction_couple" and tot[0] < 0:
+        return f"a negative friction radius {1e3 * tot[0]:.3g} mm"
+    if name == "tool_gravity" and tot[0] < -0.1:
+        return f"a payload of {tot[0]:.3g} kg"
+    if name in ("ft_frame_rotation", "tool_tilt", "encoder_offset") and np.max(np.abs(tot)) > np.deg2rad(15.0):
+        return f"{np.rad2deg(np.max(np.abs(tot))):.3g} deg is beyond a mounting/zero error (first-order model)"
+    return None
 
 
 def refit(des: Design, y: np.ndarray, names: list[str], rc: RankCfg) -> tuple[np.ndarray, dict]:

@@ -113,7 +113,8 @@ class LogCfg(_Cfg):
 
     @model_validator(mode="after")
     def _distinct(self):
-        names = [self.time, *self.q, *self.qdot, *self.wrench]
+        # a ROS 2 bag names joints, not columns: there qdot may repeat q (velocities of the same joints)
+        names = [self.time, *self.q, *(self.qdot if tuple(self.qdot) != tuple(self.q) else ()), *self.wrench]
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
             raise ValueError(f"column '{dup[0]}' is named twice; every quantity needs its own column")
@@ -225,6 +226,17 @@ def load_setup(path: Path | None, overrides: list[str] | tuple[str, ...] = ()) -
     """Load and validate a setup file (``None``: defaults); one-line ``ConfigError`` otherwise."""
     cfg = load_toml_model(SetupCfg, path, overrides, SETUP_EXAMPLE)
     return cfg
+
+
+def template_text() -> str:
+    """The commented template of the module docstring (every key with its default)."""
+    doc = __doc__ or ""
+    body = doc.split("default; ``examples/setups/`` has complete ones)::", 1)[1]
+    lines = [ln[4:] if ln.startswith("    ") else ln for ln in body.strip("\n").splitlines()]
+    head = ("# kinadapt diagnose setup file: what you know about your robot, sensor, tool and log.\n"
+            "# Frames: f = the arm model's flange site, s = your F/T sensor; the tool is described in s.\n"
+            "# Use: kinadapt diagnose YOUR_LOG --setup THIS_FILE --out DIR\n")
+    return head + "\n".join(lines).rstrip() + "\n"
 
 
 def setup_to_toml(cfg: SetupCfg) -> str:

@@ -323,7 +323,8 @@ def summary_text(rep: dict) -> str:
     parts = []
     chk = rep["sign_check"]
     if not chk["ok"]:
-        parts.append("WARNING: " + chk["message"] + ".")
+        return ("WARNING: " + chk["message"] + ". Every effect is 'cannot_decide' until the wrench convention "
+                "is right (nothing can be judged against a tool that weighs less than nothing).")
     pres = [e for e in rep["ranking"] if e["verdict"] == "present"]
     und = [e for e in rep["ranking"] if e["verdict"] == "cannot_decide"]
     if pres:

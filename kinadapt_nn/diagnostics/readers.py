@@ -1,0 +1,550 @@
+"""Log readers for ``kinadapt diagnose LOG --setup SETUP.toml``: a user's log, whatever its format.
+
+``read_log(path, setup)`` returns a ``UserLog``: time [s] from the first sample, joint positions
+[rad] (and velocities [rad/s] when the log has them) and the raw F/T reading *as logged* (the
+log's own sign convention and sensor frame; ``setup.log.wrench_acts`` says which it is, and
+``kinadapt_nn.diagnostics.physical`` converts). The setup's ``[log]`` section names the columns
+(``kinadapt_nn.diagnostics.setup.LogCfg``). Formats, chosen by the path:
+
+* ``*.csv``, ``*.csv.gz``: a header row with the column names, one row per sample; extra columns
+  are ignored; the delimiter (``,``, ``;`` or tab) is taken from the header line.
+* ``*.parquet``, ``*.pq``: one column per name. A timestamp/duration time column is converted to
+  seconds by its own unit (``log.time_scale_s`` must then be 1).
+* A ROS 2 bag (a folder with ``metadata.yaml``, or a ``.mcap`` / ``.db3`` file):
+  ``sensor_msgs/msg/JointState`` on ``log.joint_state_topic`` (``log.q`` are joint names; the
+  ``velocity`` field is used when ``log.qdot`` is non-empty and every message has it, else
+  ``qdot_rad_s`` is None) and ``geometry_msgs/msg/WrenchStamped`` on ``log.wrench_topic``. Time is
+  the header stamp (the bag's record time when a stream's stamps are all zero). Messages that do
+  not name all seven joints (e.g. a gripper's) are skipped. ``log.angle_unit`` applies as declared
+  (JointState is in rad by REP 103). The wrench stream must itself be finite, strictly increasing
+  and free of gaps. The wrench is linearly interpolated
+  onto the joint-state stamps; joint states outside the wrench stream's time span are dropped.
+* This package's run log: ``trace.npz`` or its run folder (channels ``t_s``, ``q_rad``,
+  ``qdot_rad_s`` and ``wrench_raw_f``, the wrench the flange exerts on the tool, i.e.
+  ``wrench_acts = "sensor_on_tool"``); the setup's column names and units are not used.
+
+Every format is validated alike; each problem is a one-line ``KinadaptError`` naming the file, the
+row (CSV: the file's line number, header = line 1; otherwise "sample i", 0-based) and the column:
+a missing column, a value that is not a number or not finite, a time that does not increase, a
+gap (a step over ``GAP_FACTOR`` times the median step), fewer than ``MIN_SAMPLES`` samples, an
+empty or unreadable file.
+
+``write_log`` writes a CSV / gzip CSV / Parquet log in a ``LogCfg``'s column names (tests, examples).
+"""
+
+from __future__ import annotations
+
+import csv
+import gzip
+import io
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, NamedTuple
+
+import numpy as np
+
+from kinadapt_nn.errors import KinadaptError
+
+if TYPE_CHECKING:
+    import pyarrow as pa
+
+    from kinadapt_nn.diagnostics.setup import LogCfg, SetupCfg
+
+SUPPORTED = ("CSV (.csv, .csv.gz), Parquet (.parquet, .pq), a ROS 2 bag (a folder with metadata.yaml, "
+             ".mcap, .db3) or a kinadapt run (trace.npz or its run folder)")
+MIN_SAMPLES = 50  # fewer samples cannot be diagnosed
+GAP_FACTOR = 5.0  # a time step over this many median steps is a gap
+_LIST_MAX = 25  # names listed in a "missing column" message
+
+Label = Callable[[int], str]  # 0-based sample index -> "line 12" / "sample 10"
+
+
+class UserLog(NamedTuple):
+    """A user's log in SI units, one row per sample (N samples)."""
+
+    t_s: np.ndarray  # (N,) [s] from the first sample, strictly increasing
+    q_rad: np.ndarray  # (N, 7) [rad] joint positions
+    qdot_rad_s: np.ndarray | None  # (N, 7) [rad/s] joint velocities, or None (differentiate q)
+    wrench_log: np.ndarray  # (N, 6) [N, N m] the F/T reading as logged (its own sign convention and frame)
+    source: str  # the path read
+
+
+# --------------------------------------------------------------------------------------------- helpers
+
+
+def _clean(s: object, n: int = 40) -> str:
+    """``s`` as one short printable line (file content and library messages go into errors)."""
+    text = "".join(c if c.isprintable() else "?" for c in str(s))
+    return text if len(text) <= n else text[: n - 3] + "..."
+
+
+def _first_line(exc: BaseException) -> str:
+    lines = str(exc).strip().splitlines()
+    return _clean(lines[0] if lines else type(exc).__name__, 120)
+
+
+def _list_names(names: Sequence[str]) -> str:
+    shown = ", ".join(f"'{_clean(x)}'" for x in names[:_LIST_MAX])
+    more = f" (+{len(names) - _LIST_MAX} more)" if len(names) > _LIST_MAX else ""
+    return (shown or "none") + more
+
+
+def _unreadable(path: Path, what: str, why: str) -> KinadaptError:
+    return KinadaptError(f"log '{path}' is not a readable {what} ({why}); supported formats: {SUPPORTED}")
+
+
+def _check_count(path: Path, n: int, unit: str = "samples") -> None:
+    if n == 0:
+        raise KinadaptError(f"log '{path}' is empty (no {unit}); record a log of at least {MIN_SAMPLES} samples")
+    if n < MIN_SAMPLES:
+        raise KinadaptError(f"log '{path}' has only {n} {unit}; at least {MIN_SAMPLES} are needed "
+                            "(record a longer log)")
+
+
+def _sample_label(i: int) -> str:
+    return f"sample {i}"
+
+
+def _build(path: Path, time: np.ndarray, scale: float, cols: np.ndarray, names: Sequence[str], n_qdot: int,
+           angle_unit: str, label: Label, time_name: str) -> UserLog:
+    """Validate and assemble. ``time`` (N,) raw (integer or float) times, ``scale`` [s per unit];
+    ``cols`` (N, 13 + n_qdot) float: q (7), qdot (``n_qdot`` = 0 or 7), wrench (6) named ``names``."""
+    n = int(time.shape[0])
+    _check_count(path, n)
+    bad = ~np.isfinite(cols)
+    bad_t = ~np.isfinite(time) if time.dtype.kind == "f" else np.zeros(n, dtype=bool)
+    rows = np.flatnonzero(bad_t | bad.any(axis=1))
+    if rows.size:
+        r = int(rows[0])
+        if bad_t[r]:
+            name, value = time_name, time[r]
+        else:
+            j = int(np.flatnonzero(bad[r])[0])
+            name, value = names[j], cols[r, j]
+        raise KinadaptError(f"log '{path}', {label(r)}: column '{name}' is {value} (not finite); "
+                            "fix or remove that row")
+    if time.dtype.kind in "iu":
+        t = (time.astype(np.int64) - np.int64(time[0])).astype(np.float64) * scale
+    else:
+        t = (time.astype(np.float64) - float(time[0])) * scale
+    dt = np.diff(t)
+    nonpos = np.flatnonzero(dt <= 0.0)
+    if nonpos.size:
+        k = int(nonpos[0]) + 1
+        raise KinadaptError(f"log '{path}', {label(k)}: the time ('{time_name}') does not increase "
+                            f"({t[k]:.6g} s after {t[k - 1]:.6g} s from the start); sort the log by time and "
+                            "remove repeated samples")
+    med = float(np.median(dt))
+    gaps = np.flatnonzero(dt > GAP_FACTOR * med)
+    if gaps.size:
+        k = int(gaps[0]) + 1
+        raise KinadaptError(f"log '{path}', {label(k)}: a gap of {dt[k - 1]:.4g} s in the time ('{time_name}'; "
+                            f"the median step is {med:.4g} s); split the log at the gap into separate logs")
+    q = cols[:, :7]
+    qdot = cols[:, 7 : 7 + n_qdot] if n_qdot else None
+    wrench = cols[:, 7 + n_qdot :]
+    if angle_unit == "deg":
+        q = np.deg2rad(q)
+        qdot = None if qdot is None else np.deg2rad(qdot)
+    return UserLog(t_s=t, q_rad=np.ascontiguousarray(q, dtype=np.float64),
+                   qdot_rad_s=None if qdot is None else np.ascontiguousarray(qdot, dtype=np.float64),
+                   wrench_log=np.ascontiguousarray(wrench, dtype=np.float64), source=str(path))
+
+
+# --------------------------------------------------------------------------------------------- dispatch
+
+
+def _format(path: Path) -> str:
+    if not path.exists():
+        raise KinadaptError(f"log '{path}' not found; give a log file or folder ({SUPPORTED})")
+    if path.is_dir():
+        if (path / "metadata.yaml").is_file():
+            return "bag"
+        if (path / "trace.npz").is_file():
+            return "trace"
+        raise KinadaptError(f"folder '{path}' is neither a ROS 2 bag (no metadata.yaml) nor a kinadapt run "
+                            f"(no trace.npz); supported formats: {SUPPORTED}")
+    name = path.name.lower()
+    if name.endswith((".csv", ".csv.gz")):
+        return "csv"
+    if name.endswith((".parquet", ".pq")):
+        return "parquet"
+    if name.endswith((".mcap", ".db3")):
+        return "bag"
+    if name.endswith(".npz"):
+        return "trace"
+    raise KinadaptError(f"log '{path}': unknown format (suffix '{_clean(''.join(path.suffixes))}'); "
+                        f"supported formats: {SUPPORTED}")
+
+
+def read_log(path: str | Path, setup: SetupCfg) -> UserLog:
+    """Read and validate a user's log (module docstring); one-line ``KinadaptError`` otherwise."""
+    path = Path(path)
+    kind = _format(path)
+    if kind == "csv":
+        return _read_csv(path, setup.log)
+    if kind == "parquet":
+        return _read_parquet(path, setup.log)
+    if kind == "bag":
+        return _read_bag(path, setup.log)
+    return _read_trace(path)
+
+
+# --------------------------------------------------------------------------------------------- tables
+
+
+def _import_pyarrow():
+    try:
+        import pyarrow as pa
+    except ImportError:
+        raise KinadaptError("reading CSV/Parquet logs needs the 'pyarrow' package (pip install pyarrow)") from None
+    return pa
+
+
+def _numbers(path: Path, col: pa.ChunkedArray, name: str, label: Label, time: bool = False,
+             log: LogCfg | None = None) -> tuple[np.ndarray, float]:
+    """One table column as numbers: (values, seconds per unit). Integers stay integers for the
+    time column (exact differences of nanosecond stamps); timestamps and durations become
+    integers in their own unit."""
+    pa = _import_pyarrow()
+    typ = col.type
+    if col.null_count:
+        i = int(np.flatnonzero(col.is_null().to_numpy(zero_copy_only=False))[0])
+        raise KinadaptError(f"log '{path}', {label(i)}: column '{name}' is empty; fill in a number or remove that row")
+    if time and (pa.types.is_timestamp(typ) or pa.types.is_duration(typ)):
+        if log is not None and log.time_scale_s != 1.0:
+            raise KinadaptError(f"log '{path}': the time column '{name}' is a {typ} column (its unit is known); "
+                                "set log.time_scale_s = 1.0")
+        per_s = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}[typ.unit]
+        return col.cast(pa.int64()).to_numpy(), per_s
+    if time and pa.types.is_integer(typ):
+        return col.cast(pa.int64()).to_numpy(), 1.0
+    if pa.types.is_integer(typ) or pa.types.is_floating(typ) or pa.types.is_decimal(typ):
+        return col.cast(pa.float64()).to_numpy(), 1.0
+    if pa.types.is_string(typ) or pa.types.is_large_string(typ) or pa.types.is_string_view(typ):
+        values = col.to_pylist()
+        try:
+            return np.array(values, dtype=np.float64), 1.0
+        except ValueError:
+            for i, v in enumerate(values):
+                try:
+                    float(v)
+                except ValueError:
+                    what = "empty" if not v.strip() else f"'{_clean(v, 30)}', not a number"
+                    raise KinadaptError(f"log '{path}', {label(i)}: column '{name}' is {what}; "
+                                        "fix or remove that row") from None
+            raise KinadaptError(f"log '{path}': column '{name}' is not all numbers; "  # pragma: no cover
+                                "fix its values") from None
+    raise KinadaptError(f"log '{path}': column '{name}' holds {_clean(typ)} values, not numbers; "
+                        "give it plain numbers")
+
+
+def _from_table(path: Path, table: pa.Table, log: LogCfg, label: Label, unit: str) -> UserLog:
+    """Pick the setup's columns out of a table (CSV or Parquet) and validate them."""
+    header = [str(c).strip() for c in table.column_names]
+    fields = [("time", log.time)] + [("q", c) for c in log.q] + [("qdot", c) for c in log.qdot] + \
+             [("wrench", c) for c in log.wrench]
+    for field, c in fields:
+        if c not in header:
+            hint = ""
+            if not any(f[1] in header for f in fields):
+                hint = (" (none of the setup's columns is there: is the first line a header? "
+                        f"supported formats: {SUPPORTED})")
+            raise KinadaptError(f"log '{path}' has no column '{c}' (log.{field} in the setup); its columns: "
+                                f"{_list_names(header)}; fix the name in the setup's [log] section{hint}")
+    _check_count(path, table.num_rows, unit)
+    col = {c: table.column(header.index(c)) for _, c in fields}
+    time, per_s = _numbers(path, col[log.time], log.time, label, time=True, log=log)
+    names = [*log.q, *log.qdot, *log.wrench]
+    cols = np.empty((table.num_rows, len(names)))
+    for j, c in enumerate(names):
+        cols[:, j] = _numbers(path, col[c], c, label)[0]
+    return _build(path, time, per_s * log.time_scale_s, cols, names, len(log.qdot), log.angle_unit, label, log.time)
+
+
+def _open_text(path: Path):
+    raw = gzip.open(path, "rb") if path.name.lower().endswith(".gz") else open(path, "rb")
+    return io.TextIOWrapper(raw, encoding="utf-8-sig", errors="replace", newline="")
+
+
+def _sniff_delimiter(path: Path) -> str:
+    """The delimiter of the header line: the most frequent of ',', ';' and tab (',' on a tie)."""
+    try:
+        with _open_text(path) as fh:
+            line = fh.readline(1 << 16)
+    except (OSError, EOFError, UnicodeError):
+        return ","
+    counts = {d: line.count(d) for d in (",", ";", "\t")}
+    best = max(counts, key=lambda d: counts[d])
+    return best if counts[best] > counts[","] else ","
+
+
+def _csv_records(path: Path, delimiter: str):
+    """(line number, fields) of the header and each data row, blank lines skipped (as pyarrow does)."""
+    with _open_text(path) as fh:
+        reader = csv.reader(fh, delimiter=delimiter)
+        for rec in reader:
+            if rec:
+                yield reader.line_num, rec
+
+
+def _csv_line(path: Path, delimiter: str, row: int) -> int:
+    """The file line (header = 1) of data row ``row`` (0-based); only on the error path."""
+    try:
+        for k, (line, _) in enumerate(_csv_records(path, delimiter)):
+            if k == row + 1:
+                return line
+    except (OSError, EOFError, csv.Error):
+        pass
+    return row + 2
+
+
+def _csv_bad_row(path: Path, delimiter: str) -> str | None:
+    """Why the CSV does not parse, if a row has the wrong number of fields (error path only)."""
+    try:
+        n_header = None
+        for line, rec in _csv_records(path, delimiter):
+            if n_header is None:
+                n_header = len(rec)
+            elif len(rec) != n_header:
+                return f"line {line} has {len(rec)} fields, the header has {n_header}"
+    except (OSError, EOFError, csv.Error) as exc:
+        return _first_line(exc)
+    return None
+
+
+def _read_csv(path: Path, log: LogCfg) -> UserLog:
+    _import_pyarrow()
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    delimiter = _sniff_delimiter(path)
+    try:
+        table = pacsv.read_csv(
+            path,
+            parse_options=pacsv.ParseOptions(delimiter=delimiter),
+            # no null markers: an empty cell or "N/A" is reported by row, "nan" parses as NaN
+            convert_options=pacsv.ConvertOptions(null_values=[], strings_can_be_null=False,
+                                                 quoted_strings_can_be_null=False),
+        )
+    except (pa.ArrowException, OSError, EOFError, UnicodeError, ValueError) as exc:
+        if "empty" in str(exc).lower():
+            raise KinadaptError(f"log '{path}' is empty (no header row); write a header row with the column "
+                                "names, then one row per sample") from None
+        raise _unreadable(path, "CSV file", _csv_bad_row(path, delimiter) or _first_line(exc)) from None
+    return _from_table(path, table, log, lambda i: f"line {_csv_line(path, delimiter, i)}", "data rows")
+
+
+def _read_parquet(path: Path, log: LogCfg) -> UserLog:
+    _import_pyarrow()
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    try:
+        table = pq.read_table(path)
+    except (pa.ArrowException, OSError, EOFError, ValueError) as exc:
+        raise _unreadable(path, "Parquet file", _first_line(exc)) from None
+    return _from_table(path, table, log, _sample_label, "samples")
+
+
+# --------------------------------------------------------------------------------------------- trace
+
+
+def _read_trace(path: Path) -> UserLog:
+    from kinadapt_nn.trace import Trace
+
+    file = path / "trace.npz" if path.is_dir() else path
+    try:
+        tr = Trace.load(file)
+    except KinadaptError as exc:
+        raise KinadaptError(f"{exc}; supported formats: {SUPPORTED}") from None
+    t = np.asarray(tr["t_s"])
+    n = t.shape[0] if t.ndim == 1 else -1
+    parts = []
+    for name, width in (("q_rad", 7), ("qdot_rad_s", 7), ("wrench_raw_f", 6)):
+        a = np.asarray(tr[name])
+        if n < 0 or a.shape != (n, width) or a.dtype.kind not in "iuf" or t.dtype.kind not in "iuf":
+            raise KinadaptError(f"trace '{file}': channel '{name}' has shape {a.shape} ({a.dtype}) with 't_s' "
+                                f"{t.shape}; expected (N, {width}) numbers for (N,) times (a damaged trace?)")
+        parts.append(a.astype(np.float64))
+    names = [f"{c}[{j}]" for c, w in (("q_rad", 7), ("qdot_rad_s", 7), ("wrench_raw_f", 6)) for j in range(w)]
+    return _build(file, t.astype(np.float64), 1.0, np.hstack(parts), names, 7, "rad", _sample_label, "t_s")
+
+
+# --------------------------------------------------------------------------------------------- ROS 2 bag
+
+_JOINT_STATE = "sensor_msgs/msg/JointState"
+_WRENCH = "geometry_msgs/msg/WrenchStamped"
+_WRENCH_NAMES = ("force.x", "force.y", "force.z", "torque.x", "torque.y", "torque.z")
+
+
+def _stamps(header_ns: list[int], record_ns: list[int]) -> np.ndarray:
+    """Header stamps [ns] (int64); the bag's record times when a stream never fills its stamps."""
+    return np.asarray(record_ns if header_ns and not any(header_ns) else header_ns, dtype=np.int64)
+
+
+def _read_bag(path: Path, log: LogCfg) -> UserLog:
+    try:
+        from rosbags.highlevel import AnyReader
+        from rosbags.typesys import Stores, get_typestore
+    except ImportError:
+        raise KinadaptError("reading ROS 2 bags needs the 'rosbags' package (pip install rosbags)") from None
+
+    want = [(log.joint_state_topic, _JOINT_STATE, "log.joint_state_topic"),
+            (log.wrench_topic, _WRENCH, "log.wrench_topic")]
+    js_head, js_rec, js_names, js_pos, js_vel = [], [], [], [], []
+    w_head, w_rec, w_val = [], [], []
+    try:
+        with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
+            have: dict[str, str] = {}
+            for c in reader.connections:
+                have.setdefault(c.topic, c.msgtype)
+            listing = ", ".join(f"{_clean(t, 60)} [{_clean(m, 60)}]" for t, m in sorted(have.items())) or "none"
+            for topic, msgtype, key in want:
+                if topic not in have:
+                    raise KinadaptError(f"ROS 2 bag '{path}' has no topic '{topic}' ({key} in the setup); its topics: "
+                                        f"{listing}; set {key}")
+                if have[topic] != msgtype:
+                    raise KinadaptError(f"ROS 2 bag '{path}': topic '{topic}' ({key}) carries "
+                                        f"{_clean(have[topic], 60)}, not {msgtype}; set {key} to a {msgtype} "
+                                        f"topic (its topics: {listing})")
+            conns = [c for c in reader.connections if (c.topic, c.msgtype) in {w[:2] for w in want}]
+            for conn, rec_ns, raw in reader.messages(connections=conns):
+                msg = reader.deserialize(raw, conn.msgtype)
+                stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+                if conn.msgtype == _JOINT_STATE:
+                    js_head.append(stamp)
+                    js_rec.append(int(rec_ns))
+                    js_names.append(tuple(msg.name))
+                    js_pos.append(np.asarray(msg.position, dtype=np.float64))
+                    js_vel.append(np.asarray(msg.velocity, dtype=np.float64))
+                else:
+                    f, m = msg.wrench.force, msg.wrench.torque
+                    w_head.append(stamp)
+                    w_rec.append(int(rec_ns))
+                    w_val.append((f.x, f.y, f.z, m.x, m.y, m.z))
+    except KinadaptError:
+        raise
+    except Exception as exc:  # noqa: BLE001 -- any failure of the bag library on a damaged file is bad input
+        raise _unreadable(path, "ROS 2 bag", _first_line(exc)) from None
+
+    # joint states: the messages that name all seven joints
+    for topic, n_msgs in ((log.joint_state_topic, len(js_head)), (log.wrench_topic, len(w_head))):
+        if n_msgs == 0:
+            raise KinadaptError(f"ROS 2 bag '{path}' has no messages on '{topic}'; record that topic")
+    index: dict[tuple[str, ...], list[int] | None] = {}
+    keep, q_rows, v_rows = [], [], []
+    for i, names in enumerate(js_names):
+        if names not in index:
+            index[names] = [names.index(j) for j in log.q] if all(j in names for j in log.q) else None
+        idx = index[names]
+        if idx is None or len(js_pos[i]) != len(names):
+            continue
+        keep.append(i)
+        q_rows.append(js_pos[i][idx])
+        v_rows.append(js_vel[i][idx] if len(js_vel[i]) == len(names) else None)
+    if not keep:
+        seen = list(dict.fromkeys(j for names in index for j in names))
+        missing = next((j for j in log.q if j not in seen), log.q[0])
+        raise KinadaptError(f"ROS 2 bag '{path}': no message on '{log.joint_state_topic}' has positions for joint "
+                            f"'{missing}' (log.q in the setup); its joint names: {_list_names(seen)}; set log.q to "
+                            "the seven arm joints")
+    t_j = _stamps([js_head[i] for i in keep], [js_rec[i] for i in keep])
+    q = np.array(q_rows)
+    qdot = np.array(v_rows) if log.qdot and all(v is not None for v in v_rows) else None
+
+    # wrench: validated as its own stream, then interpolated onto the joint-state stamps
+    t_w = _stamps(w_head, w_rec)
+    w = np.array(w_val, dtype=np.float64)
+    wlabel: Label = lambda i: f"wrench sample {i}"  # noqa: E731
+    if len(t_w) < 2:
+        raise KinadaptError(f"ROS 2 bag '{path}' has only {len(t_w)} message on '{log.wrench_topic}'; "
+                            "record the F/T sensor during the whole log")
+    bad = np.flatnonzero(~np.isfinite(w).all(axis=1))
+    if bad.size:
+        r = int(bad[0])
+        j = int(np.flatnonzero(~np.isfinite(w[r]))[0])
+        raise KinadaptError(f"ROS 2 bag '{path}', {wlabel(r)} on '{log.wrench_topic}': {_WRENCH_NAMES[j]} is "
+                            f"{w[r, j]} (not finite); filter the bag")
+    dtw = np.diff(t_w)
+    if np.any(dtw <= 0):
+        k = int(np.flatnonzero(dtw <= 0)[0]) + 1
+        raise KinadaptError(f"ROS 2 bag '{path}', {wlabel(k)} on '{log.wrench_topic}': the header stamp does not "
+                            "increase; the wrench stamps must be strictly increasing")
+    med = float(np.median(dtw))
+    if np.any(dtw > GAP_FACTOR * med):
+        k = int(np.flatnonzero(dtw > GAP_FACTOR * med)[0]) + 1
+        raise KinadaptError(f"ROS 2 bag '{path}', {wlabel(k)} on '{log.wrench_topic}': a gap of "
+                            f"{dtw[k - 1] * 1e-9:.4g} s (the median step is {med * 1e-9:.4g} s); "
+                            "split the log at the gap")
+    inside = np.flatnonzero((t_j >= t_w[0]) & (t_j <= t_w[-1]))
+    if inside.size == 0:
+        o = min(int(t_j[0]), int(t_w[0]))
+        raise KinadaptError(
+            f"ROS 2 bag '{path}': the joint states ({(t_j[0] - o) * 1e-9:.3f} to {(t_j[-1] - o) * 1e-9:.3f} s) and "
+            f"the wrench ({(t_w[0] - o) * 1e-9:.3f} to {(t_w[-1] - o) * 1e-9:.3f} s) do not overlap in time; "
+            "check both topics' header stamps")
+    origin = int(t_w[0])
+    tw_s = (t_w - origin).astype(np.float64)
+    tj_s = (t_j[inside] - origin).astype(np.float64)
+    w_at = np.stack([np.interp(tj_s, tw_s, w[:, k]) for k in range(6)], axis=1)
+    parts = [q[inside], *([] if qdot is None else [qdot[inside]]), w_at]
+    names = [*log.q, *([f"{j} velocity" for j in log.q] if qdot is not None else []), *_WRENCH_NAMES]
+    src = [keep[i] for i in inside]
+    label: Label = lambda i: f"joint-state sample {src[i]}"  # noqa: E731
+    return _build(path, t_j[inside], 1e-9, np.hstack(parts), names, 0 if qdot is None else 7, log.angle_unit,
+                  label, "header stamp")
+
+
+# --------------------------------------------------------------------------------------------- writer
+
+
+def write_log(path: str | Path, t_s: np.ndarray, q: np.ndarray, qdot: np.ndarray | None, wrench: np.ndarray,
+              columns: LogCfg) -> None:
+    """Write a log in ``columns``' names (``.csv``, ``.csv.gz`` or ``.parquet``/``.pq`` by suffix),
+    atomically. Raw column values: ``t_s`` (N,) in the time column's unit (an integer array stays
+    integer), ``q`` (N, 7) and ``qdot`` (N, 7) in ``columns.angle_unit`` (``qdot`` is written only
+    when ``columns.qdot`` names columns, and then required), ``wrench`` (N, 6) [N, N m]."""
+    pa = _import_pyarrow()
+    from kinadapt_nn.runio import atomic_write
+
+    path = Path(path)
+    t = np.asarray(t_s)
+    n = t.shape[0] if t.ndim == 1 else -1
+    arrays = {"q": (q, 7), "wrench": (wrench, 6)}
+    if columns.qdot:
+        if qdot is None:
+            raise KinadaptError(f"write_log('{path}'): the columns name joint velocities (qdot) but none were given")
+        arrays["qdot"] = (qdot, 7)
+    for name, (a, width) in arrays.items():
+        if n < 0 or np.shape(a) != (n, width):
+            raise KinadaptError(f"write_log('{path}'): {name} has shape {np.shape(a)}; expected ({n}, {width}) "
+                                f"for {n} times")
+    data = {columns.time: pa.array(t if t.dtype.kind in "iu" else t.astype(np.float64))}
+    for names, key in ((columns.q, "q"), (columns.qdot, "qdot"), (columns.wrench, "wrench")):
+        if names:
+            a = np.asarray(arrays[key][0], dtype=np.float64)
+            data.update({c: pa.array(a[:, j]) for j, c in enumerate(names)})
+    table = pa.table(data)
+    name = path.name.lower()
+    if name.endswith(".csv"):
+        import pyarrow.csv as pacsv
+
+        atomic_write(path, lambda tmp: pacsv.write_csv(table, tmp))
+    elif name.endswith(".csv.gz"):
+        import pyarrow.csv as pacsv
+
+        def write_gz(tmp: str) -> None:
+            with pa.CompressedOutputStream(tmp, "gzip") as out:
+                pacsv.write_csv(table, out)
+
+        atomic_write(path, write_gz)
+    elif name.endswith((".parquet", ".pq")):
+        import pyarrow.parquet as pq
+
+        atomic_write(path, lambda tmp: pq.write_table(table, tmp))
+    else:
+        raise KinadaptError(f"write_log('{path}'): unknown suffix; use .csv, .csv.gz, .parquet or .pq")
+
+
+__all__ = ["UserLog", "read_log", "write_log", "SUPPORTED", "MIN_SAMPLES", "GAP_FACTOR"]

@@ -1,0 +1,118 @@
+"""The verdict engine on synthetic designs whose answer is known by construction."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kinadapt_nn.diagnostics import selection as sel
+
+
+def _design(y, X, Z=None, blocks=20, one_of=None, scale=None, W=None):
+    R = len(y)
+    block = np.minimum(np.arange(R) * blocks // R, blocks - 1)
+    return sel.Design(y, X, np.zeros((R, 0)) if Z is None else Z, block, blocks,
+                      scale or {n: np.ones(x.shape[1]) for n, x in X.items()},
+                      one_of or {n: False for n in X}, np.ones(R) if W is None else W,
+                      np.zeros(R, int), ("y",), np.arange(R) * 0.01)
+
+
+def _smooth_cols(rng, R, k):
+    t = np.linspace(0, 1, R)[:, None]
+    return np.sin(2 * np.pi * (rng.uniform(1, 4, k) * t + rng.uniform(0, 1, k)))
+
+
+def test_present_absent_and_estimate():
+    rng = np.random.default_rng(0)
+    R = 4000
+    X = {"a": _smooth_cols(rng, R, 2), "b": _smooth_cols(rng, R, 3), "c": _smooth_cols(rng, R, 1)}
+    p_true = np.array([2.0, -1.5])
+    y = X["a"] @ p_true + rng.normal(0, 0.3, R)
+    res = sel.select(_design(y, X))
+    v = {e["effect"]: e for e in res.entries}
+    assert v["a"]["verdict"] == "present" and v["a"]["significant"]
+    assert v["b"]["verdict"] == "absent" and v["c"]["verdict"] == "absent"
+    assert res.entries[0]["effect"] == "a"
+    np.testing.assert_allclose(res.present["a"][1], p_true, rtol=0.05)
+    # the jackknife sd is of the right size (independent noise: sd ~ sigma / sqrt(R) / col rms)
+    assert 0.2 < res.present["a"][2][0] / (0.3 / np.sqrt(R / 2)) < 5
+
+
+def test_two_effects_both_and_jointly_reestimated():
+    rng = np.random.default_rng(1)
+    R = 4000
+    Xa = _smooth_cols(rng, R, 1)
+    Xb = 0.6 * Xa + 0.8 * _smooth_cols(rng, R, 1)  # correlated with a: a separate fit of a would be biased
+    y = Xa[:, 0] * 1.0 + Xb[:, 0] * 2.0 + rng.normal(0, 0.1, R)
+    res = sel.select(_design(y, {"a": Xa, "b": Xb}))
+    assert {n for n in res.present} == {"a", "b"}
+    np.testing.assert_allclose(res.present["a"][1], [1.0], rtol=0.05)
+    np.testing.assert_allclose(res.present["b"][1], [2.0], rtol=0.05)
+
+
+def test_identical_columns_are_a_near_tie_not_an_answer():
+    rng = np.random.default_rng(2)
+    R = 4000
+    x = _smooth_cols(rng, R, 1)
+    y = 1.5 * x[:, 0] + rng.normal(0, 0.1, R)
+    res = sel.select(_design(y, {"a": x, "b": x.copy() * 2.0}))
+    v = {e["effect"]: e for e in res.entries}
+    assert v["a"]["verdict"] == v["b"]["verdict"] == "cannot_decide"
+    assert "b" in v["a"]["indistinguishable_from"] and "a" in v["b"]["indistinguishable_from"]
+    assert not res.present
+
+
+def test_unexcited_direction_is_cannot_decide_and_stays_at_zero():
+    rng = np.random.default_rng(3)
+    R = 2000
+    y = rng.normal(0, 1.0, R)
+    X = {"seen": _smooth_cols(rng, R, 1), "unseen": np.zeros((R, 2))}
+    X["unseen"][:, 0] = _smooth_cols(rng, R, 1)[:, 0]  # one column excited, one never
+    res = sel.select(_design(y, X))
+    v = {e["effect"]: e for e in res.entries}
+    assert v["seen"]["verdict"] == "absent"
+    assert v["unseen"]["verdict"] == "cannot_decide" and v["unseen"]["excitation"]["weak_parameters"] == [1]
+    assert np.all(np.isfinite(v["unseen"]["params"])) and abs(v["unseen"]["params"][1]) < 1e-6
+
+
+def test_below_relevant_magnitude_is_not_present():
+    """A significant but tiny estimate (below the stated relevant magnitude) is not an effect."""
+    rng = np.random.default_rng(4)
+    R = 4000
+    x = _smooth_cols(rng, R, 1)
+    y = 0.05 * x[:, 0] + rng.normal(0, 0.01, R)
+    res = sel.select(_design(y, {"a": x}, scale={"a": np.array([1.0])}))
+    assert not res.present
+    res2 = sel.select(_design(y, {"a": x}, scale={"a": np.array([0.01])}))
+    assert "a" in res2.present
+
+
+def test_implausible_estimate_is_never_present():
+    rng = np.random.default_rng(5)
+    R = 3000
+    x = _smooth_cols(rng, R, 1)
+    y = -2.0 * x[:, 0] + rng.normal(0, 0.1, R)
+    res = sel.select(_design(y, {"mass": x}), plausible=lambda n, p: "negative" if p[0] < 0 else None)
+    e = res.entries[0]
+    assert e["verdict"] == "cannot_decide" and "impossible" in e["reason"]
+
+
+def test_nuisance_is_always_fitted_and_not_an_effect():
+    rng = np.random.default_rng(6)
+    R = 3000
+    Z = np.ones((R, 1))
+    X = {"const_like": np.ones((R, 1)) + 1e-3 * _smooth_cols(rng, R, 1)}
+    y = 5.0 + rng.normal(0, 0.1, R)
+    res = sel.select(_design(y, X, Z=Z))
+    assert not res.present
+    np.testing.assert_allclose(res.nuisance, [5.0], rtol=0.01)
+
+
+def test_refit_reports_the_fall():
+    rng = np.random.default_rng(7)
+    R = 2000
+    X = {"a": _smooth_cols(rng, R, 2), "j": np.column_stack([np.zeros(R), _smooth_cols(rng, R, 1)[:, 0]])}
+    y = X["j"][:, 1] * 3.0 + rng.normal(0, 0.1, R)
+    before, after, fitted = sel.refit(_design(y, X, one_of={"a": False, "j": True}), ["j"])
+    assert fitted["j"][0] == [1]
+    np.testing.assert_allclose(fitted["j"][1], [0.0, 3.0], atol=0.05)
+    assert np.sqrt(np.mean(after**2)) < 0.15 < np.sqrt(np.mean(before**2))
