@@ -233,8 +233,8 @@ def cmd_diagnose_setup(args: argparse.Namespace) -> int:
         uf.model_vs_measurement(res, setup, stage / "residual.png")
         uf.effects_figure(res, stage / "effects.png")
     if not args.quiet:
-        if not res.report["sign_check"]["ok"]:
-            print(f"kinadapt: warning: {res.report['sign_check']['message']}", file=sys.stderr)
+        for w in res.report["warnings"]:
+            print(f"kinadapt: warning: {w}", file=sys.stderr)
         print(res.report["summary"])
         print(f"wrote {out}/ (diagnosis.json, setup.toml, residual.png, effects.png)")
     return 0

@@ -318,8 +318,8 @@ SPECS: dict[str, EffectSpec] = {s.name: s for s in (
 def applicable_effects(setup: SetupCfg) -> list[str]:
     """The effects judged for this set-up, after the analysis filters."""
     names = [n for n in PHYSICAL_EFFECTS if not (n == "ft_offset" and setup.log.tared)]
-    if setup.contact.mode == "none":
-        names = [n for n in names if n != "tool_tilt" or setup.tool.mass_kg > 0]
+    if setup.contact.mode != "tip":  # without tip contact a tilt is only a COM shift (tool_gravity's columns)
+        names = [n for n in names if n != "tool_tilt"]
     if setup.analysis.effects:
         names = [n for n in names if n in setup.analysis.effects]
     return [n for n in names if n not in setup.analysis.exclude_effects]

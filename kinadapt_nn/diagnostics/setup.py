@@ -36,7 +36,7 @@ default; ``examples/setups/`` has complete ones)::
     mjcf = ""                  # "" = the shipped Panda
     flange_site = "flange"
     [contact]
-    mode = "tip"               # "tip": contacts act through the declared tip; "none": free-space log
+    mode = "tip"               # "tip": contacts act through the declared tip; "exclude": contact left out; "none": free-space log
     detect_force_N = 4.0       # a sample is in contact when the force beyond the tool model exceeds this
     margin_s = 0.1             # contact windows are widened by this on each side
     [analysis]
@@ -179,7 +179,10 @@ class ArmDeclCfg(_Cfg):
 
 
 class ContactDeclCfg(_Cfg):
-    mode: Literal["tip", "none"] = "tip"  # "tip": contacts act through the declared tip; "none": no contact in the log
+    #: "tip": contacts act through the declared tip (a probe, an edge, a small tip on any surface);
+    #: "exclude": contact is detected and left out (e.g. a flat face pressed flat: the centre of
+    #: pressure wanders over the face); "none": the log has no contact (nothing is detected)
+    mode: Literal["tip", "exclude", "none"] = "tip"
     detect_force_N: float = Field(4.0, gt=0.0)  # [N] force beyond the tool model that marks contact
     margin_s: float = Field(0.1, ge=0.0)  # [s] contact windows widened by this on each side
 

@@ -126,6 +126,8 @@ def build_design(pp: ph.Prepared, prep: Prep, names: list[str], rc: RowCfg,
     ok = (t >= t[0] + rc.edge_s) & (t <= t[-1] - rc.edge_s)
     for a, b in setup.analysis.exclude_s:
         ok &= ~((t - t[0] >= a) & (t - t[0] <= b))
+    if setup.contact.mode == "exclude":
+        ok &= ~pp.contact
     rows = np.flatnonzero(ok)[::stride]
     if len(rows) < 20:
         raise KinadaptError(f"the log leaves {len(rows)} rows after [analysis] exclude_s and the ends; "
@@ -259,25 +261,19 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
     hints["_params"] = {n: ph.SPECS[n].params for n in names}
     cache: dict = {}
     block = None if check["ok"] else "the sign check failed: " + check["message"]
-    result = None
-    for it in range(2):
-        progress("effect columns" if it == 0 else "contact re-detected with the present effects; ranking again")
-        des = build_design(pp, prep, names, rc, cache)
-        progress(f"ranking {len(names)} effects on {len(des.y)} rows, {des.n_blocks} blocks")
-        result = sel.select(des, sc, lambda n, p: ph.implausible(n, p, setup), hints, block)
-        if not result.present or setup.contact.mode == "none":
-            break
-        fitted = np.zeros_like(prep.r)
-        for n, (c, p_phys, _) in result.present.items():
-            C = cache.get(n)
-            if C is None:
-                C = ph.SPECS[n].columns(pp)
-            fitted += C[:, :, c] @ p_phys
-        new_contact, new_off = detect_contact(prep.r - prep.w_nom - fitted, prep.t_s, setup, rc)
-        if np.mean(new_contact != contact) < 0.005:
-            break
-        contact, off = new_contact, new_off
-        pp = prepared(prep, setup, contact, off)
+    des, result, contact, pp = _rank(prep, pp, setup, names, contact, rc, sc, hints, block, cache, progress)
+    fit_check = tip_consistency(des, list(result.present), sc)
+    contact_rows = "used (moment about the declared tip)" if setup.contact.mode == "tip" else setup.contact.mode
+    if not fit_check["ok"] and setup.contact.mode == "tip":
+        # the data contradict "contacts act through the declared tip": judge on free space alone
+        # rather than let an effect absorb a contact the model cannot describe
+        progress("contact does not act through the declared tip: ranking again without the contact rows")
+        setup_x = setup.model_copy(update={"contact": setup.contact.model_copy(update={"mode": "exclude"})})
+        names_x = [n for n in names if n in ph.applicable_effects(setup_x)]
+        des, result, contact, pp = _rank(prep, pp._replace(setup=setup_x), setup_x, names_x,
+                                         contact, rc, sc, hints, block, cache, progress)
+        fit_check["action"] = "contact rows left out; verdicts from free space alone"
+        contact_rows = "left out (tip check failed)"
     entries = [_entry_report(e, setup) for e in result.entries]
     dt = float(np.median(np.diff(prep.t_s)))
     report = {
@@ -285,9 +281,11 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
                           "tool_mass_kg": setup.tool.mass_kg, "contact_mode": setup.contact.mode},
         "log": {"samples": int(len(prep.t_s)), "duration_s": float(prep.t_s[-1] - prep.t_s[0]),
                 "rate_Hz": float(1.0 / dt), "qdot": "logged" if log.qdot_rad_s is not None else "differentiated from q"},
-        "contact": {"fraction": float(contact.mean()), "windows_s": _windows(contact, prep.t_s)},
+        "contact": {"fraction": float(contact.mean()), "windows_s": _windows(contact, prep.t_s), "rows": contact_rows},
         "noise_sigma": dict(zip(FREE_CHANNELS, (float(v) for v in prep.sigma))),
         "sign_check": check,
+        "tip_contact_check": fit_check,
+        "warnings": [m for m in (check.get("message"), fit_check.get("message")) if m],
         "ranking": entries,
         "not_judged": [{"effect": n, "reason": "contact-model effect: needs a declared contact geometry "
                                                "(judged on this package's own bore/socket runs)"}
@@ -313,6 +311,51 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
     return Result(report, des, before, after, prep, contact)
 
 
+def _rank(prep: Prep, pp: ph.Prepared, setup: SetupCfg, names: list[str], contact: np.ndarray, rc: RowCfg,
+          sc: sel.SelCfg, hints: dict, block: str | None, cache: dict, progress: Callable[[str], None]):
+    """Design + selection; once more with contact re-detected when the present effects change it.
+    -> (Design, Selection, contact mask, Prepared)."""
+    result = des = None
+    for it in range(2):
+        progress("effect columns" if it == 0 else "contact re-detected with the present effects; ranking again")
+        des = build_design(pp, prep, names, rc, cache)
+        progress(f"ranking {len(names)} effects on {len(des.y)} rows, {des.n_blocks} blocks")
+        result = sel.select(des, sc, lambda n, p: ph.implausible(n, p, setup), hints, block)
+        if it == 1 or not result.present or setup.contact.mode == "none":
+            break
+        fitted = np.zeros_like(prep.r)
+        for n, (c, p_phys, _) in result.present.items():
+            C = cache.get(n)
+            if C is None:
+                C = ph.SPECS[n].columns(pp)
+            fitted += C[:, :, c] @ p_phys
+        new_contact, new_off = detect_contact(prep.r - prep.w_nom - fitted, prep.t_s, setup, rc)
+        if np.mean(new_contact != contact) < 0.005:
+            break
+        contact = new_contact
+        pp = prepared(prep, setup, contact, new_off)
+    return des, result, contact, pp
+
+
+def tip_consistency(des: sel.Design, present: list[str], sc: sel.SelCfg, factor: float = 4.0) -> dict:
+    """Does the contact act through the declared tip? The residual left by the final model in the
+    contact rows (moment about the tip) against the free-space rows, both noise-weighted. A wrong
+    tip, a face contact or a second contact point leaves a tip moment no effect explains."""
+    _, after, _ = sel.refit(des, present, sc)
+    free, tip = des.channel < 6, des.channel >= 6
+    if not tip.any() or not free.any():
+        return {"ok": True, "note": "no contact rows" if not tip.any() else "no free-space rows"}
+    r_free = float(np.sqrt(np.mean(after[free] ** 2)))
+    r_tip = float(np.sqrt(np.mean(after[tip] ** 2)))
+    out = {"ok": True, "residual_rms_w_free": r_free, "residual_rms_w_tip_moment": r_tip}
+    if r_tip > factor * max(r_free, 1.0):
+        out["ok"] = False
+        out["message"] = (f"in contact the moment about the declared tip is {r_tip / max(r_free, 1.0):.1f}x the free-space "
+                          "residual: the contact does not act through [tool] tip_sensor_m (check it; a flat face pressed "
+                          "flat or a second contact point: set [contact] mode = \"exclude\")")
+    return out
+
+
 def _windows(mask: np.ndarray, t: np.ndarray) -> list[list[float]]:
     edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(int), 0]))
     return [[float(t[a] - t[0]), float(t[min(b, len(t)) - 1] - t[0])] for a, b in zip(edges[::2], edges[1::2])]
@@ -325,6 +368,8 @@ def summary_text(rep: dict) -> str:
     if not chk["ok"]:
         return ("WARNING: " + chk["message"] + ". Every effect is 'cannot_decide' until the wrench convention "
                 "is right (nothing can be judged against a tool that weighs less than nothing).")
+    if not rep["tip_contact_check"]["ok"]:
+        parts.append("WARNING: " + rep["tip_contact_check"]["message"] + ".")
     pres = [e for e in rep["ranking"] if e["verdict"] == "present"]
     und = [e for e in rep["ranking"] if e["verdict"] == "cannot_decide"]
     if pres:
