@@ -184,3 +184,67 @@ def test_effect_terms_batch_equals_a_loop_of_single_samples():
                     # gravity: the batch adds the residual servo accelerations (< 0.02 m/s^2 when still)
                     atol = 0.02 if name == "tool_gravity" else 1e-9
                     np.testing.assert_allclose(o[0], b[i], rtol=1e-6, atol=atol, err_msg=name)
+
+
+def test_encoder_columns_differentiate_the_calibrated_prediction():
+    """A joint zero offset moves the model's q everywhere, the calibrated part of the prediction
+    ``sum_e X_e(q) p_e^calib`` included. ``calibration_derivative`` (signals moved to first order
+    along the 5 ms-grid derivatives) equals central differences of the effects' terms on Signals
+    recomputed from shifted encoder readings (the arm's kinematics at every sample); the design's
+    ``dX_dq`` are those derivatives through the same rows; ``calibrated_design`` adds
+    ``sum_e dX_e/dq_j p_e`` to the encoder columns once and leaves the calibrated residual alone."""
+    from kinadapt_nn.diagnostics.effects import (_wrench_to_s, calibration_derivative, encoder_derivatives,
+                                                 shifted_signals, tip_twist_map)
+    from kinadapt_nn.sensing import channel_metric
+
+    cfg, sig, _ = _run([], duration=11.5)  # free space, then contact
+    assert (sig.gate > 0).any() and (sig.gate == 0).any()
+    n, h = len(sig.t_s), 1e-4
+    i_tare = int(np.clip(np.searchsorted(sig.t_s, sig.t_tare_s), 0, n - 1))
+
+    def exact(j: int, dq: float):
+        q = sig.q_rad.copy()
+        q[:, j] += dq
+        R, tw = np.empty((n, 3, 3)), np.empty((n, 6))
+        for i in range(n):
+            k = sig.kin.update(q[i])
+            R[i], tw[i] = k.R_wf, tip_twist_map(k.R_wf, k.J_arm, sig.l_nom_f) @ sig.qdot_rad_s[i]
+        w = np.concatenate([np.einsum("nij,nj->ni", R, sig.r_tared_f[:, :3]),
+                            np.einsum("nij,nj->ni", R, sig.r_tared_f[:, 3:])], axis=1)
+        s = sig.s.copy()
+        ws = _wrench_to_s(w, sig.S)
+        s[:, 1:3], s[:, 3:] = ws[:, :2], ws[:, 3:]
+        return sig._replace(R_wf=R, twist_tip_w=tw, w_env_w=w, s=s, R_tare=R[i_tare].copy(), q_rad=q)
+
+    names = [m for m in LIBRARY if m != "encoder_offset"]
+    derivs = encoder_derivatives(sig)
+    fd = list(calibration_derivative(sig, names, h=h, derivs=derivs))
+    assert len(fd) == 6
+    for j in (0, 3):
+        plus, minus = exact(j, h), exact(j, -h)
+        for name in names:
+            for a, b, d in zip(LIBRARY[name].terms(plus), LIBRARY[name].terms(minus), fd[j][name]):
+                assert (a is None) == (d is None), name
+                if a is not None:
+                    ref = (a - b) / (2 * h)
+                    assert np.abs(ref).max() > 0, (name, j)
+                    np.testing.assert_allclose(d, ref, rtol=0, atol=1e-3 * np.abs(ref).max(), err_msg=f"{name} joint {j + 1}")
+
+    rc = rk.RankCfg()
+    des = design_of(sig, cfg, rc)
+    assert set(des.dX_dq) == set(names) and des.encoder_calibration is None
+    W6 = channel_metric(cfg.sensing)
+    j = 3
+    for name in ("tool_tilt", "ft_frame_rotation"):
+        up = rk.build_design(shifted_signals(sig, *derivs[j], h, j), W6, rc, [name]).X[name]
+        dn = rk.build_design(shifted_signals(sig, *derivs[j], -h, j), W6, rc, [name]).X[name]
+        np.testing.assert_allclose(des.dX_dq[name][:, :, j], (up - dn) / (2 * h), rtol=0,
+                                   atol=1e-9 * np.abs(up).max() / h)
+    calib = {m: list(0.3 * LIBRARY[m].default(load_config(None).effects) + 1e-3) for m in LIBRARY}
+    cal = rk.calibrated_design(des, calib)
+    shift = sum(np.einsum("rkj,k->rj", des.dX_dq[m], np.asarray(calib[m])) for m in names)
+    np.testing.assert_allclose(cal.X["encoder_offset"], des.X["encoder_offset"] + shift)
+    assert np.abs(shift).max() > 0
+    assert all(cal.X[m] is des.X[m] for m in names)
+    assert rk.calibrated_design(cal, calib) is cal and rk.calibrated_design(des, None) is des
+    np.testing.assert_allclose(rk.calibrated_residual(cal, calib), rk.calibrated_residual(des, calib))

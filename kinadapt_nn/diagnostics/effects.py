@@ -297,14 +297,13 @@ def _cols_grasp_compliance(sig: Signals) -> Terms:
     return Terms(_contact_rate(sig, disp)[:, :, None], None)  # the map is linear: displacement -> level change
 
 
-def _cols_encoder_offset(sig: Signals, eps: float = 1e-6, grid_s: float = 0.005) -> Terms:
-    """Finite differences of the model in each joint's zero (``q -> q + eps e_j``): the
-    derivative of the tip-twist map ``Ad(R l_nom) J_arm`` and of ``R_wf`` depend on ``q`` only,
-    so they are evaluated on a ``grid_s`` grid and interpolated, then applied to the full-rate
-    ``qdot`` and tared reading."""
+def encoder_derivatives(sig: Signals, eps: float = 1e-6, grid_s: float = 0.005) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per joint ``j`` = 0..5, the derivatives of the encoder-dependent signals in that joint's
+    zero (``q -> q + eps e_j``, forward differences): ``(dR (N, 3, 3), dtwist (N, 6))`` of
+    ``R_wf`` and of the nominal-tip twist ``Ad(R l_nom) J_arm qdot``. The derivatives of the
+    tip-twist map and of ``R_wf`` depend on ``q`` only, so they are evaluated on a ``grid_s``
+    grid and interpolated, then applied to the full-rate ``qdot``. -> 6 pairs."""
     n = len(sig.t_s)
-    lev = np.zeros((n, 6, 6))
-    integ = np.zeros((n, 6, 6))
     step = max(1, int(round(grid_s / sig.dt_s)))
     grid = np.r_[np.arange(0, n, step), n - 1] if n > 1 else np.zeros(1, int)
     grid = np.unique(grid)
@@ -317,6 +316,8 @@ def _cols_encoder_offset(sig: Signals, eps: float = 1e-6, grid_s: float = 0.005)
     for gi, i in enumerate(grid):
         k = sig.kin.update(sig.q_rad[i])
         base_A[gi], base_R[gi] = tip_map(k), k.R_wf
+    t = sig.t_s
+    out = []
     for j in range(6):
         dA = np.empty((len(grid), 6, 7))
         dR = np.empty((len(grid), 3, 3))
@@ -326,16 +327,68 @@ def _cols_encoder_offset(sig: Signals, eps: float = 1e-6, grid_s: float = 0.005)
             k = sig.kin.update(q)
             dA[gi] = (tip_map(k) - base_A[gi]) / eps
             dR[gi] = (k.R_wf - base_R[gi]) / eps
-        t = sig.t_s
         dA_f = np.stack([np.interp(t, t[grid], dA[:, a, b]) for a in range(6) for b in range(7)], axis=1).reshape(n, 6, 7)
         dR_f = np.stack([np.interp(t, t[grid], dR[:, a, b]) for a in range(3) for b in range(3)], axis=1).reshape(n, 3, 3)
-        dtw = np.einsum("nij,nj->ni", dA_f, sig.qdot_rad_s)
+        out.append((dR_f, np.einsum("nij,nj->ni", dA_f, sig.qdot_rad_s)))
+    return out
+
+
+def _cols_encoder_offset(sig: Signals, eps: float = 1e-6, grid_s: float = 0.005,
+                         derivs: list[tuple[np.ndarray, np.ndarray]] | None = None) -> Terms:
+    """Finite differences of the nominal model in each joint's zero (``encoder_derivatives``):
+    the measured level ``Z = to_level(R r)`` with the lever ``R l_nom`` and the tip-contact rate
+    of the twist. A joint that sits at reading + offset leaves ``-dZ/dq_j`` in the level and
+    ``+d(rate)/dq_j`` in the prediction's integral (the residual is measured minus predicted).
+    The calibrated part of the prediction also moves with ``q``; ``calibration_derivative``
+    gives that part (added by ``ranking.calibrated_design``). ``derivs``: ``encoder_derivatives``
+    when already computed."""
+    n = len(sig.t_s)
+    lev = np.zeros((n, 6, 6))
+    integ = np.zeros((n, 6, 6))
+    for j, (dR_f, dtw) in enumerate(derivs if derivs is not None else encoder_derivatives(sig, eps, grid_s)):
         dRr = np.concatenate([_rot(dR_f, sig.r_tared_f[:, :3]), _rot(dR_f, sig.r_tared_f[:, 3:])], axis=1)
         integ[:, :, j] = _contact_rate(sig, dtw)
         dZ = to_level(sig, dRr)  # d/dq_j of Z = to_level(R r) with the lever R l_nom:
         dZ[:, 3:] -= sig.gate[:, None] * np.cross(_rot(dR_f, np.broadcast_to(sig.l_nom_f, (n, 3))), -sig.w_env_w[:, :3])
         lev[:, :, j] = -dZ
     return Terms(lev, integ)
+
+
+def shifted_signals(sig: Signals, dR: np.ndarray, dtwist: np.ndarray, h: float, j: int | None = None) -> Signals:
+    """``sig`` with the encoder-dependent quantities moved to first order by ``h`` along a joint
+    zero whose derivatives are ``dR`` (N, 3, 3) and ``dtwist`` (N, 6) (``encoder_derivatives``):
+    ``R_wf``, the tip twist, the tared wrench in world ``R (r - r0)`` (the tare is in the sensor
+    frame), the wrench rows of ``s`` and the tare orientation. The contact gate (an inequality on
+    the encoder depth) is kept: its derivative is zero almost everywhere."""
+    R = sig.R_wf + h * dR
+    w = np.concatenate([_rot(R, sig.r_tared_f[:, :3]), _rot(R, sig.r_tared_f[:, 3:])], axis=1)
+    s = sig.s.copy()
+    ws = _wrench_to_s(w, sig.S)
+    s[:, 1:3], s[:, 3:] = ws[:, :2], ws[:, 3:]
+    i_tare = int(np.clip(np.searchsorted(sig.t_s, sig.t_tare_s), 0, len(sig.t_s) - 1))
+    q = sig.q_rad.copy()
+    if j is not None:
+        q[:, j] += h
+    return sig._replace(R_wf=R, twist_tip_w=sig.twist_tip_w + h * dtwist, w_env_w=w, s=s,
+                        R_tare=sig.R_tare + h * dR[i_tare], q_rad=q)
+
+
+def calibration_derivative(sig: Signals, names, h: float = 1e-4,
+                           derivs: list[tuple[np.ndarray, np.ndarray]] | None = None):
+    """``d Terms_e / d q_j`` for the effects ``names`` (the encoder offset itself excluded: its
+    derivative is second order in the model), by central differences of the effects' terms on
+    ``shifted_signals`` (+-h; ``derivs``: ``encoder_derivatives``, computed when None). The encoder-offset column of a calibrated model is
+    ``C_enc_j + sum_e (dC_e/dq_j) p_e^calib`` (``ranking.calibrated_design``: a joint zero moves
+    the whole prediction, its calibrated part included).
+    -> generator over joints j = 0..5 of ``{effect: Terms((N, 6, k) or None, rate (N, 6, k) or None)}``."""
+    names = [n for n in names if n != "encoder_offset"]
+    for j, (dR, dtw) in enumerate(derivs if derivs is not None else encoder_derivatives(sig)):
+        plus, minus = shifted_signals(sig, dR, dtw, h, j), shifted_signals(sig, dR, dtw, -h, j)
+        out = {}
+        for n in names:
+            a, b = LIBRARY[n].terms(plus), LIBRARY[n].terms(minus)
+            out[n] = Terms(*(None if x is None else (x - y) / (2.0 * h) for x, y in zip(a, b)))
+        yield out
 
 
 # ---------------------------------------------------------------------------------------- library
@@ -361,9 +414,10 @@ class Effect:
     def k(self) -> int:
         return len(self.params)
 
-    def columns(self, sig: Signals) -> Terms:
-        """Level columns: (closed-form level, integral of the rate), (N, 6, k) each or None."""
-        lev, rate = self.terms(sig)
+    def columns(self, sig: Signals, **kw) -> Terms:
+        """Level columns: (closed-form level, integral of the rate), (N, 6, k) each or None
+        (``kw``: passed to ``terms``, e.g. the encoder derivatives already computed)."""
+        lev, rate = self.terms(sig, **kw)
         return Terms(lev, None if rate is None else cumulative(rate, sig.dt_s))
 
 

@@ -108,9 +108,11 @@ def design_of(sig: Signals, cfg: ExperimentCfg, rc: rk.RankCfg) -> rk.Design:
 
 
 def analyse_effects(des: rk.Design, calib: dict | None, add: list[str], rc: rk.RankCfg) -> dict:
-    """Ranking, confusion and (for ``add``) the refit with residual before/after."""
+    """Ranking, confusion and (for ``add``) the refit with residual before/after, all against the
+    calibrated nominal model (``ranking.calibrated_residual`` and ``ranking.calibrated_design``)."""
     check_effect_names(add)
     y = rk.calibrated_residual(des, calib)
+    des = rk.calibrated_design(des, calib)  # the encoder columns differentiate the calibrated prediction too
     ranking = rk.rank(des, y, rc, calib)
     out = {"ranking": ranking, "confusion": rk.confusion(des),
            "residual_level_rms": rk.rms_by_channel(des, y),

@@ -44,10 +44,11 @@ from typing import NamedTuple
 import numpy as np
 
 from kinadapt_nn.config import EffectsCfg
-from kinadapt_nn.diagnostics.effects import (AXIAL, LEVEL_CHANNELS, LIBRARY, Signals, headline_errors, moving_average,
-                                             nominal_parts, physical_report)
+from kinadapt_nn.diagnostics.effects import (AXIAL, LEVEL_CHANNELS, LIBRARY, Signals, calibration_derivative, cumulative,
+                                             encoder_derivatives, headline_errors, moving_average, nominal_parts, physical_report)
 from kinadapt_nn.errors import KinadaptError
 
+ENCODER = "encoder_offset"
 DEFAULT_CALIBRATION = Path(__file__).resolve().parents[2] / "models" / "nominal_calibration.json"
 
 
@@ -71,6 +72,11 @@ class Design(NamedTuple):
     channel: np.ndarray  #: (R,) index into LEVEL_CHANNELS of each row
     W: np.ndarray  #: (R,) the metric weight of each row
     t_s: np.ndarray  #: (R,) time of each row [s]
+    #: effect -> (R, k, 6): d X_e / d q_j, the derivative of each effect's columns in each joint's
+    #: zero (same rows), for the encoder-offset columns of a calibrated model; None: not computed
+    dX_dq: dict | None = None
+    #: the calibration ``calibrated_design`` applied to X[ENCODER] (None: the plain columns)
+    encoder_calibration: dict | None = None
 
 
 def build_design(sig: Signals, W6: np.ndarray, rc: RankCfg, names: list[str] | None = None) -> Design:
@@ -110,22 +116,33 @@ def build_design(sig: Signals, W6: np.ndarray, rc: RankCfg, names: list[str] | N
     meas, pint = (moving_average(x, k_s) for x in nominal_parts(sig))
     y = np.where(con, (meas[rows] - meas[a]) - (pint[rows] - pint[a]), meas[rows])
     y = (y * w).ravel()[use]
-    X = {}
     con3 = con[:, :, None]
-    for name in names:
-        lev, integ = (None if c is None else moving_average(c, k_s) for c in LIBRARY[name].columns(sig))  # (N, 6, k)
-        k = LIBRARY[name].k
+
+    def rows_of(lev: np.ndarray | None, integ: np.ndarray | None, k: int) -> np.ndarray:
+        """(N, 6, k) level columns (closed form, integrated rate) -> (R, k) design columns."""
         C = np.zeros((len(rows), nc, k))
         if lev is not None:
+            lev = moving_average(lev, k_s)
             C += np.where(con3, lev[rows] - lev[a], lev[rows])
         if integ is not None:
+            integ = moving_average(integ, k_s)
             C += np.where(con3, integ[rows] - integ[a], 0.0)
-        X[name] = (C * w[None, :, None]).reshape(-1, k)[use]
+        return (C * w[None, :, None]).reshape(-1, k)[use]
+
+    derivs = encoder_derivatives(sig) if ENCODER in names else None  # shared by the encoder columns and dX
+    X = {name: rows_of(*LIBRARY[name].columns(sig, **({"derivs": derivs} if name == ENCODER else {})), LIBRARY[name].k)
+         for name in names}
+    dX = None
+    if ENCODER in names and len(names) > 1:  # the encoder columns of a calibrated model (calibrated_design)
+        dX = {n: np.zeros((len(y), LIBRARY[n].k, 6)) for n in names if n != ENCODER}
+        for j, terms in enumerate(calibration_derivative(sig, names, derivs=derivs)):
+            for n, (lev, rate) in terms.items():
+                dX[n][:, :, j] = rows_of(lev, None if rate is None else cumulative(rate, sig.dt_s), LIBRARY[n].k)
     n_win = int(win[rows].max()) + 1 if len(rows) else 1
     nb = max(2, min(rc.n_blocks, n_win))
     block = np.repeat(np.minimum((win[rows] * nb) // n_win, nb - 1), nc)[use]
     return Design(y, X, block, nb, np.tile(np.arange(nc), len(rows))[use], np.tile(w, len(rows))[use],
-                  np.repeat(sig.t_s[rows], nc)[use])
+                  np.repeat(sig.t_s[rows], nc)[use], dX)
 
 
 def _solve(X: np.ndarray, y: np.ndarray, scale: np.ndarray, ridge: float) -> np.ndarray:
@@ -163,11 +180,39 @@ def calibrate(des: Design, rc: RankCfg) -> dict[str, list[float]]:
     return {n: [float(v) for v in pn] for n, pn in p.items()}
 
 
+def _encoder_shift(des: Design, calib: dict[str, list[float]]) -> np.ndarray:
+    """``sum_e (dX_e/dq_j) p_e^calib`` (R, 6): how the calibrated part of the prediction moves
+    with each joint's zero."""
+    out = np.zeros((len(des.y), 6))
+    for n, p in calib.items():
+        if n in (des.dX_dq or {}):
+            out += np.einsum("rkj,k->rj", des.dX_dq[n], np.asarray(p, dtype=float))
+    return out
+
+
+def calibrated_design(des: Design, calib: dict[str, list[float]] | None) -> Design:
+    """The design against the calibrated nominal model: a joint zero offset moves the model's q
+    everywhere, so its columns are the derivative of the *whole* prediction, the calibrated part
+    ``sum_e X_e(q) p_e^calib`` included: ``X_enc_j + sum_e (dX_e/dq_j) p_e^calib`` (the residual
+    is measured minus predicted; ``effects.calibration_derivative``; the calibrated encoder
+    offset's own derivative, second order, is left out). Idempotent; without a calibration or
+    derivatives, ``des`` unchanged."""
+    if not calib or des.dX_dq is None or ENCODER not in des.X or des.encoder_calibration is not None:
+        return des
+    return des._replace(X={**des.X, ENCODER: des.X[ENCODER] + _encoder_shift(des, calib)},
+                        encoder_calibration=dict(calib))
+
+
 def calibrated_residual(des: Design, calib: dict[str, list[float]] | None) -> np.ndarray:
+    """``y' = y - sum_e X_e p_e^calib``, the columns of the prediction at the readings (a
+    ``calibrated_design``'s encoder columns are taken back to the plain ones for this)."""
     y = des.y.copy()
     for n, p in (calib or {}).items():
         if n in des.X:
-            y -= des.X[n] @ np.asarray(p)
+            X = des.X[n]
+            if n == ENCODER and des.encoder_calibration is not None:
+                X = X - _encoder_shift(des, des.encoder_calibration)
+            y -= X @ np.asarray(p)
     return y
 
 
@@ -269,6 +314,7 @@ def rank(des: Design, y: np.ndarray, rc: RankCfg, calib: dict | None = None) -> 
     rest by explained fraction."""
     from scipy.stats import false_discovery_control
 
+    des = calibrated_design(des, calib)  # idempotent: the encoder columns of the calibrated model
     names = list(des.X)
     sse_tot = float(y @ y) or 1e-300
     sse0, _, _ = _cv(np.zeros((len(y), 0)), np.zeros(0), des, y, rc)
@@ -443,5 +489,5 @@ def load_calibration(path: Path, program: str) -> dict[str, list[float]]:
         raise KinadaptError(f"calibration '{path}' is malformed ({exc}); regenerate it (README)") from None
 
 
-__all__ = ["RankCfg", "build_design", "calibrate", "calibrated_residual", "rank", "refit", "rms_by_channel",
+__all__ = ["RankCfg", "build_design", "calibrate", "calibrated_design", "calibrated_residual", "rank", "refit", "rms_by_channel",
            "confusion", "load_calibration", "headline_errors", "DEFAULT_CALIBRATION"]

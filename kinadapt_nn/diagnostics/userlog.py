@@ -172,31 +172,34 @@ def build_design(pp: ph.Prepared, prep: Prep, names: list[str], rc: RowCfg,
 
 
 def sign_check(pp: ph.Prepared, setup: SetupCfg) -> dict:
-    """Fit the tool's total mass from the free-space force (with a constant offset when tared).
-    A negative mass means the wrench convention is flipped."""
-    free = ~pp.contact
+    """Fit the tool's total mass from the force (with a constant offset: it does not turn with
+    gravity) on every sample, then again on the 60 % that fit best (contact and effects are the
+    outliers; a flipped convention flips every sample, so it cannot hide there). A negative mass
+    means the wrench convention is flipped. Independent of the contact detection."""
     kin = pp.kin
-    if free.sum() < 10:
-        return {"ok": True, "fitted_total_mass_kg": None, "note": "too little free-space data to check"}
-    ga = (kin.g_s - kin.a_s)[free]  # (n, 3)
-    y = pp.r[free, :3].reshape(-1)
-    cols = [ga.reshape(-1)]
-    if setup.log.tared or True:  # an unknown constant offset does not turn with gravity: always allow it
-        for j in range(3):
-            c = np.zeros_like(ga)
-            c[:, j] = 1.0
-            cols.append(c.reshape(-1))
-    A = np.stack(cols, axis=1)
-    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+    ga = kin.g_s - kin.a_s  # (N, 3)
+    n = len(ga)
+    y = pp.r[:, :3].reshape(-1)
+    A = np.zeros((3 * n, 4))
+    A[:, 0] = ga.reshape(-1)
+    for j in range(3):
+        A[j::3, 1 + j] = 1.0
+    keep = np.ones(n, bool)
+    coef = np.zeros(4)
+    for _ in range(2):
+        rows = np.repeat(keep, 3)
+        coef, *_ = np.linalg.lstsq(A[rows], y[rows], rcond=None)
+        res = np.linalg.norm((y - A @ coef).reshape(n, 3), axis=1)
+        keep = res <= np.quantile(res, 0.6)
     m_fit = float(coef[0])
-    spread = float(np.linalg.norm(ga - ga.mean(0), axis=1).max())
+    spread = float(np.linalg.norm(ga[keep] - ga[keep].mean(0), axis=1).max()) if keep.any() else 0.0
     out = {"fitted_total_mass_kg": m_fit, "declared_mass_kg": setup.tool.mass_kg, "ok": True}
     if spread < 1.0:
-        out["note"] = "the tool hardly turns in free space: the mass (and sign) cannot be checked"
+        out["note"] = "the tool hardly turns in the log: the mass (and sign) cannot be checked"
         return out
     if m_fit < -0.05 and (setup.tool.mass_kg == 0 or m_fit < -0.3 * setup.tool.mass_kg):
         out["ok"] = False
-        out["message"] = (f"the tool weighs {m_fit:.3g} kg by the free-space force (declared {setup.tool.mass_kg:g} kg): "
+        out["message"] = (f"the tool weighs {m_fit:.3g} kg by the measured force (declared {setup.tool.mass_kg:g} kg): "
                           f"is [log] wrench_acts = \"{setup.log.wrench_acts}\" right? (try the other one)")
     return out
 

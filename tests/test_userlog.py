@@ -1,0 +1,218 @@
+"""``kinadapt diagnose LOG --setup``: a foreign set-up's logs (examples/foreign_rig.py: another
+tool and sensor mount, MuJoCo's own inverse dynamics, other column names and conventions) get the
+right verdicts; the nominal model agrees with MuJoCo; bad input is one line."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from kinadapt_nn.cli import main
+from kinadapt_nn.diagnostics import physical as ph
+from kinadapt_nn.diagnostics.readers import read_log
+from kinadapt_nn.diagnostics.setup import load_setup
+from kinadapt_nn.diagnostics.userlog import diagnose
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _rig():
+    spec = importlib.util.spec_from_file_location("foreign_rig", ROOT / "examples" / "foreign_rig.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules.setdefault("foreign_rig", mod)  # dataclasses look their module up while it loads
+    spec.loader.exec_module(sys.modules["foreign_rig"]) if sys.modules["foreign_rig"] is mod else None
+    return sys.modules["foreign_rig"]
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return _rig()
+
+
+@pytest.fixture(scope="module")
+def cases(rig, tmp_path_factory):
+    """Every case of rig A, generated once, diagnosed once from its csv.gz."""
+    root = tmp_path_factory.mktemp("foreign")
+    out = {}
+    for name in rig.CASES:
+        d = rig.make_case(name, root, seed=0)
+        setup = load_setup(d / "setup_csv.toml")
+        res = diagnose(read_log(d / "log.csv.gz", setup), setup)
+        out[name] = (d, json.loads((d / "truth.json").read_text()), res.report)
+    return out
+
+
+def _verdicts(rep: dict) -> dict[str, str]:
+    return {e["effect"]: e["verdict"] for e in rep["ranking"]}
+
+
+def _entry(rep: dict, name: str) -> dict:
+    return next(e for e in rep["ranking"] if e["effect"] == name)
+
+
+def test_no_effect_nothing_present(cases):
+    _, _, rep = cases["none"]
+    assert not [n for n, v in _verdicts(rep).items() if v == "present"]
+    assert rep["sign_check"]["ok"] and rep["tip_contact_check"]["ok"]
+    # a joint-1 zero offset is invisible to gravity: the honest verdict is cannot_decide, not absent
+    enc = _entry(rep, "encoder_offset")
+    assert enc["verdict"] == "cannot_decide" and "offset_joint1" in enc["excitation"]["weak_parameters"]
+
+
+@pytest.mark.parametrize("case", ["tool_gravity", "ft_frame_rotation", "ft_bias_drift", "encoder_offset", "tared_rotation"])
+def test_one_effect_alone_first_and_within_tolerance(cases, case):
+    _, truth, rep = cases[case]
+    (name, params), = truth["effects"].items()
+    present = [n for n, v in _verdicts(rep).items() if v == "present"]
+    assert present == [name], (case, present)
+    top = rep["ranking"][0]
+    assert top["effect"] == name and top["significant"]
+    est = top["estimate"]
+    for k, v in params.items():
+        if name == "ft_frame_rotation":
+            assert abs(est[k]["value"] - v) < 0.5, (k, est[k], v)  # degrees
+        elif name == "tool_gravity" and k.startswith("com"):
+            assert abs(est[k]["value"] - v) <= 0.2 * np.linalg.norm([params["com_x"], params["com_y"], params["com_z"]])
+        else:
+            assert abs(est[k]["value"] - v) <= 0.2 * abs(v), (k, est[k], v)
+
+
+def test_undetectable_effect_is_cannot_decide_not_a_wrong_answer(cases):
+    _, truth, rep = cases["encoder_offset_joint1"]
+    assert truth["detectable"] is False
+    assert not [n for n, v in _verdicts(rep).items() if v == "present"]
+    assert _entry(rep, "encoder_offset")["verdict"] == "cannot_decide"
+
+
+def test_two_effects_both_present_and_jointly_estimated(cases):
+    _, truth, rep = cases["pair"]
+    present = {n for n, v in _verdicts(rep).items() if v == "present"}
+    assert present == {"tool_gravity", "ft_frame_rotation"}
+    g = _entry(rep, "tool_gravity")["estimate"]
+    assert abs(g["mass"]["value"] - truth["effects"]["tool_gravity"]["mass"]) <= 0.2 * truth["effects"]["tool_gravity"]["mass"]
+    r = _entry(rep, "ft_frame_rotation")["estimate"]
+    for k, v in truth["effects"]["ft_frame_rotation"].items():
+        assert abs(r[k]["value"] - v) < 0.5
+
+
+def test_nominal_model_agrees_with_mujoco_inverse_dynamics(rig, cases):
+    """Newton-Euler of the declared tool from the encoders (Savitzky-Golay accelerations) vs the
+    rig's noiseless MuJoCo reading in free space: the same wrench, in RMS well below the sensor
+    noise (0.04 N); the peaks are the 0.1 s derivative window smoothing the fastest moves."""
+    d, _, _ = cases["none"]
+    setup = load_setup(d / "setup_csv.toml")
+    sig = rig.case_signals("none", 0, noise=False)
+    t, q, qd = sig["t"], sig["q"], sig["qdot"]
+    w_true = sig["w_tool_on_sensor_s"]
+    arm = ph.ArmModel(setup)
+    m, mc, I_O = ph.nominal_inertials(setup)
+    w = ph.tool_wrench(arm.series(q, qd, t), m, mc, I_O)
+    free = (t > 0.2) & (t < 9.5) & (t < t[-1] - 0.2)
+    err = np.abs(w[free] - w_true[free])
+    assert err[:, :3].max() < 0.1 and err[:, 3:].max() < 0.01, err.max(axis=0)
+    assert np.sqrt(np.mean(err[:, :3] ** 2)) < 0.01 and np.sqrt(np.mean(err[:, 3:] ** 2)) < 0.001
+
+
+def test_encoder_columns_identities(cases):
+    """Joint 1 is invisible to a gravity/inertia model (rotation about the vertical); every other
+    column is the central difference of the whole model (checked against a one-sided one)."""
+    from kinadapt_nn.diagnostics.userlog import RowCfg, detect_contact, prepare, prepared
+
+    d, _, _ = cases["none"]
+    setup = load_setup(d / "setup_csv.toml")
+    log = read_log(d / "log.csv.gz", setup)
+    prep = prepare(log, setup, RowCfg(), lambda m: None)
+    contact, off = detect_contact(prep.r - prep.w_nom, prep.t_s, setup, RowCfg())
+    pp = prepared(prep, setup, contact, off)
+    C = ph.SPECS["encoder_offset"].columns(pp)
+    assert np.abs(C[:, :, 0]).max() < 1e-6 * np.abs(C[:, :, 3]).max()
+    m, mc, I_O = ph.nominal_inertials(setup)
+    dq = np.zeros(7)
+    dq[3] = 1e-4
+    fd = (ph.tool_wrench(pp.arm.series(pp.q_rad + dq, pp.qdot_rad_s, pp.t_s), m, mc, I_O) - pp.w_nom) / 1e-4
+    np.testing.assert_allclose(C[:, :, 3], fd, atol=1e-3 * np.abs(fd).max())
+
+
+def test_parquet_other_columns_and_convention_same_answer(cases, tmp_path):
+    """The same samples as Parquet (other names, degrees, no qdot, the other wrench convention) ->
+    the same verdicts; the drift is reported in each log's own convention."""
+    d, truth, rep = cases["ft_bias_drift"]
+    out = tmp_path / "pq"
+    assert main(["diagnose", str(d / "log.parquet"), "--setup", str(d / "setup_parquet.toml"), "--out", str(out),
+                 "--quiet"]) == 0
+    rep_pq = json.loads((out / "diagnosis.json").read_text())
+    assert _verdicts(rep_pq) == _verdicts(rep)
+    est, est_pq = _entry(rep, "ft_bias_drift")["estimate"], _entry(rep_pq, "ft_bias_drift")["estimate"]
+    for k, v in truth["truth_parquet"]["ft_bias_drift"].items():
+        assert abs(est_pq[k]["value"] - v) <= 0.2 * abs(v)
+        assert est_pq[k]["value"] == pytest.approx(-est[k]["value"], rel=0.02, abs=1e-4)
+    assert (out / "setup.toml").is_file() and (out / "effects.png").is_file() and (out / "residual.png").is_file()
+
+
+def test_add_makes_the_residual_fall(cases, tmp_path):
+    d, _, _ = cases["tool_gravity"]
+    out = tmp_path / "add"
+    assert main(["diagnose", str(d / "log.csv.gz"), "--setup", str(d / "setup_csv.toml"), "--out", str(out),
+                 "--add", "tool_gravity", "--quiet"]) == 0
+    rep = json.loads((out / "diagnosis.json").read_text())
+    assert rep["residual_rms_after"]["total_w"] < 0.3 * rep["residual_rms_before"]["total_w"]
+    assert abs(rep["added"]["tool_gravity"]["estimate"]["mass"]["value"] - 0.25) < 0.05
+
+
+def test_flipped_sign_is_caught_not_diagnosed(cases, tmp_path, capsys):
+    d, _, _ = cases["none"]
+    out = tmp_path / "flip"
+    assert main(["diagnose", str(d / "log.csv.gz"), "--setup", str(d / "setup_csv.toml"), "--out", str(out),
+                 "--set", 'log.wrench_acts="tool_on_sensor"']) == 0
+    err = capsys.readouterr().err
+    assert "wrench_acts" in err and "weighs -" in err
+    rep = json.loads((out / "diagnosis.json").read_text())
+    assert not rep["sign_check"]["ok"]
+    assert set(_verdicts(rep).values()) == {"cannot_decide"}
+
+
+def test_wrong_tip_is_flagged_and_contact_left_out(cases, tmp_path, capsys):
+    d, _, _ = cases["tool_gravity"]
+    out = tmp_path / "tip"
+    assert main(["diagnose", str(d / "log.csv.gz"), "--setup", str(d / "setup_csv.toml"), "--out", str(out),
+                 "--set", "tool.tip_sensor_m=[0.01, 0.0, 0.12]", "--quiet"]) == 0
+    rep = json.loads((out / "diagnosis.json").read_text())
+    assert not rep["tip_contact_check"]["ok"] and rep["contact"]["rows"].startswith("left out")
+    assert [n for n, v in _verdicts(rep).items() if v == "present"] == ["tool_gravity"]
+
+
+def test_bad_input_is_one_line_and_writes_nothing(cases, tmp_path, capsys):
+    d, _, _ = cases["none"]
+    bad = tmp_path / "bad.toml"
+    bad.write_text((d / "setup_csv.toml").read_text().replace("[tool]", "[tool]\nmass_kilo = 1.0"))
+    out = tmp_path / "o"
+    assert main(["diagnose", str(d / "log.csv.gz"), "--setup", str(bad), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "mass_kilo" in err and len(err.splitlines()) == 1 and not out.exists()
+    nan = tmp_path / "nan.toml"
+    nan.write_text((d / "setup_csv.toml").read_text().replace("mass_kg = 1.1", "mass_kg = nan"))
+    assert main(["diagnose", str(d / "log.csv.gz"), "--setup", str(nan), "--out", str(out)]) == 2
+    assert "mass_kg" in capsys.readouterr().err and not out.exists()
+    wrong_col = tmp_path / "col.toml"
+    wrong_col.write_text((d / "setup_csv.toml").read_text().replace('"F_x"', '"Fx"'))
+    assert main(["diagnose", str(d / "log.csv.gz"), "--setup", str(wrong_col), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()  # progress lines, then the error: one line
+    assert err[-1].startswith("kinadapt: error:") and "Fx" in err[-1] and not out.exists()
+    assert not any("Traceback" in ln for ln in err)
+    assert main(["diagnose", str(d / "log.csv.gz"), "--setup", str(d / "setup_csv.toml"), "--out", str(out),
+                 "--add", "contact_stiffness"]) == 2
+    assert "contact_stiffness" in capsys.readouterr().err and not out.exists()
+
+
+def test_setup_template_loads_as_the_defaults(tmp_path, capsys):
+    assert main(["setup-template"]) == 0
+    p = tmp_path / "t.toml"
+    p.write_text(capsys.readouterr().out)
+    assert load_setup(p) == load_setup(None)
+    for f in sorted((ROOT / "examples" / "setups").glob("*.toml")):
+        load_setup(f)
