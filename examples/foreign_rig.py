@@ -4,14 +4,18 @@ Standalone on purpose: this file imports nothing from ``kinadapt_nn`` (only MuJo
 PyArrow and the standard library) so that its logs are independent of the package's own simulator
 and of the diagnosis code. The only shared input is the arm model ``models/panda.xml``. ::
 
-    python examples/foreign_rig.py --out DIR [--case NAME ...] [--seed N] [--self-test]
+    python examples/foreign_rig.py --out DIR [--rig A|B] [--case NAME ...] [--seed N] [--self-test]
 
-writes, per case, ``DIR/<case>/``: ``log.csv.gz``, ``log.parquet`` (the same samples, other column
-names and conventions), ``setup_csv.toml``, ``setup_parquet.toml`` (the NOMINAL rig, as a user
-would declare it) and ``truth.json`` (the hidden effects, in the diagnosis's reporting units).
+Two rigs, different in every respect we could think of (mount, tool, trajectory, contact, log
+format, rate, noise, conventions), so that the diagnosis is not tuned to one file. Rig A (the
+default) writes, per case, ``DIR/<case>/``: ``log.csv.gz``, ``log.parquet`` (the same samples, other
+column names and conventions), ``setup_csv.toml``, ``setup_parquet.toml`` (the NOMINAL rig, as a
+user would declare it) and ``truth.json`` (the hidden effects, in the diagnosis's reporting units).
+Rig B (``--rig B``, described at the end of this docstring) writes ``log.csv`` (plain text),
+``setup.toml`` and ``truth.json``.
 
-The rig
--------
+Rig A
+-----
 Frames: ``w`` world (z up, gravity (0, 0, -9.81) m/s^2), ``f`` the arm's ``flange`` site frame
 (on ``link7``), ``s`` the F/T sensor frame: origin ``SENSOR_POS_F_M`` = (0, 0, 0.012) m in ``f``,
 axes ``R_fs = Rz(yaw) Ry(pitch) Rx(roll)`` with (roll, pitch, yaw) = ``SENSOR_RPY_F_DEG`` =
@@ -51,6 +55,36 @@ Logs
 [rad/s], ``F_x F_y F_z T_x T_y T_z`` [N, N m] the wrench the SENSOR exerts on the TOOL (s axes,
 about the s origin). ``log.parquet``: ``time_s`` [s from the first sample], ``a1..a7`` [deg], no
 velocities, ``wrench_0..5`` the wrench the TOOL exerts on the SENSOR (= - csv wrench).
+
+Rig B
+-----
+A sensor mounted flipped behind a light offset probe. Sensor frame ``s``: origin (0, 0, 0.035) m in
+``f``, (roll, pitch, yaw) = (180, 0, 90) deg, so its z axis points back into the flange and the tool
+lies at negative sensor z. Sensor housing 0.2 kg on the arm side (positive s z). Tool: 0.48 kg, COM
+(0.012, 0, -0.07) m in ``s``, inertia about the COM (0.0011, 0.0012, 0.0003, 0.0001, 0, 0) kg m^2,
+tip (0, 0.02, -0.21) m (off the sensor axis). Same MuJoCo construction and reading as rig A.
+
+The experiment (``trajectory(rig="B")``, 12 s at 1 kHz, 12001 samples, limits as for rig A)
+  1. 0-7.4 s: hold at ``B_Q_HOME`` 0.25 s, then 8 fast minimum-jerk moves (0.6-0.9 s, IK to
+     ``_B_PHASE1_TARGETS``: the tool tilted 18-40 deg about varied world axes, turned about its
+     own axis by up to 45 deg between targets, one move a pure turn; the last to a 12 deg tilted
+     base pose) with holds of 0-0.2 s;
+  2. 7.4-9.0 s: joint-space wiggle of joints 2 (up only), 4 and 6 (parallel axes at this pose);
+  3. 9.0-12 s: press-and-slide on a table TILTED 10 deg about world x (normal
+     (0, -sin 10, cos 10)): the tip approaches 6 cm along the normal, the normal force ramps to
+     25 N, the tip runs a 2 cm radius circle in the table plane (1.2 s), the force ramps to 0, the
+     tip lifts 6 cm along the normal and holds. Coulomb friction mu = 0.4 against the tip's in-plane
+     velocity (smoothed below 2 mm/s); tool orientation fixed; IK at 20 ms knots, quintic spline.
+     The tip stays above the table plane outside contact.
+
+Log ``log.csv`` (plain): ``t`` [s], first sample at 3.7 s, ``q1..q7`` [rad], NO velocities,
+``fx fy fz tx ty tz`` the wrench the TOOL exerts on the SENSOR. Every rig-B case is tared: the
+sensor was zeroed at power-up at ``B_TARE_Q`` (at rest, a pose not in the log), and its zero is off
+by a constant: logged = reading - reading(B_TARE_Q) + ``B_TARE_OFFSET`` (0.8, -0.5, 1.2) N,
+(0.03, 0.02, -0.01) N m; the tare reading includes a case's payload and sensor-axes rotation but
+no drift or noise. Pipeline: payload (physics) -> sensor-axes rotation -> tare -> drift (from the
+first sample) -> noise (wrench N(0, 0.08 N / 0.004 N m), q N(0, 2e-5 rad)) -> quantisation of the
+wrench to 1/64 N and 1/1000 N m.
 """
 
 from __future__ import annotations
@@ -136,6 +170,84 @@ SIGMA_TORQUE_NM = 0.002
 SIGMA_Q_RAD = 1e-5
 SIGMA_QDOT_RAD_S = 1e-3
 
+# --- rig B (a second, different set-up; see the module docstring) -------------------------------
+B_SENSOR_POS_F_M = (0.0, 0.0, 0.035)
+B_SENSOR_RPY_F_DEG = (180.0, 0.0, 90.0)  # flipped: s z points back into the flange
+B_SENSOR_HOUSING_KG = 0.2
+B_TOOL_MASS_KG = 0.48
+B_TOOL_COM_S_M = (0.012, 0.0, -0.07)  # negative z: the tool is at -z of the flipped sensor
+B_TOOL_INERTIA_COM_KG_M2 = (0.0011, 0.0012, 0.0003, 0.0001, 0.0, 0.0)
+B_TOOL_TIP_S_M = (0.0, 0.02, -0.21)  # an offset probe
+B_RATE_HZ = 1000.0
+B_DURATION_S = 12.0
+B_N_SAMPLES = 12001
+B_T0_S = 3.7  # [s] the log's time of its first sample
+B_Q_HOME = (0.3, -0.2, -0.3, -2.2, 0.2, 2.0, -0.5)  # [rad] tool roughly down (14 deg off vertical)
+B_TARE_Q = (-0.6, 0.35, 0.7, -1.75, -0.9, 1.35, 1.6)  # [rad] power-up pose of the tare, not in the log
+B_TARE_OFFSET = (0.8, -0.5, 1.2, 0.03, 0.02, -0.01)  # [N, N m] the tared zero's constant error
+B_MU = 0.4
+B_NORMAL_FORCE_N = 25.0
+B_TABLE_TILT_DEG = 10.0  # about world x: normal (0, -sin, cos)
+B_CIRCLE_RADIUS_M = 0.02
+B_FORCE_LSB_N = 1.0 / 64.0
+B_TORQUE_LSB_NM = 1.0 / 1000.0
+B_SIGMA_FORCE_N = 0.08
+B_SIGMA_TORQUE_NM = 0.004
+B_SIGMA_Q_RAD = 2e-5
+
+# Phase 1 of rig B: (tilt rotation vector about world axes [deg], turn about the sensor's z [deg],
+# sensor-origin displacement [m] in w, move duration [s], hold after it [s]); the first starts at
+# _B_T_START_HOLD, the last ends at the phase-2/3 base pose (which is not the home pose)
+_B_PHASE1_TARGETS = (
+    ((18.0, 0.0, 0.0), 0.0, (0.0, 0.02, 0.0), 0.6, 0.15),
+    ((20.0, 22.0, 0.0), 20.0, (0.03, 0.0, 0.02), 0.7, 0.1),
+    ((0.0, 35.0, 0.0), 20.0, (0.02, -0.02, 0.0), 0.75, 0.2),
+    ((0.0, 35.0, 0.0), -25.0, (0.02, -0.02, 0.0), 0.7, 0.1),  # a pure turn about the tool axis
+    ((-25.0, 15.0, 10.0), -25.0, (-0.02, 0.02, 0.03), 0.9, 0.15),
+    ((-30.0, -20.0, 0.0), 10.0, (-0.03, 0.0, -0.02), 0.9, 0.1),
+    ((0.0, -40.0, 0.0), 30.0, (0.0, -0.02, 0.0), 0.8, 0.2),
+    ((0.0, -12.0, 0.0), 0.0, (0.0, 0.0, 0.0), 0.8, 0.0),
+)
+_B_T_START_HOLD = 0.25
+_B_WIGGLE_S = 1.6
+# joints 2, 4, 6: (index, amplitude [rad], cycles); joint 2 half a cycle, up only (the table is below)
+_B_WIGGLE = ((1, -0.15, 0.5), (3, 0.2, 1.5), (5, 0.25, 2.0))
+# phase 3 of rig B: durations [s] of approach, press, circle, release, lift, hold
+_B_PHASE3_S = (0.45, 0.3, 1.2, 0.3, 0.45, 0.3)
+_B_APPROACH_M = 0.06  # [m] along the table normal
+
+
+@dataclass(frozen=True)
+class Rig:
+    """The physical set-up of a rig (true = declared, except for a case's hidden effects)."""
+
+    name: str
+    sensor_pos_f_m: tuple[float, float, float]
+    sensor_rpy_f_deg: tuple[float, float, float]
+    housing_kg: float
+    housing_com_s_m: tuple[float, float, float]  # arm side of the measuring plane
+    tool_mass_kg: float
+    tool_com_s_m: tuple[float, float, float]
+    tool_inertia_com_kg_m2: tuple[float, ...]
+    tool_tip_s_m: tuple[float, float, float]
+    q_home: tuple[float, ...]
+
+
+RIGS: dict[str, Rig] = {
+    "A": Rig("A", SENSOR_POS_F_M, SENSOR_RPY_F_DEG, SENSOR_HOUSING_KG, (0.0, 0.0, -0.006), TOOL_MASS_KG,
+             TOOL_COM_S_M, TOOL_INERTIA_COM_KG_M2, TOOL_TIP_S_M, Q_HOME),
+    "B": Rig("B", B_SENSOR_POS_F_M, B_SENSOR_RPY_F_DEG, B_SENSOR_HOUSING_KG, (0.0, 0.0, 0.01), B_TOOL_MASS_KG,
+             B_TOOL_COM_S_M, B_TOOL_INERTIA_COM_KG_M2, B_TOOL_TIP_S_M, B_Q_HOME),
+}
+
+
+def _rig(rig: str | Rig) -> Rig:
+    if isinstance(rig, Rig):
+        return rig
+    if rig not in RIGS:
+        raise KeyError(f"unknown rig '{rig}' (choose from {', '.join(RIGS)})")
+    return RIGS[rig]
+
 
 # ==================================================================================================
 # cases
@@ -146,7 +258,8 @@ class _Hidden:
 
     payload: tuple[float, tuple[float, float, float]] | None = None  # (kg, COM in s [m]) added to the tool
     rotvec_deg: tuple[float, float, float] | None = None  # sensor axes rotated by this (axis in s) [deg]
-    drift_csv: tuple[float, ...] | None = None  # [N/s, N m/s] added to the csv (sensor_on_tool) wrench
+    drift_csv: tuple[float, ...] | None = None  # [N/s, N m/s] added to the csv's wrench (its own convention:
+    # rig A sensor_on_tool, from t = 0; rig B tool_on_sensor, from the first sample)
     encoder_offset_deg: dict[int, float] = field(default_factory=dict)  # joint (1-7) -> true - logged [deg]
     tared: bool = False
     detectable: bool = True
@@ -182,6 +295,47 @@ CASES: dict[str, str] = {
     "pair": "an undeclared 0.20 kg payload at (0, 0.03, 0.05) m AND sensor axes rotated 2.5 deg about (0, 1, 1)",
     "tared_rotation": "sensor axes rotated 3 deg about (1, 0.5, 1), log tared at t = 0.2 s",
 }
+
+_ROT_B = _rotvec_deg(1.5, (0.3, -1.0, 0.2))
+_DRIFT_B = (-0.08, 0.05, 0.12, 0.004, -0.003, 0.002)  # tool_on_sensor (log.csv's convention)
+_HIDDEN_B: dict[str, _Hidden] = {
+    "none": _Hidden(tared=True),
+    "tool_gravity": _Hidden(payload=(0.12, (-0.02, 0.01, -0.04)), tared=True),
+    "ft_frame_rotation": _Hidden(rotvec_deg=_ROT_B, tared=True),
+    "ft_bias_drift": _Hidden(drift_csv=_DRIFT_B, tared=True),
+    "encoder_offset": _Hidden(encoder_offset_deg={6: 0.8}, tared=True),
+    "encoder_offset_joint1": _Hidden(encoder_offset_deg={1: 1.5}, tared=True, detectable=False),
+    "pair": _Hidden(drift_csv=_DRIFT_B, encoder_offset_deg={2: 0.7}, tared=True),
+    "rotation_z_only": _Hidden(rotvec_deg=(0.0, 0.0, 2.0), tared=True),
+}
+
+CASES_B: dict[str, str] = {
+    "none": "no hidden effect: the log matches the declared rig (tared at an unknown pose, as every rig-B log)",
+    "tool_gravity": "an undeclared 0.12 kg payload at (-0.02, 0.01, -0.04) m in the sensor frame",
+    "ft_frame_rotation": "the sensor axes are rotated 1.5 deg about (0.3, -1, 0.2) (sensor frame) from the declared "
+                         "mount",
+    "ft_bias_drift": "the wrench reading drifts linearly from the first sample (log convention tool_on_sensor: "
+                     "+(-0.08, 0.05, 0.12) N/s, +(0.004, -0.003, 0.002) N m/s)",
+    "encoder_offset": "joint 6 reads 0.8 deg less than its true angle",
+    "encoder_offset_joint1": "joint 1 reads 1.5 deg less than its true angle (invisible: gravity is "
+                             "invariant under a joint-1 rotation)",
+    "pair": "the ft_bias_drift case's drift AND joint 2 reading 0.7 deg less than its true angle",
+    "rotation_z_only": "the sensor axes are rotated 2 deg about the sensor's own z axis (the tool axis)",
+}
+
+_CASE_TABLES = {"A": (_HIDDEN, CASES), "B": (_HIDDEN_B, CASES_B)}
+
+
+def cases(rig: str = "A") -> dict[str, str]:
+    """Case name -> description for ``rig``."""
+    return _CASE_TABLES[_rig(rig).name][1]
+
+
+def _hidden(name: str, rig: str) -> _Hidden:
+    table, desc = _CASE_TABLES[_rig(rig).name]
+    if name not in table:
+        raise KeyError(f"unknown case '{name}' for rig {_rig(rig).name} (choose from {', '.join(desc)})")
+    return table[name]
 
 
 def _effects_truth(h: _Hidden, sign: float = 1.0) -> dict[str, dict[str, float]]:
@@ -241,8 +395,9 @@ def _quat_of_matrix(r: np.ndarray) -> np.ndarray:
 # ==================================================================================================
 # the MuJoCo model
 # ==================================================================================================
-def build_model(payload: tuple[float, tuple[float, float, float]] | None = None) -> mujoco.MjModel:
-    """The shipped Panda with the F/T sensor and the true tool (and an optional extra payload).
+def build_model(payload: tuple[float, tuple[float, float, float]] | None = None, rig: str | Rig = "A"
+                ) -> mujoco.MjModel:
+    """The shipped Panda with ``rig``'s F/T sensor and true tool (and an optional extra payload).
 
     Bodies ``ft_sensor`` (welded to the flange's body at the sensor frame s) and ``tool`` (welded to
     ``ft_sensor``, body frame = s, inertial = the tool's); sites ``ft`` (= s, on ``tool``) and
@@ -255,21 +410,23 @@ def build_model(payload: tuple[float, tuple[float, float, float]] | None = None)
     r_bf = np.zeros(9)
     mujoco.mju_quat2Mat(r_bf, np.asarray(flange.quat, dtype=float))
     r_bf = r_bf.reshape(3, 3)
-    r_bs = r_bf @ rpy_matrix_deg(SENSOR_RPY_F_DEG)
-    p_bs = np.asarray(flange.pos, dtype=float) + r_bf @ np.asarray(SENSOR_POS_F_M)
+    rg = _rig(rig)
+    r_bs = r_bf @ rpy_matrix_deg(rg.sensor_rpy_f_deg)
+    p_bs = np.asarray(flange.pos, dtype=float) + r_bf @ np.asarray(rg.sensor_pos_f_m)
     sensor = parent.add_body(name="ft_sensor", pos=p_bs, quat=_quat_of_matrix(r_bs))
-    sensor.mass = SENSOR_HOUSING_KG
-    sensor.ipos = [0.0, 0.0, -0.006]
+    sensor.mass = rg.housing_kg
+    sensor.ipos = list(rg.housing_com_s_m)
     sensor.inertia = [1.5e-4, 1.5e-4, 2.5e-4]
     sensor.explicitinertial = True
     tool = sensor.add_body(name="tool")
-    tool.mass = TOOL_MASS_KG
-    tool.ipos = list(TOOL_COM_S_M)
-    tool.fullinertia = list(TOOL_INERTIA_COM_KG_M2)
+    tool.mass = rg.tool_mass_kg
+    tool.ipos = list(rg.tool_com_s_m)
+    tool.fullinertia = list(rg.tool_inertia_com_kg_m2)
     tool.explicitinertial = True
     tool.add_site(name="ft", size=[0.005, 0.005, 0.005])
-    tool.add_site(name="tip", pos=list(TOOL_TIP_S_M), size=[0.004, 0.004, 0.004])
-    tool.add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=[0, 0, 0.01, *TOOL_TIP_S_M], size=[0.012, 0, 0],
+    tool.add_site(name="tip", pos=list(rg.tool_tip_s_m), size=[0.004, 0.004, 0.004])
+    z0 = math.copysign(0.01, rg.tool_tip_s_m[2])  # the probe starts 1 cm from the sensor, towards the tip
+    tool.add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=[0, 0, z0, *rg.tool_tip_s_m], size=[0.012, 0, 0],
                   contype=0, conaffinity=0, density=0.0, group=1)
     if payload is not None:
         mass, com = payload
@@ -368,7 +525,10 @@ class Trajectory:
     t (N,) [s]; q, qd, qdd (N, 7) [rad, rad/s, rad/s^2] true joint motion; f_tip_w (N, 3) [N] force
     of the table on the tool at the true tip (world axes); tip_w (N, 3) [m] true tip position;
     table_z_m [m]; contact_s (t0, t1) [s] where the normal force is > 0; ``eval(t)`` gives q, qd, qdd
-    at any times in [0, 15] s (exact derivatives of the analytic / spline segments).
+    at any times in [0, duration] s (exact derivatives of the analytic / spline segments). The table
+    is the plane through ``table_point_w`` with the normal ``table_normal_w`` (rig A: horizontal at
+    ``table_z_m``; rig B: tilted, ``table_z_m`` is the height of the touch-down point). Times are
+    from the first sample (rig B's log adds ``B_T0_S``).
     """
 
     t: np.ndarray
@@ -380,6 +540,8 @@ class Trajectory:
     table_z_m: float
     contact_s: tuple[float, float]
     segments: list
+    table_point_w: np.ndarray | None = None
+    table_normal_w: np.ndarray | None = None
 
     def eval(self, t) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(q, qd, qdd), each (len(t), 7), at times ``t`` [s] (any in [0, DURATION_S])."""
@@ -404,7 +566,7 @@ def _seg_minjerk(t0: float, t1: float, qa, qb):
     return (t0, t1, fn)
 
 
-def _seg_swing(t0: float, t1: float, base):
+def _seg_swing(t0: float, t1: float, base, swing=_SWING):
     """q = base + sum_j A_j sin^2(pi tau) sin(2 pi n_j tau): zero offset, velocity and acceleration
     at both ends (C2 joins with the holds around it)."""
     base = np.asarray(base, dtype=float)
@@ -415,7 +577,7 @@ def _seg_swing(t0: float, t1: float, base):
         e, de, dde = np.sin(np.pi * tau) ** 2, np.pi * np.sin(2 * np.pi * tau), 2 * np.pi**2 * np.cos(2 * np.pi * tau)
         q = np.tile(base, (len(t), 1))
         qd, qdd = np.zeros_like(q), np.zeros_like(q)
-        for j, amp, n in _SWING:
+        for j, amp, n in swing:
             w = 2 * np.pi * n
             s, ds, dds = np.sin(w * tau), w * np.cos(w * tau), -(w**2) * np.sin(w * tau)
             q[:, j] += amp * e * s
@@ -448,9 +610,18 @@ def _normal_force(t: np.ndarray, t3: float) -> np.ndarray:
     return np.maximum(f, 0.0)
 
 
-@functools.lru_cache(maxsize=1)
-def trajectory() -> Trajectory:
-    """Build the scripted 15 s experiment (cached: identical for every case and seed)."""
+def trajectory(rig: str | Rig = "A") -> Trajectory:
+    """The scripted experiment of ``rig`` (cached: identical for every case and seed; read-only use)."""
+    return _trajectory(_rig(rig).name)
+
+
+@functools.lru_cache(maxsize=2)
+def _trajectory(rig: str) -> Trajectory:
+    return _trajectory_a() if rig == "A" else _trajectory_b()
+
+
+def _trajectory_a() -> Trajectory:
+    """Build rig A's scripted 15 s experiment."""
     m = build_model()
     d = mujoco.MjData(m)
     ids = _Ids(m)
@@ -520,15 +691,128 @@ def trajectory() -> Trajectory:
     traj.table_z_m = float(tip_w[i_touch, 2])
     on = np.nonzero(fn > 0.0)[0]
     traj.contact_s = (float(traj.t[on[0]]), float(traj.t[on[-1]]))
+    traj.table_point_w, traj.table_normal_w = tip_w[i_touch].copy(), np.array([0.0, 0.0, 1.0])
+    return traj
+
+
+def _b_table_axes() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rig B's table: normal n and in-plane axes u, v (orthonormal, u x v = n), world."""
+    a = math.radians(B_TABLE_TILT_DEG)
+    n = np.array([0.0, -math.sin(a), math.cos(a)])
+    u = np.array([1.0, 0.0, 0.0])
+    return n, u, np.cross(n, u)
+
+
+def _b_phase3(t: np.ndarray, t3: float, tip_base: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rig B phase 3 from ``t3``: tip position (len(t), 3) [m, w] and table normal force (len(t),) [N]."""
+    t = np.asarray(t, dtype=float)
+    n, u, v = _b_table_axes()
+    ta, tp, tc, tr, tl, _ = _B_PHASE3_S
+    s_app, _, _ = _minjerk((t - t3) / ta)
+    s_lift, _, _ = _minjerk((t - (t3 + ta + tp + tc + tr)) / tl)
+    s_circ, _, _ = _minjerk((t - (t3 + ta + tp)) / tc)
+    phi = 2.0 * math.pi * s_circ
+    tip = (tip_base[None, :] - _B_APPROACH_M * (s_app - s_lift)[:, None] * n[None, :]
+           + B_CIRCLE_RADIUS_M * ((np.cos(phi) - 1.0)[:, None] * u[None, :] + np.sin(phi)[:, None] * v[None, :]))
+    s_on, _, _ = _minjerk((t - (t3 + ta)) / tp)
+    s_off, _, _ = _minjerk((t - (t3 + ta + tp + tc)) / tr)
+    fn = B_NORMAL_FORCE_N * (s_on - s_off)
+    return tip, np.where((t > t3 + ta) & (t < t3 + ta + tp + tc + tr), np.maximum(fn, 0.0), 0.0)
+
+
+def _trajectory_b() -> Trajectory:
+    """Build rig B's scripted 12 s experiment (see the module docstring)."""
+    m = build_model(rig="B")
+    d = mujoco.MjData(m)
+    ids = _Ids(m)
+    q_home = np.asarray(B_Q_HOME)
+    _fk(m, d, q_home)
+    p0, r0 = d.site_xpos[ids.ft].copy(), d.site_xmat[ids.ft].reshape(3, 3).copy()
+
+    # phase 1: fast min-jerk moves between IK poses, short holds
+    segs = [_seg_minjerk(0.0, _B_T_START_HOLD, q_home, q_home)]
+    tc, q_prev = _B_T_START_HOLD, q_home
+    for tilt_deg, turn_deg, dp, t_move, t_hold in _B_PHASE1_TARGETS:
+        r_t = rotvec_matrix(np.deg2rad(tilt_deg)) @ r0 @ rotvec_matrix(np.deg2rad([0.0, 0.0, turn_deg]))
+        q_next = _ik(m, d, q_prev, ids.ft, p0 + np.asarray(dp), r_t)
+        segs.append(_seg_minjerk(tc, tc + t_move, q_prev, q_next))
+        if t_hold > 0.0:
+            segs.append(_seg_minjerk(tc + t_move, tc + t_move + t_hold, q_next, q_next))
+        tc, q_prev = tc + t_move + t_hold, q_next
+    q_base = q_prev
+
+    # phase 2: wiggle of joints 2, 4, 6
+    segs.append(_seg_swing(tc, tc + _B_WIGGLE_S, q_base, _B_WIGGLE))
+    tc += _B_WIGGLE_S
+
+    # phase 3: approach along the tilted table's normal, press, circle, release, lift
+    t3 = tc
+    t_end = t3 + sum(_B_PHASE3_S)
+    if abs(t_end - B_DURATION_S) > 1e-9:
+        raise RuntimeError("rig B phase durations do not add up to B_DURATION_S")
+    _fk(m, d, q_base)
+    tip0, r_tip = d.site_xpos[ids.tip].copy(), d.site_xmat[ids.tip].reshape(3, 3).copy()
+    n_knots = int(round((t_end - t3) / _KNOT_DT)) + 1
+    tk = np.linspace(t3, t_end, n_knots)
+    tip_k, _ = _b_phase3(tk, t3, tip0)
+    qk = np.empty((n_knots, 7))
+    q_prev = q_base
+    for i in range(n_knots):
+        q_prev = qk[i] = _ik(m, d, q_prev, ids.tip, tip_k[i], r_tip)
+    zero = np.zeros(7)
+    spline = make_interp_spline(tk, qk, k=5, bc_type=([(1, zero), (2, zero)], [(1, zero), (2, zero)]))
+    segs.append(_seg_spline(t3, t_end, spline))
+
+    t = np.arange(B_N_SAMPLES) / B_RATE_HZ
+    traj = Trajectory(t=t, q=None, qd=None, qdd=None, f_tip_w=None, tip_w=None, table_z_m=float("nan"),
+                      contact_s=(0.0, 0.0), segments=segs)
+    traj.q, traj.qd, traj.qdd = traj.eval(t)
+
+    # contact: normal force along the table normal + Coulomb friction against the in-plane velocity
+    n, _, _ = _b_table_axes()
+    _, fn = _b_phase3(t, t3, tip0)
+    tip_w = np.empty((B_N_SAMPLES, 3))
+    f_tip = np.zeros((B_N_SAMPLES, 3))
+    jp = np.zeros((3, m.nv))
+    for i in range(B_N_SAMPLES):
+        _fk(m, d, traj.q[i])
+        tip_w[i] = d.site_xpos[ids.tip]
+        if fn[i] > 0.0:
+            mujoco.mj_jacSite(m, d, jp, None, ids.tip)
+            vel = jp @ traj.qd[i]
+            vt = vel - (vel @ n) * n
+            f_tip[i] = fn[i] * n - B_MU * fn[i] * vt / math.sqrt(vt @ vt + SLIP_SMOOTH_M_S**2)
+    traj.tip_w, traj.f_tip_w = tip_w, f_tip
+    touch = tip0 - _B_APPROACH_M * n
+    traj.table_point_w, traj.table_normal_w = touch, n
+    traj.table_z_m = float(touch[2])
+    on = np.nonzero(fn > 0.0)[0]
+    traj.contact_s = (float(t[on[0]]), float(t[on[-1]]))
     return traj
 
 
 @functools.lru_cache(maxsize=8)
-def true_wrench(payload: tuple[float, tuple[float, float, float]] | None = None) -> np.ndarray:
-    """``w_tool_on_sensor_s`` (N, 6) [N, N m] of the experiment with the true tool (+ ``payload``),
-    noiseless, the sensor axes as mounted (cached; read-only)."""
-    tr = trajectory()
-    w = inverse_dynamics_wrench(build_model(payload), tr.q, tr.qd, tr.qdd, tr.f_tip_w)
+def true_wrench(payload: tuple[float, tuple[float, float, float]] | None = None, rig: str | Rig = "A"
+                ) -> np.ndarray:
+    """``w_tool_on_sensor_s`` (N, 6) [N, N m] of ``rig``'s experiment with the true tool
+    (+ ``payload``), noiseless, the sensor axes as mounted (cached; read-only)."""
+    return _true_wrench(payload, _rig(rig).name)
+
+
+@functools.lru_cache(maxsize=8)
+def _true_wrench(payload, rig: str) -> np.ndarray:
+    tr = trajectory(rig)
+    w = inverse_dynamics_wrench(build_model(payload, rig), tr.q, tr.qd, tr.qdd, tr.f_tip_w)
+    w.setflags(write=False)
+    return w
+
+
+@functools.lru_cache(maxsize=8)
+def tare_wrench_b(payload: tuple[float, tuple[float, float, float]] | None = None) -> np.ndarray:
+    """Rig B: the noiseless ``w_tool_on_sensor_s`` (6,) at rest at the power-up pose ``B_TARE_Q``
+    (declared axes; the tare subtracts it, rotated like the reading; cached, read-only)."""
+    z = np.zeros((1, 7))
+    w = inverse_dynamics_wrench(build_model(payload, "B"), np.asarray([B_TARE_Q]), z, z)[0]
     w.setflags(write=False)
     return w
 
@@ -536,8 +820,8 @@ def true_wrench(payload: tuple[float, tuple[float, float, float]] | None = None)
 # ==================================================================================================
 # a case's signals and files
 # ==================================================================================================
-def case_signals(name: str, seed: int = 0, noise: bool = True) -> dict[str, np.ndarray]:
-    """The logged signals of case ``name`` (csv conventions).
+def case_signals(name: str, seed: int = 0, noise: bool = True, rig: str | Rig = "A") -> dict[str, np.ndarray]:
+    """The logged signals of case ``name`` of rig A (csv conventions); rig B: ``_case_signals_b``.
 
     Returns ``t`` (N,) [s from the first sample], ``q`` (N, 7) [rad] logged encoder angles, ``qdot``
     (N, 7) [rad/s], ``wrench`` (N, 6) [N, N m] the sensor-on-tool wrench in the (possibly rotated)
@@ -546,6 +830,8 @@ def case_signals(name: str, seed: int = 0, noise: bool = True) -> dict[str, np.n
     (physics) -> sensor-axes rotation R^T w -> csv sign -> drift -> noise (same draws for every case
     of a seed; ``noise=False`` leaves it out) -> tare (subtract the sample at ``TARE_T_S``).
     """
+    if _rig(rig).name == "B":
+        return _case_signals_b(name, seed, noise)
     if name not in _HIDDEN:
         raise KeyError(f"unknown case '{name}' (choose from {', '.join(CASES)})")
     h = _HIDDEN[name]
@@ -571,6 +857,43 @@ def case_signals(name: str, seed: int = 0, noise: bool = True) -> dict[str, np.n
     if h.tared:
         w_csv = w_csv - w_csv[int(round(TARE_T_S * RATE_HZ))]
     return {"t": tr.t.copy(), "q": q, "qdot": qdot, "wrench": w_csv, "w_tool_on_sensor_s": w_true}
+
+
+def _case_signals_b(name: str, seed: int = 0, noise: bool = True) -> dict[str, np.ndarray]:
+    """The logged signals of rig-B case ``name`` (log.csv's conventions).
+
+    Returns ``t`` (N,) [s] the log's time (first sample at ``B_T0_S``), ``q`` (N, 7) [rad] logged
+    encoder angles, ``wrench`` (N, 6) [N, N m] the logged tool-on-sensor wrench (tared, quantised),
+    ``w_tool_on_sensor_s`` (N, 6) the noiseless true tool-on-sensor wrench in the declared axes and
+    ``tare`` (6,) the constant the tare added to the reading (= - rotated tare-pose reading +
+    ``B_TARE_OFFSET``). Pipeline: payload (physics) -> sensor-axes rotation R^T w -> + tare ->
+    drift rate * (t - t_first) -> noise (same draws for every case of a seed; ``noise=False``
+    leaves it out) -> quantisation (always).
+    """
+    h = _hidden(name, "B")
+    tr = trajectory("B")
+    w_true = np.array(true_wrench(h.payload, "B"))
+    w_tare = np.array(tare_wrench_b(h.payload))
+    w = w_true.copy()
+    if h.rotvec_deg is not None:
+        r = rotvec_matrix(np.deg2rad(h.rotvec_deg))
+        w = np.hstack([w[:, :3] @ r, w[:, 3:] @ r])  # row-wise R^T w
+        w_tare = np.r_[r.T @ w_tare[:3], r.T @ w_tare[3:]]
+    tare = np.asarray(B_TARE_OFFSET) - w_tare
+    w = w + tare[None, :]
+    if h.drift_csv is not None:
+        w = w + tr.t[:, None] * np.asarray(h.drift_csv)[None, :]
+    q = tr.q.copy()
+    for j, off in h.encoder_offset_deg.items():
+        q[:, j - 1] -= math.radians(off)
+    if noise:
+        rng = np.random.default_rng(seed)
+        q += rng.normal(0.0, B_SIGMA_Q_RAD, q.shape)
+        sig = np.array([B_SIGMA_FORCE_N] * 3 + [B_SIGMA_TORQUE_NM] * 3)
+        w = w + rng.normal(0.0, 1.0, w.shape) * sig
+    per_unit = np.array([1.0 / B_FORCE_LSB_N] * 3 + [1.0 / B_TORQUE_LSB_NM] * 3)  # 64 per N, 1000 per N m
+    w = np.round(w * per_unit) / per_unit  # k / 1000 as the double nearest to it (= what the csv text parses to)
+    return {"t": B_T0_S + tr.t, "q": q, "wrench": w, "w_tool_on_sensor_s": w_true, "tare": tare}
 
 
 CSV_TIME = "stamp_ns"
@@ -612,9 +935,49 @@ def _toml_value(v) -> str:
     return "[" + ", ".join(_toml_value(x) for x in v) + "]"
 
 
-def setup_toml(variant: str, tared: bool) -> str:
+B_CSV_TIME = "t"
+B_CSV_Q = tuple(f"q{j}" for j in range(1, 8))
+B_CSV_WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
+
+
+def _write_csv_b(path: Path, sig: dict[str, np.ndarray]) -> None:
+    """Rig B's plain ``log.csv``: t [s] (3 decimals), q [rad], tool-on-sensor wrench (quantised)."""
+    block = np.hstack([sig["t"][:, None], sig["q"], sig["wrench"]])
+    buf = io.StringIO()
+    np.savetxt(buf, block, fmt=["%.3f"] + ["%.9f"] * 7 + ["%.6f"] * 3 + ["%.3f"] * 3, delimiter=",",
+               header=",".join((B_CSV_TIME, *B_CSV_Q, *B_CSV_WRENCH)), comments="")
+    path.write_text(buf.getvalue())
+
+
+def _setup_toml_b(tared: bool) -> str:
+    """Rig B's setup file (TOML text): the NOMINAL rig B and log.csv's layout."""
+    rg = RIGS["B"]
+    sections = {
+        "log": {"time": B_CSV_TIME, "time_scale_s": 1.0, "q": B_CSV_Q, "qdot": (), "angle_unit": "rad",
+                "wrench": B_CSV_WRENCH, "wrench_acts": "tool_on_sensor", "tared": tared},
+        "sensor": {"position_flange_m": rg.sensor_pos_f_m, "rpy_flange_deg": rg.sensor_rpy_f_deg},
+        "tool": {"mass_kg": rg.tool_mass_kg, "com_sensor_m": rg.tool_com_s_m,
+                 "inertia_com_kg_m2": rg.tool_inertia_com_kg_m2, "tip_sensor_m": rg.tool_tip_s_m},
+        "arm": {"mjcf": "", "flange_site": FLANGE_SITE},
+        "contact": {"mode": "tip", "detect_force_N": 5.0, "margin_s": 0.1},
+        "analysis": {"exclude_s": (), "effects": (), "exclude_effects": ()},
+    }
+    lines = ["# Foreign rig B (examples/foreign_rig.py --rig B): the declared (nominal) set-up of log.csv:",
+             "# s, rad, no velocities, wrench of the tool on the (flipped) sensor, zeroed at power-up.", ""]
+    for sec, kv in sections.items():
+        lines.append(f"[{sec}]")
+        lines += [f"{k} = {_toml_value(v)}" for k, v in kv.items()]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def setup_toml(variant: str, tared: bool, rig: str | Rig = "A") -> str:
     """The setup file (TOML text) a user of this rig would write: the NOMINAL rig (no hidden
-    effect) and the column layout of ``variant`` = "csv" or "parquet"."""
+    effect) and the column layout of ``variant`` = "csv" or "parquet" (rig B: "csv" only)."""
+    if _rig(rig).name == "B":
+        if variant != "csv":
+            raise ValueError(f"rig B has one variant, 'csv' (got '{variant}')")
+        return _setup_toml_b(tared)
     if variant == "csv":
         log = {"time": CSV_TIME, "time_scale_s": 1e-9, "q": CSV_Q, "qdot": CSV_QDOT, "angle_unit": "rad",
                "wrench": CSV_WRENCH, "wrench_acts": "sensor_on_tool", "tared": tared}
@@ -642,9 +1005,12 @@ def setup_toml(variant: str, tared: bool) -> str:
     return "\n".join(lines)
 
 
-def make_case(name: str, out_dir: Path, seed: int = 0) -> Path:
-    """Write case ``name`` into ``out_dir/name/`` (log.csv.gz, log.parquet, setup_csv.toml,
-    setup_parquet.toml, truth.json) and return that folder."""
+def make_case(name: str, out_dir: Path, seed: int = 0, rig: str | Rig = "A") -> Path:
+    """Write case ``name`` of ``rig`` into ``out_dir/name/`` and return that folder. Rig A:
+    log.csv.gz, log.parquet, setup_csv.toml, setup_parquet.toml, truth.json; rig B: log.csv,
+    setup.toml, truth.json."""
+    if _rig(rig).name == "B":
+        return _make_case_b(name, out_dir, seed)
     if name not in _HIDDEN:
         raise KeyError(f"unknown case '{name}' (choose from {', '.join(CASES)})")
     h = _HIDDEN[name]
@@ -667,32 +1033,64 @@ def make_case(name: str, out_dir: Path, seed: int = 0) -> Path:
     return case_dir
 
 
+def _make_case_b(name: str, out_dir: Path, seed: int = 0) -> Path:
+    h = _hidden(name, "B")
+    case_dir = Path(out_dir) / name
+    case_dir.mkdir(parents=True, exist_ok=True)
+    sig = _case_signals_b(name, seed)
+    _write_csv_b(case_dir / "log.csv", sig)
+    (case_dir / "setup.toml").write_text(setup_toml("csv", h.tared, "B"))
+    tr = trajectory("B")
+    truth = {"case": name, "description": CASES_B[name], "effects": _effects_truth(h), "detectable": h.detectable,
+             "tared": h.tared, "seed": int(seed), "rig": "B"}
+    truth["experiment"] = {
+        "log_t0_s": B_T0_S,
+        "table_point_w_m": [float(x) for x in tr.table_point_w],
+        "table_normal_w": [float(x) for x in tr.table_normal_w],
+        "table_z_m": tr.table_z_m,
+        "contact_t_s": [round(B_T0_S + c, 9) for c in tr.contact_s],  # in the log's time
+        "mu": B_MU,
+        "normal_force_N": B_NORMAL_FORCE_N,
+        "circle_radius_m": B_CIRCLE_RADIUS_M,
+        "tare_q_rad": list(B_TARE_Q),
+        "tare_added_log": [float(x) for x in sig["tare"]],  # constant in the logged wrench
+    }
+    (case_dir / "truth.json").write_text(json.dumps(truth, indent=2) + "\n")
+    return case_dir
+
+
 # ==================================================================================================
 # self-test of the MuJoCo wrench (sign and frame)
 # ==================================================================================================
-def self_test(tol: float = 1e-9) -> dict[str, float]:
-    """Check the MuJoCo reading against statics, at q_home and three tilted poses at rest.
+def self_test(tol: float = 1e-9, rig: str | Rig = "A") -> dict[str, float]:
+    """Check ``rig``'s MuJoCo reading against statics, at q_home and three tilted poses at rest.
 
     (1) ``w_tool_on_sensor_s`` = (m R_ws^T g, c x m R_ws^T g) with R_ws from MuJoCo's ``site_xmat``
     of the sensor site; (2) a tip force F (world) changes it by (R_ws^T F, tip x R_ws^T F);
-    (3) the sensor agrees with ``cfrc_int`` of the tool body. Returns the largest errors [N or N m];
-    raises AssertionError beyond ``tol``.
+    (3) the sensor agrees with ``cfrc_int`` of the tool body; (4) the sensor site sits at the
+    declared mount in the flange frame. Returns the largest errors [N, N m or m]; raises
+    AssertionError beyond ``tol``.
     """
-    m = build_model()
+    rg = _rig(rig)
+    m = build_model(rig=rg)
     d = mujoco.MjData(m)
     ids = _Ids(m)
     g = np.asarray(m.opt.gravity, dtype=float)
-    c, tip = np.asarray(TOOL_COM_S_M), np.asarray(TOOL_TIP_S_M)
+    c, tip = np.asarray(rg.tool_com_s_m), np.asarray(rg.tool_tip_s_m)
     f_w = np.array([2.5, -1.5, 12.0])
-    err = {"static": 0.0, "tip_force": 0.0, "cfrc_int": 0.0}
-    poses = [np.asarray(Q_HOME), np.asarray(Q_HOME) + [0.3, 0.4, -0.2, 0.3, 0.6, -0.5, 1.0],
+    err = {"static": 0.0, "tip_force": 0.0, "cfrc_int": 0.0, "mount": 0.0}
+    fl = m.site(FLANGE_SITE).id
+    poses = [np.asarray(rg.q_home), np.asarray(rg.q_home) + [0.3, 0.4, -0.2, 0.3, 0.6, -0.5, 1.0],
              np.array([-1.0, 0.2, 0.5, -1.8, -1.2, 2.2, -0.7]), np.array([0.5, -1.2, -0.8, -2.6, 1.5, 0.8, 2.0])]
     for q in poses:
         d.qpos[:], d.qvel[:], d.qacc[:] = q, 0.0, 0.0
         d.xfrc_applied[:] = 0.0
         w0 = _read_tool_on_sensor(m, d, ids)
         r_ws = d.site_xmat[ids.ft].reshape(3, 3).copy()
-        fg = TOOL_MASS_KG * r_ws.T @ g
+        r_wf = d.site_xmat[fl].reshape(3, 3)
+        err["mount"] = max(err["mount"], float(np.abs(r_wf.T @ r_ws - rpy_matrix_deg(rg.sensor_rpy_f_deg)).max()),
+                           float(np.abs(r_wf.T @ (d.site_xpos[ids.ft] - d.site_xpos[fl]) - rg.sensor_pos_f_m).max()))
+        fg = rg.tool_mass_kg * r_ws.T @ g
         err["static"] = max(err["static"], float(np.abs(w0 - np.r_[fg, np.cross(c, fg)]).max()))
         # cfrc_int: [torque about subtree_com of the root; force], world axes, parent-on-body
         root = m.body_rootid[ids.tool]
@@ -715,15 +1113,21 @@ def self_test(tol: float = 1e-9) -> dict[str, float]:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description="Write foreign-rig test logs for `kinadapt diagnose`.")
     p.add_argument("--out", type=Path, required=True, help="output folder (one subfolder per case)")
-    p.add_argument("--case", nargs="+", default=list(CASES), choices=list(CASES), help="cases (default: all)")
+    p.add_argument("--rig", default="A", choices=list(RIGS), help="which rig (default: A)")
+    p.add_argument("--case", nargs="+", default=None, choices=sorted(set(CASES) | set(CASES_B)),
+                   help="cases (default: all of the rig's)")
     p.add_argument("--seed", type=int, default=0, help="noise seed")
     p.add_argument("--self-test", action="store_true", help="check the MuJoCo wrench against statics first")
     a = p.parse_args(argv)
+    names = list(cases(a.rig)) if a.case is None else a.case
+    unknown = [n for n in names if n not in cases(a.rig)]
+    if unknown:
+        p.error(f"rig {a.rig} has no case {', '.join(unknown)} (choose from {', '.join(cases(a.rig))})")
     if a.self_test:
-        print("self-test max errors:", {k: f"{v:.1e}" for k, v in self_test().items()})
-    for name in a.case:
+        print("self-test max errors:", {k: f"{v:.1e}" for k, v in self_test(rig=a.rig).items()})
+    for name in names:
         t0 = time.perf_counter()
-        d = make_case(name, a.out, a.seed)
+        d = make_case(name, a.out, a.seed, a.rig)
         print(f"{d}: {', '.join(sorted(x.name for x in d.iterdir()))} ({time.perf_counter() - t0:.2f} s)")
     return 0
 
