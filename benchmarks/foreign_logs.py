@@ -91,7 +91,8 @@ def run(rigs: list[str], out: Path) -> dict:
                                     "present": sorted(n for n, x in v.items() if x == "present"),
                                     "ties": {e["effect"]: e["indistinguishable_from"] for e in rep["ranking"]
                                              if e.get("indistinguishable_from")},
-                                    "param_error": _errors(tr, rep), "wall_s": wall,
+                                    "param_error": _errors(tr, rep) if truth.get("detectable", True) else {},
+                                    "wall_s": wall,
                                     "warnings": rep.get("warnings", [])})
                     print(f"{rig_name} {case:24s} {fmt:8s} present {results[-1]['present']} "
                           f"errors {results[-1]['param_error']} {wall:.1f} s", flush=True)

@@ -30,6 +30,8 @@ contact_stiffness          factor - 1 [-]                              int S_c v
 contact_friction_couple    radius [m]                                  M -= radius |f| w/(|w|+e)
 grasp_compliance           compliance [rad/(N m)]                      S_c [M_perp x R l; M_perp]
 encoder_offset             joint 1..6 zero offsets, 6 [rad]            d/dq_j of the model
+                                                                       (and of its calibrated
+                                                                       part: ranking)
 =========================  ==========================================  ========================
 
 A joint-7 zero offset is not in the library: it turns the reading about the flange axis exactly

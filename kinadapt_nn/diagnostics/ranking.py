@@ -14,7 +14,10 @@ tool is never the CAD tool: part of the residual of a run with *no* hidden effec
 library columns. The whole library is fitted once, jointly, on a reference run without a hidden
 effect (``--baseline RUN`` or the shipped ``models/nominal_calibration.json``, per program) and
 that fit is part of the nominal model: a later run is judged on ``r' = r - sum_e C_e p_e^base``,
-so an effect is "missing" only if its parameters moved away from the calibration.
+so an effect is "missing" only if its parameters moved away from the calibration. A joint zero
+offset moves the model's q everywhere, the calibrated part included, so against a calibrated
+model the encoder-offset columns are ``C_enc_j + sum_e (dC_e/dq_j) p_e^base`` (``Design.dX_dq``,
+``calibrated_design``; ``rank`` applies it).
 
 Criterion: block cross-validation over ``n_blocks`` contiguous time blocks (whole anchor
 windows, so a block's correlated residual stays together): fit on the other blocks, predict the

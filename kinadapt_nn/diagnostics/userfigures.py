@@ -51,7 +51,7 @@ def effects_figure(res, path: Path) -> None:
     """Ranking bars (held-out explained share, coloured by verdict) and, after ``--add``, the
     residual rows before/after per channel over time (physical units)."""
     plt = _plt()
-    rows = res.report["ranking"]
+    rows = [r for r in res.report["ranking"] if r.get("judged", True)]
     has_add = res.after is not None
     fig, ax = plt.subplots(1, 3 if has_add else 1, figsize=(17 if has_add else 7.5, 4.8), constrained_layout=True,
                            squeeze=False)

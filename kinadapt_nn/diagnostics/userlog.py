@@ -213,6 +213,17 @@ class Result(NamedTuple):
     contact: np.ndarray
 
 
+NOT_JUDGED = ("contact-model effect: not judged without a declared contact geometry (a tip contact obeys the same "
+              "moment balance whatever the surface's stiffness); judged on this package's own bore/socket runs")
+
+
+def _not_judged(name: str) -> dict:
+    """A ranking entry for a contact-model effect on a user's log: cannot_decide, nothing fitted."""
+    return {"effect": name, "verdict": "cannot_decide", "significant": False, "reason": NOT_JUDGED,
+            "judged": False, "explained_fraction": None, "explained_fraction_alone": None, "p_value": None,
+            "p_adjusted": None, "selected_round": None, "estimate": {}, "excitation": {"enough": False}}
+
+
 def _rms_by_channel(des: sel.Design, e: np.ndarray) -> dict:
     out = {}
     for c, name in enumerate(CHANNELS):
@@ -227,6 +238,7 @@ def _entry_report(e: dict, setup: SetupCfg) -> dict:
     n = e["effect"]
     spec = ph.SPECS[n]
     out = {k: v for k, v in e.items() if k not in ("params", "sd", "columns_used")}
+    out["judged"] = True
     cols = e["columns_used"]
     p, sd = e["params"], e["sd"]
     if spec.one_of:
@@ -289,10 +301,8 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
         "sign_check": check,
         "tip_contact_check": fit_check,
         "warnings": [m for m in (check.get("message"), fit_check.get("message")) if m],
-        "ranking": entries,
-        "not_judged": [{"effect": n, "reason": "contact-model effect: needs a declared contact geometry "
-                                               "(judged on this package's own bore/socket runs)"}
-                       for n in ph.CONTACT_MODEL_EFFECTS],
+        "ranking": entries + [_not_judged(n) for n in ph.CONTACT_MODEL_EFFECTS],
+        "not_judged": [{"effect": n, "reason": NOT_JUDGED} for n in ph.CONTACT_MODEL_EFFECTS],
         "residual_rms_by_channel": _rms_by_channel(des, des.y),
         "explained_by_present": float(1.0 - result.sse_after / max(result.sse_total, 1e-300)),
         "method": {"rows": rc._asdict(), "selection": sc._asdict(), "blocks": des.n_blocks,
@@ -374,7 +384,7 @@ def summary_text(rep: dict) -> str:
     if not rep["tip_contact_check"]["ok"]:
         parts.append("WARNING: " + rep["tip_contact_check"]["message"] + ".")
     pres = [e for e in rep["ranking"] if e["verdict"] == "present"]
-    und = [e for e in rep["ranking"] if e["verdict"] == "cannot_decide"]
+    und = [e for e in rep["ranking"] if e["verdict"] == "cannot_decide" and e.get("judged", True)]
     if pres:
         txt = []
         for e in pres:
@@ -396,6 +406,9 @@ def summary_text(rep: dict) -> str:
     absent = [e["effect"] for e in rep["ranking"] if e["verdict"] == "absent"]
     if absent:
         parts.append("Absent: " + ", ".join(absent) + ".")
+    nj = [e["effect"] for e in rep["ranking"] if not e.get("judged", True)]
+    if nj:
+        parts.append("Not judged (no contact geometry declared): " + ", ".join(nj) + ".")
     if "residual_rms_after" in rep:
         b, a = rep["residual_rms_before"]["total_w"], rep["residual_rms_after"]["total_w"]
         parts.append(f"With {', '.join(rep['added'])} added, the residual falls from {b:.3g} to {a:.3g} "
