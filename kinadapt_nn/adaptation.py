@@ -32,7 +32,37 @@ gives a full-row-rank ``J_hat = S Ad(theta) J_arm`` (Ad is invertible), so Omega
 the physical envelope of the tool; the projection is the Euclidean one (a clip).
 
 Modes: ``composite`` (both terms), ``prediction`` (d_pred only), ``tracking`` (d_track only),
-``frozen`` (theta constant).
+``frozen`` (theta constant), and the default ``kalman``:
+
+**kalman: a law that knows what it does not know** (changes eq. ft_composite's gain and its
+prediction step; docs/equations.md). ``theta`` carries a covariance ``P`` (p, p), started at the
+features' prior (adjoint: the declared tolerance of the tool offset; neural: the covariance of the
+pretraining heads; RBF: the adjoint's prior pushed through the RBF fit, plus a small isotropic
+part). In contact, with ``H = W Phi_f`` (m, p) and the innovation ``e = W (s_dot_meas - known_f -
+Phi_f theta)``::
+
+    R     = diag(r2 + floor) * n_eff           measured residual level r2 times the samples per
+                                               independent observation: n_eff = max(corr_s/dt,
+                                               (2 tau_m/dt) r1^2 / r2), r1 the residual's mean
+                                               over tau_m (a persistent residual -- a bias that
+                                               keeps its sign -- is one observation per 2 tau_m)
+    K     = P H^T (H P H^T + R)^-1
+    theta = Proj_Omega(theta + K e  - dt gamma_d P Phi_r^T F)    (tracking term with Gamma = P)
+    P     = (1 - K H) P
+
+and the controller acts only on the **identified** part of that estimate: in the prior's
+whitened coordinates, the directions whose posterior sd has fallen below ``act_sd_ratio`` of the
+prior sd (re-evaluated at 50 Hz); elsewhere J_hat keeps the prior. ``theta`` in the trace is what
+the controller used.
+
+``r2`` (m,) is an exponential average (``resid_tau_s``) of ``e^2`` over contact samples: the
+residual level the data show, bias included. A direction of theta moves only as far as its
+accumulated information ``sum H^T R^-1 H`` exceeds the prior's ``P0^-1``; where the bias
+dominates (R large against the parametric signal) or nothing excites it (H has no component),
+theta stays at the prior. The paper's certificate with ``Gamma -> P(t)``: with
+``d/dt P^-1 = H^T R^-1 H`` and no bias, ``V_aug = gamma_d V + 1/2 theta~^T P^-1 theta~`` has
+``dV_aug/dt <= -1/2 |H theta~|^2_{R^-1}`` (the tracking term still cancels the cross term); the
+bias enters as before (``- theta~^T H^T R^-1 b``), now divided by the measured residual level.
 """
 
 from __future__ import annotations
@@ -45,7 +75,7 @@ import numpy as np
 from kinadapt_nn.features.base import Features, KinState, Regressor
 from kinadapt_nn.sensing import LowPass
 
-MODES = ("composite", "prediction", "tracking", "frozen")
+MODES = ("kalman", "composite", "prediction", "tracking", "frozen")
 
 
 class AdaptStep(NamedTuple):
@@ -101,6 +131,21 @@ def exact_qp_step(Phi_w: np.ndarray, eps_w: np.ndarray, eps_norm: float) -> np.n
     return Phi_w.T @ np.linalg.solve(Phi_w @ Phi_w.T + eps_norm * np.eye(m), eps_w)
 
 
+def kalman_update(P: np.ndarray, Ht: np.ndarray, e: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """One Kalman measurement update of a parameter estimate. ``P`` (p, p) covariance (updated
+    in place to ``(1 - K H) P``, symmetrised), ``Ht`` (p, m) = H^T, ``e`` (m,) innovation, ``r``
+    (m,) diagonal measurement variance. Returns the parameter increment ``K e`` (p,), with
+    ``K = P H^T (H P H^T + diag r)^-1``. Raises ``LinAlgError`` for a singular innovation matrix."""
+    PHt = P.dot(Ht)  # (p, m)
+    S = Ht.T.dot(PHt)  # (m, m) = H P H^T
+    S[np.diag_indices_from(S)] += r
+    K = np.linalg.solve(S, PHt.T).T  # (p, m); S symmetric
+    P -= K.dot(PHt.T)
+    P += P.T
+    P *= 0.5
+    return K.dot(e)
+
+
 class CompositeLaw:
     """Composite tracking + prediction adaptation of ``theta`` on ``Features``.
 
@@ -127,6 +172,12 @@ class CompositeLaw:
         contact_force_N: float,
         contact_moment_Nm: float,
         filter_state: np.ndarray | None = None,
+        prior_cov: np.ndarray | None = None,
+        corr_s: float = 0.05,
+        resid_tau_s: float = 1.0,
+        resid_floor_w: float = 1e-4,
+        persist_tau_s: float = 0.5,
+        act_sd_ratio: float = 0.5,
     ) -> None:
         if mode not in MODES:
             raise ValueError(f"adaptation mode {mode!r} not in {MODES}")
@@ -160,6 +211,51 @@ class CompositeLaw:
         #: sum over gated (contact) steps of (W Phi_f)^T (W Phi_f): the regressor Gram <Phi^T Phi>
         self.gram_sum = np.zeros((p, p))
         self.gram_n = 0
+        # kalman mode: covariance of theta, the measured residual level, the decorrelation factor
+        if mode == "kalman" and prior_cov is None:
+            raise ValueError("the kalman law needs the features' prior covariance")
+        self.P0 = None if prior_cov is None else np.array(prior_cov, dtype=float)
+        self.P = None if self.P0 is None else self.P0.copy()
+        self._n_corr = max(1.0, float(corr_s) / self.dt)
+        self._r_alpha = min(1.0, self.dt / float(resid_tau_s))
+        self._r_floor = float(resid_floor_w)
+        self.r2 = np.zeros(m)
+        self.r1 = np.zeros(m)
+        self._r2_primed = False
+        self._m_alpha = min(1.0, self.dt / float(persist_tau_s))
+        self.theta_kf: np.ndarray | None = None
+        self.theta_prior: np.ndarray | None = None
+        self._act_ratio = float(act_sd_ratio)
+        self._act_every = max(1, int(round(0.02 / self.dt)))  # the identified set is re-evaluated at 50 Hz
+        self._k_act = 0
+        self._act_proj: np.ndarray | None = None
+        if self.P0 is not None:
+            self._L0 = np.linalg.cholesky(self.P0)
+            self._L0inv = np.linalg.inv(self._L0)
+        self._n_persist = 2.0 * float(persist_tau_s) / self.dt
+
+    def carry_from(self, other: "CompositeLaw") -> None:
+        """Take over what ``other`` learned about theta (its covariance and residual level) for
+        the next insertion of the same tool (``run.insertions``); filters start afresh."""
+        if other.P is not None and self.P is not None and other.P.shape == self.P.shape:
+            self.P[...] = other.P
+        self.r2[...] = other.r2
+        self.r1[...] = other.r1
+        self._r2_primed = other._r2_primed
+        if other.theta_kf is not None:
+            self.theta_kf = other.theta_kf.copy()
+            self.theta_prior = other.theta_prior.copy()
+
+    def uncertainty_ratio(self) -> float:
+        """``sqrt(tr P / tr P0)``: the remaining uncertainty of theta as a fraction of the prior;
+        means the same for every features type (NaN for the laws without a covariance)."""
+        if self.P is None:
+            return math.nan
+        return math.sqrt(max(float(np.trace(self.P)), 0.0) / float(np.trace(self.P0)))
+
+    def information_sd(self) -> np.ndarray | None:
+        """Posterior standard deviation of each parameter, sqrt(diag P) (kalman mode), else None."""
+        return None if self.P is None else np.sqrt(np.clip(np.diag(self.P), 0.0, None))
 
     def project(self, theta: np.ndarray) -> np.ndarray:
         """Euclidean projection onto the box Omega."""
@@ -209,6 +305,8 @@ class CompositeLaw:
         self.gram_n += 1
         if self.mode == "frozen":
             return theta, AdaptStep(pred, eps_w, self._zero_p, self._zero_p, 1.0, 0.0)
+        if self.mode == "kalman":
+            return self._kalman(theta, Phi_wT, Phi_r_T, eps_w, F, pred, G)
         if self._use_track:
             d_track = Phi_r_T.dot(F)
             d_track *= self._c_track  # eq. ft_composite, 1st term: -dt Gamma gamma_d Phi_r^T F
@@ -225,3 +323,57 @@ class CompositeLaw:
         np.maximum(theta_next, self.lo, out=theta_next)  # Proj_Omega (clip)
         np.minimum(theta_next, self.hi, out=theta_next)
         return theta_next, AdaptStep(pred, eps_w, d_track, d_pred, 1.0, n2)
+
+    def _kalman(self, theta: np.ndarray, Phi_wT: np.ndarray, Phi_r_T: np.ndarray, eps_w: np.ndarray, F: np.ndarray,
+                pred: np.ndarray, G: np.ndarray) -> tuple[np.ndarray, AdaptStep]:
+        """The information-weighted step (module docstring). Phi_wT (p, m) = (W Phi_f)^T."""
+        e2 = eps_w * eps_w
+        if not self._r2_primed:
+            self.r2[:] = e2
+            self.r1[:] = 0.0
+            self._r2_primed = True
+        else:
+            self.r2 += self._r_alpha * (e2 - self.r2)  # measured residual level (bias included)
+            self.r1 += self._m_alpha * (eps_w - self.r1)  # its slow mean: the persistent part
+        # samples per independent observation: corr_s/dt, or more where the residual persists
+        # (a bias that keeps its sign is one observation per 2 tau_m, not one per step)
+        n_eff = np.maximum(self._n_corr, self._n_persist * (self.r1 * self.r1) / (self.r2 + self._r_floor))
+        P = self.P
+        if self.theta_kf is None:  # the filter's own estimate (the controller acts on its identified part)
+            self.theta_kf = theta.copy()
+            self.theta_prior = theta.copy()
+        th = self.theta_kf
+        e_kf = eps_w - (th - theta).dot(Phi_wT)  # innovation of the filter's estimate
+        try:
+            d_pred = kalman_update(P, Phi_wT, e_kf, (self.r2 + self._r_floor) * n_eff)  # updates P in place
+        except np.linalg.LinAlgError:
+            return theta, AdaptStep(pred, eps_w, self._zero_p, self._zero_p, 1.0, 0.0)
+        th += d_pred
+        if self.gamma_d > 0.0:
+            d_track = P.dot(Phi_r_T.dot(F))
+            d_track *= -self.dt * self.gamma_d  # eq. ft_composite's tracking term with Gamma = P
+            th += d_track
+        else:
+            d_track = self._zero_p
+        np.maximum(th, self.lo, out=th)  # Proj_Omega (clip)
+        np.minimum(th, self.hi, out=th)
+        self._k_act += 1
+        if self._k_act >= self._act_every or self._act_proj is None:
+            self._k_act = 0
+            self._act_proj = self._identified_projector()
+        theta_next = self.theta_prior + self._act_proj.dot(th - self.theta_prior)
+        n2 = float(np.trace(G))
+        return theta_next, AdaptStep(pred, eps_w, d_track, d_pred, 1.0, n2)
+
+    def _identified_projector(self) -> np.ndarray:
+        """Projector (p, p) onto the directions of theta the data have identified: in the prior's
+        whitened coordinates (``P0 = L L^T``), the eigen-directions of ``L^-1 P L^-T`` whose
+        posterior sd has fallen below ``act_sd_ratio`` of the prior sd. The controller acts on
+        the estimate only there; elsewhere theta stays at the prior."""
+        if self._act_ratio >= 1.0:
+            return np.eye(len(self.P))
+        M = self._L0inv.dot(self.P).dot(self._L0inv.T)
+        lam, V = np.linalg.eigh(0.5 * (M + M.T))
+        U = V[:, lam < self._act_ratio**2]  # identified, whitened
+        Lw = self._L0.dot(U)  # back to theta coordinates: span L U, oblique projector along the rest
+        return Lw.dot(U.T).dot(self._L0inv)

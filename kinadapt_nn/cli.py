@@ -1,20 +1,91 @@
 """``kinadapt`` command line: parse, load a config, call the library. No algorithm here.
 
-Every ``KinadaptError`` (bad config, missing file, existing output folder, ...) becomes one
-line on stderr and exit code 2.
+Exit codes:
+
+====  ==============================================================================
+ 0    done (``online``: seated / excitation completed)
+ 1    ``online`` only: the episode ran to the end but did not seat (outputs written)
+ 2    bad input: a bad option, config key or value (NaN/inf included), a missing or damaged
+      file, an existing output folder -- one line on stderr, nothing written
+ 3    internal error (a bug): one line on stderr naming a log file with the traceback (in the
+      output folder of a command that writes in place -- ``pretrain``, ``sweep`` -- else a
+      temp file)
+130   interrupted (Ctrl-C)
+====  ==============================================================================
+
+MuJoCo's own log (``MUJOCO_LOG.TXT``) never lands in the working directory: it goes to a temp
+file while a command runs (``kinadapt_nn.mjlog``) and, when MuJoCo wrote one, into the run
+folder afterwards (else its path is printed).
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import math
+import os
+import shutil
 import sys
+import tempfile
 import time
+import traceback
 from pathlib import Path
+from typing import NoReturn
 
+from kinadapt_nn import __version__
 from kinadapt_nn.errors import KinadaptError, OutputExistsError
 
 log = logging.getLogger("kinadapt")
+
+EXIT_OK, EXIT_NOT_SEATED, EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with the CLI's bad-input contract: one line on stderr, exit 2 (no usage dump)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_BAD_INPUT, f"kinadapt: error: {message} (see {self.prog} --help)\n")
+
+
+def _int_in(lo: int, hi: int):
+    """argparse type: an integer in [lo, hi]."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"{value} is outside [{lo}, {hi}]")
+        return value
+
+    return parse
+
+
+def _float_in(lo: float, hi: float):
+    """argparse type: a finite number in (lo, hi] (lo excluded: every such option is a positive quantity)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not (math.isfinite(value) and lo < value <= hi):
+            raise argparse.ArgumentTypeError(f"{text} is outside ({lo:g}, {hi:g}]")
+        return value
+
+    return parse
+
+
+def _progress(args: argparse.Namespace, name: str):
+    """A ``progress(msg)`` callable: one time-stamped line on stderr per step, silent with --quiet."""
+    t0 = time.perf_counter()
+
+    def progress(msg: str) -> None:
+        if not args.quiet:
+            print(f"kinadapt {name} [{time.perf_counter() - t0:5.1f} s] {msg}", file=sys.stderr, flush=True)
+
+    return progress
 
 
 def _default_out(kind: str) -> Path:
@@ -34,7 +105,8 @@ def _summary_lines(summary: dict, out: Path) -> list[str]:
         f"  depth sensor/true  {1e3 * summary['final_depth_m']:.2f} / {1e3 * summary['true_final_depth_m']:.2f} mm",
         f"  max |F| / |F_lat|  {summary['max_force_N']:.1f} / {summary['max_lateral_force_N']:.1f} N   "
         f"max |M| {summary['max_moment_Nm']:.2f} N m",
-        f"  min lambda(JJ^T)   {summary['min_lambda_JJt']:.3g}   offset error "
+        f"  min lambda(JJ^T)   {'-' if summary['min_lambda_JJt'] is None else format(summary['min_lambda_JJt'], '.3g')}"
+        f"   offset error "
         f"[{', '.join(f'{1e3 * e:+.2f}' for e in err)}] mm",
         f"  lateral drift      free space {1e3 * summary['lateral_drift_free_space_m']:.3f} mm, "
         f"max {1e3 * summary['lateral_drift_max_m']:.3f} mm",
@@ -69,13 +141,13 @@ def _write_online(stage: Path, cfg, result) -> None:
 
 def cmd_online(args: argparse.Namespace) -> int:
     from kinadapt_nn.config import load_config
-    from kinadapt_nn.episode import run_episode
+    from kinadapt_nn.episode import run_insertions
     from kinadapt_nn.runio import check_output_dir, staged_output
 
     cfg = load_config(Path(args.config) if args.config else None, args.set or [])
-    out = Path(args.out) if args.out else _default_out("online")
+    out = args.run_dir = Path(args.out) if args.out else _default_out("online")
     check_output_dir(out, args.overwrite)
-    result = run_episode(cfg, progress=cfg.run.progress and not args.quiet)
+    result = run_insertions(cfg, progress=cfg.run.progress and not args.quiet)
     with staged_output(out, args.overwrite) as stage:
         _write_online(stage, cfg, result)
     if not args.quiet:
@@ -88,12 +160,13 @@ def cmd_pretrain(args: argparse.Namespace) -> int:
 
     cfg = load_pretrain_config(Path(args.config) if args.config else None, args.set or [])
     out = Path(args.out) if args.out else _default_out("pretrain")
+    if out.exists() and not out.is_dir():
+        raise OutputExistsError(f"output path '{out}' exists and is not a folder")
     if out.exists() and any(out.iterdir()) and not (out / "train_state.pt").exists() and not args.overwrite:
         raise OutputExistsError(f"output folder '{out}' already exists (pass --overwrite or choose another --out)")
-    if args.overwrite and out.exists() and not (out / "train_state.pt").exists():
-        import shutil
-
+    if args.overwrite and out.exists():  # start afresh, even over a (maybe damaged) resume state
         shutil.rmtree(out)
+    args.run_dir = out
     try:
         m = pretrain(cfg, out, progress=not args.quiet)
     except KeyboardInterrupt:
@@ -118,7 +191,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from kinadapt_nn.runio import check_output_dir, staged_output
 
     cfg = load_compare_config(Path(args.config) if args.config else None, args.set or [])
-    out = Path(args.out) if args.out else _default_out("compare")
+    out = args.run_dir = Path(args.out) if args.out else _default_out("compare")
     check_output_dir(out, args.overwrite)
     with staged_output(out, args.overwrite) as stage:
         run_compare(cfg, stage, progress=not args.quiet)
@@ -142,7 +215,8 @@ def cmd_view(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else run / "rollout.gif"
     if out.exists() and not args.overwrite:
         raise OutputExistsError(f"video '{out}' already exists (pass --overwrite or choose another --out)")
-    n = render_run(run, out, fps=args.fps, width=args.width, height=args.height, camera=args.camera, max_s=args.max_s)
+    n = render_run(run, out, fps=args.fps, width=args.width, height=args.height, camera=args.camera, max_s=args.max_s,
+                   progress=not args.quiet)
     if not args.quiet:
         print(f"kinadapt view: wrote {out} ({n} frames at {args.fps:g} fps)")
     return 0
@@ -154,11 +228,11 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
     if args.only and args.only not in PARTS:
         raise KinadaptError(f"--only {args.only!r}: choose one of {', '.join(PARTS)}")
-    out = Path(args.out) if args.out else _default_out("reproduce")
+    out = args.run_dir = Path(args.out) if args.out else _default_out("reproduce")
     check_output_dir(out, args.overwrite)
     t0 = time.perf_counter()
     with staged_output(out, args.overwrite) as stage:
-        run_reproduce(stage, only=args.only, jobs=args.jobs)
+        run_reproduce(stage, only=args.only, jobs=args.jobs, progress=_progress(args, "reproduce"))
     if not args.quiet:
         print((out / "reproduce.md").read_text())
         print(f"wrote {out}/ in {time.perf_counter() - t0:.0f} s (reproduce.json, reproduce.md, figures)")
@@ -171,7 +245,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from kinadapt_nn.sweep import load_sweep_config, run_sweep
 
     cfg = load_sweep_config(Path(args.config) if args.config else None, args.set or [])
-    out = Path(args.out) if args.out else _default_out("sweep")
+    out = args.run_dir = Path(args.out) if args.out else _default_out("sweep")
     if out.exists() and not (out / "sweep_config.json").is_file() and any(out.iterdir()):
         if not args.overwrite:
             raise OutputExistsError(f"output folder '{out}' exists and is not a sweep (pass --overwrite or another --out)")
@@ -211,13 +285,10 @@ def cmd_diagnose_setup(args: argparse.Namespace) -> int:
     if args.rerun or args.no_calibration:
         raise KinadaptError("--rerun/--no-calibration are for this package's own runs; drop them with --setup")
     setup = load_setup(Path(args.setup), args.set or [])
-    out = Path(args.out) if args.out else _default_out("diagnose")
+    out = args.run_dir = Path(args.out) if args.out else _default_out("diagnose")
     check_output_dir(out, args.overwrite)
     t0 = time.perf_counter()
-
-    def progress(msg: str) -> None:
-        if not args.quiet:
-            print(f"kinadapt diagnose [{time.perf_counter() - t0:5.1f} s] {msg}", file=sys.stderr, flush=True)
+    progress = _progress(args, "diagnose")
 
     progress(f"reading {args.log}")
     log = read_log(Path(args.log), setup)
@@ -278,13 +349,13 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             theta = np.array([float(x) for x in args.theta.split(",")])
         except ValueError:
             raise KinadaptError(f"--theta {args.theta!r}: give three numbers in metres, e.g. 0.003,-0.002,0.1") from None
-        if theta.shape != (3,):
-            raise KinadaptError(f"--theta {args.theta!r}: give three numbers in metres, e.g. 0.003,-0.002,0.1")
+        if theta.shape != (3,) or not np.isfinite(theta).all():
+            raise KinadaptError(f"--theta {args.theta!r}: give three finite numbers in metres, e.g. 0.003,-0.002,0.1")
     from kinadapt_nn.diagnostics import library as lib
     from kinadapt_nn.diagnostics import ranking as rk
     from kinadapt_nn.diagnostics.effects import build_signals
 
-    out = Path(args.out) if args.out else _default_out("diagnose")
+    out = args.run_dir = Path(args.out) if args.out else _default_out("diagnose")
     check_output_dir(out, args.overwrite)
     lib.check_effect_names(args.add or [])
     if args.rerun:
@@ -325,9 +396,23 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     return 0
 
 
-def _job_parser(sub, name: str, help_: str, config_default: str, set_example: str, func) -> argparse.ArgumentParser:
+def cmd_config(args: argparse.Namespace) -> int:
+    """Print every key of the experiment config (after --config/--set) with its value, unit and meaning."""
+    from kinadapt_nn.config import load_config
+    from kinadapt_nn.config_doc import describe, format_keys
+
+    cfg = load_config(Path(args.config) if args.config else None, args.set or [])
+    src = args.config or "built-in defaults"
+    print(f"# kinadapt experiment config ({src}{', with --set' if args.set else ''}): key = value  [unit]  meaning")
+    print("# override any key with --set KEY=VALUE (TOML value), e.g. --set control.dither_rad_s=[0.05,0.05,0.05]")
+    print(format_keys(describe(cfg)), end="")
+    return 0
+
+
+def _job_parser(sub, name: str, help_: str, config_default: str, set_example: str, func,
+                description: str = "") -> argparse.ArgumentParser:
     """The options every job command shares: --config, --set, --out, --overwrite, --quiet."""
-    sp = sub.add_parser(name, help=help_)
+    sp = sub.add_parser(name, help=help_, description=description or help_[:1].upper() + help_[1:] + ".")
     sp.add_argument("--config", help=f"TOML config (default: built-in defaults = {config_default})")
     sp.add_argument("--set", action="append", metavar="KEY=VALUE", help=f"override a key, e.g. {set_example}")
     sp.add_argument("--out", help=f"output folder (default: runs/{name}-<timestamp>)")
@@ -337,36 +422,71 @@ def _job_parser(sub, name: str, help_: str, config_default: str, set_example: st
     return sp
 
 
+_DESCRIPTIONS = {
+    "online": "Run one simulated peg-in-hole insertion of the Panda by feel: the controller sees only the joint "
+              "encoders and the wrist F/T sensor and adapts its tool estimate online. Writes a run folder "
+              "(config.toml, summary.json, trace.npz, rollout.png, tb/). Exit 0 seated, 1 not seated.",
+    "pretrain": "Train the neural Jacobian basis offline on randomised tools and arms. Writes model.pt, "
+                "metrics.json and tb/ into --out; an interrupted run resumes from train_state.pt when rerun with "
+                "the same command (--overwrite starts afresh).",
+    "compare": "Compare the adjoint, RBF and neural features on the same held-out tools and arms "
+               "(comparison.csv/.md, a Jacobian-error figure, tb/).",
+    "view": "Replay a run folder's logged joint positions in its scene: render to a GIF/MP4 offscreen (always with "
+            "--out, or when there is no display), else open the interactive MuJoCo viewer. Headless rendering needs "
+            "MUJOCO_GL=egl (default here) or osmesa.",
+    "reproduce": "Check the paper's claims by running code: rollouts, the observability spectrum, a gain sweep, "
+                 "ablations, the QP identities and a video. Writes reproduce.json, reproduce.md (paper vs ours) and "
+                 "the figures; takes several minutes (progress on stderr).",
+    "sweep": "Run many episodes over groups (named override sets) x seeds, locally or on a Ray cluster, and "
+             "aggregate success rates with 95 % intervals; rerun the same command to resume.",
+    "diagnose": "Model vs measurement: replay a log through the known model and rank which physical effect is "
+                "missing. With --setup: your robot's log (CSV, Parquet, ROS 2 bag); without: a run of this package.",
+    "setup-template": "Print (or write with --out) a commented setup-file template for kinadapt diagnose LOG --setup.",
+    "config": "Print every key of the experiment config (kinadapt online) with its value, unit and meaning, after "
+              "--config and --set are applied.",
+}
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="kinadapt", description="Online kinematic adaptation by feel (MuJoCo Panda).")
-    sub = p.add_subparsers(dest="command", required=True)
-    _job_parser(sub, "online", "run one insertion episode", "online/rollout.toml", "run.seed=3", cmd_online)
+    p = _Parser(prog="kinadapt", description="Online kinematic adaptation by feel (MuJoCo Panda). "
+                "Exit codes: 0 done, 1 online episode not seated, 2 bad input, 3 internal error, 130 interrupted.")
+    p.add_argument("--version", action="version", version=f"kinadapt {__version__}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    d = _DESCRIPTIONS
+    _job_parser(sub, "online", "run one insertion episode", "online/rollout.toml", "run.seed=3", cmd_online,
+                d["online"])
     _job_parser(sub, "pretrain", "train the neural Jacobian basis on randomised tools and arms (rerun to resume)",
-                "pretrain/default.toml", "train.steps=200", cmd_pretrain)
+                "pretrain/default.toml", "train.steps=200", cmd_pretrain, d["pretrain"])
     _job_parser(sub, "compare", "adjoint vs RBF vs neural features on the same held-out tools",
-                "online/compare.toml", "n_tools=2", cmd_compare)
-    vw = sub.add_parser("view", help="render a run to GIF/MP4 offscreen, or open the viewer when a display exists")
-    vw.add_argument("run", help="a run folder written by kinadapt online")
+                "online/compare.toml", "n_tools=2", cmd_compare, d["compare"])
+    vw = sub.add_parser("view", help="render a run to GIF/MP4 offscreen, or open the viewer when a display exists",
+                        description=d["view"])
+    vw.add_argument("run", help="a run folder written by kinadapt online (config.toml + trace.npz)")
     vw.add_argument("--out", help="video file (.gif or .mp4); default: RUN/rollout.gif when headless")
-    vw.add_argument("--fps", type=float, default=25.0)
-    vw.add_argument("--width", type=int, default=480)
-    vw.add_argument("--height", type=int, default=360)
-    vw.add_argument("--camera", default="side")
-    vw.add_argument("--max-s", dest="max_s", type=float, default=None, help="render only the first seconds")
-    vw.add_argument("--overwrite", action="store_true")
-    vw.add_argument("--quiet", action="store_true")
+    vw.add_argument("--fps", type=_float_in(0.0, 1000.0), default=25.0,
+                    help="frames per second of the video, (0, 1000] (default: 25)")
+    vw.add_argument("--width", type=_int_in(16, 4096), default=480,
+                    help="frame width in pixels, 16..4096 (default: 480)")
+    vw.add_argument("--height", type=_int_in(16, 4096), default=360,
+                    help="frame height in pixels, 16..4096 (default: 360)")
+    vw.add_argument("--camera", default="side", help="a camera of the scene (default: side; a wrong name lists them)")
+    vw.add_argument("--max-s", dest="max_s", type=_float_in(0.0, 1e6), default=None,
+                    help="render only the first MAX_S seconds of the run (default: all of it)")
+    vw.add_argument("--overwrite", action="store_true", help="replace an existing video file")
+    vw.add_argument("--quiet", action="store_true", help="no progress bar, no summary line")
     vw.set_defaults(func=cmd_view)
-    rp = sub.add_parser("reproduce", help="check the paper's claims by running code; figures + paper-vs-ours table")
+    rp = sub.add_parser("reproduce", help="check the paper's claims by running code; figures + paper-vs-ours table",
+                        description=d["reproduce"])
     rp.add_argument("--only", help="one part: rollout, observability, gain_sweep, ablations, qp, video")
     rp.add_argument("--out", help="output folder (default: runs/reproduce-<timestamp>)")
-    rp.add_argument("--jobs", type=int, default=2, help="worker processes")
-    rp.add_argument("--overwrite", action="store_true")
-    rp.add_argument("--quiet", action="store_true")
+    rp.add_argument("--jobs", type=_int_in(1, 256), default=2, help="worker processes, 1..256 (default: 2)")
+    rp.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    rp.add_argument("--quiet", action="store_true", help="no progress lines, no table")
     rp.set_defaults(func=cmd_reproduce)
     sw = _job_parser(sub, "sweep", "many episodes over groups x seeds, locally or on a Ray cluster (rerun to resume)",
-                     "online/sweep.toml", "seeds=5", cmd_sweep)
+                     "online/sweep.toml", "seeds=5", cmd_sweep, d["sweep"])
     dg = sub.add_parser("diagnose", help="model vs measurement: which physical effect is missing (your robot's log "
-                        "with --setup, or a run of this package)")
+                        "with --setup, or a run of this package)", description=d["diagnose"])
     dg.add_argument("log", help="with --setup: .csv, .csv.gz, .parquet, a ROS 2 bag or a trace.npz; without: a run "
                     "folder, a trace.npz, or a CSV in this package's format (kinadapt_nn/diagnostics/importers.py)")
     dg.add_argument("--setup", metavar="SETUP.toml", help="your set-up: columns, wrench convention, sensor mount, tool "
@@ -389,30 +509,105 @@ def build_parser() -> argparse.ArgumentParser:
                     help="also fit the whole library on this log (a run without hidden effects) and store it as the "
                          "calibration of its control.program in FILE")
     dg.add_argument("--out", help="output folder (default: runs/diagnose-<timestamp>)")
-    dg.add_argument("--overwrite", action="store_true")
-    dg.add_argument("--quiet", action="store_true")
+    dg.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    dg.add_argument("--quiet", action="store_true", help="no progress lines, no summary")
     dg.set_defaults(func=cmd_diagnose)
-    st = sub.add_parser("setup-template", help="print a setup-file template for kinadapt diagnose LOG --setup")
+    st = sub.add_parser("setup-template", help="print a setup-file template for kinadapt diagnose LOG --setup",
+                        description=d["setup-template"])
     st.add_argument("--out", help="write it to this file instead of printing it")
-    st.add_argument("--overwrite", action="store_true")
-    st.set_defaults(func=cmd_setup_template)
-    sw.add_argument("--executor", choices=["local", "ray"], default="local")
+    st.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    st.set_defaults(func=cmd_setup_template, uses_mujoco=False)
+    cf = sub.add_parser("config", help="list every experiment config key with its value, unit and meaning",
+                        description=d["config"])
+    cf.add_argument("--config", help="TOML config (default: built-in defaults = online/rollout.toml)")
+    cf.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key, e.g. run.seed=3")
+    cf.set_defaults(func=cmd_config, uses_mujoco=False)
+    sw.add_argument("--executor", choices=["local", "ray"], default="local",
+                    help="run episodes in local worker processes or on a Ray cluster (default: local)")
     sw.add_argument("--address", help="Ray cluster address (default: auto, e.g. a local 'ray start --head')")
+    p.set_defaults(in_place=False)
+    for name in ("pretrain", "sweep"):  # these write into --out as they go (resumable)
+        sub.choices[name].set_defaults(in_place=True)
     return p
+
+
+def _one_line(text: str, n: int = 300) -> str:
+    text = " ".join(str(text).split())
+    return text if len(text) <= n else text[: n - 3] + "..."
+
+
+def _internal_error(args: argparse.Namespace, exc: BaseException, mujoco_log: Path | None) -> int:
+    """Write the traceback to a log file (the output folder of an in-place command, else a temp file)
+    and print one line naming it. -> exit code 3."""
+    run_dir = getattr(args, "run_dir", None)
+    text = "".join(traceback.format_exception(exc))
+    text = f"kinadapt {__version__} {' '.join(sys.argv[1:]) if sys.argv else ''}\n{text}"
+    if mujoco_log is not None and mujoco_log.exists():
+        text += f"MuJoCo's log: {mujoco_log}\n"
+    if args.in_place and run_dir is not None and Path(run_dir).is_dir():
+        path = Path(run_dir) / "kinadapt_error.log"
+        path.write_text(text)
+    else:
+        fd, name = tempfile.mkstemp(prefix="kinadapt-error-", suffix=".log")
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        path = Path(name)
+    print(f"kinadapt: internal error ({type(exc).__name__}: {_one_line(exc, 160)}); the traceback is in {path} "
+          "-- please report it", file=sys.stderr)
+    return EXIT_INTERNAL
+
+
+def _run(args: argparse.Namespace, mujoco_log: Path | None) -> int:
+    try:
+        return int(args.func(args))
+    except KinadaptError as exc:
+        print(f"kinadapt: error: {_one_line(exc, 1000)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("kinadapt: interrupted; nothing was written", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except Exception as exc:  # a bug: keep the traceback, say where
+        return _internal_error(args, exc, mujoco_log)
+
+
+def _place_mujoco_log(path: Path, args: argparse.Namespace, rc: int) -> None:
+    """MuJoCo wrote a log: move it into the run folder of a finished run, else say where it is."""
+    if not path.exists():
+        return
+    run_dir = getattr(args, "run_dir", None)
+    finished = rc in (EXIT_OK, EXIT_NOT_SEATED) or (args.in_place and rc == EXIT_INTERRUPTED)
+    if finished and run_dir is not None and Path(run_dir).is_dir():
+        dest = Path(run_dir) / "MUJOCO_LOG.TXT"
+        with open(dest, "a") as fh:
+            fh.write(path.read_text(errors="replace"))
+        path.unlink()
+    else:
+        dest = path
+    if rc != EXIT_BAD_INPUT and not getattr(args, "quiet", False):
+        print(f"kinadapt: MuJoCo logged warnings to {dest}", file=sys.stderr)
 
 
 def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    parser = build_parser()
-    args = parser.parse_args(argv)
     try:
-        return int(args.func(args))
-    except KinadaptError as exc:
-        print(f"kinadapt: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("kinadapt: interrupted; nothing was written", file=sys.stderr)
-        return 130
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # --help, --version (0) or a bad option (2, one line already printed)
+        return exc.code if isinstance(exc.code, int) else EXIT_BAD_INPUT
+    args.run_dir = None  # set by a command once it knows its output folder
+    if not getattr(args, "uses_mujoco", True):
+        return _run(args, None)
+    if args.command == "view" and (args.out is not None or not os.environ.get("DISPLAY")):
+        os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen: must be chosen before mujoco is imported
+    from kinadapt_nn.mjlog import fresh_log_path, mujoco_log_to
+
+    mujoco_log = fresh_log_path()
+    rc = EXIT_INTERNAL
+    try:
+        with mujoco_log_to(mujoco_log):
+            rc = _run(args, mujoco_log)
+    finally:
+        _place_mujoco_log(mujoco_log, args, rc)
+    return rc
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -16,6 +16,7 @@ features, tool family), and ``jacobian_error.png`` the Jacobian error vs time pe
 from __future__ import annotations
 
 import csv
+import itertools
 import math
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -43,9 +44,11 @@ class CompareCfg(BaseModel):
     joint_sigma_rad: float = Field(0.004, ge=0.0)  # [rad] arm_errors: joint zero offset std
     jobs: int = Field(2, ge=1, le=64)  # worker processes
     base: list[str] = []  # overrides applied to every episode (online config keys)
+    laws: list[str] = []  # adaptation laws to compare (adaptation.mode values); [] = the default law only
     scenarios: dict[str, list[str]] = {
         "bore": [],
         "socket_dither": ["scene.contact_model=socket", "control.dither_rad_s=[0.05,0.05,0.05]"],
+        "socket_dither_x3": ["scene.contact_model=socket", "control.dither_rad_s=[0.05,0.05,0.05]", "run.insertions=3"],
     }
 
 
@@ -54,6 +57,11 @@ def load_compare_config(path: Path | None, overrides=()) -> CompareCfg:
     for f in cfg.features:
         if f not in FEATURES:
             raise ConfigError(f"compare: unknown features {f!r} (choose from {', '.join(FEATURES)})")
+    from kinadapt_nn.adaptation import MODES
+
+    for law in cfg.laws:
+        if law not in MODES:
+            raise ConfigError(f"compare: unknown law {law!r} (choose from {', '.join(MODES)})")
     for f in cfg.families:
         if f not in FAMILIES:
             raise ConfigError(f"compare: unknown tool family {f!r} (choose from {', '.join(FAMILIES)})")
@@ -87,13 +95,18 @@ def draw_tools(cfg: CompareCfg) -> dict[str, list[list[str]]]:
 
 def _run_one(job: tuple) -> dict:
     from kinadapt_nn.config import load_config
-    from kinadapt_nn.episode import run_episode
+    from kinadapt_nn.episode import run_insertions
     from kinadapt_nn.tb import write_tensorboard
 
-    scenario, family, features, tool_i, overrides, tb_dir = job
-    cfg = load_config(None, ["run.progress=false", *overrides, f"run.features={features}"])
-    res = run_episode(cfg)
+    scenario, family, features, tool_i, overrides, tb_dir, law = job
+    cfg = load_config(None, ["run.progress=false", *overrides, f"run.features={features}",
+                             *([f"adaptation.mode={law}"] if law else [])])
+    res = run_insertions(cfg)
     s = res.summary
+    if "insertions" in s:  # a work cell: judged from the first insertion's start to the last one's end
+        rows = s["insertions"]
+        s = dict(s, success=all(r["success"] for r in rows),
+                 jacobian_rel_error_initial=rows[0]["jacobian_rel_error_initial"])
     hp = {"features": features, "tool_family": family, "scenario": scenario, "tool": tool_i,
           "n_params": int(s["n_params"]), "law": s["law"]}
     write_tensorboard(Path(tb_dir), res.trace, s, hp)
@@ -101,6 +114,7 @@ def _run_one(job: tuple) -> dict:
     idx = np.arange(0, len(t), 10)
     return {
         "scenario": scenario, "tool_family": family, "features": features, "tool": tool_i, "summary": s,
+        "law": cfg.adaptation.mode,
         "t": t[idx].tolist(), "jac_err": res.trace["truth_jacobian_rel_error"][idx].tolist(),
     }
 
@@ -114,12 +128,14 @@ def run_compare(cfg: CompareCfg, out: Path, progress: bool = True) -> list[dict]
     """Run every episode, write tb/, comparison.csv/.md and jacobian_error.png into ``out``."""
     tools = draw_tools(cfg)
     jobs = []
+    laws = list(cfg.laws) or [None]
     for scen, scen_over in cfg.scenarios.items():
         for fam, rows in tools.items():
             for feat in cfg.features:
-                for i, over in enumerate(rows):
-                    tb = out / "tb" / scen / fam / feat / f"tool{i}"
-                    jobs.append((scen, fam, feat, i, [*cfg.base, *scen_over, *over], str(tb)))
+                for law in laws:
+                    for i, over in enumerate(rows):
+                        tb = out / "tb" / scen / fam / feat / (f"{law}/" if len(laws) > 1 else "") / f"tool{i}"
+                        jobs.append((scen, fam, feat, i, [*cfg.base, *scen_over, *over], str(tb), law))
     results = []
     bar = None
     if progress:
@@ -134,27 +150,28 @@ def run_compare(cfg: CompareCfg, out: Path, progress: bool = True) -> list[dict]
     if bar is not None:
         bar.close()
     rows = []
-    for scen in cfg.scenarios:
-        for feat in cfg.features:
-            for fam in cfg.families:
-                grp = [r["summary"] for r in results if (r["scenario"], r["features"], r["tool_family"]) == (scen, feat, fam)]
-                if not grp:
-                    continue
-                rows.append({
-                    "scenario": scen,
-                    "features": feat,
-                    "tool_family": fam,
-                    "episodes": len(grp),
-                    "success_rate": sum(g["success"] for g in grp) / len(grp),
-                    "seat_time_s_median": _median([g["seat_time_s"] for g in grp]),
-                    "jacobian_rel_error_initial_median": _median([g["jacobian_rel_error_initial"] for g in grp]),
-                    "jacobian_rel_error_final_median": _median([g["jacobian_rel_error_final"] for g in grp]),
-                    "pred_error_rms_median": _median([g["pred_error_rms_contact_w"] for g in grp]),
-                    "offset_error_lateral_final_m_median": _median([g["offset_error_lateral_final_m"] for g in grp]),
-                    "min_lambda_JJt_median": _median([g["min_lambda_JJt"] for g in grp]),
-                    "n_params": grp[0]["n_params"],
-                    "wall_time_s_median": _median([g["wall_time_s"] for g in grp]),
-                })
+    law_names = list(dict.fromkeys(r["law"] for r in results))
+    for scen, feat, fam, law in itertools.product(cfg.scenarios, cfg.features, cfg.families, law_names):
+        grp = [r["summary"] for r in results
+               if (r["scenario"], r["features"], r["tool_family"], r["law"]) == (scen, feat, fam, law)]
+        if not grp:
+            continue
+        rows.append({
+            "scenario": scen,
+            "features": feat,
+            "tool_family": fam,
+            "law": law,
+            "episodes": len(grp),
+            "success_rate": sum(g["success"] for g in grp) / len(grp),
+            "seat_time_s_median": _median([g["seat_time_s"] for g in grp]),
+            "jacobian_rel_error_initial_median": _median([g["jacobian_rel_error_initial"] for g in grp]),
+            "jacobian_rel_error_final_median": _median([g["jacobian_rel_error_final"] for g in grp]),
+            "pred_error_rms_median": _median([g["pred_error_rms_contact_w"] for g in grp]),
+            "offset_error_lateral_final_m_median": _median([g["offset_error_lateral_final_m"] for g in grp]),
+            "min_lambda_JJt_median": _median([g["min_lambda_JJt"] for g in grp]),
+            "n_params": grp[0]["n_params"],
+            "wall_time_s_median": _median([g["wall_time_s"] for g in grp]),
+        })
     cols = list(rows[0].keys()) if rows else []
     with open(out / "comparison.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=cols)

@@ -1,19 +1,21 @@
 """Typed, validated experiment configuration (TOML in, TOML out).
 
 Every field carries its unit in the comment. Configs are frozen pydantic models with
-``extra="forbid"``: an unknown key, a wrong type or an out-of-range value raises
-``ConfigError`` with one line naming the key and what would be right. The fully resolved
-config is written beside every run (``config.toml``) so a run explains itself.
+``extra="forbid"``: an unknown key, a wrong type, a non-finite number (NaN or inf, anywhere,
+tuples included) or an out-of-range value raises ``ConfigError`` with one line naming the key
+and what would be right. The fully resolved config is written beside every run
+(``config.toml``) so a run explains itself.
 """
 
 from __future__ import annotations
 
+import math
 import tomllib
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
 import tomli_w
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from kinadapt_nn.errors import ConfigError
 
@@ -23,7 +25,23 @@ Vec6 = tuple[float, float, float, float, float, float]
 
 
 class _Cfg(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=False, validate_default=True)
+    # allow_inf_nan=False: every float, nested tuples included, must be finite
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=False, validate_default=True, allow_inf_nan=False)
+
+
+def _within(v: tuple[float, ...], lo: tuple[float, ...] | float, hi: tuple[float, ...] | float, unit: str) -> tuple:
+    """Field-validator helper: every entry of ``v`` in its closed range [lo, hi] (per entry or shared)."""
+    los = lo if isinstance(lo, tuple) else (lo,) * len(v)
+    his = hi if isinstance(hi, tuple) else (hi,) * len(v)
+    u = f" {unit}" if unit else ""
+    for i, (x, a, b) in enumerate(zip(v, los, his)):
+        if not a <= x <= b:
+            raise ValueError(f"entry {i} is {x:g}{u}; each must lie in [{a:g}, {b:g}]{u}")
+    return v
+
+
+#: tool offsets O -> tip in f [m]: lateral within +-5 cm, the tip 1 mm to 0.5 m in front of the flange
+_OFFSET_LO, _OFFSET_HI = (-0.05, -0.05, 1e-3), (0.05, 0.05, 0.5)
 
 
 class ToolCfg(_Cfg):
@@ -34,6 +52,16 @@ class ToolCfg(_Cfg):
     mass_kg: float = Field(0.10, gt=0.0)  # [kg] peg mass (loads the wrist sensor)
     side_m: float = Field(0.020, gt=0.0, lt=0.022)  # [m] square peg side (bore is 22 mm)
     length_m: float = Field(0.100, gt=0.0)  # [m] peg length along its own axis, ending at the tip
+
+    @field_validator("offset_f_m")
+    @classmethod
+    def _offset(cls, v: Vec3) -> Vec3:
+        return _within(v, _OFFSET_LO, _OFFSET_HI, "m")
+
+    @field_validator("tilt_deg")
+    @classmethod
+    def _tilt(cls, v: Vec2) -> Vec2:
+        return _within(v, -45.0, 45.0, "deg")
 
 
 class SceneCfg(_Cfg):
@@ -56,6 +84,16 @@ class SceneCfg(_Cfg):
     socket_damping_ratio: float = Field(0.05, ge=0.0)  # [-] socket: damping (x critical, 3 kg)
     socket_engage: Literal["drive", "depth"] = "drive"  # socket anchors at drive start | when the tip enters
     socket_k_axial_N_per_m: float = Field(0.0, ge=0.0)  # [N/m] socket "depth": axial spring below the entrance
+
+    @field_validator("bore_entry_w_m")
+    @classmethod
+    def _entry(cls, v: Vec3) -> Vec3:
+        return _within(v, -2.0, 2.0, "m")  # (reachability is checked when the start pose is solved)
+
+    @field_validator("bore_pose_error_m")
+    @classmethod
+    def _pose_error(cls, v: Vec3) -> Vec3:
+        return _within(v, -0.05, 0.05, "m")
 
 
 class ArmCfg(_Cfg):
@@ -83,6 +121,16 @@ class StartCfg(_Cfg):
     lateral_jitter_m: float = Field(0.0, ge=0.0, le=0.005)  # [m] seeded uniform +- jitter of lateral_w_m
     tilt_jitter_deg: float = Field(0.0, ge=0.0, le=5.0)  # [deg] seeded uniform +- jitter of tilt_deg
 
+    @field_validator("lateral_w_m")
+    @classmethod
+    def _lateral(cls, v: Vec2) -> Vec2:
+        return _within(v, -0.05, 0.05, "m")
+
+    @field_validator("tilt_deg")
+    @classmethod
+    def _tilt(cls, v: Vec2) -> Vec2:
+        return _within(v, -45.0, 45.0, "deg")
+
 
 class SensingCfg(_Cfg):
     """Known sensing model: the constant nominal map S, the channel metric W, the filter."""
@@ -95,6 +143,11 @@ class SensingCfg(_Cfg):
     channel_scale: Vec6 = (0.01, 10.0, 10.0, 1.0, 1.0, 1.0)
     tare_window_s: float = Field(0.1, gt=0.0)  # [s] free-space window averaged for the tare
     max_dropout_s: float = Field(0.02, ge=0.0)  # [s] NaN/inf samples bridged by holding the last valid one
+
+    @field_validator("nominal_offset_f_m")
+    @classmethod
+    def _offset(cls, v: Vec3) -> Vec3:
+        return _within(v, _OFFSET_LO, _OFFSET_HI, "m")
 
     @model_validator(mode="after")
     def _positive_scales(self) -> SensingCfg:
@@ -126,6 +179,11 @@ class ControlCfg(_Cfg):
     dither_hz: float = Field(1.0, gt=0.0)  # [Hz] dither frequency (x: sin, y: cos, z: sin at 1.7 f)
     program: Literal["insert", "excite"] = "insert"  # insert: descend V's gradient | excite: [excite] script
 
+    @field_validator("dither_rad_s")
+    @classmethod
+    def _dither(cls, v: Vec3) -> Vec3:
+        return _within(v, -1.0, 1.0, "rad/s")
+
 
 class FeaturesCfg(_Cfg):
     """Learned feature settings (``run.features = rbf | neural``)."""
@@ -133,14 +191,14 @@ class FeaturesCfg(_Cfg):
     rbf_centres: Literal["path", "sampled"] = "path"  # centres on the insertion path or sampled about it
     rbf_n_centres: int = Field(6, ge=1, le=64)  # K; p = 5 * 7 * K
     rbf_width_rad: float = Field(0.0, ge=0.0)  # [rad] Gaussian width (0 = mean nearest-centre distance)
-    rbf_seed: int = Field(0, ge=0)  # seed of the sampled centres
+    rbf_seed: int = Field(0, ge=0, le=2**32 - 1)  # seed of the sampled centres
     neural_checkpoint: str = ""  # pretrained body ("" = the shipped models/neural_default.pt)
 
 
 class AdaptationCfg(_Cfg):
     """The composite law (eq. ft_composite) and the initial estimate (see kinadapt_nn.adaptation)."""
 
-    mode: Literal["composite", "prediction", "tracking", "frozen"] = "composite"  # adapted terms
+    mode: Literal["kalman", "composite", "prediction", "tracking", "frozen"] = "composite"  # adapted terms; composite = the paper's
     gamma: float = Field(100.0, gt=0.0)  # [m^2] Gamma = gamma I: V_aug = gamma_d V + |theta~|^2/(2 Gamma)
     gamma_d: float = Field(1.0e-7, gt=0.0)  # [1/J] weight of V(s) in V_aug (paper Results; undefined there)
     eta: float = Field(0.5, gt=0.0, lt=2.0)  # [-] fraction of the exact per-sample QP step
@@ -151,6 +209,20 @@ class AdaptationCfg(_Cfg):
     omega_axial_m: float = Field(0.030, gt=0.0)  # [m] Omega: |theta_z - nominal_z| bound
     contact_force_N: float = Field(1.0, ge=0.0)  # [N] free-space rule: adapt only in contact
     contact_moment_Nm: float = Field(0.05, ge=0.0)  # [N m] ... or when |M| exceeds this
+    # kalman law (kinadapt_nn.adaptation): prior, residual level, decorrelation
+    prior_sd_lateral_m: float = Field(0.005, gt=0.0)  # [m] adjoint prior sd of the lateral offset components
+    prior_sd_axial_m: float = Field(0.010, gt=0.0)  # [m] adjoint prior sd of the axial offset component
+    rbf_prior_floor: float = Field(0.01, ge=0.0)  # [-] RBF prior: isotropic part, fraction of the adjoint push-forward
+    corr_s: float = Field(0.05, gt=0.0)  # [s] residual correlation time: samples within it count as one
+    resid_tau_s: float = Field(1.0, gt=0.0)  # [s] time constant of the measured residual level
+    resid_floor_w: float = Field(1.0e-4, gt=0.0)  # [W-scaled^2] floor of the residual level
+    act_sd_ratio: float = Field(0.5, gt=0.0, le=1.0)  # [-] act on a direction of theta once its sd < this x the prior sd (1: all)
+    persist_tau_s: float = Field(0.5, gt=0.0)  # [s] window of the residual's mean: a persistent residual counts once per 2 tau
+
+    @field_validator("initial_error_dir_f")
+    @classmethod
+    def _direction(cls, v: Vec3) -> Vec3:
+        return _within(v, -1.0, 1.0, "")  # a direction (normalised where used)
 
 
 class FaultsCfg(_Cfg):
@@ -165,6 +237,11 @@ class FaultsCfg(_Cfg):
     encoder_resolution_rad: float = Field(0.0, ge=0.0)  # [rad] encoder quantisation step (0 = off)
     latency_steps: int = Field(0, ge=0, le=10)  # [steps] delivery delay of every sample
 
+    @field_validator("ft_bias_N")
+    @classmethod
+    def _bias(cls, v: Vec3) -> Vec3:
+        return _within(v, -1000.0, 1000.0, "N")
+
 
 class ToolGravityCfg(_Cfg):
     """Effect ``tool_gravity``: an extra payload on the tool (e.g. a heavier tool than the tared one)."""
@@ -173,12 +250,22 @@ class ToolGravityCfg(_Cfg):
     mass_kg: float = Field(0.5, gt=0.0, le=5.0)  # [kg] payload mass
     com_f_m: Vec3 = (0.0, 0.0, 0.05)  # [m] payload centre of mass from O, flange frame
 
+    @field_validator("com_f_m")
+    @classmethod
+    def _com(cls, v: Vec3) -> Vec3:
+        return _within(v, -0.5, 0.5, "m")
+
 
 class FtBiasDriftCfg(_Cfg):
     """Effect ``ft_bias_drift``: the F/T offset drifts linearly in time (after the tare it shows)."""
 
     enabled: bool = False
     rate_f: Vec6 = (0.2, 0.0, 0.0, 0.0, 0.0, 0.0)  # [N/s, N m/s] drift of the reading, sensor frame
+
+    @field_validator("rate_f")
+    @classmethod
+    def _rate(cls, v: Vec6) -> Vec6:
+        return _within(v, -100.0, 100.0, "N/s or N m/s")
 
 
 class FtFrameRotationCfg(_Cfg):
@@ -187,12 +274,22 @@ class FtFrameRotationCfg(_Cfg):
     enabled: bool = False
     rotvec_deg: Vec3 = (1.41, 0.0, 1.41)  # [deg] rotation vector of the sensor frame in f (2 deg total)
 
+    @field_validator("rotvec_deg")
+    @classmethod
+    def _rotvec(cls, v: Vec3) -> Vec3:
+        return _within(v, -30.0, 30.0, "deg")
+
 
 class ToolTiltCfg(_Cfg):
     """Effect ``tool_tilt``: the tool sits rotated in the grasp (its tip moves with it)."""
 
     enabled: bool = False
     tilt_deg: Vec2 = (2.0, 0.0)  # [deg] rotation of the tool about f x, then f y
+
+    @field_validator("tilt_deg")
+    @classmethod
+    def _tilt(cls, v: Vec2) -> Vec2:
+        return _within(v, -45.0, 45.0, "deg")
 
 
 class ContactStiffnessCfg(_Cfg):
@@ -263,8 +360,8 @@ class ExciteCfg(_Cfg):
 
     @model_validator(mode="after")
     def _durations(self) -> ExciteCfg:
-        if any(seg[0] <= 0.0 for seg in self.segments):
-            raise ValueError("excite.segments: every row starts with a duration > 0 s")
+        if any(seg[0] <= 0.0 or seg[0] > 600.0 for seg in self.segments):
+            raise ValueError("excite.segments: every row starts with a duration in (0, 600] s")
         return self
 
 
@@ -286,12 +383,13 @@ class SuccessCfg(_Cfg):
 class RunCfg(_Cfg):
     """What to run."""
 
-    seed: int = Field(0, ge=0)  # [-] seeds every random draw of the run
+    seed: int = Field(0, ge=0, le=2**32 - 1)  # [-] seeds every random draw of the run
     duration_s: float = Field(8.0, gt=0.0, le=600.0)  # [s] simulated time limit (timeout)
     dt_s: float = Field(0.001, gt=0.0, le=0.01)  # [s] control and physics timestep
     features: Literal["adjoint", "rbf", "neural", "oracle"] = "adjoint"  # Y(q); oracle = true offset
     stop_after_seat_s: float = Field(0.5, ge=0.0)  # [s] keep simulating this long after seating
     log_every: int = Field(1, ge=1)  # [steps] trace decimation
+    insertions: int = Field(1, ge=1, le=1000)  # [-] consecutive insertions of the same tool; theta (and P) carried over
     tensorboard: bool = True  # write TensorBoard event files
     figure: bool = True  # write the rollout figure (PNG)
     progress: bool = True  # show a progress bar
@@ -330,11 +428,31 @@ def arm_mjcf_path(scene: SceneCfg) -> Path:
 
 def _format_validation_error(err: ValidationError) -> str:
     first = err.errors()[0]
-    loc = ".".join(str(x) for x in first["loc"]) or "<root>"
+    loc = "".join(f"[{x}]" if isinstance(x, int) else f".{x}" for x in first["loc"]).lstrip(".") or "<root>"
     kind = first["type"]
     if kind == "extra_forbidden":
         return f"unknown config key '{loc}' (check the spelling; see online/rollout.toml)"
-    return f"config key '{loc}': {first['msg']} (got {first.get('input')!r})"
+    msg = " ".join(str(first["msg"]).split()).removeprefix("Value error, ")
+    if kind == "finite_number":
+        msg = "must be a finite number (not nan or inf)"
+    got = repr(first.get("input"))
+    return f"config key '{loc}': {msg} (got {got if len(got) <= 80 else got[:77] + '...'})"
+
+
+def _non_finite_key(value: Any, key: str = "") -> str | None:
+    """The dotted key (``a.b[2]``) of the first NaN/inf float anywhere in ``value``, else None."""
+    if isinstance(value, float):
+        return None if math.isfinite(value) else key
+    if isinstance(value, dict):
+        items = ((f"{key}.{k}" if key else str(k), v) for k, v in value.items())
+    elif isinstance(value, (list, tuple)):
+        items = ((f"{key}[{i}]", v) for i, v in enumerate(value))
+    else:
+        return None
+    for sub, v in items:
+        if (bad := _non_finite_key(v, sub)) is not None:
+            return bad
+    return None
 
 
 def _parse_value(text: str) -> Any:
@@ -389,9 +507,13 @@ def load_toml_model(
         key = (aliases or {}).get(key.strip(), key.strip())
         _set_dotted(tree, key, _parse_value(text.strip()))
     try:
-        return model.model_validate(tree)
+        cfg = model.model_validate(tree)
     except ValidationError as err:
         raise ConfigError(_format_validation_error(err).replace("online/rollout.toml", example_file)) from None
+    bad = _non_finite_key(cfg.model_dump())  # models not derived from _Cfg (sweep, compare, pretrain) too
+    if bad is not None:
+        raise ConfigError(f"config key '{bad}': must be a finite number (not nan or inf)")
+    return cfg
 
 
 def load_config(path: Path | None, overrides: list[str] | tuple[str, ...] = ()) -> ExperimentCfg:

@@ -136,6 +136,17 @@ class ArmKinematics:
         return KinState(q_rad=q, p_w_O=self._p.copy(), R_wf=self._R.copy(), J_arm=self._jac.copy())
 
 
+def prior_cov_of(features: Features, adjoint_half_width: np.ndarray) -> np.ndarray:
+    """theta's prior covariance (p, p): ``features.P0`` when the features declare one, else a
+    diagonal with sd = a third of Omega's half width (finite entries; 1 where Omega is open)."""
+    P0 = getattr(features, "P0", None)
+    if P0 is not None:
+        return np.asarray(P0, dtype=float)
+    half = adjoint_half_width if features.name == "adjoint" else features.omega()[1]
+    sd = np.where(np.isfinite(half), np.asarray(half, dtype=float) / 3.0, 1.0)
+    return np.diag(sd**2)
+
+
 def rank_margin(W: np.ndarray, J_hat: np.ndarray) -> float:
     """``lambda_min(W J_hat J_hat^T W)`` on W-scaled rows: the online proxy of the full-row-rank
     hypothesis of Theorem ft_rigid (paper: gate 1e-6). W (m,), J_hat (m, n) -> float."""
@@ -248,10 +259,20 @@ class Controller:
             omega_half_width=half if features.name == "adjoint" else features.omega()[1],
             contact_force_N=ad.contact_force_N,
             contact_moment_Nm=ad.contact_moment_Nm,
+            # kalman law: the features' prior covariance (declared by make_features), else Omega/3
+            prior_cov=prior_cov_of(features, half),
+            corr_s=ad.corr_s,
+            resid_tau_s=ad.resid_tau_s,
+            resid_floor_w=ad.resid_floor_w,
+            persist_tau_s=ad.persist_tau_s,
+            act_sd_ratio=ad.act_sd_ratio,
         )
         self.reset()
 
-    def reset(self) -> None:
+    def reset(self, carry_estimate: bool = False) -> None:
+        """Back to the start of an insertion. ``carry_estimate``: keep theta and what the law
+        learned about it (covariance, residual level) -- the next insertion of the same tool."""
+        carried = (self.theta.copy(), self.law) if carry_estimate else None
         self.dropouts = 0
         self._bad_run = 0
         self._held = (np.zeros(self.kin_n), np.zeros(self.kin_n), np.zeros(6))
@@ -272,9 +293,20 @@ class Controller:
         self.rate_meas.primed = False
         self.theta = self.theta0.copy()
         self.law = CompositeLaw(**self.law_args, filter_state=self._Z[1:])
+        if carried is not None:
+            self.theta = carried[0]
+            self.law.carry_from(carried[1])
         self.last: StepLog | None = None
 
     # ------------------------------------------------------------------------------------
+    def rank_margin_now(self) -> float:
+        """``lambda_min(W J_hat J_hat^T W)`` of the Jacobian the controller will use next (the
+        current theta) at this step's configuration (the kinematics' buffers of the last step, no
+        new forward kinematics). The rank gate, every step (~10 us; benchmarks/bench_episode.py)."""
+        k = self.kin
+        kin = KinState(k._qpos[: self.kin_n].copy(), k._p, k._R, k._jac)
+        return rank_margin(self.W, self.features.jacobian(kin, self.theta))
+
     def sensor_vector(self, kin: KinState, w_env_w: np.ndarray) -> np.ndarray:
         """s = [d, F_lat, M] (see kinadapt_nn.sensing). -> (6,)."""
         s = np.empty(6)

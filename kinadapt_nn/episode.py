@@ -9,6 +9,8 @@ Success and failure are judged from sensor-side signals (``SeatMonitor``,
 
 from __future__ import annotations
 
+import math
+
 import time
 from pathlib import Path
 from typing import NamedTuple
@@ -116,6 +118,8 @@ def _base_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
     kind = cfg.run.features
     if kind == "oracle":
         return adjoint, np.asarray(cfg.tool.offset_f_m, dtype=float)
+    ad = cfg.adaptation
+    adjoint.P0 = np.diag([ad.prior_sd_lateral_m**2, ad.prior_sd_lateral_m**2, ad.prior_sd_axial_m**2])
     if kind == "adjoint":
         return adjoint, initial_estimate(cfg)
     if kind == "rbf":
@@ -132,6 +136,9 @@ def _base_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
             centres = sample_workspace(path, fc.rbf_n_centres, 0.03, np.random.default_rng(fc.rbf_seed))
         width = fc.rbf_width_rad or auto_width(centres)
         feats = RBFFeatures(adjoint, l_nom, centres, width)
+        from kinadapt_nn.control import ArmKinematics
+
+        feats.P0 = feats.prior_from_adjoint(ArmKinematics(arm_mjcf_path(cfg.scene)), adjoint.P0, ad.rbf_prior_floor)
         return feats, np.zeros(feats.n_params)
     if kind == "neural":
         from kinadapt_nn.features.neural import NeuralFeatures
@@ -139,6 +146,7 @@ def _base_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
 
         ckpt = Path(cfg.features.neural_checkpoint) if cfg.features.neural_checkpoint else MODELS_DIR / "neural_default.pt"
         feats = NeuralFeatures(adjoint, l_nom, ckpt, channel_metric(cfg.sensing))
+        feats.P0 = feats.prior_cov()  # the pretraining heads' second moment about the nominal head
         return feats, np.zeros(feats.n_params)  # the head of the nominal tool (zero residual)
     raise ValueError(f"unknown features {kind!r}")  # pragma: no cover (validated by the config)
 
@@ -157,11 +165,38 @@ class EpisodeResult(NamedTuple):
     summary: dict  #: the run-outputs contract (``summary.json``)
 
 
-def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
-    """Simulate one insertion with config ``cfg``. Deterministic for a given config."""
+def run_insertions(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
+    """``run.insertions`` consecutive insertions of the same tool on the same arm (a work cell):
+    the controller's theta and its law's covariance are carried from one to the next; insertion
+    i uses seed ``run.seed + i`` (its start jitter). -> the last insertion's result, with
+    ``summary["insertions"]`` one row per insertion. One insertion is ``run_episode``."""
+    n = cfg.run.insertions
+    if n == 1:
+        return run_episode(cfg, progress)
+    ctrl = make_controller(cfg)
+    rows = []
+    res = None
+    for i in range(n):
+        cfg_i = cfg.model_copy(update={"run": cfg.run.model_copy(update={"seed": (cfg.run.seed + i) % 2**32})})
+        if i:
+            ctrl.reset(carry_estimate=True)
+        res = run_episode(cfg_i, progress, ctrl=ctrl)
+        s = res.summary
+        rows.append({"insertion": i + 1, "success": s["success"], "failure": s["failure"], "seat_time_s": s["seat_time_s"],
+                     "jacobian_rel_error_initial": s["jacobian_rel_error_initial"],
+                     "jacobian_rel_error_final": s["jacobian_rel_error_final"],
+                     "offset_error_lateral_final_m": s.get("offset_error_lateral_final_m"),
+                     "theta_sd_final": s.get("theta_sd_final"), "max_force_N": s["max_force_N"]})
+    res.summary["insertions"] = rows
+    return res
+
+
+def run_episode(cfg: ExperimentCfg, progress: bool = False, ctrl: Controller | None = None) -> EpisodeResult:
+    """Simulate one insertion with config ``cfg``. Deterministic for a given config. ``ctrl``: a
+    controller to use as it is (``run_insertions`` carries one over), else a new one."""
     wall0 = time.perf_counter()
     sim = PegInHoleSim(cfg)
-    ctrl = make_controller(cfg)
+    ctrl = make_controller(cfg) if ctrl is None else ctrl
     tcfg = sim.cfg  # the truth-side config (hidden effects folded in): evaluation only
     dt = cfg.run.dt_s
     n_steps = int(round(cfg.run.duration_s / dt))
@@ -182,6 +217,10 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
 
         bar = tqdm(total=n_steps, unit="step", desc="episode", leave=False, mininterval=0.25)
     k = 0
+    lam_min_all = math.inf  # the rank gate, every step with the drive on
+    lam_since = math.inf  # its minimum since the last logged sample
+    lam_log: list[float] = []
+    rank_breach_t: float | None = None
     for k in range(n_steps):
         t = sim.time_s
         try:
@@ -193,7 +232,16 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
         sim.apply(cmd.q_ref_rad, cmd.qdot_ref_rad_s)
         lg = ctrl.last
         ok = monitor.update(t, lg.s) if lg.drive_scale > 0 else (False, False, False)
+        if lg.drive_scale > 0:  # rank gate every step (paper Results, "A separate kinematic gate")
+            lam = ctrl.rank_margin_now()
+            lam_since = min(lam_since, lam)
+            if lam < lam_min_all:
+                lam_min_all = lam
+                if lam < RANK_GATE and rank_breach_t is None:
+                    rank_breach_t = t
         if k % every == 0:
+            lam_log.append(lam_since)
+            lam_since = math.inf
             tr = sim.truth()
             rec.record(
                 t_s=t,
@@ -218,6 +266,7 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
                 adapt_gate=lg.adapt.gate,
                 theta_dot_track=lg.adapt.d_track / dt,
                 theta_dot_pred=lg.adapt.d_pred / dt,
+                theta_uncertainty=ctrl.law.uncertainty_ratio(),
                 depth_ok=ok[0],
                 force_ok=ok[1],
                 moment_ok=ok[2],
@@ -236,15 +285,15 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
         if stop_at is not None and sim.time_s >= stop_at:
             break
         # (a non-finite simulator state reaches the controller as a sensor sample: SensorError)
-        if k % 100 == 0:  # divergence watch at 10 Hz: MuJoCo warnings, the rank gate
+        if rank_breach_t is not None:
+            diverged = True
+            divergence_reason = f"rank gate breached (lambda_min {lam_min_all:.3g} < {RANK_GATE:g}) at t={rank_breach_t:.3f} s"
+            break
+        if k % 100 == 0:  # divergence watch at 10 Hz: MuJoCo warnings
             nwarn = int(sim.data.warning.number.sum())
             if nwarn > warn0:
                 diverged = True
                 divergence_reason = f"MuJoCo warning(s) at t={sim.time_s:.3f} s"
-                break
-            if lg.drive_scale > 0 and rank_margin(ctrl.W, ctrl.features.jacobian(ctrl.kin(obs.q_rad), ctrl.theta)) < RANK_GATE:
-                diverged = True
-                divergence_reason = f"rank gate breached (lambda_min < {RANK_GATE:g}) at t={sim.time_s:.3f} s"
                 break
     if bar is not None:
         bar.close()
@@ -266,6 +315,11 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
         tcfg.arm.link_length_error_m, tcfg.arm.joint_offset_rad,
     )
     evaluate_offline(trace, ctrl, truth_jac=truth_jac)
+    lam_arr = np.asarray(lam_log[: len(trace)], dtype=float)  # per-step minima where the drive was on
+    if len(lam_arr) == len(trace):
+        trace.arrays["lambda_min"] = np.where(np.isfinite(lam_arr), lam_arr, trace["lambda_min"])
+    trace.meta["min_lambda_JJt_all_steps"] = float(lam_min_all) if math.isfinite(lam_min_all) else None
+    trace.meta["rank_gate_breach_t_s"] = rank_breach_t
     certificate = certificate_check(tcfg, trace, ctrl)
     summary = summarize(tcfg, trace, ctrl, monitor, diverged, steps, sim.time_s, wall)
     summary["certificate"] = certificate
@@ -438,6 +492,8 @@ def summarize(
     active = trace["drive_scale"] > 0
     success = monitor.seat_time is not None and not diverged
     failure = "none" if success else classify_failure(cfg, t[active], s[active], w[active], diverged)
+    if trace.meta.get("rank_gate_breach_t_s") is not None:  # a breach is its own failure class
+        success, failure = False, "rank_gate"
     if cfg.control.program == "excite":  # an identification experiment: it completes, it does not seat
         success = not diverged and failure != "divergence"
         failure = "none" if success else failure
@@ -482,7 +538,12 @@ def summarize(
         "max_force_N": float(fmag.max()) if len(fmag) else None,
         "max_lateral_force_N": float(flat.max()) if len(flat) else None,
         "max_moment_Nm": float(mmag.max()) if len(mmag) else None,
-        "min_lambda_JJt": float(trace["lambda_min"][active].min()) if active.any() else None,
+        "theta_sd_final": (None if ctrl.law.information_sd() is None
+                           else [float(x) for x in ctrl.law.information_sd()][:12]),
+        "min_lambda_JJt": (trace.meta.get("min_lambda_JJt_all_steps") if "min_lambda_JJt_all_steps" in trace.meta
+                           else float(trace["lambda_min"][active].min()) if active.any() else None),
+        "rank_gate": {"threshold": RANK_GATE, "checked": "every control step with the drive on",
+                      "breach_t_s": trace.meta.get("rank_gate_breach_t_s")},
         "offset_estimate_final_f_m": [float(x) for x in off_T],
         "offset_error_final_m": [float(x) for x in (off_T - true_off)],
         "jacobian_rel_error_initial": float(jerr[0]) if len(trace) else None,

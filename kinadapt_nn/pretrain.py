@@ -12,7 +12,9 @@ Training: closed-form per-instance least-squares heads on a support set, loss on
 (the body learns a basis in which any tool/arm is a linear combination). Writes, into ``--out``:
 ``model.pt`` (the checkpoint, atomically, with metadata and a content hash), ``metrics.json``,
 ``tb/`` (TensorBoard: train loss, held-out Jacobian error), and ``train_state.pt`` while
-training (resume after an interruption gives the same result).
+training (resume after an interruption gives the same result). The resume state holds only
+tensors, plain dicts, lists, strings and numbers and is read with ``torch.load(...,
+weights_only=True)``: nothing in it is unpickled as code, so a planted file cannot run any.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 import kinadapt_nn
 from kinadapt_nn.config import ExperimentCfg, load_toml_model
-from kinadapt_nn.errors import ConfigError, ModelFileError
+from kinadapt_nn.errors import ConfigError, KinadaptError, ModelFileError
 from kinadapt_nn.nets import N_JOINTS, N_ROWS, JacobianBasisNet, least_squares_heads
 from kinadapt_nn.robot import PANDA_MJCF
 from kinadapt_nn.sensing import channel_metric, nominal_sensor_map
@@ -42,10 +44,12 @@ from kinadapt_nn.workspace import insertion_path, sample_workspace
 
 CHECKPOINT_FORMAT = "kinadapt-jacobian-basis"
 CHECKPOINT_VERSION = 1
+TRAIN_STATE_FORMAT = "kinadapt-train-state"
+TRAIN_STATE_VERSION = 2  # 2: weights_only-loadable (no pickled objects)
 
 
 class _P(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class ToolDistCfg(_P):
@@ -86,7 +90,7 @@ class TrainCfg(_P):
 
 
 class PretrainCfg(_P):
-    seed: int = Field(0, ge=0)
+    seed: int = Field(0, ge=0, le=2**32 - 2)  # seeds the data set (seed) and the batch draws (seed + 1)
     tools: ToolDistCfg = ToolDistCfg()
     arms: ArmDistCfg = ArmDistCfg()
     data: DataCfg = DataCfg()
@@ -102,13 +106,13 @@ def load_pretrain_config(path: Path | None, overrides=()) -> PretrainCfg:
 
 
 # ----------------------------------------------------------------------------------------- data
-def make_dataset(cfg: PretrainCfg, exp: ExperimentCfg | None = None) -> dict[str, np.ndarray]:
+def make_dataset(cfg: PretrainCfg, exp: ExperimentCfg | None = None, progress: bool = False) -> dict[str, np.ndarray]:
     """Instances, configurations and W-scaled residual targets. Deterministic from ``cfg.seed``.
 
     Returns arrays: ``q`` (I, N, 7), ``r`` (I, N, 5, 7) residual W (J_true - J_nom) rows 1..5,
     ``jn`` (I,) W-scaled Frobenius norm of J_true rows 1..5 over the instance, ``offset`` (I, 3),
     ``tilt_deg`` (I, 2), ``link`` (I, 8), ``joint`` (I, 7), ``arm_error`` (I,) bool, and
-    ``q_mean``/``q_std`` (7,) for the input normalisation.
+    ``q_mean``/``q_std`` (7,) for the input normalisation. ``progress``: a bar on stderr.
     """
     exp = exp or ExperimentCfg()
     rng = np.random.default_rng(cfg.seed)
@@ -120,7 +124,9 @@ def make_dataset(cfg: PretrainCfg, exp: ExperimentCfg | None = None) -> dict[str
     N = cfg.data.n_support + cfg.data.n_query
     out = {k: [] for k in ("q", "r", "jn", "offset", "tilt_deg", "link", "joint", "arm_error")}
     td = cfg.tools
-    for _ in range(I):
+    from tqdm import tqdm
+
+    for _ in tqdm(range(I), desc="pretrain data", unit="instance", disable=not progress, leave=False):
         rad = td.lateral_radius_m * math.sqrt(rng.random())
         ang = 2 * math.pi * rng.random()
         offset = np.array([rad * math.cos(ang), rad * math.sin(ang), rng.uniform(td.length_min_m, td.length_max_m)])
@@ -213,6 +219,29 @@ def load_checkpoint(path: Path) -> tuple[JacobianBasisNet, dict]:
     return net, meta
 
 
+def _bad_state(path: Path, why: str) -> KinadaptError:
+    return KinadaptError(f"resume state '{path}' {why}; pass --overwrite to start afresh (or choose another --out)")
+
+
+def load_train_state(path: Path, cfg_json: dict) -> dict:
+    """Read a resume state written by ``pretrain`` for the config ``cfg_json``: tensors, plain
+    dicts, lists, strings and numbers only (``weights_only=True``: no pickled code is ever run;
+    the numpy RNG state is a plain dict of ints). One-line ``KinadaptError`` for anything wrong."""
+    try:
+        st = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many types for empty, corrupt or planted files
+        raise _bad_state(path, f"is corrupt or not a kinadapt training state ({type(exc).__name__})") from None
+    if not isinstance(st, dict) or st.get("format") != TRAIN_STATE_FORMAT:
+        raise _bad_state(path, "is not a kinadapt training state")
+    if st.get("version") != TRAIN_STATE_VERSION or not {"net", "opt", "rng", "step", "config"} <= set(st):
+        raise _bad_state(path, f"has version {st.get('version')!r}; this kinadapt resumes version "
+                               f"{TRAIN_STATE_VERSION}")
+    if st["config"] != cfg_json:
+        raise ConfigError(f"'{path}' was written by a different pretrain config; use another --out "
+                          "or pass --overwrite to start afresh")
+    return st
+
+
 # -------------------------------------------------------------------------------------- training
 def _device(cfg: PretrainCfg) -> torch.device:
     if cfg.train.device == "cuda" or (cfg.train.device == "auto" and torch.cuda.is_available()):
@@ -265,7 +294,10 @@ def pretrain(cfg: PretrainCfg, out: Path, progress: bool = True, stop_after: int
     out.mkdir(parents=True, exist_ok=True)
     dev = _device(cfg)
     t0 = time.perf_counter()
-    data = make_dataset(cfg)
+    cfg_json = cfg.model_dump(mode="json")
+    state_path = out / "train_state.pt"
+    resume = load_train_state(state_path, cfg_json) if state_path.is_file() else None  # before the slow data set
+    data = make_dataset(cfg, progress=progress)
     nt, ns = cfg.data.n_train, cfg.data.n_support
     f64 = torch.float64
     q = torch.as_tensor(data["q"], dtype=f64, device=dev)
@@ -276,17 +308,15 @@ def pretrain(cfg: PretrainCfg, out: Path, progress: bool = True, stop_after: int
     net = net.double().to(dev)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.train.lr)
     rng = np.random.default_rng(cfg.seed + 1)
-    cfg_json = cfg.model_dump(mode="json")
-    state_path = out / "train_state.pt"
     step = 0
-    if state_path.is_file():
-        st = torch.load(state_path, map_location=dev, weights_only=False)
-        if st.get("config") != cfg_json:
-            raise ConfigError(f"'{state_path}' was written by a different pretrain config; use another --out")
-        net.load_state_dict(st["net"])
-        opt.load_state_dict(st["opt"])
-        rng.bit_generator.state = st["rng"]
-        step = int(st["step"])
+    if resume is not None:
+        try:
+            net.load_state_dict(resume["net"])
+            opt.load_state_dict(resume["opt"])
+            rng.bit_generator.state = resume["rng"]
+            step = int(resume["step"])
+        except (KeyError, RuntimeError, TypeError, ValueError) as exc:
+            raise _bad_state(state_path, f"does not match the network ({type(exc).__name__})") from None
     adj_err = adjoint_best_fit_error(data, nt, ns)
     held_arm = data["arm_error"][nt:]
     bar = None
@@ -320,8 +350,8 @@ def pretrain(cfg: PretrainCfg, out: Path, progress: bool = True, stop_after: int
                 hist.append((step, float(torch.sqrt(loss.detach())), float(np.median(he))))
             if step % cfg.train.checkpoint_every == 0 or step == cfg.train.steps:
                 _atomic_torch_save(
-                    {"net": net.state_dict(), "opt": opt.state_dict(), "rng": rng.bit_generator.state, "step": step,
-                     "config": cfg_json},
+                    {"format": TRAIN_STATE_FORMAT, "version": TRAIN_STATE_VERSION, "net": net.state_dict(),
+                     "opt": opt.state_dict(), "rng": rng.bit_generator.state, "step": step, "config": cfg_json},
                     state_path,
                 )
             if stop_after is not None and step >= stop_after and step < cfg.train.steps:
@@ -337,6 +367,9 @@ def pretrain(cfg: PretrainCfg, out: Path, progress: bool = True, stop_after: int
     n_body = sum(p.numel() for p in net.parameters())
     meta = {
         "theta0_online": "zeros: the head of the nominal (CAD) tool on the nominal arm",
+        # the heads' covariance: the neural prior of the kalman law (kinadapt_nn.prior)
+        "theta_cov": [[float(x) for x in row] for row in np.atleast_2d(np.cov(theta_all, rowvar=False))],
+        "theta_cov_heads": int(len(theta_all)),
         "structure": cfg.net.structure,
         "n_features": cfg.net.n_features,
         "hidden": cfg.net.hidden,

@@ -8,6 +8,7 @@ figure and, if offscreen rendering works, ``rollout.gif``.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -307,7 +308,10 @@ def _markdown(r: dict) -> str:
     return "\n".join(L) + "\n"
 
 
-def run_reproduce(out: Path, only: str | None = None, jobs: int = 2) -> dict:
+def run_reproduce(out: Path, only: str | None = None, jobs: int = 2,
+                  progress: Callable[[str], None] | None = None) -> dict:
+    """Run the parts (all, or ``only``) on ``jobs`` worker processes into ``out``; ``progress(msg)``
+    is told when each part starts."""
     from kinadapt_nn.runio import write_json
 
     parts = [only] if only else list(PARTS)
@@ -315,8 +319,12 @@ def run_reproduce(out: Path, only: str | None = None, jobs: int = 2) -> dict:
              "ablations": part_ablations, "qp": part_qp, "video": part_video}
     result: dict = {}
     with ProcessPoolExecutor(max_workers=jobs) as ex:
-        for p in parts:
+        for k, p in enumerate(parts):
+            if progress is not None:
+                progress(f"part {k + 1}/{len(parts)}: {p}")
             result.update(funcs[p](out, ex))
+    if progress is not None:
+        progress("writing reproduce.json, reproduce.md")
     write_json(out / "reproduce.json", json.loads(json.dumps(result, default=float)))
     (out / "reproduce.md").write_text(_markdown(result))
     return result

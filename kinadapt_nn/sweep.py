@@ -30,10 +30,10 @@ from kinadapt_nn.runio import write_text_atomic
 
 
 class SweepCfg(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     seeds: int = Field(20, ge=1, le=100000)  # seeds 0..seeds-1 per group
-    seed_offset: int = Field(0, ge=0)  # first seed
+    seed_offset: int = Field(0, ge=0, le=2**32 - 100001)  # first seed (run.seed <= 2^32 - 1)
     base: list[str] = []  # overrides applied to every episode (online config keys)
     groups: dict[str, list[str]] = {"default": []}  # named conditions: name -> overrides
     grid: dict[str, list] = {}  # key -> values; the cartesian product is added as groups

@@ -33,14 +33,22 @@ def write_tensorboard(log_dir: Path, trace: Trace, summary: dict, hparams: dict,
     series["truth/contact_force_N"] = trace["truth_contact_force_N"][idx]
     series["value/V_J"] = trace["V"][idx]
     series["stability/lambda_min"] = trace["lambda_min"][idx]
-    for j in range(trace["theta"].shape[1]):
-        series[f"adapt/theta_{j}"] = trace["theta"][idx, j]
+    # the same meaning for every features type: the Jacobian error (evaluation) and theta's
+    # remaining uncertainty (fraction of the prior; kalman law); theta itself as a histogram
+    series["learning/jacobian_rel_error"] = trace["truth_jacobian_rel_error"][idx]
+    if "theta_uncertainty" in trace.arrays:
+        series["learning/theta_uncertainty"] = trace["theta_uncertainty"][idx]
+    hist_stride = max(1, int(round(0.1 / dt)))
     for name in ("depth_ok", "force_ok", "moment_ok"):
         series[f"success/{name}"] = trace[name][idx].astype(float)
     with SummaryWriter(log_dir=str(log_dir)) as wr:
         for tag, vals in series.items():
             for st, v in zip(steps, vals):
-                wr.add_scalar(tag, float(v), int(st))
+                if np.isfinite(v):
+                    wr.add_scalar(tag, float(v), int(st))
+        theta = trace["theta"]
+        for i in range(0, len(t), hist_stride):  # theta as a histogram at 10 Hz (not p charts)
+            wr.add_histogram("learning/theta", theta[i], int(round(t[i] * 1e3)))
         if figure is not None:
             wr.add_figure("rollout", figure, close=False)
         metrics = {

@@ -55,6 +55,8 @@ CHANNELS: dict[str, tuple[tuple[int, ...], str, str, str]] = {
     "truth_contact_bore": ((), "bool", "-", "TRUTH: peg touches bore walls/edge/floor"),
     "truth_contact_force_N": ((), "N", "-", "TRUTH: total normal contact force"),
     "phi_norm2": ((), "1/s^2", "-", "||W Phi_f||_2^2 of the prediction step (0 when not adapting)"),
+    "theta_uncertainty": ((), "-", "-", "sqrt(tr P / tr P0): theta's remaining uncertainty as a fraction of the prior "
+                          "(kalman law; NaN for the other laws)"),
     "truth_bias_w": ((6,), "-", "bore", "TRUTH: W-scaled bias b = eps_w - W Phi_f (theta_true - theta)"),
     "truth_jacobian_rel_error": ((), "-", "-", "TRUTH: |W (J_hat - J_true)| / |W J_true| (40 Hz, held)"),
     "truth_V_tot": ((), "-", "-", "TRUTH: V_tot = gamma_d (V + kinetic + contact) + |theta~|^2/(2 Gamma)"),
@@ -102,6 +104,8 @@ class Trace:
                 arrays = {k: z[k] for k in z.files}
         except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError, RuntimeError) as exc:
             first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:120]
+            if "pickle" in first.lower() or "object arrays" in first.lower():  # never load pickled objects
+                first = "it is not NumPy arrays; pickled Python objects are never loaded"
             raise KinadaptError(f"trace file '{path}' is not a readable .npz archive ({first})") from None
         if "meta" not in arrays:
             raise KinadaptError(f"trace file '{path}' has no 'meta' entry (not a kinadapt trace)")
@@ -124,7 +128,30 @@ class Trace:
         for name in ("t_s", "q_rad", "qdot_rad_s", "wrench_raw_f"):
             if name not in arrays:
                 raise KinadaptError(f"trace file '{path}' lacks the required channel '{name}'")
+        _check_time_and_shapes(path, arrays)
         return cls(arrays=arrays, meta=meta)
+
+
+def _check_time_and_shapes(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """What every reader of a trace relies on: ``t_s`` (N,) finite and strictly increasing, and the
+    raw channels (N, width) numbers. (The diagnosis adds the log readers' rules: finite raw channels,
+    no gaps, enough samples; ``kinadapt_nn.diagnostics.residual.load_log``.)"""
+    t = arrays["t_s"]
+    if t.ndim != 1 or t.dtype.kind not in "iuf":
+        raise KinadaptError(f"trace file '{path}': 't_s' has shape {t.shape} ({t.dtype}); expected (N,) numbers")
+    for name, width in (("q_rad", 7), ("qdot_rad_s", 7), ("wrench_raw_f", 6)):
+        a = arrays[name]
+        if a.shape != (t.shape[0], width) or a.dtype.kind not in "iuf":
+            raise KinadaptError(f"trace file '{path}': channel '{name}' has shape {a.shape} ({a.dtype}) with 't_s' "
+                                f"{t.shape}; expected (N, {width}) numbers (a damaged trace?)")
+    bad = np.flatnonzero(~np.isfinite(t))
+    if bad.size:
+        raise KinadaptError(f"trace file '{path}', sample {int(bad[0])}: 't_s' is {t[bad[0]]} (not finite)")
+    back = np.flatnonzero(np.diff(t) <= 0)
+    if back.size:
+        k = int(back[0]) + 1
+        raise KinadaptError(f"trace file '{path}', sample {k}: the time 't_s' does not increase "
+                            f"({t[k]:.6g} s after {t[k - 1]:.6g} s)")
 
 
 class TraceRecorder:

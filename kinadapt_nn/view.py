@@ -17,8 +17,9 @@ import numpy as np
 from kinadapt_nn.errors import KinadaptError
 
 
-def _frames(run: Path, fps: float, width: int, height: int, camera: str, max_s: float | None):
+def _frames(run: Path, fps: float, width: int, height: int, camera: str, max_s: float | None, progress: bool = False):
     import mujoco
+    from tqdm import tqdm
 
     from kinadapt_nn.config import load_config
     from kinadapt_nn.sim.adapter import PegInHoleSim
@@ -27,10 +28,16 @@ def _frames(run: Path, fps: float, width: int, height: int, camera: str, max_s: 
     cfg = load_config(run / "config.toml")
     tr = Trace.load(run / "trace.npz")
     sim = PegInHoleSim(cfg)
+    cameras = [sim.model.camera(i).name for i in range(sim.model.ncam)]
+    if camera not in cameras:
+        raise KinadaptError(f"--camera {camera!r}: the scene has {', '.join(repr(c) for c in cameras) or 'no cameras'}")
     t = tr["t_s"]
     if max_s is not None:
         t = t[t <= max_s]
-    times = np.arange(t[0], t[-1], 1.0 / fps)
+    times = np.arange(t[0], t[-1], 1.0 / fps) if len(t) >= 2 else np.zeros(0)
+    if len(times) == 0:
+        within = f" in the first {max_s:g} s" if max_s else ""
+        raise KinadaptError(f"'{run}': nothing to render ({len(t)} samples{within}; raise --max-s or --fps)")
     idx = np.searchsorted(tr["t_s"], times)
     try:
         renderer = mujoco.Renderer(sim.model, height, width)
@@ -40,7 +47,7 @@ def _frames(run: Path, fps: float, width: int, height: int, camera: str, max_s: 
             "(apt-get install libegl1 libgl1-mesa-dri) or MUJOCO_GL=osmesa (apt-get install libosmesa6)"
         ) from None
     with renderer:
-        for i in idx:
+        for i in tqdm(idx, desc="view", unit="frame", disable=not progress, leave=False):
             sim.data.qpos[sim.ids.qpos_adr] = tr["q_rad"][i]
             mujoco.mj_forward(sim.model, sim.data)
             renderer.update_scene(sim.data, camera=camera)
@@ -48,8 +55,8 @@ def _frames(run: Path, fps: float, width: int, height: int, camera: str, max_s: 
 
 
 def render_run(run: Path, out: Path, fps: float = 25.0, width: int = 480, height: int = 360,
-               camera: str = "side", max_s: float | None = None) -> int:
-    """Write ``out`` (.gif or .mp4) atomically. Returns the number of frames."""
+               camera: str = "side", max_s: float | None = None, progress: bool = False) -> int:
+    """Write ``out`` (.gif or .mp4) atomically. Returns the number of frames. ``progress``: a bar on stderr."""
     run, out = Path(run), Path(out)
     if not (run / "trace.npz").is_file() or not (run / "config.toml").is_file():
         raise KinadaptError(f"'{run}' is not a run folder (needs config.toml and trace.npz)")
@@ -57,7 +64,7 @@ def render_run(run: Path, out: Path, fps: float = 25.0, width: int = 480, height
     if suffix not in (".gif", ".mp4"):
         raise KinadaptError(f"video file '{out}': use a .gif or .mp4 name")
     os.environ.setdefault("MUJOCO_GL", "egl")
-    frames = list(_frames(run, fps, width, height, camera, max_s))
+    frames = list(_frames(run, fps, width, height, camera, max_s, progress))
     out.parent.mkdir(parents=True, exist_ok=True)
     from kinadapt_nn.runio import atomic_write
 

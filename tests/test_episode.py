@@ -148,8 +148,10 @@ def test_entrance_chamfer_guides_a_misaligned_peg():
 
 def test_rank_gate_breach_stops_the_episode_cleanly():
     """A sensor map without force/moment stiffness makes J_hat rank-deficient: the episode stops
-    as a failure (divergence, reason named) instead of running on, and its trace is kept."""
+    as a failure of its own class (rank_gate, reason named) at the first step below the gate
+    (checked every step), instead of running on, and its trace is kept."""
     r = run_episode(load_config(None, ["sensing.stiffness_rot_Nm_per_rad=0", "sensing.stiffness_lat_N_per_m=1e-9"]))
-    assert not r.summary["success"] and r.summary["failure"] == "divergence"
+    assert not r.summary["success"] and r.summary["failure"] == "rank_gate"
+    assert r.summary["min_lambda_JJt"] < 1e-6 and r.summary["rank_gate"]["breach_t_s"] is not None
     assert "rank gate" in r.summary["divergence_reason"]
     assert 0 < len(r.trace) < 1000

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import signal
 import subprocess
 import sys
@@ -103,19 +104,34 @@ def test_killed_sweep_completes_every_episode_exactly_once(tmp_path):
 # ------------------------------------------------------------------ property-based bad input
 KEYS = ["run.seed", "run.dt_s", "run.duration_s", "control.gain_trans", "tool.offset_f_m", "start.tilt_deg",
         "adaptation.eta", "adaptation.mode", "sensing.channel_scale", "faults.latency_steps", "nonsense.key",
-        "arm.joint_offset_rad", "features.rbf_n_centres", "scene.friction"]
+        "arm.joint_offset_rad", "features.rbf_n_centres", "scene.friction", "tool.tilt_deg", "start.lateral_w_m",
+        "scene.bore_entry_w_m", "sensing.nominal_offset_f_m", "adaptation.initial_error_dir_f", "control.dither_rad_s",
+        "excite.segments"]
 VALUES = st.one_of(st.integers(-10**6, 10**6), st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=12),
-                   st.lists(st.floats(-1, 1), max_size=9), st.booleans())
+                   st.lists(st.floats(-1, 1), max_size=9), st.booleans(),
+                   st.lists(st.floats(allow_nan=True, allow_infinity=True), min_size=2, max_size=7))
+
+
+def _toml(value) -> str:
+    """A value as TOML text (JSON, with TOML's nan/inf spellings)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
+    return json.dumps(value)
 
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(key=st.sampled_from(KEYS), value=VALUES)
 def test_any_override_is_valid_or_a_one_line_config_error(key, value):
-    text = json.dumps(value) if not isinstance(value, str) else value
+    text = _toml(value) if not isinstance(value, str) else value
     try:
         load_config(None, [f"{key}={text}"])
     except ConfigError as exc:
         assert "\n" not in str(exc) and len(str(exc)) < 400
+        return
+    finite = [v for v in (value if isinstance(value, list) else [value]) if isinstance(v, float)]
+    assert all(math.isfinite(v) for v in finite), f"{key}={text} was accepted"  # NaN/inf never gets through
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])

@@ -49,6 +49,16 @@ class EffectFeatures(Features):
         else:
             centre, half = base.omega()
         self._omega = (np.r_[centre, np.zeros(self.k)], np.r_[half, np.full(self.k, np.inf)])
+        # kalman law: the base prior, and 3x each effect's default magnitude (1 where it is 0)
+        from kinadapt_nn.config import EffectsCfg
+
+        base_P0 = getattr(base, "P0", None)
+        if base_P0 is not None:
+            d = np.concatenate([np.abs(e.default(EffectsCfg())) for e in self.effects])
+            sd = np.where(d > 0, 3.0 * d, 1.0)
+            self.P0 = np.zeros((self.n_params, self.n_params))
+            self.P0[: self.p0, : self.p0] = base_P0
+            self.P0[self.p0:, self.p0:] = np.diag(sd**2)
         self.track_rows = np.r_[np.ones(self.p0), np.zeros(self.k)]
         self._kin = ArmKinematics(arm_mjcf_path(cfg.scene))  # its own buffers (encoder FD moves q)
         self._ctx: tuple | None = None

@@ -55,6 +55,20 @@ class NeuralFeatures(Features):
         self._cache_val: np.ndarray | None = None
         self.theta_std = np.asarray(meta.get("theta_std", np.full(self.n_params, np.inf)), dtype=float)
 
+    def prior_cov(self) -> np.ndarray:
+        """theta's prior covariance about the nominal head (0): the pretraining heads' covariance
+        (``theta_cov`` in the checkpoint, else their per-parameter sd) plus their mean's outer
+        product (the heads spread about the nominal tool's, not about their mean). (p, p)."""
+        m = self.theta_mean
+        cov = self.meta.get("theta_cov")
+        if cov is not None:
+            C = np.asarray(cov, dtype=float)
+        else:
+            sd = np.where(np.isfinite(self.theta_std), self.theta_std, 0.0)
+            C = np.diag(sd**2)
+        C = C + np.outer(m, m)
+        return C + 1e-12 * max(float(np.trace(C)) / len(C), 1e-30) * np.eye(len(C))
+
     def omega(self) -> tuple[np.ndarray, np.ndarray]:
         """Omega = the tool/arm family seen in training: theta_mean +- 3 std of the training heads."""
         return self.theta_mean, 3.0 * self.theta_std

@@ -44,6 +44,30 @@ class RBFFeatures(Features):
             self._cache_key, self._cache_val = key, np.exp(-np.einsum("kj,kj->k", d, d) * self.inv2w2)
         return self._cache_val
 
+    def prior_from_adjoint(self, kin_of, P_adj: np.ndarray, floor: float) -> np.ndarray:
+        """The analogous prior of the RBF weights: the adjoint's offset prior ``P_adj`` (3, 3)
+        pushed through the RBF fit (``theta = A dl``, A from ``d J_adj / d l`` interpolated at the
+        centres), plus ``floor`` x its mean diagonal isotropically (the RBF may also represent
+        what the adjoint cannot, e.g. arm errors). ``kin_of(q) -> KinState``. -> (p, p)."""
+        Psi = np.stack([self.psi(c).copy() for c in self.centres])  # (K centres, K features)
+        self._cache_key = None
+        dJ = np.zeros((3, len(self.centres), N_ROWS, self.n))  # d J[1:] / d l_k at each centre
+        for a, c in enumerate(self.centres):
+            kin = kin_of(c)
+            J0 = self.known.jacobian(kin, self.prior)
+            for k in range(3):
+                dl = np.zeros(3)
+                dl[k] = 1e-4
+                dJ[k, a] = (self.known.jacobian(kin, self.prior + dl) - J0)[1:] / 1e-4
+        A = np.zeros((self.n_params, 3))
+        lam = 1e-6 * float(np.trace(Psi.T @ Psi)) / len(Psi)
+        sol = np.linalg.solve(Psi.T @ Psi + lam * np.eye(self.K), Psi.T)  # (K, centres): least squares
+        for k in range(3):
+            W = np.einsum("ka,aij->ijk", sol, dJ[k])  # (5, n, K) weights reproducing dJ_k at the centres
+            A[:, k] = W.ravel()
+        C = A @ P_adj @ A.T
+        return C + floor * float(np.trace(C)) / len(C) * np.eye(len(C))
+
     def jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray:
         J = self.known.jacobian(kin, self.prior)
         J[1:] += theta.reshape(N_ROWS, self.n, self.K) @ self.psi(kin.q_rad)
