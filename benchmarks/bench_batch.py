@@ -27,7 +27,8 @@ def main() -> None:
                     help="processes: one single-threaded batch per core (default, measured faster); threads: one batch")
     a = ap.parse_args()
     sw = SweepCfg()
-    base = ["run.progress=false", "start.lateral_jitter_m=0.0003", "start.tilt_jitter_deg=0.5", "run.stop_after_seat_s=0.1"]
+    base = ["run.progress=false", "start.lateral_jitter_m=0.0003", "start.tilt_jitter_deg=0.5", "run.stop_after_seat_s=0.1",
+            "adaptation.mode=composite"]  # the batch implements the paper's laws
     cfgs = [load_config(None, [*base, *tool_overrides(sw, s), f"run.seed={s}"]) for s in range(a.episodes)]
     res = run_batch_processes(cfgs, a.threads) if a.mode == "processes" else run_batch(cfgs, nthread=a.threads)
     ok = sum(s["success"] for s in res.summaries)

@@ -17,7 +17,8 @@ def run(args):
     from kinadapt_nn.episode import run_episode
 
     seed, over = args
-    return run_episode(load_config(None, ["run.progress=false", f"run.seed={seed}", *over])).summary
+    return run_episode(load_config(None, ["run.progress=false", "adaptation.mode=composite", f"run.seed={seed}",
+                                          *over])).summary
 
 
 def main() -> None:

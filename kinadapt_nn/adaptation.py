@@ -52,7 +52,7 @@ Phi_f theta)``::
 
 and the controller acts only on the **identified** part of that estimate: in the prior's
 whitened coordinates, the directions whose posterior sd has fallen below ``act_sd_ratio`` of the
-prior sd (re-evaluated at 50 Hz); elsewhere J_hat keeps the prior. ``theta`` in the trace is what
+prior sd (re-evaluated at 50 Hz, 10 Hz for p > 30); elsewhere J_hat keeps the prior. ``theta`` in the trace is what
 the controller used.
 
 ``r2`` (m,) is an exponential average (``resid_tau_s``) of ``e^2`` over contact samples: the
@@ -226,7 +226,8 @@ class CompositeLaw:
         self.theta_kf: np.ndarray | None = None
         self.theta_prior: np.ndarray | None = None
         self._act_ratio = float(act_sd_ratio)
-        self._act_every = max(1, int(round(0.02 / self.dt)))  # the identified set is re-evaluated at 50 Hz
+        # the identified set is re-evaluated at 50 Hz (10 Hz for large p: an eigh of p x p)
+        self._act_every = max(1, int(round((0.02 if p <= 30 else 0.1) / self.dt)))
         self._k_act = 0
         self._act_proj: np.ndarray | None = None
         if self.P0 is not None:
@@ -245,6 +246,12 @@ class CompositeLaw:
         if other.theta_kf is not None:
             self.theta_kf = other.theta_kf.copy()
             self.theta_prior = other.theta_prior.copy()
+
+    def identified_directions(self) -> int | None:
+        """How many directions of theta the controller acts on (kalman law), else None."""
+        if self.P is None or self._act_proj is None:
+            return None if self.P is None else 0
+        return int(round(float(np.trace(self._act_proj))))
 
     def uncertainty_ratio(self) -> float:
         """``sqrt(tr P / tr P0)``: the remaining uncertainty of theta as a fraction of the prior;

@@ -97,6 +97,11 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2) -> BatchResult:
     inv_tf = 1.0 / (sc.filter_tau_s + dt)
     half = np.array([ad.omega_lateral_m, ad.omega_lateral_m, ad.omega_axial_m])
     lo, hi = l_nom - half, l_nom + half
+    if ad.mode == "kalman":
+        from kinadapt_nn.errors import ConfigError
+
+        raise ConfigError("batched simulation implements the paper's laws (composite, prediction, tracking, frozen); "
+                          "set adaptation.mode=composite (or run episodes one by one for the kalman law)")
     track_gain = ad.gamma * ad.gamma_d if ad.mode in ("composite", "tracking") else 0.0
     use_pred = ad.mode in ("composite", "prediction")
     d_star, k_d, f_max = cc.depth_target_m, cc.k_depth_N_per_m, cc.depth_force_max_N

@@ -110,6 +110,7 @@ def _summary_lines(summary: dict, out: Path) -> list[str]:
         f"[{', '.join(f'{1e3 * e:+.2f}' for e in err)}] mm",
         f"  lateral drift      free space {1e3 * summary['lateral_drift_free_space_m']:.3f} mm, "
         f"max {1e3 * summary['lateral_drift_max_m']:.3f} mm",
+        *([f"  identification     {summary['identification']['text']}"] if summary.get("identification") else []),
         f"  sim {summary['sim_time_s']:.2f} s in {summary['wall_time_s']:.2f} s wall ({summary['steps']} steps)",
         f"  wrote {out}/ (config.toml, summary.json, trace.npz, rollout.png, tb/)",
     ]

@@ -198,7 +198,7 @@ class FeaturesCfg(_Cfg):
 class AdaptationCfg(_Cfg):
     """The composite law (eq. ft_composite) and the initial estimate (see kinadapt_nn.adaptation)."""
 
-    mode: Literal["kalman", "composite", "prediction", "tracking", "frozen"] = "composite"  # adapted terms; composite = the paper's
+    mode: Literal["kalman", "composite", "prediction", "tracking", "frozen"] = "kalman"  # the law; composite = the paper's (reproduce)
     gamma: float = Field(100.0, gt=0.0)  # [m^2] Gamma = gamma I: V_aug = gamma_d V + |theta~|^2/(2 Gamma)
     gamma_d: float = Field(1.0e-7, gt=0.0)  # [1/J] weight of V(s) in V_aug (paper Results; undefined there)
     eta: float = Field(0.5, gt=0.0, lt=2.0)  # [-] fraction of the exact per-sample QP step
@@ -212,8 +212,8 @@ class AdaptationCfg(_Cfg):
     # kalman law (kinadapt_nn.adaptation): prior, residual level, decorrelation
     prior_sd_lateral_m: float = Field(0.005, gt=0.0)  # [m] adjoint prior sd of the lateral offset components
     prior_sd_axial_m: float = Field(0.010, gt=0.0)  # [m] adjoint prior sd of the axial offset component
-    rbf_prior_floor: float = Field(0.01, ge=0.0)  # [-] RBF prior: isotropic part, fraction of the adjoint push-forward
-    corr_s: float = Field(0.05, gt=0.0)  # [s] residual correlation time: samples within it count as one
+    rbf_prior_floor: float = Field(0.001, ge=0.0)  # [-] RBF prior: isotropic part, fraction of the adjoint push-forward
+    corr_s: float = Field(0.2, gt=0.0)  # [s] residual correlation time: samples within it count as one
     resid_tau_s: float = Field(1.0, gt=0.0)  # [s] time constant of the measured residual level
     resid_floor_w: float = Field(1.0e-4, gt=0.0)  # [W-scaled^2] floor of the residual level
     act_sd_ratio: float = Field(0.5, gt=0.0, le=1.0)  # [-] act on a direction of theta once its sd < this x the prior sd (1: all)

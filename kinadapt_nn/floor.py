@@ -32,7 +32,7 @@ def measure(item: tuple[str, list[str]]) -> dict:
     from kinadapt_nn.episode import run_episode
 
     name, over = item
-    base = ["run.progress=false", "run.stop_after_seat_s=1.5"]
+    base = ["run.progress=false", "run.stop_after_seat_s=1.5", "adaptation.mode=composite"]  # the paper's law
     oracle = run_episode(load_config(None, base + over + ["run.features=oracle"])).summary
     comp = run_episode(load_config(None, base + over))
     cfg = load_config(None, base + over)

@@ -14,7 +14,8 @@ from kinadapt_nn.sweep import SweepCfg, tool_overrides
 def test_batch_equals_single_episodes():
     """Randomised tools and starts: the same outcome and seat time as run_episode (the contact is
     chaotic, so this is a strong check that the vectorised controller is the same controller)."""
-    base = ["run.progress=false", "start.lateral_jitter_m=0.0003", "start.tilt_jitter_deg=0.5", "run.stop_after_seat_s=0.05"]
+    base = ["run.progress=false", "start.lateral_jitter_m=0.0003", "start.tilt_jitter_deg=0.5", "run.stop_after_seat_s=0.05",
+            "adaptation.mode=composite"]  # the batch implements the paper's laws
     cfgs = [load_config(None, [*base, *tool_overrides(SweepCfg(), s), f"run.seed={s}"]) for s in range(4)]
     res = run_batch(cfgs, nthread=1)
     assert res.sim_steps > 4 * 4000
