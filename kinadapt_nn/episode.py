@@ -355,7 +355,10 @@ def identification_words(ctrl: Controller, cfg: ExperimentCfg) -> dict:
                          "tracks the contact bias, not the offset (README, 'Identification'); where it works: " + where)}
     ratio = law.uncertainty_ratio()
     r = np.sqrt(np.mean(law.r2)) if law._r2_primed else float("nan")
-    if k == 0:
+    if k == 0 and not law._r2_primed:
+        txt = ("nothing identified: no contact was sensed, so there was nothing to learn from (theta at its prior); "
+               f"identification needs contact and excitation: {where}")
+    elif k == 0:
         txt = (f"nothing identified: theta stayed at its prior (uncertainty {100 * ratio:.0f}% of the prior) - in "
                f"contact the measured residual (RMS {r:.3g}, W-scaled, the bias b included) was not beaten by what the "
                f"parameters can explain with this motion; identification needs excitation: {where}")

@@ -79,8 +79,8 @@ def check_rerun(src: Path, add: list[str]) -> None:
 
 
 def rerun_with_effects(src: Path, add: list[str]):
-    """Repeat the simulated run ``src`` with ``model.effects += add`` (adapted by the prediction
-    step: a frozen or tracking-only run becomes ``prediction``), TensorBoard on.
+    """Repeat the simulated run ``src`` with ``model.effects += add`` (adapted online: a frozen or
+    tracking-only run gets the default ``kalman`` law), TensorBoard on.
     -> (config, EpisodeResult, the ``rerun`` entry of diagnosis.json)."""
     from kinadapt_nn.episode import run_episode
 
@@ -89,8 +89,8 @@ def rerun_with_effects(src: Path, add: list[str]):
     run_cfg = load_config(src / "config.toml")
     over = {"model": run_cfg.model.model_copy(update={"effects": tuple(dict.fromkeys((*run_cfg.model.effects, *add)))}),
             "run": run_cfg.run.model_copy(update={"tensorboard": True, "progress": False})}  # TB: the point of a rerun
-    if run_cfg.adaptation.mode in ("frozen", "tracking"):
-        over["adaptation"] = run_cfg.adaptation.model_copy(update={"mode": "prediction"})
+    if run_cfg.adaptation.mode in ("frozen", "tracking"):  # the effect must adapt: the default law
+        over["adaptation"] = run_cfg.adaptation.model_copy(update={"mode": "kalman"})
     cfg = run_cfg.model_copy(update=over)
     result = run_episode(cfg)
     before = json.loads((src / "summary.json").read_text()) if (src / "summary.json").is_file() else {}
