@@ -155,7 +155,7 @@ def main() -> None:
             fall_sse = (before**2 - after**2) / max(before**2 - nominal**2, 1e-300)
             fall_rms = (before - after) / max(before - nominal, 1e-300)
             table.append({"noise": noise, "effect": n, "rank": rank, "explained_fraction": e["explained_fraction"],
-                          "p_adjusted": e["p_adjusted"], "significant": e["significant"],
+                          "p_adjusted": e["p_adjusted"], "significant": e["significant"], "verdict": e["verdict"],
                           "param_error": err, "residual_before": before, "residual_after": after,
                           "residual_nominal": nominal, "fall_of_excess_sse": fall_sse, "fall_of_excess_rms": fall_rms,
                           "excitation_ratio": e["excitation"]["ratio"]})
@@ -182,12 +182,12 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     (out / "effect_library.json").write_text(json.dumps({"table": table, "false_positives": fp, "two_effects": two,
                                                           "confusion": confusion}, indent=1, default=float))
-    lines = ["| noise | effect | rank | explained | p_adj | significant | param error | residual fall (of excess, SSE / rms) |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = ["| noise | effect | rank | explained | p_adj | significant | verdict | param error | residual fall (of excess, SSE / rms) |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for t in table:
         err = ", ".join(f"{k} {100 * v:.0f}%" for k, v in t["param_error"].items())
         lines.append(f"| {t['noise']} | {t['effect']} | {t['rank']} | {t['explained_fraction']:.2f} | {t['p_adjusted']:.1e} | "
-                     f"{t['significant']} | {err} | {100 * t['fall_of_excess_sse']:.0f}% / {100 * t['fall_of_excess_rms']:.0f}% |")
+                     f"{t['significant']} | {t['verdict']} | {err} | {100 * t['fall_of_excess_sse']:.0f}% / {100 * t['fall_of_excess_rms']:.0f}% |")
     lines += ["", "False positives (runs with any significant effect, no hidden effect):"]
     for k, v in fp.items():
         lines.append(f"- {k}: {v['runs_with_any_significant']}/{v['runs']}  {v['flagged']}")

@@ -228,7 +228,8 @@ def test_encoder_columns_differentiate_the_calibrated_prediction():
                 if a is not None:
                     ref = (a - b) / (2 * h)
                     assert np.abs(ref).max() > 0, (name, j)
-                    np.testing.assert_allclose(d, ref, rtol=0, atol=1e-3 * np.abs(ref).max(), err_msg=f"{name} joint {j + 1}")
+                    np.testing.assert_allclose(d, ref, rtol=0, atol=1e-3 * np.abs(ref).max(),
+                                               err_msg=f"{name} joint {j + 1}")
 
     rc = rk.RankCfg()
     des = design_of(sig, cfg, rc)

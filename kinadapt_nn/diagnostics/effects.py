@@ -379,10 +379,11 @@ def calibration_derivative(sig: Signals, names, h: float = 1e-4,
                            derivs: list[tuple[np.ndarray, np.ndarray]] | None = None):
     """``d Terms_e / d q_j`` for the effects ``names`` (the encoder offset itself excluded: its
     derivative is second order in the model), by central differences of the effects' terms on
-    ``shifted_signals`` (+-h; ``derivs``: ``encoder_derivatives``, computed when None). The encoder-offset column of a calibrated model is
-    ``C_enc_j + sum_e (dC_e/dq_j) p_e^calib`` (``ranking.calibrated_design``: a joint zero moves
-    the whole prediction, its calibrated part included).
-    -> generator over joints j = 0..5 of ``{effect: Terms((N, 6, k) or None, rate (N, 6, k) or None)}``."""
+    ``shifted_signals`` (+-h; ``derivs``: ``encoder_derivatives``, computed when None). The
+    encoder-offset column of a calibrated model is ``C_enc_j + sum_e (dC_e/dq_j) p_e^calib``
+    (``ranking.calibrated_design``: a joint zero moves the whole prediction, its calibrated part
+    included). -> generator over joints j = 0..5 of ``{effect: Terms(level, rate)}`` ((N, 6, k)
+    or None each)."""
     names = [n for n in names if n != "encoder_offset"]
     for j, (dR, dtw) in enumerate(derivs if derivs is not None else encoder_derivatives(sig)):
         plus, minus = shifted_signals(sig, dR, dtw, h, j), shifted_signals(sig, dR, dtw, -h, j)

@@ -47,8 +47,9 @@ from typing import NamedTuple
 import numpy as np
 
 from kinadapt_nn.config import EffectsCfg
-from kinadapt_nn.diagnostics.effects import (AXIAL, LEVEL_CHANNELS, LIBRARY, Signals, calibration_derivative, cumulative,
-                                             encoder_derivatives, headline_errors, moving_average, nominal_parts, physical_report)
+from kinadapt_nn.diagnostics.effects import (AXIAL, LEVEL_CHANNELS, LIBRARY, Signals, calibration_derivative,
+                                             cumulative, encoder_derivatives, headline_errors, moving_average,
+                                             nominal_parts, physical_report)
 from kinadapt_nn.errors import KinadaptError
 
 ENCODER = "encoder_offset"
@@ -133,8 +134,8 @@ def build_design(sig: Signals, W6: np.ndarray, rc: RankCfg, names: list[str] | N
         return (C * w[None, :, None]).reshape(-1, k)[use]
 
     derivs = encoder_derivatives(sig) if ENCODER in names else None  # shared by the encoder columns and dX
-    X = {name: rows_of(*LIBRARY[name].columns(sig, **({"derivs": derivs} if name == ENCODER else {})), LIBRARY[name].k)
-         for name in names}
+    X = {n: rows_of(*LIBRARY[n].columns(sig, **({"derivs": derivs} if n == ENCODER else {})), LIBRARY[n].k)
+         for n in names}
     dX = None
     if ENCODER in names and len(names) > 1:  # the encoder columns of a calibrated model (calibrated_design)
         dX = {n: np.zeros((len(y), LIBRARY[n].k, 6)) for n in names if n != ENCODER}
@@ -492,5 +493,5 @@ def load_calibration(path: Path, program: str) -> dict[str, list[float]]:
         raise KinadaptError(f"calibration '{path}' is malformed ({exc}); regenerate it (README)") from None
 
 
-__all__ = ["RankCfg", "build_design", "calibrate", "calibrated_design", "calibrated_residual", "rank", "refit", "rms_by_channel",
-           "confusion", "load_calibration", "headline_errors", "DEFAULT_CALIBRATION"]
+__all__ = ["RankCfg", "build_design", "calibrate", "calibrated_design", "calibrated_residual", "rank", "refit",
+           "rms_by_channel", "confusion", "load_calibration", "headline_errors", "DEFAULT_CALIBRATION"]
