@@ -50,6 +50,7 @@ from kinadapt_nn.config import EffectsCfg
 from kinadapt_nn.diagnostics.effects import (AXIAL, LEVEL_CHANNELS, LIBRARY, Signals, calibration_derivative,
                                              cumulative, encoder_derivatives, headline_errors, moving_average,
                                              nominal_parts, physical_report)
+from kinadapt_nn.diagnostics.selection import jackknife_cov, paired_p, wald_pvalue
 from kinadapt_nn.errors import KinadaptError
 
 ENCODER = "encoder_offset"
@@ -239,29 +240,6 @@ def _cv(X: np.ndarray, scale: np.ndarray, des: Design, y: np.ndarray, rc: RankCf
     return np.array(sse), np.array(reps).reshape(len(reps), X.shape[1]), p
 
 
-def _jackknife_cov(reps: np.ndarray) -> np.ndarray:
-    B = len(reps)
-    dev = reps - reps.mean(axis=0)
-    return (B - 1) / B * dev.T @ dev  # block-jackknife covariance of the estimate
-
-
-def _wald_pvalue(p: np.ndarray, cov: np.ndarray, B: int) -> float:
-    """Hotelling-type test of ``p = 0`` (no change from the calibration) with the block-jackknife
-    covariance from ``B`` blocks: ``F = (B - r) / (r (B - 1)) p^T cov^+ p ~ F(r, B - r)``, ``r`` the
-    numerical rank of ``cov`` (directions the data does not move are not tested)."""
-    from scipy.stats import f as f_dist
-
-    lam, V = np.linalg.eigh(cov)
-    keep = lam > 1e-12 * max(lam.max(), 1e-300)
-    r = int(keep.sum())
-    if r == 0 or B - r < 1:
-        return 1.0
-    z = V[:, keep].T @ p
-    t2 = float(np.sum(z**2 / lam[keep]))
-    F = (B - r) / (r * (B - 1)) * t2
-    return float(f_dist.sf(F, r, B - r))
-
-
 def _choices(name: str, k: int) -> list[list[int]]:
     return [[j] for j in range(k)] if LIBRARY[name].one_of else [list(range(k))]
 
@@ -298,8 +276,8 @@ def _test_given(name: str, sel: list[tuple[str, list[int]]], des: Design, y: np.
         if best is None or gain.sum() > best[1].sum():
             best = (cols, gain, sse, reps[:, k_sel:], p[k_sel:])
     cols, gain, sse, reps, p = best
-    cov = _jackknife_cov(reps)
-    pval = min(1.0, _wald_pvalue(p, cov, len(reps)) * len(choices))  # Bonferroni for the choice
+    cov = jackknife_cov(reps)
+    pval = min(1.0, wald_pvalue(p, cov, len(reps)) * len(choices))  # Bonferroni for the choice
     return EffectTest(cols, gain, sse, reps, p, cov, pval)
 
 
@@ -346,7 +324,7 @@ def rank(des: Design, y: np.ndarray, rc: RankCfg, calib: dict | None = None) -> 
             if n == best or tests[n].gain.sum() < TIE_RATIO * t.gain.sum() or tests[n].gain.sum() <= 0:
                 continue
             given = _test_given(n, [*selected, (best, t.cols)], des, y, rc, t.sse)
-            if given.gain.sum() / (float(t.sse.sum()) or 1e-300) < rc.min_explained and _paired_p(t.sse, tests[n].sse) > 0.01:
+            if given.gain.sum() / (float(t.sse.sum()) or 1e-300) < rc.min_explained and paired_p(t.sse, tests[n].sse) > 0.01:
                 ties.setdefault(best, set()).add(n)
                 ties.setdefault(n, set()).add(best)
         selected.append((best, t.cols))
@@ -401,19 +379,6 @@ def rank(des: Design, y: np.ndarray, rc: RankCfg, calib: dict | None = None) -> 
 
 #: a rival with this share of the best effect's held-out gain is checked for a near-tie
 TIE_RATIO = 0.8
-
-
-def _paired_p(a: np.ndarray, b: np.ndarray) -> float:
-    """One-sided p that per-block SSE ``a`` is smaller than ``b`` on average (t over the blocks)."""
-    from scipy.stats import t as t_dist
-
-    d = np.asarray(b) - np.asarray(a)
-    if len(d) < 3:
-        return 1.0
-    sd = float(np.std(d, ddof=1))
-    if sd == 0.0:
-        return 0.0 if d.mean() > 0 else 1.0
-    return float(t_dist.sf(d.mean() / (sd / np.sqrt(len(d))), len(d) - 1))
 
 
 def implausible_own(name: str, p: np.ndarray, calib: np.ndarray) -> str | None:

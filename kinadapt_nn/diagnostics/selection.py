@@ -133,7 +133,7 @@ class Stats:
         return Gcc - Gbc.T @ np.linalg.solve(Gbb + lam * np.eye(len(Gbb)), Gbc)
 
 
-def _wald_pvalue(p: np.ndarray, cov: np.ndarray, B: int) -> float:
+def wald_pvalue(p: np.ndarray, cov: np.ndarray, B: int) -> float:
     """Hotelling-type test of ``p = 0`` with a block-jackknife covariance from B blocks:
     ``F = (B - r) / (r (B - 1)) p^T cov^+ p ~ F(r, B - r)``, r the numerical rank of cov."""
     from scipy.stats import f as f_dist
@@ -150,7 +150,7 @@ def _wald_pvalue(p: np.ndarray, cov: np.ndarray, B: int) -> float:
     return float(f_dist.sf((B - r) / (r * (B - 1)) * t2, r, B - r))
 
 
-def _jackknife_cov(reps: np.ndarray) -> np.ndarray:
+def jackknife_cov(reps: np.ndarray) -> np.ndarray:
     B = len(reps)
     dev = reps - reps.mean(axis=0)
     return (B - 1) / B * dev.T @ dev
@@ -187,12 +187,12 @@ def _test(st: Stats, des: Design, name: str, base: np.ndarray, sse_base: np.ndar
         if best is None or gain.sum() > best[1].sum():
             best = (cols, gain, sse, reps[:, len(base):], p[len(base):])
     cols, gain, sse, reps, p = best
-    cov = _jackknife_cov(reps)
-    pval = min(1.0, _wald_pvalue(p, cov, len(reps)) * (len(choices) if only_cols is None else 1))
+    cov = jackknife_cov(reps)
+    pval = min(1.0, wald_pvalue(p, cov, len(reps)) * (len(choices) if only_cols is None else 1))
     return Candidate(name, list(cols), gain, sse, p, cov, pval, choice_gains=gains)
 
 
-def _paired_p(a: np.ndarray, b: np.ndarray) -> float:
+def paired_p(a: np.ndarray, b: np.ndarray) -> float:
     """One-sided p that ``a`` (per-block SSE) is smaller than ``b`` on average (t over blocks)."""
     from scipy.stats import t as t_dist
 
@@ -266,14 +266,14 @@ def select(des: Design, rc: SelCfg = SelCfg(), plausible: Callable[[str, np.ndar
             cur_b = np.concatenate([cur, st.idx[best][t.cols]])
             given = _test(st, des, n, cur_b, t.sse, rc)
             if given.gain.sum() / (float(t.sse.sum()) or 1e-300) < rc.min_explained and \
-                    _paired_p(t.sse, tests[n].sse) > rc.tie_p:
+                    paired_p(t.sse, tests[n].sse) > rc.tie_p:
                 rivals.append(n)
         if des.one_of[best]:
             for cols, g in t.choice_gains.items():
                 if list(cols) == t.cols or g < rc.tie_ratio * t.gain.sum():
                     continue
                 alt = _test(st, des, best, cur, sse_sel, rc, only_cols=list(cols))
-                if _paired_p(t.sse, alt.sse) > rc.tie_p:
+                if paired_p(t.sse, alt.sse) > rc.tie_p:
                     tie_labels.setdefault(best, []).append(
                         f"{best}:{des_param(des, best, cols[0], hints)}")
         if rivals:
@@ -287,7 +287,7 @@ def select(des: Design, rc: SelCfg = SelCfg(), plausible: Callable[[str, np.ndar
     # joint re-estimate of everything selected
     sel_idx = np.concatenate([base, *[st.idx[s][c] for s, c in selected]]) if selected else base
     sse_fin, reps, p_all = st.cv(sel_idx, rc.ridge)
-    cov_all = _jackknife_cov(reps)
+    cov_all = jackknife_cov(reps)
     present: dict[str, tuple] = {}
     joint: dict[str, tuple] = {}
     i = len(base)

@@ -15,6 +15,7 @@ import numpy as np
 
 from kinadapt_nn.diagnostics import physical as ph
 from kinadapt_nn.diagnostics import selection as sel
+from kinadapt_nn.diagnostics.effects import moving_average
 from kinadapt_nn.diagnostics.setup import SetupCfg
 from kinadapt_nn.errors import KinadaptError
 
@@ -32,17 +33,6 @@ class RowCfg(NamedTuple):
     edge_s: float = 0.06  #: [s] rows this close to the log's ends are left out (derivative edges)
     force_floor_N: float = 0.01  #: [N] smallest per-sample force noise used for the channel weights
     moment_floor_Nm: float = 0.001  #: [N m] the same for moments
-
-
-def moving_average(x: np.ndarray, k: int) -> np.ndarray:
-    """Centred moving average over ``k`` samples along axis 0 (edges: shorter windows)."""
-    if k <= 1 or len(x) < 2:
-        return x
-    c = np.cumsum(np.concatenate([np.zeros((1, *x.shape[1:])), x]), axis=0)
-    i = np.arange(len(x))
-    lo = np.clip(i - k // 2, 0, len(x))
-    hi = np.clip(i + (k - k // 2), 0, len(x))
-    return (c[hi] - c[lo]) / (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
 
 
 def noise_sigma(r: np.ndarray, rc: RowCfg) -> np.ndarray:
