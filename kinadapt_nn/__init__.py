@@ -2,9 +2,13 @@
 
 A Franka Panda (MuJoCo) holds a peg of unknown geometry and inserts it into a square bore
 using only joint encoders and a wrist force/torque sensor. The sensor Jacobian estimate is
-factorised ``J_hat = Y(q) theta`` (paper eq. adaptive_factorization / ft_factor) and
-``theta`` is adapted online by the composite law (eq. ft_composite) inside a second-order
-admittance loop (eq. cp_admittance).
+factorised ``J_hat = Y(q) theta`` (eq. adaptive_factorization / ft_factor) and ``theta`` is
+adapted online (default: the kalman law; the paper's composite law, eq. ft_composite, is a mode)
+inside a second-order admittance loop (eq. cp_admittance).
+
+Equation labels cited anywhere in the code ("eq. ft_composite", "Theorem ft_rigid", ...) are
+stated, in this package's notation and with their meaning, in ``docs/equations.md#<label>``
+(the preprint is not needed to follow them).
 
 Symbols used throughout (shapes in docstrings refer to them):
     n = 7   joints of the Panda

@@ -516,7 +516,7 @@ def summarize(
     sim_time: float,
     wall: float,
 ) -> dict:
-    """The ``summary.json`` contract of ``../shared/DESIGN.md`` plus run-specific figures."""
+    """The ``summary.json`` contract (README, "What the run writes") plus run-specific figures."""
     t, s, w = trace["t_s"], trace["s"], trace["w_env_w"]
     active = trace["drive_scale"] > 0
     success = monitor.seat_time is not None and not diverged
