@@ -177,7 +177,7 @@ class CompositeLaw:
         resid_tau_s: float = 1.0,
         resid_floor_w: float = 1e-4,
         persist_tau_s: float = 0.5,
-        act_sd_ratio: float = 0.5,
+        act_sd_ratio: float = 0.4,
     ) -> None:
         if mode not in MODES:
             raise ValueError(f"adaptation mode {mode!r} not in {MODES}")

@@ -216,7 +216,7 @@ class AdaptationCfg(_Cfg):
     corr_s: float = Field(0.2, gt=0.0)  # [s] residual correlation time: samples within it count as one
     resid_tau_s: float = Field(1.0, gt=0.0)  # [s] time constant of the measured residual level
     resid_floor_w: float = Field(1.0e-4, gt=0.0)  # [W-scaled^2] floor of the residual level
-    act_sd_ratio: float = Field(0.5, gt=0.0, le=1.0)  # [-] act on a direction of theta once its sd < this x the prior sd (1: all)
+    act_sd_ratio: float = Field(0.4, gt=0.0, le=1.0)  # [-] act on a direction of theta once its sd < this x the prior sd (1: all)
     persist_tau_s: float = Field(0.5, gt=0.0)  # [s] window of the residual's mean: a persistent residual counts once per 2 tau
 
     @field_validator("initial_error_dir_f")

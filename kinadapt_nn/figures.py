@@ -1,8 +1,16 @@
-"""Figures a paper can use (matplotlib, Agg backend; nothing needs a display)."""
+"""Figures a paper can use (matplotlib, Agg backend; nothing needs a display).
+
+Conventions every figure here (and ``kinadapt diagnose``'s) follows: each panel has labelled ticks
+and a legend or title that names every colour and shading; y-limits come from the 0.5-99.5 %
+percentiles of the plotted data (``robust_limits``), so a few spikes do not flatten the bulk --
+samples beyond the axis are marked by red triangles at its edge (``set_robust_ylim``); panels and
+reference lines that do not apply to the run (e.g. the seat-depth target of the ``excite``
+program) are not drawn."""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Sequence
 
 import matplotlib
 
@@ -13,107 +21,310 @@ import numpy as np  # noqa: E402
 from kinadapt_nn.config import ExperimentCfg  # noqa: E402
 from kinadapt_nn.trace import Trace  # noqa: E402
 
+#: percentiles the y-limits are taken from
+ROBUST_PCT = (0.5, 99.5)
+
+
+def robust_limits(ys: Sequence[np.ndarray], pct: tuple[float, float] = ROBUST_PCT, margin: float = 0.08,
+                  include: Sequence[float] = (), headroom: float = 0.0) -> tuple[float, float] | None:
+    """y-limits from the ``pct`` percentiles of every finite value in ``ys`` (plus ``include``).
+
+    A side keeps the full data range where the excursions past the percentile are modest (within
+    half the percentile span): only real spikes are cut. ``headroom``: extra room above, as a
+    fraction of the range (for a legend over dense data). None when there is no finite value."""
+    parts = [np.ravel(np.asarray(y, dtype=float)) for y in ys]
+    v = np.concatenate(parts) if parts else np.zeros(0)
+    v = v[np.isfinite(v)]
+    if not v.size:
+        return None
+    a, b = (float(x) for x in np.percentile(v, pct))
+    span = b - a
+    lo = float(v.min()) if v.min() >= a - 0.5 * span else a
+    hi = float(v.max()) if v.max() <= b + 0.5 * span else b
+    for x in include:
+        if np.isfinite(x):
+            lo, hi = min(lo, float(x)), max(hi, float(x))
+    if hi - lo <= 1e-12 * max(abs(lo), abs(hi), 1e-300):
+        half = 0.1 * abs(hi) if hi != 0 else 1.0
+        return lo - half, hi + half
+    pad = margin * (hi - lo)
+    return lo - pad, hi + pad + headroom * (hi - lo)
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) of each run of True in ``mask``."""
+    d = np.diff(np.r_[0, mask.astype(np.int8), 0])
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
+
+
+def set_robust_ylim(ax, x: np.ndarray, ys: Sequence[np.ndarray], pct: tuple[float, float] = ROBUST_PCT,
+                    include: Sequence[float] = (), unit: str = "", headroom: float = 0.0) -> tuple[float, float] | None:
+    """Set ``ax``'s y-limits with ``robust_limits`` and mark what falls outside: one red triangle
+    per excursion at the axis edge (up: above, down: below), labelled for the legend with the
+    count and the most extreme value. Returns the limits (None: left to matplotlib)."""
+    lim = robust_limits(ys, pct, include=include, headroom=headroom)
+    if lim is None:
+        return None
+    ax.set_ylim(*lim)
+    x = np.asarray(x, dtype=float)
+    marks = {"^": [], "v": []}
+    peak = 0.0
+    for y in ys:
+        y = np.asarray(y, dtype=float)
+        if y.ndim != 1 or len(y) != len(x):
+            continue
+        for mask, key in ((y > lim[1], "^"), (y < lim[0], "v")):
+            for i0, i1 in _runs(mask):
+                k = i0 + int(np.argmax(np.abs(y[i0:i1])))
+                marks[key].append(x[k])
+                peak = y[k] if abs(y[k]) > abs(peak) else peak
+    n = len(marks["^"]) + len(marks["v"])
+    label = f"clipped: {n} spike{'s' * (n != 1)}, extreme {peak:.3g}{' ' + unit if unit else ''}"
+    for key, yy in (("^", 0.985), ("v", 0.015)):
+        if marks[key]:
+            ax.plot(marks[key], np.full(len(marks[key]), yy), ls="none", marker=key, ms=5, color="red",
+                    transform=ax.get_xaxis_transform(), clip_on=False, zorder=6, label=label)
+            label = "_nolegend_"
+    return lim
+
+
+def shade(ax, x: np.ndarray, mask: np.ndarray, color: str, label: str, alpha: float = 1.0) -> None:
+    """Shade the full height of ``ax`` where ``mask`` (labelled for the legend); nothing if never."""
+    mask = np.asarray(mask, dtype=bool)
+    if mask.any():
+        ax.fill_between(x, 0, 1, where=mask, color=color, alpha=alpha, lw=0, step="post",
+                        transform=ax.get_xaxis_transform(), label=label, zorder=0)
+
+
+def reference_line(ax, value: float, lim: tuple[float, float] | None, label: str, color: str = "r",
+                   ls: str = ":") -> None:
+    """A horizontal limit/target line when it lies on the axis; otherwise only a legend entry
+    saying where it is (so a far-away limit does not flatten the data)."""
+    if lim is not None and lim[0] <= value <= lim[1]:
+        ax.axhline(value, color=color, lw=0.9, ls=ls, label=label)
+    else:
+        where = "above" if lim is not None and value > lim[1] else "below"
+        ax.plot([], [], color=color, lw=0.9, ls=ls, label=f"{label} ({where} the axis)")
+
+
+def bool_channels(ax, t: np.ndarray, channels: Sequence[tuple[str, np.ndarray]]) -> None:
+    """Boolean channels stacked as steps, each with its own labelled 'no'/'yes' ticks."""
+    ticks, labels = [], []
+    for off, (name, v) in enumerate(channels):
+        base = 1.5 * off
+        ax.step(t, np.asarray(v, dtype=float) + base, where="post", color=f"C{off}", label=name)
+        ticks += [base, base + 1]
+        labels += [f"{name}: no", "yes"]
+    ax.set_yticks(ticks, labels, fontsize=7)
+    ax.set_ylim(-0.3, 1.5 * (len(channels) - 1) + 1.3)
+
 
 def rollout_figure(trace: Trace, summary: dict, cfg: ExperimentCfg) -> plt.Figure:
-    """Six panels: depth (sensor vs truth), lateral force, moment, axial force, the success
-    channels, and lambda_min of the estimated Jacobian. Time axis in seconds."""
+    """Nine panels: depth (sensor vs truth), lateral force, moment, axial force, the success
+    channels (insert program; the contact channels for ``excite``), lambda_min of the estimated
+    Jacobian, and the identification row (offset estimate vs truth) -- or, where theta is held
+    fixed or is not an offset, the W-scaled prediction error. Time axis in seconds."""
     t = trace["t_s"]
     s = trace["s"]
     w = trace["w_env_w"]
     sc = cfg.success
-    fig, ax = plt.subplots(3, 3, figsize=(13, 9.5), sharex=True, constrained_layout=True)
+    insert = cfg.control.program != "excite"  # the seat criteria (depth target, limits) apply
+    gate = trace["adapt_gate"] > 0
+    held = cfg.run.features == "oracle" or cfg.adaptation.mode == "frozen"
+    theta = trace["theta"]
+    offset_row = theta.shape[1] == 3 and not held
+    fig, ax = plt.subplots(3, 3, figsize=(14, 10), constrained_layout=True)
+    for a in ax.ravel()[1:]:
+        if a is not ax[2, 2] or not held:  # held: the last panel is a bar chart, not a time series
+            a.sharex(ax[0, 0])
+
     a = ax[0, 0]
     a.plot(t, 1e3 * s[:, 0], label="sensor depth d (encoders)")
     a.plot(t, 1e3 * trace["truth_tip_depth_m"], "--", label="true tip depth (truth)")
-    a.axhline(1e3 * sc.depth_m, color="k", lw=0.8, ls=":", label=f"target {1e3 * sc.depth_m:.0f} mm")
-    a.set_ylabel("depth [mm]")
+    if insert:
+        a.axhline(1e3 * sc.depth_m, color="k", lw=0.8, ls=":",
+                  label=f"target {1e3 * sc.depth_m:.0f} mm (seated: d >= {1e3 * (sc.depth_m - sc.depth_tol_m):.1f})")
+    a.set_ylabel("depth below the entrance [mm]")
     a.legend(fontsize=8)
-    a.set_title("insertion depth")
+    a.set_title("insertion depth" if insert else "tip depth (excite program: no seat target)")
+
     a = ax[0, 1]
-    a.plot(t, s[:, 1], label="F_lat x")
-    a.plot(t, s[:, 2], label="F_lat y")
-    a.plot(t, np.hypot(s[:, 1], s[:, 2]), "k", lw=0.8, label="|F_lat|")
-    a.axhline(sc.max_lateral_force_N, color="r", lw=0.8, ls=":")
+    flat = np.hypot(s[:, 1], s[:, 2])
+    a.plot(t, s[:, 1], lw=0.8, label="F_lat x")
+    a.plot(t, s[:, 2], lw=0.8, label="F_lat y")
+    a.plot(t, flat, "k", lw=0.8, label="|F_lat|")
+    lim = set_robust_ylim(a, t, [s[:, 1], s[:, 2], flat], unit="N", headroom=0.45)
+    if insert:
+        reference_line(a, sc.max_lateral_force_N, lim, f"seat limit |F_lat| < {sc.max_lateral_force_N:g} N")
     a.set_ylabel("force [N]")
-    a.legend(fontsize=8)
+    a.legend(fontsize=7, loc="upper left", ncol=2)
     a.set_title("lateral contact force")
+
     a = ax[0, 2]
+    mnorm = np.linalg.norm(s[:, 3:], axis=1)
     for i, n in enumerate("xyz"):
-        a.plot(t, s[:, 3 + i], label=f"M {n}")
-    a.plot(t, np.linalg.norm(s[:, 3:], axis=1), "k", lw=0.8, label="|M|")
-    a.axhline(sc.max_moment_Nm, color="r", lw=0.8, ls=":")
+        a.plot(t, s[:, 3 + i], lw=0.8, label=f"M {n}")
+    a.plot(t, mnorm, "k", lw=0.8, label="|M|")
+    lim = set_robust_ylim(a, t, [s[:, 3], s[:, 4], s[:, 5], mnorm], unit="N m", headroom=0.45)
+    if insert:
+        reference_line(a, sc.max_moment_Nm, lim, f"seat limit |M| < {sc.max_moment_Nm:g} N m")
     a.set_ylabel("moment about O [N m]")
-    a.legend(fontsize=8)
+    a.legend(fontsize=7, loc="upper left", ncol=2)
     a.set_title("wrist moment")
+
     a = ax[1, 0]
-    a.plot(t, -w[:, 2], label="axial force on tool (sensor)")
-    a.plot(t, trace["truth_contact_force_N"], "--", lw=0.8, label="total normal contact (truth)")
+    a.plot(t, trace["truth_contact_force_N"], color="C1", lw=0.6, alpha=0.8, label="total normal contact (truth)")
+    a.plot(t, -w[:, 2], color="C0", lw=1.0, label="axial force on tool (sensor)")
+    set_robust_ylim(a, t, [-w[:, 2], trace["truth_contact_force_N"]], unit="N", headroom=0.25)
     a.set_ylabel("force [N]")
-    a.set_xlabel("time [s]")
-    a.legend(fontsize=8)
-    a.set_title("axial / contact force")
-    a = ax[1, 1]
-    for off, name in enumerate(("depth_ok", "force_ok", "moment_ok")):
-        a.step(t, trace[name].astype(float) + 1.2 * off, where="post", label=name)
-    if summary.get("seat_time_s") is not None:
-        a.axvline(summary["seat_time_s"], color="g", lw=1.0, label=f"seated {summary['seat_time_s']:.2f} s")
-    a.set_yticks([])
-    a.set_xlabel("time [s]")
     a.legend(fontsize=8, loc="upper left")
-    a.set_title("success channels (sensor side)")
+    a.set_title("axial / contact force")
+
+    a = ax[1, 1]
+    if insert:
+        bool_channels(a, t, [(n, trace[n]) for n in ("depth_ok", "force_ok", "moment_ok")])
+        title = "success channels (sensor side)"
+        if summary.get("seat_time_s") is not None:
+            a.axvline(summary["seat_time_s"], color="k", ls="--", lw=1.0)
+            title += f"\ndashed: seated at {summary['seat_time_s']:.2f} s (all ok for {sc.hold_s:g} s)"
+        a.set_title(title, fontsize=10)
+    else:
+        bool_channels(a, t, [("sensed contact", gate), ("truth: bore/socket", trace["truth_contact_bore"]),
+                             ("truth: block face", trace["truth_contact_face"])])
+        a.set_title("contact (sensor gate vs truth)")
+
     a = ax[1, 2]
     act = trace["drive_scale"] > 0
-    a.semilogy(t[act], trace["lambda_min"][act])
+    a.semilogy(t[act], trace["lambda_min"][act], label="lambda_min (drive on)")
     a.axhline(1e-6, color="r", lw=0.8, ls=":", label="rank gate 1e-6")
     a.set_ylabel("lambda_min(W J_hat J_hat^T W)")
-    a.set_xlabel("time [s]")
     a.legend(fontsize=8)
     a.set_title("stability margin")
-    theta = trace["theta"]
+
     true = np.asarray(trace.meta.get("truth_offset_f_m", [np.nan] * 3))
-    if theta.shape[1] == 3:
+    if offset_row:
         a = ax[2, 0]
         for i, (n, col) in enumerate(zip("xy", ("C0", "C1"))):
             a.plot(t, 1e3 * theta[:, i], col, label=f"estimate {n}_f")
             a.axhline(1e3 * true[i], color=col, ls="--", lw=0.8, label=f"true {n}_f")
         a.set_ylabel("lateral offset [mm]")
-        a.set_xlabel("time [s]")
         a.legend(fontsize=7, ncol=2)
         a.set_title("offset estimate vs truth (flange frame)")
         a = ax[2, 1]
         a.plot(t, 1e3 * theta[:, 2], "C2", label="estimate z_f")
         a.axhline(1e3 * true[2], color="C2", ls="--", lw=0.8, label="true z_f (length)")
         a.set_ylabel("axial offset [mm]")
-        a.set_xlabel("time [s]")
         a.legend(fontsize=7)
         a.set_title("tool length estimate vs truth")
         a = ax[2, 2]
-        err = np.hypot(theta[:, 0] - true[0], theta[:, 1] - true[1])
-        a.semilogy(t, 1e3 * np.maximum(err, 1e-6), "k", label="|lateral error|")
+        err = 1e3 * np.hypot(theta[:, 0] - true[0], theta[:, 1] - true[1])
+        floor = 1e-3
+        a.semilogy(t, np.maximum(err, floor), "k",
+                   label="|lateral error|" + (f" (floored at {floor:g} mm)" if (err < floor).any() else ""))
         a.axhline(1.0, color="r", ls=":", lw=0.8, label="1 mm")
-        a2 = a.twinx()
-        a2.fill_between(t, 0, trace["adapt_gate"], color="C1", alpha=0.15, step="post", label="adapting (contact)")
-        a2.set_yticks([])
+        shade(a, t, gate, "C1", "adapting (sensed contact)", alpha=0.15)
         a.set_ylabel("lateral offset error [mm]")
-        a.set_xlabel("time [s]")
         a.legend(fontsize=7, loc="lower left")
         a.set_title("identification")
     else:
-        a = ax[2, 0]
-        a.plot(t, np.linalg.norm(trace["eps_w"], axis=1), "k", lw=0.6)
-        a.set_ylabel("|W eps|")
-        a.set_xlabel("time [s]")
-        a.set_title("prediction error (W-scaled)")
-        for a in (ax[2, 1], ax[2, 2]):
-            a.axis("off")
+        eps = trace["eps_w"]
+        why = "theta held fixed" if held else f"{cfg.run.features} features"
+        for a, chans, title in ((ax[2, 0], (0, 1, 2), "depth and force"), (ax[2, 1], (3, 4, 5), "moment")):
+            shade(a, t, gate, "#ffe6cc", "sensed contact")
+            for c in chans:
+                a.plot(t, eps[:, c], lw=0.7, color=f"C{c}", label=("d", "F_lat x", "F_lat y", "M x", "M y", "M z")[c])
+            set_robust_ylim(a, t, [eps[:, c] for c in chans], headroom=0.45)
+            a.set_ylabel("W-scaled rate error [-]")
+            a.legend(fontsize=7, ncol=2, loc="upper left")
+            a.set_title(f"prediction error, {title} (W-scaled; {why})", fontsize=10)
+        a = ax[2, 2]
+        if held:
+            _rms_bars(a, eps[act & ~gate], eps[act & gate])
+        else:
+            shade(a, t, gate, "C1", "adapting (sensed contact)", alpha=0.15)
+            a.semilogy(t, np.maximum(trace["truth_jacobian_rel_error"], 1e-6), "k", label="|J_hat - J| / |J| (truth)")
+            a.set_ylabel("Jacobian relative error")
+            a.legend(fontsize=7)
+            a.set_title("identification")
+    for a in ax.ravel():
+        if a is not ax[2, 2] or not held:
+            a.set_xlabel("time [s]")
     done = "COMPLETED" if summary.get("program") == "excite" else "SEATED"
     status = done if summary["success"] else f"FAILED ({summary['failure']})"
-    fig.suptitle(
-        f"kinadapt online - features={summary['features']}, law={summary['law']}, seed={summary['seed']}: {status}"
-    )
+    extra = ""
+    if held and theta.shape[1] == 3 and len(theta):
+        extra = (f"\ntheta held fixed at ({', '.join(f'{1e3 * v:.1f}' for v in theta[-1])}) mm, "
+                 f"true offset ({', '.join(f'{1e3 * v:.1f}' for v in true)}) mm")
+    fig.suptitle(f"kinadapt online - program={cfg.control.program}, features={summary['features']}, "
+                 f"law={summary['law']}, seed={summary['seed']}: {status}{extra}")
     return fig
+
+
+def _rms_bars(a, free: np.ndarray, contact: np.ndarray) -> None:
+    """RMS of the W-scaled prediction error per channel, free space vs sensed contact."""
+    names = ("d", "F_lat x", "F_lat y", "M x", "M y", "M z")
+    xx = np.arange(len(names))
+    for k, (e, lab, col) in enumerate(((free, "free space", "0.55"), (contact, "sensed contact", "C1"))):
+        rms = np.sqrt(np.mean(e**2, axis=0)) if len(e) else np.full(len(names), np.nan)
+        a.bar(xx + (k - 0.5) * 0.4, rms, width=0.4, color=col, label=f"{lab} ({len(e)} samples)")
+    a.set_xticks(xx, names, fontsize=8)
+    a.set_yscale("log")
+    a.set_ylim(top=a.get_ylim()[1] * 30)  # room for the legend above the bars
+    a.set_ylabel("RMS of the W-scaled rate error [-]")
+    a.legend(fontsize=7, loc="upper left")
+    a.set_title("prediction error by contact state (drive on)", fontsize=10)
 
 
 def save_figure(fig: plt.Figure, path: Path) -> None:
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def _with_gaps(t: np.ndarray, *ys: np.ndarray) -> tuple[np.ndarray, ...]:
+    """NaN-separated copies so a line does not bridge gaps in the time base (> 3x its median step)."""
+    if len(t) < 3:
+        return (t, *ys)
+    dt = np.diff(t)
+    cut = np.flatnonzero(dt > 3 * max(float(np.median(dt)), 1e-12)) + 1
+    return tuple(np.insert(np.asarray(v, dtype=float), cut, np.nan) for v in (t, *ys))
+
+
+def before_after_panel(a, t: np.ndarray, channel: np.ndarray, before: np.ndarray, after: np.ndarray,
+                       chans: Sequence[int], names: Sequence[str], unit: str, added: Sequence[str],
+                       marker: str = "") -> None:
+    """Residual rows per channel over time, before (faint) and after adding ``added``, robust
+    y-limits over both; the legend names the channels and what faint/solid mean."""
+    from matplotlib.lines import Line2D
+
+    pooled = []
+    for c in chans:
+        m = channel == c
+        if not m.any():
+            continue
+        order = np.argsort(t[m])
+        tt, yb, ya = _with_gaps(t[m][order], before[m][order], after[m][order])
+        style = dict(ls="none", marker=".", ms=1.5) if marker else dict(lw=0.8)
+        line, = a.plot(tt, yb, alpha=0.3, **style)
+        a.plot(tt, ya, color=line.get_color(), label=names[c], **style)
+        pooled += [(tt, yb), (tt, ya)]
+    if pooled:
+        tt = np.concatenate([p[0] for p in pooled])
+        set_robust_ylim(a, tt, [np.concatenate([p[1] for p in pooled])], unit=unit, headroom=0.3)
+    handles, labels = a.get_legend_handles_labels()
+    handles += [Line2D([], [], color="0.4", alpha=0.3, lw=2), Line2D([], [], color="0.4", lw=2)]
+    labels += ["faint: before", f"solid: after adding {', '.join(added)}"]
+    a.legend(handles, labels, fontsize=7, ncol=3, loc="upper left", markerscale=5)
+    a.set_xlabel("time [s]")
+    a.set_ylabel(f"residual [{unit}]")
+    a.set_title(f"residual before / after adding {', '.join(added)}", fontsize=9)
+
+
+def bar_values(a, y: np.ndarray, values: Sequence[float], fmt: str = "{:+.3f}") -> None:
+    """Write each bar's value beside its end (a bar near zero is otherwise invisible)."""
+    lo, hi = a.get_xlim()
+    off = 0.01 * (hi - lo)
+    for yy, v in zip(y, values):
+        if np.isfinite(v):
+            txt = fmt.format(v).replace("-", "+") if float(fmt.format(abs(v))) == 0 else fmt.format(v)
+            a.text(v + (off if v >= 0 else -off), yy, txt, va="center", ha="left" if v >= 0 else "right",
+                   fontsize=6.5, color="0.2")

@@ -159,41 +159,59 @@ def summary_sentence(res: dict) -> str:
 
 def effects_figure(res: dict, path: Path) -> None:
     """Ranking bars (held-out explained fraction alone and given the effects selected before it;
-    red = significant) and, after --add, the level residual before/after per channel over time."""
+    red = significant; each bar's value written beside it) and, after --add, the level residual
+    before/after per channel over time (robust y-limits, spikes marked)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    fig = _effects_fig(res)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _effects_fig(res: dict):
+    """The figure of ``effects_figure`` (built, not saved)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
+
     from kinadapt_nn.diagnostics.effects import LEVEL_CHANNELS
+    from kinadapt_nn.figures import bar_values, before_after_panel
 
     rows = res["ranking"]
     has_add = "_series" in res
-    fig, ax = plt.subplots(1, 3 if has_add else 1, figsize=(17 if has_add else 7, 4.5), constrained_layout=True,
-                           squeeze=False)
+    fig, ax = plt.subplots(1, 3 if has_add else 1, figsize=(18 if has_add else 8, 5), constrained_layout=True,
+                           squeeze=False, width_ratios=[1.1, 1, 1] if has_add else None)
     a = ax[0, 0]
-    names = [r["effect"] for r in rows][::-1]
-    yy = np.arange(len(names))
-    a.barh(yy + 0.2, [r["explained_fraction_alone"] for r in rows][::-1], height=0.4, color="0.8", label="alone")
-    a.barh(yy - 0.2, [r["explained_fraction"] for r in rows][::-1], height=0.4,
-           color=["C3" if r["significant"] else "0.45" for r in rows][::-1], label="given the selected before it")
-    a.set_yticks(yy, names)
-    a.set_xlim(-0.1, 1.05)
+    yy = np.arange(len(rows))[::-1]
+    alone = np.array([r["explained_fraction_alone"] for r in rows], dtype=float)
+    given = np.array([r["explained_fraction"] for r in rows], dtype=float)
+    a.barh(yy + 0.2, alone, height=0.4, color="0.8", edgecolor="0.5", lw=0.5)
+    a.barh(yy - 0.2, given, height=0.4, color=["C3" if r["significant"] else "0.45" for r in rows])
+    a.set_yticks(yy, [f"{r['effect']}  [{r['verdict']}]" if r.get("verdict") else r["effect"] for r in rows],
+                 fontsize=8)
+    vals = np.r_[alone, given]
+    vals = vals[np.isfinite(vals)]
+    lo = min(-0.1, float(vals.min()) - 0.12) if vals.size else -0.1
+    a.set_xlim(lo, 1.12)
+    a.set_ylim(-0.7, len(rows) - 0.3)
     a.axvline(0, color="k", lw=0.8)
+    bar_values(a, yy + 0.2, alone)
+    bar_values(a, yy - 0.2, given)
     a.set_xlabel("held-out explained fraction of the level residual (block CV)")
     a.set_title("which effect is missing (red = significant)")
-    a.legend(fontsize=8, loc="lower right")
+    a.legend(handles=[Patch(facecolor="0.8", edgecolor="0.5", lw=0.5, label="alone"),
+                      Patch(facecolor="C3", label="given the selected before it: significant"),
+                      Patch(facecolor="0.45", label="given the selected before it: not significant")],
+             fontsize=7, loc="lower right")
     if has_add:
         des, y, e = res["_series"]
         for col, (chans, unit) in enumerate((((0, 1, 2), "N"), ((3, 4, 5), "N m"))):
-            a = ax[0, 1 + col]
-            for c in chans:
-                m = des.channel == c
-                line, = a.plot(des.t_s[m], y[m] / des.W[m], lw=0.6, alpha=0.5)
-                a.plot(des.t_s[m], e[m] / des.W[m], lw=0.9, color=line.get_color(), label=LEVEL_CHANNELS[c])
-            a.set_xlabel("time [s]")
-            a.set_ylabel(f"level residual [{unit}]")
-            a.set_title(f"before (faint) / after adding {', '.join(res['added'])}")
-            a.legend(fontsize=8)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+            before_after_panel(ax[0, 1 + col], des.t_s, des.channel, y / des.W, e / des.W, chans, LEVEL_CHANNELS,
+                               unit, list(res["added"]))
+            ax[0, 1 + col].set_ylabel(f"level residual [{unit}]")
+    return fig

@@ -27,59 +27,84 @@ def _shade(ax, t, mask) -> None:
 
 def model_vs_measurement(res, setup, path: Path) -> None:
     """Six panels (F x/y/z, M x/y/z, sensor frame, tool on sensor): the measured reading and the
-    declared tool's prediction, contact shaded."""
+    declared tool's prediction, contact shaded; robust y-limits (spikes beyond the 0.5-99.5 %
+    range clipped and marked)."""
+    plt = _plt()
+    fig = _mvm_fig(res, setup)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _mvm_fig(res, setup):
+    """The figure of ``model_vs_measurement`` (built, not saved)."""
+    from kinadapt_nn.figures import set_robust_ylim
+
     plt = _plt()
     prep = res.prep
     t = prep.t_s - prep.t_s[0]
-    fig, ax = plt.subplots(2, 3, figsize=(15, 7), sharex=True, constrained_layout=True)
+    fig, ax = plt.subplots(2, 3, figsize=(15, 7.5), sharex=True, constrained_layout=True)
     names = ("F_x", "F_y", "F_z", "M_x", "M_y", "M_z")
     for i, a in enumerate(ax.ravel()):
+        unit = "N" if i < 3 else "N m"
         _shade(a, t, res.contact)
         a.plot(t, prep.r[:, i], lw=0.6, color="0.3", label="measured")
         a.plot(t, prep.w_nom[:, i], lw=1.0, color="C0", label="declared tool (model)")
-        a.set_ylabel(f"{names[i]} [{'N' if i < 3 else 'N m'}]")
-        if i >= 3:
-            a.set_xlabel("time [s]")
-    ax[0, 0].legend(fontsize=8, loc="best")
+        set_robust_ylim(a, t, [prep.r[:, i], prep.w_nom[:, i]], unit=unit)
+        a.set_ylabel(f"{names[i]} [{unit}]")
+        a.set_title(names[i], fontsize=10)
+        a.tick_params(labelbottom=True)
+        a.set_xlabel("time [s]")
+    shared: dict = {}
+    for a in ax.ravel():
+        hs, ls = a.get_legend_handles_labels()
+        clipped = [(h, lab) for h, lab in zip(hs, ls) if lab.startswith("clipped")]
+        shared.update({lab: h for h, lab in zip(hs, ls) if not lab.startswith("clipped")})
+        if clipped:  # the panel's own note: what lies beyond its axis
+            a.legend(*zip(*clipped), fontsize=7, loc="upper left")
+    fig.legend(list(shared.values()), list(shared), loc="outside lower center", ncol=len(shared), fontsize=9)
     fig.suptitle(f"wrench the tool exerts on the sensor (sensor frame) vs the declared tool "
                  f"({setup.tool.mass_kg:g} kg); the log's convention: {setup.log.wrench_acts}")
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
 def effects_figure(res, path: Path) -> None:
-    """Ranking bars (held-out explained share, coloured by verdict) and, after ``--add``, the
-    residual rows before/after per channel over time (physical units)."""
+    """Ranking bars (held-out explained share, coloured by verdict, value beside each bar) and,
+    after ``--add``, the residual rows before/after per channel over time (physical units,
+    robust y-limits)."""
+    plt = _plt()
+    fig = _effects_fig(res)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _effects_fig(res):
+    """The figure of ``effects_figure`` (built, not saved)."""
+    from matplotlib.patches import Patch
+
+    from kinadapt_nn.figures import bar_values, before_after_panel
+
     plt = _plt()
     rows = [r for r in res.report["ranking"] if r.get("judged", True)]
     has_add = res.after is not None
-    fig, ax = plt.subplots(1, 3 if has_add else 1, figsize=(17 if has_add else 7.5, 4.8), constrained_layout=True,
-                           squeeze=False)
+    fig, ax = plt.subplots(1, 3 if has_add else 1, figsize=(18 if has_add else 8, 5), constrained_layout=True,
+                           squeeze=False, width_ratios=[1.1, 1, 1] if has_add else None)
     a = ax[0, 0]
-    names = [r["effect"] for r in rows][::-1]
-    yy = np.arange(len(names))
-    a.barh(yy, [max(r["explained_fraction"], 0.0) for r in rows][::-1],
-           color=[VERDICT_COLORS[r["verdict"]] for r in rows][::-1])
-    a.set_yticks(yy, [f"{r['effect']}  [{r['verdict']}]" for r in rows][::-1], fontsize=8)
-    a.set_xlim(0, 1.05)
-    a.set_xlabel("held-out share of the declared model's residual it explains (block CV)")
-    a.set_title("which effect is missing (red present, orange cannot decide, grey absent)", fontsize=9)
+    yy = np.arange(len(rows))[::-1]
+    share = np.array([r["explained_fraction"] for r in rows], dtype=float)
+    a.barh(yy, np.maximum(share, 0.0), color=[VERDICT_COLORS[r["verdict"]] for r in rows])
+    a.set_yticks(yy, [f"{r['effect']}  [{r['verdict']}]" for r in rows], fontsize=8)
+    a.set_xlim(0, 1.12)
+    a.set_ylim(-0.7, len(rows) - 0.3)
+    bar_values(a, yy, np.maximum(share, 0.0))
+    a.set_xlabel("held-out share of the declared model's residual it explains (block CV; < 0 shown as 0)")
+    a.set_title("which effect is missing", fontsize=10)
+    present = {r["verdict"] for r in rows}
+    a.legend(handles=[Patch(facecolor=c, label=v.replace("_", " ")) for v, c in VERDICT_COLORS.items() if v in present],
+             fontsize=7, loc="lower right", title="verdict", title_fontsize=7)
     if has_add:
         des = res.design
+        added = list(res.report["added"])
         for col, chans, unit in ((1, (0, 1, 2), "N"), (2, (3, 4, 5, 6, 7, 8), "N m")):
-            a = ax[0, col]
-            for c in chans:
-                m = des.channel == c
-                if not m.any():
-                    continue
-                order = np.argsort(des.t_s[m])
-                tt = des.t_s[m][order]
-                line, = a.plot(tt, (res.before[m] / des.W[m])[order], ".", ms=1.5, alpha=0.35)
-                a.plot(tt, (res.after[m] / des.W[m])[order], ".", ms=1.5, color=line.get_color(),
-                       label=des.channel_names[c])
-            a.set_xlabel("time [s]")
-            a.set_ylabel(f"residual [{unit}]")
-            a.set_title(f"before (faint) / after adding {', '.join(res.report['added'])}", fontsize=9)
-            a.legend(fontsize=7, markerscale=5)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+            before_after_panel(ax[0, col], des.t_s, des.channel, res.before / des.W, res.after / des.W, chans,
+                               des.channel_names, unit, added, marker=".")
+    return fig
