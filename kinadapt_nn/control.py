@@ -3,10 +3,10 @@
 Truth firewall: ``Controller.step(t, q, qdot, wrench)`` sees joint encoders and the raw
 wrist F/T reading only. Its kinematics come from its own MuJoCo model of the *bare arm*
 (``models/panda.xml``: no tool, no block); the known constants it holds (bore pose,
-nominal tool offset, S, W, V's weights) are listed in the README's "known vs unknown"
+nominal tool offset, S, W, V's weights) are listed in docs/method.md's "known vs unknown"
 table. It never receives the simulator, the true tool or the true tip.
 
-Discrete admittance (see README "The admittance we implement"), per twist channel c of the
+Discrete admittance (see docs/method.md, "The admittance we implement"), per twist channel c of the
 flange twist ``xi = [v_O; omega]`` (world), with ``m_c = tau_c / g_c`` and
 ``D_c = (1 + beta_c) / g_c``:
 

@@ -352,7 +352,7 @@ def identification_words(ctrl: Controller, cfg: ExperimentCfg) -> dict:
     if k is None:
         return {"identified": None, "of": p,
                 "text": (f"the paper's {law.mode} law follows the data whatever their bias: in the bore the estimate "
-                         "tracks the contact bias, not the offset (README, 'Identification'); where it works: " + where)}
+                         "tracks the contact bias, not the offset (docs/identification.md); where it works: " + where)}
     ratio = law.uncertainty_ratio()
     r = np.sqrt(np.mean(law.r2)) if law._r2_primed else float("nan")
     if k == 0 and not law._r2_primed:
