@@ -257,6 +257,13 @@ def rollout_figure(trace: Trace, summary: dict, cfg: ExperimentCfg) -> plt.Figur
                  f"true offset ({', '.join(f'{1e3 * v:.1f}' for v in true)}) mm")
     fig.suptitle(f"kinadapt online - program={cfg.control.program}, features={summary['features']}, "
                  f"law={summary['law']}, seed={summary['seed']}: {status}{extra}")
+    ident = (summary.get("identification") or {}).get("text")
+    if ident:  # what was and was not identified, and why, in plain words (the summary's line)
+        import textwrap
+
+        fig.text(0.01, 0.002, "identification: " + "\n".join(textwrap.wrap(ident, 190)), fontsize=8, va="bottom",
+                 ha="left", color="0.25")
+        fig.get_layout_engine().set(rect=(0, 0.045, 1, 0.955)) if fig.get_layout_engine() is not None else None
     return fig
 
 
