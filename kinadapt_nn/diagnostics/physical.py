@@ -339,12 +339,18 @@ def to_user(name: str, p: np.ndarray, sd: np.ndarray, setup: SetupCfg) -> dict:
         dm, sdm = float(p[0]), float(sd[0])
         out = {"mass": q(dm, sdm, "kg")}
         for a, mc, smc in zip("xyz", p[1:], sd[1:]):
-            c = mc / dm if abs(dm) > 1e-9 else np.nan
-            sc = abs(c) * np.hypot(smc / max(abs(mc), 1e-12), sdm / max(abs(dm), 1e-12)) if np.isfinite(c) else np.nan
+            if abs(dm) < 0.03:  # no relevant added mass: the change is a shift of the declared COM
+                out[f"com_{a}"] = {"value": None, "sd": None, "unit": "m",
+                                   "note": "no relevant added mass: see first_moment_* and total_com_*"}
+                continue
+            c = mc / dm
+            sc = abs(c) * np.hypot(smc / max(abs(mc), 1e-12), sdm / max(abs(dm), 1e-12))
             out[f"com_{a}"] = q(c, sc, "m")
         m0, mc0, _ = nominal_inertials(setup)
         tot = m0 + dm
         out["total_mass"] = q(tot, sdm, "kg")
+        for a, mc, smc in zip("xyz", p[1:], sd[1:]):  # the change of the tool's first moment m c
+            out[f"first_moment_{a}"] = q(mc, smc, "kg m")
         for a, mc_t in zip("xyz", mc0 + p[1:]):
             out[f"total_com_{a}"] = q(mc_t / tot if abs(tot) > 1e-9 else np.nan, np.nan, "m")
         return out
@@ -364,7 +370,9 @@ def implausible(name: str, p: np.ndarray, setup: SetupCfg) -> str | None:
         tot = setup.tool.mass_kg + p[0]
         if tot <= 0:
             return f"the tool would weigh {tot:.3g} kg (declared {setup.tool.mass_kg:g} kg + {p[0]:.3g} kg)"
-        if abs(p[0]) > 1e-3 and np.linalg.norm(p[1:] / p[0]) > 1.0:
+        # a real added mass sits within 1 m of the sensor; below the relevant mass (30 g) the
+        # estimate is a shift of the declared COM (first moment), reported as total_com_*
+        if abs(p[0]) >= 0.03 and np.linalg.norm(p[1:] / p[0]) > 1.0:
             return f"the added mass would sit {np.linalg.norm(p[1:] / p[0]):.3g} m from the sensor"
     if name in ("ft_frame_rotation", "encoder_offset", "tool_tilt") and np.max(np.abs(p)) > np.deg2rad(15.0):
         return f"{np.rad2deg(np.max(np.abs(p))):.3g} deg is beyond a mounting/zero error (the model is first order)"

@@ -379,7 +379,7 @@ def summary_text(rep: dict) -> str:
         txt = []
         for e in pres:
             est = e["estimate"]
-            keys = [k for k in est if not k.startswith("total_")][:4]
+            keys = [k for k in est if not k.startswith("total_") and est[k]["value"] is not None][:4]
             txt.append(f"{e['effect']} (" + ", ".join(f"{k} {est[k]['value']:.3g} ± {est[k]['sd']:.2g} {est[k]['unit']}"
                                                      for k in keys) + ")")
         parts.append("Present: " + "; ".join(txt) + f" — together {100 * rep['explained_by_present']:.0f}% of the "
