@@ -620,25 +620,61 @@ def _trajectory(rig: str) -> Trajectory:
     return _trajectory_a() if rig == "A" else _trajectory_b()
 
 
+def _phase1(m, d, ids, q_home: np.ndarray, t_start_hold: float, targets) -> tuple[list, float, np.ndarray]:
+    """Phase 1 of either rig: a hold at ``q_home``, then for each target (tilt rotvec [deg], turn about
+    the tool axis [deg], sensor displacement [m], move [s], hold [s]) a minimum-jerk move to the IK
+    pose and a hold (none when 0). -> (segments, end time [s], the last pose (7,))."""
+    _fk(m, d, q_home)
+    p0, r0 = d.site_xpos[ids.ft].copy(), d.site_xmat[ids.ft].reshape(3, 3).copy()
+    segs = [_seg_minjerk(0.0, t_start_hold, q_home, q_home)]
+    tc, q_prev = t_start_hold, q_home
+    for tilt_deg, turn_deg, dp, t_move, t_hold in targets:
+        r_t = rotvec_matrix(np.deg2rad(tilt_deg)) @ r0 @ rotvec_matrix(np.deg2rad([0.0, 0.0, turn_deg]))
+        q_next = _ik(m, d, q_prev, ids.ft, p0 + np.asarray(dp), r_t)
+        segs.append(_seg_minjerk(tc, tc + t_move, q_prev, q_next))
+        if t_hold > 0.0:
+            segs.append(_seg_minjerk(tc + t_move, tc + t_move + t_hold, q_next, q_next))
+        tc, q_prev = tc + t_move + t_hold, q_next
+    return segs, tc, q_prev
+
+
+def _tip_path_segment(m, d, ids, q_base: np.ndarray, tk: np.ndarray, tip_k: np.ndarray, r_tip: np.ndarray):
+    """Phase 3 of either rig: IK of the tip path ``tip_k`` (K, 3) at knot times ``tk`` (K,) with the
+    tool orientation ``r_tip`` held, joined by a quintic spline at rest at both ends."""
+    qk = np.empty((len(tk), 7))
+    q_prev = q_base
+    for i in range(len(tk)):
+        q_prev = qk[i] = _ik(m, d, q_prev, ids.tip, tip_k[i], r_tip)
+    zero = np.zeros(7)
+    spline = make_interp_spline(tk, qk, k=5, bc_type=([(1, zero), (2, zero)], [(1, zero), (2, zero)]))
+    return _seg_spline(tk[0], tk[-1], spline)
+
+
+def _tip_contact(m, d, ids, q: np.ndarray, qd: np.ndarray, fn: np.ndarray, n: np.ndarray, mu: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The true tip (N, 3) [m, w] and the prescribed contact force on it (N, 3) [N, w]: the normal
+    force ``fn`` along the table normal ``n`` plus Coulomb friction against the in-plane tip velocity."""
+    tip_w = np.empty((len(q), 3))
+    f_tip = np.zeros((len(q), 3))
+    jp = np.zeros((3, m.nv))
+    for i in range(len(q)):
+        _fk(m, d, q[i])
+        tip_w[i] = d.site_xpos[ids.tip]
+        if fn[i] > 0.0:
+            mujoco.mj_jacSite(m, d, jp, None, ids.tip)
+            vel = jp @ qd[i]
+            vt = vel - (vel @ n) * n
+            f_tip[i] = fn[i] * n - mu * fn[i] * vt / math.sqrt(vt @ vt + SLIP_SMOOTH_M_S**2)
+    return tip_w, f_tip
+
+
 def _trajectory_a() -> Trajectory:
     """Build rig A's scripted 15 s experiment."""
     m = build_model()
     d = mujoco.MjData(m)
     ids = _Ids(m)
-    q_home = np.asarray(Q_HOME)
-    _fk(m, d, q_home)
-    p0, r0 = d.site_xpos[ids.ft].copy(), d.site_xmat[ids.ft].reshape(3, 3).copy()
-
     # phase 1: holds and min-jerk moves between IK poses
-    segs = [_seg_minjerk(0.0, _T_START_HOLD, q_home, q_home)]
-    tc, q_prev = _T_START_HOLD, q_home
-    for tilt_deg, turn_deg, dp, t_move, t_hold in _PHASE1_TARGETS:
-        r_t = rotvec_matrix(np.deg2rad(tilt_deg)) @ r0 @ rotvec_matrix(np.deg2rad([0.0, 0.0, turn_deg]))
-        q_next = _ik(m, d, q_prev, ids.ft, p0 + np.asarray(dp), r_t)
-        segs.append(_seg_minjerk(tc, tc + t_move, q_prev, q_next))
-        segs.append(_seg_minjerk(tc + t_move, tc + t_move + t_hold, q_next, q_next))
-        tc, q_prev = tc + t_move + t_hold, q_next
-    q_base = q_prev
+    segs, tc, q_base = _phase1(m, d, ids, np.asarray(Q_HOME), _T_START_HOLD, _PHASE1_TARGETS)
 
     # phase 2: swing of joints 1, 3, 5, 7 about the base pose
     segs.append(_seg_swing(tc, tc + _SWING_S, q_base))
@@ -660,13 +696,7 @@ def _trajectory_a() -> Trajectory:
             s, _, _ = _minjerk((tk - ts) / dur)
             tip_k += s[:, None] * np.asarray(dp)[None, :]
         ts += dur
-    qk = np.empty((n_knots, 7))
-    q_prev = q_base
-    for i in range(n_knots):
-        q_prev = qk[i] = _ik(m, d, q_prev, ids.tip, tip_k[i], r_tip)
-    zero = np.zeros(7)
-    spline = make_interp_spline(tk, qk, k=5, bc_type=([(1, zero), (2, zero)], [(1, zero), (2, zero)]))
-    segs.append(_seg_spline(t3, t_end, spline))
+    segs.append(_tip_path_segment(m, d, ids, q_base, tk, tip_k, r_tip))
 
     traj = Trajectory(t=np.arange(N_SAMPLES) / RATE_HZ, q=None, qd=None, qdd=None, f_tip_w=None, tip_w=None,
                       table_z_m=float("nan"), contact_s=(0.0, 0.0), segments=segs)
@@ -675,17 +705,7 @@ def _trajectory_a() -> Trajectory:
     # contact: the table at the tip height reached after lowering; normal force + Coulomb friction
     t_touch = t3 + _PHASE3[0][0]
     fn = _normal_force(traj.t, t3)
-    tip_w = np.empty((N_SAMPLES, 3))
-    f_tip = np.zeros((N_SAMPLES, 3))
-    jp = np.zeros((3, m.nv))
-    for i in range(N_SAMPLES):
-        _fk(m, d, traj.q[i])
-        tip_w[i] = d.site_xpos[ids.tip]
-        if fn[i] > 0.0:
-            mujoco.mj_jacSite(m, d, jp, None, ids.tip)
-            v = jp @ traj.qd[i]
-            vh = np.array([v[0], v[1], 0.0])
-            f_tip[i] = np.array([0.0, 0.0, fn[i]]) - MU * fn[i] * vh / math.sqrt(vh @ vh + SLIP_SMOOTH_M_S**2)
+    tip_w, f_tip = _tip_contact(m, d, ids, traj.q, traj.qd, fn, np.array([0.0, 0.0, 1.0]), MU)
     i_touch = int(round(t_touch * RATE_HZ))
     traj.tip_w, traj.f_tip_w = tip_w, f_tip
     traj.table_z_m = float(tip_w[i_touch, 2])
@@ -725,21 +745,8 @@ def _trajectory_b() -> Trajectory:
     m = build_model(rig="B")
     d = mujoco.MjData(m)
     ids = _Ids(m)
-    q_home = np.asarray(B_Q_HOME)
-    _fk(m, d, q_home)
-    p0, r0 = d.site_xpos[ids.ft].copy(), d.site_xmat[ids.ft].reshape(3, 3).copy()
-
     # phase 1: fast min-jerk moves between IK poses, short holds
-    segs = [_seg_minjerk(0.0, _B_T_START_HOLD, q_home, q_home)]
-    tc, q_prev = _B_T_START_HOLD, q_home
-    for tilt_deg, turn_deg, dp, t_move, t_hold in _B_PHASE1_TARGETS:
-        r_t = rotvec_matrix(np.deg2rad(tilt_deg)) @ r0 @ rotvec_matrix(np.deg2rad([0.0, 0.0, turn_deg]))
-        q_next = _ik(m, d, q_prev, ids.ft, p0 + np.asarray(dp), r_t)
-        segs.append(_seg_minjerk(tc, tc + t_move, q_prev, q_next))
-        if t_hold > 0.0:
-            segs.append(_seg_minjerk(tc + t_move, tc + t_move + t_hold, q_next, q_next))
-        tc, q_prev = tc + t_move + t_hold, q_next
-    q_base = q_prev
+    segs, tc, q_base = _phase1(m, d, ids, np.asarray(B_Q_HOME), _B_T_START_HOLD, _B_PHASE1_TARGETS)
 
     # phase 2: wiggle of joints 2, 4, 6
     segs.append(_seg_swing(tc, tc + _B_WIGGLE_S, q_base, _B_WIGGLE))
@@ -755,13 +762,7 @@ def _trajectory_b() -> Trajectory:
     n_knots = int(round((t_end - t3) / _KNOT_DT)) + 1
     tk = np.linspace(t3, t_end, n_knots)
     tip_k, _ = _b_phase3(tk, t3, tip0)
-    qk = np.empty((n_knots, 7))
-    q_prev = q_base
-    for i in range(n_knots):
-        q_prev = qk[i] = _ik(m, d, q_prev, ids.tip, tip_k[i], r_tip)
-    zero = np.zeros(7)
-    spline = make_interp_spline(tk, qk, k=5, bc_type=([(1, zero), (2, zero)], [(1, zero), (2, zero)]))
-    segs.append(_seg_spline(t3, t_end, spline))
+    segs.append(_tip_path_segment(m, d, ids, q_base, tk, tip_k, r_tip))
 
     t = np.arange(B_N_SAMPLES) / B_RATE_HZ
     traj = Trajectory(t=t, q=None, qd=None, qdd=None, f_tip_w=None, tip_w=None, table_z_m=float("nan"),
@@ -771,17 +772,7 @@ def _trajectory_b() -> Trajectory:
     # contact: normal force along the table normal + Coulomb friction against the in-plane velocity
     n, _, _ = _b_table_axes()
     _, fn = _b_phase3(t, t3, tip0)
-    tip_w = np.empty((B_N_SAMPLES, 3))
-    f_tip = np.zeros((B_N_SAMPLES, 3))
-    jp = np.zeros((3, m.nv))
-    for i in range(B_N_SAMPLES):
-        _fk(m, d, traj.q[i])
-        tip_w[i] = d.site_xpos[ids.tip]
-        if fn[i] > 0.0:
-            mujoco.mj_jacSite(m, d, jp, None, ids.tip)
-            vel = jp @ traj.qd[i]
-            vt = vel - (vel @ n) * n
-            f_tip[i] = fn[i] * n - B_MU * fn[i] * vt / math.sqrt(vt @ vt + SLIP_SMOOTH_M_S**2)
+    tip_w, f_tip = _tip_contact(m, d, ids, traj.q, traj.qd, fn, n, B_MU)
     traj.tip_w, traj.f_tip_w = tip_w, f_tip
     touch = tip0 - _B_APPROACH_M * n
     traj.table_point_w, traj.table_normal_w = touch, n

@@ -231,6 +231,7 @@ class CompositeLaw:
         self._k_act = 0
         self._act_proj: np.ndarray | None = None
         if self.P0 is not None:
+            self._trP0 = float(np.trace(self.P0))
             self._L0 = np.linalg.cholesky(self.P0)
             self._L0inv = np.linalg.inv(self._L0)
         self._n_persist = 2.0 * float(persist_tau_s) / self.dt
@@ -258,7 +259,7 @@ class CompositeLaw:
         means the same for every features type (NaN for the laws without a covariance)."""
         if self.P is None:
             return math.nan
-        return math.sqrt(max(float(np.trace(self.P)), 0.0) / float(np.trace(self.P0)))
+        return math.sqrt(max(float(np.trace(self.P)), 0.0) / self._trP0)
 
     def information_sd(self) -> np.ndarray | None:
         """Posterior standard deviation of each parameter, sqrt(diag P) (kalman mode), else None."""

@@ -358,6 +358,12 @@ def _read_trace(path: Path) -> UserLog:
         tr = Trace.load(file)
     except KinadaptError as exc:
         raise KinadaptError(f"{exc}; supported formats: {SUPPORTED}") from None
+    return check_trace(tr, file)
+
+
+def check_trace(tr, file: Path) -> UserLog:
+    """A loaded ``Trace``'s raw channels under the readers' rules (finite, strictly increasing time,
+    no gaps, enough samples; one-line ``KinadaptError`` naming ``file``). -> ``UserLog``."""
     t = np.asarray(tr["t_s"])
     n = t.shape[0] if t.ndim == 1 else -1
     parts = []

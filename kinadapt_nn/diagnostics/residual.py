@@ -74,10 +74,7 @@ def load_log(path: Path) -> RawLog:
 
         return read_csv_log(path)
     tr = Trace.load(path)
-    raw = ("q_rad", "qdot_rad_s", "wrench_raw_f")
-    names = [f"{c}[{j}]" for c in raw for j in range(tr[c].shape[1])]
-    readers._build(path, tr["t_s"].astype(np.float64), 1.0, np.hstack([tr[c] for c in raw]).astype(np.float64),
-                   names, 7, "rad", readers._sample_label, "t_s")  # the same checks as every user log
+    readers.check_trace(tr, path)  # the same checks as every user log
     theta = tr["theta"][-1] if "theta" in tr.arrays and len(tr) else None
     return RawLog(tr["t_s"], tr["q_rad"], tr["qdot_rad_s"], tr["wrench_raw_f"], theta, str(path))
 

@@ -106,7 +106,9 @@ def prepared(prep: Prep, setup: SetupCfg, contact: np.ndarray, offset: np.ndarra
 
 def build_design(pp: ph.Prepared, prep: Prep, names: list[str], rc: RowCfg,
                  cols_cache: dict) -> sel.Design:
-    """Rows of the regression (module docstring) with per-channel weights 1/noise."""
+    """Rows of the regression (module docstring) with per-channel weights 1/noise. ``cols_cache``
+    receives every effect's sample columns (N, 6, k) of this design (the encoder columns, which do
+    not depend on the contact mask, are reused from it)."""
     setup = pp.setup
     t = pp.t_s
     n = len(t)
@@ -141,12 +143,9 @@ def build_design(pp: ph.Prepared, prep: Prep, names: list[str], rc: RowCfg,
     y = to_rows(e)[:, 0]
     X = {}
     for name in names:
-        if name in cols_cache:
-            C = cols_cache[name]
-        else:
-            C = ph.SPECS[name].columns(pp)
-            if name == "encoder_offset":
-                cols_cache[name] = C  # independent of the contact mask
+        C = cols_cache.get(name)
+        if C is None or name != "encoder_offset":  # the encoder columns do not depend on the contact mask
+            C = cols_cache[name] = ph.SPECS[name].columns(pp)
         X[name] = to_rows(C)
     Z = to_rows(np.broadcast_to(np.eye(6)[None], (n, 6, 6)).copy()) if setup.log.tared else np.zeros((len(y), 0))
     nf, nc = int((~con).sum()), int(con.sum())
@@ -328,10 +327,7 @@ def _rank(prep: Prep, pp: ph.Prepared, setup: SetupCfg, names: list[str], contac
             break
         fitted = np.zeros_like(prep.r)
         for n, (c, p_phys, _) in result.present.items():
-            C = cache.get(n)
-            if C is None:
-                C = ph.SPECS[n].columns(pp)
-            fitted += C[:, :, c] @ p_phys
+            fitted += cache[n][:, :, c] @ p_phys  # the columns this design was built from
         new_contact, new_off = detect_contact(prep.r - prep.w_nom - fitted, prep.t_s, setup, rc)
         if np.mean(new_contact != contact) < 0.005:
             break
