@@ -25,7 +25,7 @@ LAWS = {
 
 def run(item):
     from kinadapt_nn.config import load_config
-    from kinadapt_nn.episode import run_episode
+    from kinadapt_nn.runs.episode import run_episode
 
     scen, law = item
     s = run_episode(load_config(None, ["run.progress=false", *SCENARIOS[scen], *LAWS[law]])).summary

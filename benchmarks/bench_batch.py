@@ -12,10 +12,10 @@ import argparse
 
 import numpy as np
 
-from kinadapt_nn.batch import run_batch, run_batch_processes
+from kinadapt_nn.runs.batch import run_batch, run_batch_processes
 from kinadapt_nn.config import load_config
-from kinadapt_nn.episode import run_episode
-from kinadapt_nn.sweep import SweepCfg, tool_overrides
+from kinadapt_nn.runs.episode import run_episode
+from kinadapt_nn.runs.sweep import SweepCfg, tool_overrides
 
 
 def main() -> None:

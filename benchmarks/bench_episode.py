@@ -40,7 +40,7 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
 from kinadapt_nn.config import load_config  # noqa: E402
-from kinadapt_nn.episode import make_controller, run_episode  # noqa: E402
+from kinadapt_nn.runs.episode import make_controller, run_episode  # noqa: E402
 from kinadapt_nn.sim.adapter import PegInHoleSim  # noqa: E402
 
 

@@ -41,8 +41,8 @@ def _config(program: str, sets: list[str]):
 
 def _signals(program: str, sets: list[str]):
     from kinadapt_nn.diagnostics.library import signals_of
-    from kinadapt_nn.diagnostics.residual import RawLog
-    from kinadapt_nn.episode import run_episode
+    from kinadapt_nn.diagnostics.importers import RawLog
+    from kinadapt_nn.runs.episode import run_episode
 
     cfg = _config(program, sets)
     tr = run_episode(cfg).trace
@@ -110,7 +110,8 @@ def main() -> None:
     if a.insert_fp:
         insert_fp(a)
         return
-    from kinadapt_nn.diagnostics.effects import LIBRARY, headline_errors
+    from kinadapt_nn.diagnostics.effects import headline_errors
+    from kinadapt_nn.features.effect_library import LIBRARY
     from kinadapt_nn.config import EffectsCfg
 
     names = list(LIBRARY)

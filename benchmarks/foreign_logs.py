@@ -77,7 +77,7 @@ def run(rigs: list[str], out: Path) -> dict:
                 for fmt, log, setup in variants:
                     o = Path(tmp) / "out" / rig_name / case / fmt
                     t0 = time.perf_counter()
-                    p = subprocess.run([sys.executable, "-m", "kinadapt_nn.cli", "diagnose", str(d / log), "--setup",
+                    p = subprocess.run([sys.executable, "-m", "kinadapt_nn.app.cli", "diagnose", str(d / log), "--setup",
                                         str(d / setup), "--out", str(o), "--quiet"], capture_output=True, text=True)
                     wall = time.perf_counter() - t0
                     if p.returncode:

@@ -21,7 +21,7 @@ import json
 from concurrent.futures import ProcessPoolExecutor
 
 
-from kinadapt_nn.floor import LADDER, floor_figure, measure  # noqa: E402
+from kinadapt_nn.paper.floor import LADDER, floor_figure, measure  # noqa: E402
 
 
 def main() -> None:

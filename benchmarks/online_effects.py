@@ -25,11 +25,11 @@ def main() -> None:
     ap.add_argument("--out", help="keep the runs here (default: a temporary folder)")
     a = ap.parse_args()
     from kinadapt_nn.config import load_config
-    from kinadapt_nn.diagnostics.effects import LIBRARY
+    from kinadapt_nn.features.effect_library import LIBRARY
 
     tmp = tempfile.TemporaryDirectory() if a.out is None else None
     root = Path(a.out or tmp.name)
-    kin = [sys.executable, "-m", "kinadapt_nn.cli"]
+    kin = [sys.executable, "-m", "kinadapt_nn.app.cli"]
     print("| effect | frozen | rerun + effect | online estimate | true |")
     for e in EFFECTS:
         run, diag = root / e, root / f"{e}-diag"

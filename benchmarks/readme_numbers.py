@@ -48,7 +48,7 @@ bore = []
 
 def _cli(*args: str) -> subprocess.CompletedProcess:
     """``kinadapt ARGS`` in a fresh process, from the repository root."""
-    return subprocess.run([sys.executable, "-m", "kinadapt_nn.cli", *args], cwd=ROOT, capture_output=True, text=True)
+    return subprocess.run([sys.executable, "-m", "kinadapt_nn.app.cli", *args], cwd=ROOT, capture_output=True, text=True)
 
 
 def _summary(out: Path) -> dict:

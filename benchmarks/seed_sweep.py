@@ -14,7 +14,7 @@ import numpy as np
 
 def run(args):
     from kinadapt_nn.config import load_config
-    from kinadapt_nn.episode import run_episode
+    from kinadapt_nn.runs.episode import run_episode
 
     seed, over = args
     return run_episode(load_config(None, ["run.progress=false", "adaptation.mode=composite", f"run.seed={seed}",

@@ -196,7 +196,7 @@ class FeaturesCfg(_Cfg):
 
 
 class AdaptationCfg(_Cfg):
-    """The composite law (eq. ft_composite) and the initial estimate (see kinadapt_nn.adaptation)."""
+    """The composite law (eq. ft_composite) and the initial estimate (see kinadapt_nn.controller.law)."""
 
     mode: Literal["kalman", "composite", "prediction", "tracking", "frozen"] = "kalman"  # the law; composite = the paper's (reproduce)
     gamma: float = Field(100.0, gt=0.0)  # [m^2] Gamma = gamma I: V_aug = gamma_d V + |theta~|^2/(2 Gamma)
@@ -209,7 +209,7 @@ class AdaptationCfg(_Cfg):
     omega_axial_m: float = Field(0.030, gt=0.0)  # [m] Omega: |theta_z - nominal_z| bound
     contact_force_N: float = Field(1.0, ge=0.0)  # [N] free-space rule: adapt only in contact
     contact_moment_Nm: float = Field(0.05, ge=0.0)  # [N m] ... or when |M| exceeds this
-    # kalman law (kinadapt_nn.adaptation): prior, residual level, decorrelation
+    # kalman law (kinadapt_nn.controller.law): prior, residual level, decorrelation
     prior_sd_lateral_m: float = Field(0.005, gt=0.0)  # [m] adjoint prior sd of the lateral offset components
     prior_sd_axial_m: float = Field(0.010, gt=0.0)  # [m] adjoint prior sd of the axial offset component
     rbf_prior_floor: float = Field(0.001, ge=0.0)  # [-] RBF prior: isotropic part, fraction of the adjoint push-forward
@@ -323,7 +323,7 @@ class EncoderOffsetCfg(_Cfg):
 
 
 class EffectsCfg(_Cfg):
-    """Hidden physical effects (truth side; ``kinadapt_nn.diagnostics.effects`` has the model side).
+    """Hidden physical effects (truth side; ``kinadapt_nn.features.effect_library`` has the model side).
 
     Enable one with ``--set effects.NAME.enabled=true``; the controller and the model do not know it."""
 

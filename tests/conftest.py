@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from kinadapt_nn.config import load_config
-from kinadapt_nn.episode import EpisodeResult, run_episode
+from kinadapt_nn.runs.episode import EpisodeResult, run_episode
 
 
 @pytest.fixture(scope="session")

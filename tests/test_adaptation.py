@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinadapt_nn.adaptation import CompositeLaw, exact_qp_step, prediction_step
+from kinadapt_nn.controller.law import CompositeLaw, exact_qp_step, prediction_step
 from kinadapt_nn.config import load_config
-from kinadapt_nn.episode import make_controller, run_episode
+from kinadapt_nn.runs.episode import make_controller, run_episode
 from kinadapt_nn.features.base import Features, KinState, Regressor
 
 
@@ -179,7 +179,7 @@ def test_tracking_only_self_extinguishes_with_per_entry_features():
     """Remark cls_self_extinguish on the Panda's rigid tip-position loop: with per-entry RBF
     features the tracking-only law kills the command at the rate of eq. cls_command_decay while
     the error stays; the composite law removes it; the 3-parameter adjoint does not extinguish."""
-    from kinadapt_nn.rigid_demo import run_rigid_demo
+    from kinadapt_nn.paper.rigid_demo import run_rigid_demo
 
     tr = run_rigid_demo("per_entry", "tracking", duration_s=0.6)
     k = np.searchsorted(tr.t_s, 0.02)

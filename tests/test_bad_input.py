@@ -1,4 +1,4 @@
-"""The CLI's contract on bad input and on bugs (kinadapt_nn.cli's exit-code table):
+"""The CLI's contract on bad input and on bugs (kinadapt_nn.app.cli's exit-code table):
 
 * bad input -- an option, a config value (NaN/inf anywhere, out of range), a damaged file --
   exits 2 with one line on stderr and writes nothing (no output folder, no MUJOCO_LOG.TXT);
@@ -23,9 +23,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import kinadapt_nn
-from kinadapt_nn.cli import build_parser, main
+from kinadapt_nn.app.cli import build_parser, main
 from kinadapt_nn.config import ExperimentCfg, load_config
-from kinadapt_nn.config_doc import describe
+from kinadapt_nn.app.config_doc import describe
 from kinadapt_nn.errors import ConfigError, KinadaptError
 from kinadapt_nn.trace import Trace
 
@@ -119,10 +119,10 @@ def test_out_of_range_vectors_are_config_errors(override, fragment):
 
 @pytest.mark.parametrize(
     ("loader", "override"),
-    [("kinadapt_nn.sweep:load_sweep_config", "lateral_radius_m=nan"),
-     ("kinadapt_nn.sweep:load_sweep_config", "grid={'control.beta_ang'=[0.1, inf]}"),
-     ("kinadapt_nn.compare:load_compare_config", "link_sigma_m=inf"),
-     ("kinadapt_nn.pretrain:load_pretrain_config", "train.lr=nan")],
+    [("kinadapt_nn.runs.sweep:load_sweep_config", "lateral_radius_m=nan"),
+     ("kinadapt_nn.runs.sweep:load_sweep_config", "grid={'control.beta_ang'=[0.1, inf]}"),
+     ("kinadapt_nn.runs.compare:load_compare_config", "link_sigma_m=inf"),
+     ("kinadapt_nn.learning.pretrain:load_pretrain_config", "train.lr=nan")],
 )
 def test_every_config_file_kind_refuses_non_finite_numbers(loader, override):
     import importlib
@@ -304,7 +304,7 @@ def test_a_damaged_resume_state_is_one_line_and_overwrite_starts_afresh(tmp_path
 
 
 def test_the_resume_state_loads_weights_only(tmp_path):
-    from kinadapt_nn.pretrain import load_pretrain_config, load_train_state, pretrain
+    from kinadapt_nn.learning.pretrain import load_pretrain_config, load_train_state, pretrain
 
     cfg = load_pretrain_config(None, TINY_PRETRAIN)
     assert pretrain(cfg, tmp_path, progress=False, stop_after=3) == {"interrupted_at": 3}
@@ -321,9 +321,9 @@ def _boom(*_a, **_k):
 
 
 def test_an_internal_error_exits_3_naming_a_log_with_the_traceback(cwd, capsys, monkeypatch):
-    import kinadapt_nn.episode
+    import kinadapt_nn.runs.episode
 
-    monkeypatch.setattr(kinadapt_nn.episode, "PegInHoleSim", _boom)  # a bug inside the episode
+    monkeypatch.setattr(kinadapt_nn.runs.episode, "PegInHoleSim", _boom)  # a bug inside the episode
     rc, _, err = run_cli(capsys, "online", "--out", "run", "--quiet")
     assert rc == 3 and err.count("\n") == 1 and err.startswith("kinadapt: internal error (RuntimeError")
     log = Path(err.split("the traceback is in ")[1].split(" -- ")[0])
@@ -334,13 +334,13 @@ def test_an_internal_error_exits_3_naming_a_log_with_the_traceback(cwd, capsys, 
 
 
 def test_an_internal_error_of_an_in_place_command_logs_into_its_folder(cwd, capsys, monkeypatch):
-    import kinadapt_nn.pretrain
+    import kinadapt_nn.learning.pretrain
 
     def crash(cfg, out, progress=True):
         Path(out).mkdir(parents=True)
         _boom()
 
-    monkeypatch.setattr(kinadapt_nn.pretrain, "pretrain", crash)
+    monkeypatch.setattr(kinadapt_nn.learning.pretrain, "pretrain", crash)
     rc, _, err = run_cli(capsys, "pretrain", "--out", "p", "--quiet")
     assert rc == 3 and "p/kinadapt_error.log" in err
     assert "boom" in (cwd / "p" / "kinadapt_error.log").read_text()
@@ -356,15 +356,15 @@ def _mujoco_warning() -> None:
 
 
 def test_mujoco_log_goes_to_the_run_folder_never_the_working_directory(cwd, capsys, monkeypatch):
-    import kinadapt_nn.episode
+    import kinadapt_nn.runs.episode
 
-    real = kinadapt_nn.episode.PegInHoleSim
+    real = kinadapt_nn.runs.episode.PegInHoleSim
 
     def warn_then_build(cfg):
         _mujoco_warning()
         return real(cfg)
 
-    monkeypatch.setattr(kinadapt_nn.episode, "PegInHoleSim", warn_then_build)
+    monkeypatch.setattr(kinadapt_nn.runs.episode, "PegInHoleSim", warn_then_build)
     rc, _, err = run_cli(capsys, "online", "--out", "run", "--set", "run.duration_s=0.1", "--set", "run.figure=false",
                          "--set", "run.tensorboard=false", "--set", "run.progress=false")
     assert rc == 1
@@ -376,7 +376,7 @@ def test_mujoco_log_goes_to_the_run_folder_never_the_working_directory(cwd, caps
         _mujoco_warning()
         _boom()
 
-    monkeypatch.setattr(kinadapt_nn.episode, "PegInHoleSim", warn_then_crash)
+    monkeypatch.setattr(kinadapt_nn.runs.episode, "PegInHoleSim", warn_then_crash)
     rc, _, err = run_cli(capsys, "online", "--out", "run2", "--quiet")
     assert rc == 3 and sorted(p.name for p in cwd.iterdir()) == ["run"]
     log = Path(err.split("the traceback is in ")[1].split(" -- ")[0]).read_text()

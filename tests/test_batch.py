@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinadapt_nn.batch import run_batch
+from kinadapt_nn.runs.batch import run_batch
 from kinadapt_nn.config import load_config
-from kinadapt_nn.episode import run_episode
-from kinadapt_nn.sweep import SweepCfg, tool_overrides
+from kinadapt_nn.runs.episode import run_episode
+from kinadapt_nn.runs.sweep import SweepCfg, tool_overrides
 
 
 def test_batch_equals_single_episodes():

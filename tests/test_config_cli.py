@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from kinadapt_nn.cli import main
+from kinadapt_nn.app.cli import main
 from kinadapt_nn.config import ExperimentCfg, config_to_toml, load_config
 from kinadapt_nn.errors import ConfigError, ModelFileError
 

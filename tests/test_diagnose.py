@@ -7,11 +7,11 @@ import json
 import numpy as np
 import pytest
 
-from kinadapt_nn.cli import main
+from kinadapt_nn.app.cli import main
 from kinadapt_nn.config import load_config
 from kinadapt_nn.diagnostics.importers import COLUMNS, read_csv_log, write_csv_log
 from kinadapt_nn.diagnostics.residual import analyse, ljung_box, load_log, replay
-from kinadapt_nn.episode import run_episode
+from kinadapt_nn.runs.episode import run_episode
 from kinadapt_nn.errors import KinadaptError
 from kinadapt_nn.sensing import channel_metric
 
@@ -64,7 +64,7 @@ def test_residual_grows_with_a_wrong_offset_where_the_motion_excites_it():
     cfg = load_config(None, ["scene.contact_model=socket", "control.dither_rad_s=[0.05,0.05,0.05]",
                              "run.features=oracle", "run.duration_s=2.5", "run.progress=false"])
     r = run_episode(cfg)
-    from kinadapt_nn.diagnostics.residual import RawLog
+    from kinadapt_nn.diagnostics.importers import RawLog
 
     tr = r.trace
     log = RawLog(tr["t_s"], tr["q_rad"], tr["qdot_rad_s"], tr["wrench_raw_f"], None, "mem")

@@ -9,13 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinadapt_nn.cli import main
+from kinadapt_nn.app.cli import main
 from kinadapt_nn.config import load_config
 from kinadapt_nn.diagnostics import ranking as rk
-from kinadapt_nn.diagnostics.effects import LIBRARY, nominal_parts
+from kinadapt_nn.features.effect_library import LIBRARY, nominal_parts
 from kinadapt_nn.diagnostics.library import analyse_effects, design_of, signals_of
-from kinadapt_nn.diagnostics.residual import RawLog
-from kinadapt_nn.episode import run_episode
+from kinadapt_nn.diagnostics.importers import RawLog
+from kinadapt_nn.runs.episode import run_episode
 from kinadapt_nn.errors import ConfigError
 
 REPO = Path(__file__).resolve().parents[1]
@@ -161,7 +161,7 @@ def test_effect_terms_batch_equals_a_loop_of_single_samples():
     """The online model evaluates each effect on a one-sample Signals per control step
     (kinadapt_nn.features.effects); the diagnosis on the whole log at once. Same numbers (gravity's
     acceleration terms need a history, so samples are taken where the arm is still)."""
-    from kinadapt_nn.diagnostics.effects import Signals
+    from kinadapt_nn.features.effect_library import Signals
 
     _, sig, _ = _run(["effects.tool_gravity.enabled=true"], duration=11.5)  # free space, then contact
     moving = np.linalg.norm(sig.twist_tip_w[:, 3:], axis=1) > 1e-3
@@ -193,7 +193,7 @@ def test_encoder_columns_differentiate_the_calibrated_prediction():
     recomputed from shifted encoder readings (the arm's kinematics at every sample); the design's
     ``dX_dq`` are those derivatives through the same rows; ``calibrated_design`` adds
     ``sum_e dX_e/dq_j p_e`` to the encoder columns once and leaves the calibrated residual alone."""
-    from kinadapt_nn.diagnostics.effects import (_wrench_to_s, calibration_derivative, encoder_derivatives,
+    from kinadapt_nn.features.effect_library import (_wrench_to_s, calibration_derivative, encoder_derivatives,
                                                  shifted_signals, tip_twist_map)
     from kinadapt_nn.sensing import channel_metric
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from kinadapt_nn.config import load_config
-from kinadapt_nn.episode import SeatMonitor, classify_failure, make_controller, run_episode
+from kinadapt_nn.runs.episode import SeatMonitor, classify_failure, make_controller, run_episode
 from kinadapt_nn.errors import SensorError
 
 

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-from kinadapt_nn.adaptation import prediction_step
+from kinadapt_nn.controller.law import prediction_step
 from kinadapt_nn.config import load_config
-from kinadapt_nn.episode import make_controller, make_features, run_episode
+from kinadapt_nn.runs.episode import make_controller, make_features, run_episode
 from kinadapt_nn.errors import ModelFileError
 from kinadapt_nn.robot import MODELS_DIR
 
@@ -58,7 +58,7 @@ def test_rbf_prediction_step_is_the_closed_form():
 
 def test_neural_fast_path_equals_the_torch_network():
     """The numpy per-step body reproduces the checkpoint's torch network (Y(q) theta exactly)."""
-    from kinadapt_nn.pretrain import load_checkpoint
+    from kinadapt_nn.learning.checkpoint import load_checkpoint
 
     ckpt = MODELS_DIR / "neural_default.pt"
     net, meta = load_checkpoint(ckpt)
@@ -100,8 +100,8 @@ def test_body_is_bit_identical_after_an_online_run():
 
 
 def test_checkpoint_round_trip_and_corruption(tmp_path):
-    from kinadapt_nn.cli import main
-    from kinadapt_nn.pretrain import load_checkpoint, save_checkpoint
+    from kinadapt_nn.app.cli import main
+    from kinadapt_nn.learning.checkpoint import load_checkpoint, save_checkpoint
 
     net, meta = load_checkpoint(MODELS_DIR / "neural_default.pt")
     p = tmp_path / "copy.pt"
@@ -130,7 +130,8 @@ def test_checkpoint_round_trip_and_corruption(tmp_path):
 
 def test_pretraining_resume_equals_uninterrupted(tmp_path):
     """Deterministic from the seed; an interrupted run resumed from train_state.pt ends bit-identical."""
-    from kinadapt_nn.pretrain import checkpoint_bytes_equal, load_pretrain_config, pretrain
+    from kinadapt_nn.learning.checkpoint import checkpoint_bytes_equal
+    from kinadapt_nn.learning.pretrain import load_pretrain_config, pretrain
 
     cfg = load_pretrain_config(None, ["data.n_train=12", "data.n_heldout=4", "data.n_support=8", "data.n_query=4",
                                       "train.steps=12", "train.batch_instances=4", "train.eval_every=4",
@@ -151,8 +152,9 @@ def test_arm_errors_simulator_and_truth_agree():
     built with the same errors (rows 1..5), and differs from the nominal one."""
     from kinadapt_nn.geometry import adjoint_offset
     from kinadapt_nn.sensing import nominal_sensor_map
-    from kinadapt_nn.sim.adapter import BORE_AXIS_W, PegInHoleSim
-    from kinadapt_nn.truth import TrueSensorJacobian
+    from kinadapt_nn.known import BORE_AXIS_W
+    from kinadapt_nn.sim.adapter import PegInHoleSim
+    from kinadapt_nn.sim.truth import TrueSensorJacobian
 
     link = [0.002, -0.001, 0.0015, 0.0, 0.001, -0.002, 0.001, 0.0005]
     joint = [0.004, -0.003, 0.002, 0.005, -0.004, 0.003, -0.002]
@@ -180,7 +182,7 @@ def test_arm_errors_simulator_and_truth_agree():
 
 
 def test_compare_writes_table_figure_and_tensorboard(tmp_path):
-    from kinadapt_nn.cli import main
+    from kinadapt_nn.app.cli import main
 
     out = tmp_path / "cmp"
     rc = main(["compare", "--out", str(out), "--quiet", "--set", "n_tools=1", "--set", "jobs=1",

@@ -13,7 +13,7 @@ from kinadapt_nn.config import load_config
 from kinadapt_nn.diagnostics import library as lib
 from kinadapt_nn.diagnostics import report
 from kinadapt_nn.diagnostics.residual import PHASES, Replay
-from kinadapt_nn.episode import run_episode
+from kinadapt_nn.runs.episode import run_episode
 from kinadapt_nn.figures import robust_limits, rollout_figure
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -150,7 +150,7 @@ def test_robust_limits_cut_spikes_only():
 def test_effects_figure_bars_readable_and_before_after_panels_filled():
     import matplotlib.pyplot as plt
 
-    from kinadapt_nn.diagnostics.effects import LEVEL_CHANNELS
+    from kinadapt_nn.features.effect_library import LEVEL_CHANNELS
 
     rows = [{"effect": n, "verdict": v, "significant": s, "explained_fraction": f, "explained_fraction_alone": f}
             for n, v, s, f in (("tool_gravity", "present", True, 0.9), ("ft_bias_drift", "absent", False, -3e-4),

@@ -6,9 +6,10 @@ import mujoco
 import numpy as np
 
 from kinadapt_nn.config import load_config
-from kinadapt_nn.control import Controller
-from kinadapt_nn.episode import make_features
-from kinadapt_nn.sim.adapter import BORE_AXIS_W, PegInHoleSim
+from kinadapt_nn.controller.controller import Controller
+from kinadapt_nn.runs.episode import make_features
+from kinadapt_nn.known import BORE_AXIS_W
+from kinadapt_nn.sim.adapter import PegInHoleSim
 
 
 def _record_stream(overrides: list[str], n_steps: int = 1500):

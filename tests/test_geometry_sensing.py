@@ -11,11 +11,12 @@ import pytest
 from numpy.testing import assert_allclose
 
 from kinadapt_nn.config import load_config
-from kinadapt_nn.episode import make_controller
+from kinadapt_nn.runs.episode import make_controller
 from kinadapt_nn.geometry import adjoint_offset, skew
 from kinadapt_nn.robot import JOINT_LIMITS_RAD, N_JOINTS
 from kinadapt_nn.sensing import LowPass, RateFilter, nominal_sensor_map
-from kinadapt_nn.sim.adapter import BORE_AXIS_W, PegInHoleSim
+from kinadapt_nn.known import BORE_AXIS_W
+from kinadapt_nn.sim.adapter import PegInHoleSim
 
 N_CONFIGS = 12
 

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinadapt_nn.adaptation import CompositeLaw, kalman_update
+from kinadapt_nn.controller.law import CompositeLaw, kalman_update
 from kinadapt_nn.config import load_config
-from kinadapt_nn.episode import make_features, run_episode, run_insertions
+from kinadapt_nn.runs.episode import make_features, run_episode, run_insertions
 from kinadapt_nn.features.base import Features, KinState, Regressor
 
 QUIET = ["run.progress=false", "run.tensorboard=false", "run.figure=false"]

@@ -6,11 +6,11 @@ import json
 
 import numpy as np
 
-from kinadapt_nn.cli import main
+from kinadapt_nn.app.cli import main
 from kinadapt_nn.config import load_config
-from kinadapt_nn.episode import make_controller, run_episode
-from kinadapt_nn.qp_check import run_qp_checks
-from kinadapt_nn.static_estimator import static_offset_estimate
+from kinadapt_nn.runs.episode import make_controller, run_episode
+from kinadapt_nn.paper.qp_check import run_qp_checks
+from kinadapt_nn.paper.static_estimator import static_offset_estimate
 
 
 def test_qp_identities_with_a_real_solver():
@@ -58,7 +58,7 @@ def test_view_renders_a_gif_or_says_why(tmp_path):
                  "--set", "run.tensorboard=false", "--set", "run.figure=false"]) == 1
     env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
     env.pop("DISPLAY", None)
-    p = subprocess.run([sys.executable, "-m", "kinadapt_nn.cli", "view", str(run), "--out", str(tmp_path / "v.gif"),
+    p = subprocess.run([sys.executable, "-m", "kinadapt_nn.app.cli", "view", str(run), "--out", str(tmp_path / "v.gif"),
                         "--fps", "10", "--quiet"], env=env, capture_output=True, text=True)
     if p.returncode == 0:
         from PIL import Image

@@ -11,7 +11,7 @@ import torch
 
 from kinadapt_nn.errors import ModelFileError
 from kinadapt_nn.robot import FLANGE_SITE, JOINT_LIMITS_RAD, N_JOINTS, PANDA_MJCF, Q_HOME_RAD
-from kinadapt_nn.robot_torch import build_panda_chain, flange_jacobian_pk, flange_pose_pk
+from kinadapt_nn.learning.torch_kinematics import build_panda_chain, flange_jacobian_pk, flange_pose_pk
 
 N_CONFIGS = 20
 

@@ -15,11 +15,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from kinadapt_nn.cli import main
+from kinadapt_nn.app.cli import main
 from kinadapt_nn.config import load_config
-from kinadapt_nn.episode import run_episode
+from kinadapt_nn.runs.episode import run_episode
 from kinadapt_nn.errors import ConfigError, KinadaptError
-from kinadapt_nn.sweep import load_sweep_config, run_sweep, wilson_interval
+from kinadapt_nn.runs.sweep import load_sweep_config, run_sweep, wilson_interval
 
 
 def test_wilson_interval_against_known_values():
@@ -36,7 +36,7 @@ def test_faults_never_let_nan_into_theta_or_the_command():
     assert r.summary["sensor_dropouts"] > 100
     assert np.isfinite(r.trace["theta"]).all() and np.isfinite(r.trace["q_ref_rad"]).all()
     assert np.isfinite(r.trace["xi"]).all()
-    from kinadapt_nn.episode import make_controller
+    from kinadapt_nn.runs.episode import make_controller
 
     ctrl = make_controller(load_config(None, []))
     q = np.array([0.0, -0.5, 0.0, -2.3, 0.0, 1.8, 0.8])
@@ -80,7 +80,7 @@ def test_sweep_aggregates_and_resumes(tmp_path):
 def test_killed_sweep_completes_every_episode_exactly_once(tmp_path):
     """SIGINT mid-way, then the same command: every episode once, finished ones not rerun."""
     out = tmp_path / "kill"
-    cmd = [sys.executable, "-m", "kinadapt_nn.cli", "sweep", "--out", str(out), "--quiet",
+    cmd = [sys.executable, "-m", "kinadapt_nn.app.cli", "sweep", "--out", str(out), "--quiet",
            "--set", "seeds=6", "--set", "jobs=1", "--set", "base=['run.duration_s=1.5']"]
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     t0 = time.time()
@@ -137,7 +137,7 @@ def test_any_override_is_valid_or_a_one_line_config_error(key, value):
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(blob=st.binary(max_size=400))
 def test_garbage_config_trace_and_checkpoint_files_are_one_line_errors(tmp_path, blob):
-    from kinadapt_nn.pretrain import load_checkpoint
+    from kinadapt_nn.learning.checkpoint import load_checkpoint
     from kinadapt_nn.trace import Trace
 
     p = tmp_path / "f"

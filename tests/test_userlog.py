@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinadapt_nn.cli import main
+from kinadapt_nn.app.cli import main
 from kinadapt_nn.diagnostics import physical as ph
 from kinadapt_nn.diagnostics.readers import read_log
 from kinadapt_nn.diagnostics.setup import load_setup

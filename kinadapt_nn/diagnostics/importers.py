@@ -14,17 +14,28 @@ from __future__ import annotations
 
 import csv
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
 from kinadapt_nn.errors import KinadaptError
 
+class RawLog(NamedTuple):
+    """What a real robot logs (the only inputs the diagnosis uses)."""
+
+    t_s: np.ndarray  #: (N,) time [s], strictly increasing
+    q_rad: np.ndarray  #: (N, 7) joint positions
+    qdot_rad_s: np.ndarray  #: (N, 7) joint velocities
+    wrench_raw_f: np.ndarray  #: (N, 6) raw F/T reading: flange on tool, about O, in f [N, N m]
+    theta: np.ndarray | None  #: (p,) the run's final parameter estimate, when known
+    source: str  #: where it came from
+
+
+
 COLUMNS = ["t_s", *[f"q{i}" for i in range(1, 8)], *[f"qd{i}" for i in range(1, 8)], "fx", "fy", "fz", "tx", "ty", "tz"]
 
 
 def read_csv_log(path: Path):
-    from kinadapt_nn.diagnostics.residual import RawLog
-
     path = Path(path)
     try:
         with open(path, newline="") as fh:

@@ -10,7 +10,8 @@ import numpy as np
 
 from kinadapt_nn.config import ExperimentCfg, load_config
 from kinadapt_nn.diagnostics import ranking as rk
-from kinadapt_nn.diagnostics.effects import LIBRARY, Signals, build_signals
+from kinadapt_nn.diagnostics.effects import build_signals
+from kinadapt_nn.features.effect_library import LIBRARY, Signals
 from kinadapt_nn.diagnostics.residual import load_log, replay
 from kinadapt_nn.errors import KinadaptError
 from kinadapt_nn.runio import atomic_write
@@ -82,7 +83,7 @@ def rerun_with_effects(src: Path, add: list[str]):
     """Repeat the simulated run ``src`` with ``model.effects += add`` (adapted online: a frozen or
     tracking-only run gets the default ``kalman`` law), TensorBoard on.
     -> (config, EpisodeResult, the ``rerun`` entry of diagnosis.json)."""
-    from kinadapt_nn.episode import run_episode
+    from kinadapt_nn.runs.episode import run_episode
 
     check_rerun(src, add)
     src = Path(src)
@@ -179,7 +180,7 @@ def _effects_fig(res: dict):
     import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
 
-    from kinadapt_nn.diagnostics.effects import LEVEL_CHANNELS
+    from kinadapt_nn.features.effect_library import LEVEL_CHANNELS
     from kinadapt_nn.figures import bar_values, before_after_panel
 
     rows = res["ranking"]

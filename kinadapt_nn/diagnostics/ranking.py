@@ -2,7 +2,7 @@
 
 Data. The level residual of the nominal model and each effect's level columns (both through the
 same ``smooth_s`` moving average: white sensor noise averages out, the linear model is unchanged)
-(``kinadapt_nn.diagnostics.effects``) are taken as *anchored increments*: rows every
+(``kinadapt_nn.features.effect_library``) are taken as *anchored increments*: rows every
 ``stride_s``, each minus its value at the start of its ``anchor_s`` window. Anchoring removes
 what the model cannot know (the level at the start of a window, a constant offset) and bounds
 the integration drift of the contact prediction; within a window the level is kept, so a slow
@@ -47,7 +47,7 @@ from typing import NamedTuple
 import numpy as np
 
 from kinadapt_nn.config import EffectsCfg
-from kinadapt_nn.diagnostics.effects import (AXIAL, LEVEL_CHANNELS, LIBRARY, Signals, calibration_derivative,
+from kinadapt_nn.features.effect_library import (AXIAL, LEVEL_CHANNELS, LIBRARY, Signals, calibration_derivative,
                                              cumulative, encoder_derivatives, headline_errors, moving_average,
                                              nominal_parts, physical_report)
 from kinadapt_nn.diagnostics.selection import jackknife_cov, paired_p, wald_pvalue

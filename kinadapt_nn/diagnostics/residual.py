@@ -25,21 +25,11 @@ from typing import NamedTuple
 import numpy as np
 
 from kinadapt_nn.config import ExperimentCfg
+from kinadapt_nn.diagnostics.importers import RawLog, read_csv_log
 from kinadapt_nn.errors import KinadaptError
 from kinadapt_nn.sensing import CHANNEL_NAMES, CHANNEL_UNITS
 
 PHASES = ("free_space", "approach", "entry", "wall_contact", "seated", "inside_free")
-
-
-class RawLog(NamedTuple):
-    """What a real robot logs (the only inputs the diagnosis uses)."""
-
-    t_s: np.ndarray  #: (N,) time [s], strictly increasing
-    q_rad: np.ndarray  #: (N, 7) joint positions
-    qdot_rad_s: np.ndarray  #: (N, 7) joint velocities
-    wrench_raw_f: np.ndarray  #: (N, 6) raw F/T reading: flange on tool, about O, in f [N, N m]
-    theta: np.ndarray | None  #: (p,) the run's final parameter estimate, when known
-    source: str  #: where it came from
 
 
 class Replay(NamedTuple):
@@ -70,8 +60,6 @@ def load_log(path: Path) -> RawLog:
     if not path.exists():
         raise KinadaptError(f"log '{path}' not found (give a run folder, a trace.npz or a .csv)")
     if path.suffix.lower() == ".csv":
-        from kinadapt_nn.diagnostics.importers import read_csv_log
-
         return read_csv_log(path)
     tr = Trace.load(path)
     readers.check_trace(tr, path)  # the same checks as every user log
@@ -81,9 +69,9 @@ def load_log(path: Path) -> RawLog:
 
 def replay(log: RawLog, cfg: ExperimentCfg, theta: np.ndarray | None = None) -> Replay:
     """Feed the log through a frozen controller and collect its sensing channels."""
-    from kinadapt_nn.episode import make_features
-    from kinadapt_nn.control import Controller
-    from kinadapt_nn.sim.adapter import BORE_AXIS_W
+    from kinadapt_nn.runs.episode import make_features
+    from kinadapt_nn.controller.controller import Controller
+    from kinadapt_nn.known import BORE_AXIS_W
 
     feats, theta0 = make_features(cfg.model_copy(update={"run": cfg.run.model_copy(update={"features": "adjoint"})}))
     th = np.asarray(theta if theta is not None else (log.theta if log.theta is not None and len(log.theta) == 3

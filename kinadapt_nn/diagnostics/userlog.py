@@ -15,7 +15,7 @@ import numpy as np
 
 from kinadapt_nn.diagnostics import physical as ph
 from kinadapt_nn.diagnostics import selection as sel
-from kinadapt_nn.diagnostics.effects import moving_average
+from kinadapt_nn.features.effect_library import moving_average
 from kinadapt_nn.diagnostics.setup import SetupCfg
 from kinadapt_nn.errors import KinadaptError
 

@@ -18,14 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-
-class KinState(NamedTuple):
-    """Arm kinematics from the joint encoders (controller side; no truth)."""
-
-    q_rad: np.ndarray  #: (n,) joint positions
-    p_w_O: np.ndarray  #: (3,) flange origin O in the world
-    R_wf: np.ndarray  #: (3, 3) flange orientation: f -> w
-    J_arm: np.ndarray  #: (6, n) world-frame geometric Jacobian of O, rows [v_O; omega]
+from kinadapt_nn.robot import KinState  # noqa: F401  (re-exported: the features' input)
 
 
 class Regressor(NamedTuple):

@@ -1,7 +1,7 @@
 """Library effects in the online model: ``--set model.effects=["contact_stiffness"]``.
 
 ``EffectFeatures`` wraps any ``Features`` and appends the named effects' columns
-(``kinadapt_nn.diagnostics.effects``) to the *prediction* regressor, so the composite law adapts
+(``kinadapt_nn.features.effect_library``) to the *prediction* regressor, so the composite law adapts
 their physical parameters with the same normalised prediction step as ``theta`` (eq.
 ft_composite, second term). They are sensor-model terms, not kinematics: ``J_hat`` and the
 drive use the base parameters only, and the tracking term does not act on the effect
@@ -17,9 +17,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from kinadapt_nn.config import ExperimentCfg, arm_mjcf_path
-from kinadapt_nn.diagnostics.effects import LIBRARY, Signals, projector, tip_twist_map
+from kinadapt_nn.config import EffectsCfg
+from kinadapt_nn.features.effect_library import LIBRARY, Signals, projector, tip_twist_map
 from kinadapt_nn.features.base import Features, KinState, Regressor
+from kinadapt_nn.known import KnownCfg
+from kinadapt_nn.robot import ArmKinematics
 
 #: s rows 1..5 (F_lat x, y, M x, y, z) <- level channels (F_lat x, y, F_axial, M x, y, z)
 _LEVEL_TO_S = np.array([0, 1, 3, 4, 5])
@@ -28,9 +30,7 @@ _LEVEL_TO_S = np.array([0, 1, 3, 4, 5])
 class EffectFeatures(Features):
     """``base`` + effect columns. Parameters: ``[theta_base (p0,); p_effects (k,)]``."""
 
-    def __init__(self, base: Features, effects: list[str], cfg: ExperimentCfg, S: np.ndarray) -> None:
-        from kinadapt_nn.control import ArmKinematics
-
+    def __init__(self, base: Features, effects: list[str], known: KnownCfg, S: np.ndarray) -> None:
         self.base = base
         self.effects = [LIBRARY[n] for n in effects]
         self.p0 = base.n_params
@@ -40,18 +40,16 @@ class EffectFeatures(Features):
         self.S = S
         self._P = projector(S)  # lateral projector (2, 3)
         self._n = S[0, :3]  # bore axis
-        self.l_nom = np.asarray(cfg.sensing.nominal_offset_f_m, dtype=float)
-        self.dt = cfg.run.dt_s
-        self.t_tare = cfg.start.settle_s - 0.5 * cfg.sensing.tare_window_s
-        ad = cfg.adaptation
+        self.l_nom = np.asarray(known.sensing.nominal_offset_f_m, dtype=float)
+        self.dt = known.dt_s
+        self.t_tare = known.settle_s - 0.5 * known.sensing.tare_window_s
+        ad = known.adaptation
         if base.name == "adjoint":
             centre, half = self.l_nom, np.array([ad.omega_lateral_m, ad.omega_lateral_m, ad.omega_axial_m])
         else:
             centre, half = base.omega()
         self._omega = (np.r_[centre, np.zeros(self.k)], np.r_[half, np.full(self.k, np.inf)])
         # kalman law: the base prior, and 3x each effect's default magnitude (1 where it is 0)
-        from kinadapt_nn.config import EffectsCfg
-
         base_P0 = getattr(base, "P0", None)
         if base_P0 is not None:
             d = np.concatenate([np.abs(e.default(EffectsCfg())) for e in self.effects])
@@ -60,7 +58,7 @@ class EffectFeatures(Features):
             self.P0[: self.p0, : self.p0] = base_P0
             self.P0[self.p0:, self.p0:] = np.diag(sd**2)
         self.track_rows = np.r_[np.ones(self.p0), np.zeros(self.k)]
-        self._kin = ArmKinematics(arm_mjcf_path(cfg.scene))  # its own buffers (encoder FD moves q)
+        self._kin = ArmKinematics(known.arm_mjcf)  # its own buffers (encoder FD moves q)
         self._ctx: tuple | None = None
         self._R_tare: np.ndarray | None = None
         self._prev_level: np.ndarray | None = None

@@ -14,7 +14,7 @@ import numpy as np
 
 from kinadapt_nn.features.adjoint import AdjointFeatures
 from kinadapt_nn.features.base import Features, KinState, Regressor
-from kinadapt_nn.nets import N_JOINTS, N_ROWS
+from kinadapt_nn.learning.nets import N_JOINTS, N_ROWS
 
 
 class NeuralFeatures(Features):
@@ -23,7 +23,7 @@ class NeuralFeatures(Features):
     name = "neural"
 
     def __init__(self, known: AdjointFeatures, prior_offset_f: np.ndarray, checkpoint: Path, W: np.ndarray) -> None:
-        from kinadapt_nn.pretrain import load_checkpoint
+        from kinadapt_nn.learning.checkpoint import load_checkpoint
 
         net, meta = load_checkpoint(checkpoint)
         self.meta = meta

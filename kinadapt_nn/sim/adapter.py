@@ -17,12 +17,11 @@ import numpy as np
 from kinadapt_nn.config import ExperimentCfg, true_bore_entry
 from kinadapt_nn.errors import KinadaptError
 from kinadapt_nn.geometry import rotvec_from_matrix, tilt_rotation
+from kinadapt_nn.known import BORE_AXIS_W
 from kinadapt_nn.robot import JOINT_LIMITS_RAD, Q_HOME_RAD, SERVO_KP, SERVO_KV
 from kinadapt_nn.sim.effects import SensorEffects, truth_config
 from kinadapt_nn.sim.scene import SceneIds, build_model
 
-#: Bore axis in the world frame: into the hole.
-BORE_AXIS_W = np.array([0.0, 0.0, -1.0])
 #: Flange "down" orientation: z_f along the bore axis, x_f along x_w (peg square aligned with
 #: the bore walls).
 R_W_F_DOWN = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])

@@ -3,13 +3,13 @@
 Pretraining fits one closed-form head ``theta_i`` per training instance (tool x arm,
 ``nets.least_squares_heads``). Their spread is what the data set says about where a new tool's
 head lies: ``theta_mean`` (p,) and ``theta_cov`` (p, p), stored in the checkpoint's meta. Online,
-the kalman law (``kinadapt_nn.adaptation``) starts ``theta`` at the nominal tool's head (0) with
+the kalman law (``kinadapt_nn.controller.law``) starts ``theta`` at the nominal tool's head (0) with
 covariance ``theta_cov + theta_mean theta_mean^T`` (the second moment about 0,
 ``NeuralFeatures.prior_cov``): directions the training tools never moved stay put unless the data
 insist; the directions they did move are learned quickly (the learned prior metric of
 control-oriented meta-learning / Neural-Fly's Kalman prior).
 
-``python -m kinadapt_nn.prior CHECKPOINT`` adds the statistics to a checkpoint that lacks them
+``python -m kinadapt_nn.learning.prior CHECKPOINT`` adds the statistics to a checkpoint that lacks them
 (the network's weights are not touched; the data set is rebuilt from the checkpoint's own
 pretraining config, deterministically).
 """
@@ -27,8 +27,9 @@ def head_statistics(checkpoint: Path, progress: bool = False) -> tuple[np.ndarra
     -> (mean (p,), covariance (p, p), number of heads)."""
     import torch
 
-    from kinadapt_nn.nets import least_squares_heads
-    from kinadapt_nn.pretrain import PretrainCfg, load_checkpoint, make_dataset
+    from kinadapt_nn.learning.nets import least_squares_heads
+    from kinadapt_nn.learning.checkpoint import load_checkpoint
+    from kinadapt_nn.learning.pretrain import PretrainCfg, make_dataset
 
     net, meta = load_checkpoint(Path(checkpoint))
     cfg = PretrainCfg.model_validate(meta["config"])
@@ -43,7 +44,7 @@ def head_statistics(checkpoint: Path, progress: bool = False) -> tuple[np.ndarra
 
 def add_head_statistics(checkpoint: Path, out: Path | None = None, progress: bool = False) -> Path:
     """Write ``theta_cov`` (and ``theta_mean``/``theta_std`` recomputed) into the checkpoint's meta."""
-    from kinadapt_nn.pretrain import load_checkpoint, save_checkpoint
+    from kinadapt_nn.learning.checkpoint import load_checkpoint, save_checkpoint
 
     net, meta = load_checkpoint(Path(checkpoint))
     mean, cov, n = head_statistics(checkpoint, progress)

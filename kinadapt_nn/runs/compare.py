@@ -57,7 +57,7 @@ def load_compare_config(path: Path | None, overrides=()) -> CompareCfg:
     for f in cfg.features:
         if f not in FEATURES:
             raise ConfigError(f"compare: unknown features {f!r} (choose from {', '.join(FEATURES)})")
-    from kinadapt_nn.adaptation import MODES
+    from kinadapt_nn.controller.law import MODES
 
     for law in cfg.laws:
         if law not in MODES:
@@ -95,8 +95,8 @@ def draw_tools(cfg: CompareCfg) -> dict[str, list[list[str]]]:
 
 def _run_one(job: tuple) -> dict:
     from kinadapt_nn.config import load_config
-    from kinadapt_nn.episode import run_insertions
-    from kinadapt_nn.tb import write_tensorboard
+    from kinadapt_nn.runs.episode import run_insertions
+    from kinadapt_nn.runs.tb import write_tensorboard
 
     scenario, family, features, tool_i, overrides, tb_dir, law = job
     cfg = load_config(None, ["run.progress=false", *overrides, f"run.features={features}",

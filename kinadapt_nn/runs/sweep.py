@@ -88,7 +88,7 @@ def episode_jobs(cfg: SweepCfg) -> list[dict]:
 
 def run_job(job: dict) -> dict:
     """One episode -> a flat record (no files, so it can run anywhere: a local worker or Ray)."""
-    from kinadapt_nn.episode import run_episode
+    from kinadapt_nn.runs.episode import run_episode
 
     s = run_episode(load_config(None, job["overrides"])).summary
     rec = {"id": job["id"], "group": job["group"], "seed": job["seed"], "overrides": " ".join(job["overrides"])}

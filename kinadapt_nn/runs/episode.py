@@ -18,15 +18,16 @@ from typing import NamedTuple
 import numpy as np
 
 from kinadapt_nn.config import ExperimentCfg, arm_mjcf_path
-from kinadapt_nn.control import Controller, rank_margin
+from kinadapt_nn.controller.controller import Controller, rank_margin
 from kinadapt_nn.errors import SensorError
 from kinadapt_nn.features import AdjointFeatures
 from kinadapt_nn.features.base import Features
 from kinadapt_nn.sensing import CHANNEL_NAMES, channel_metric, nominal_sensor_map
-from kinadapt_nn.sim.adapter import BORE_AXIS_W, PegInHoleSim
+from kinadapt_nn.known import BORE_AXIS_W, KnownCfg
+from kinadapt_nn.sim.adapter import PegInHoleSim
 from kinadapt_nn.sim.faults import SensorFaults
 from kinadapt_nn.trace import Trace, TraceRecorder
-from kinadapt_nn.truth import TrueSensorJacobian
+from kinadapt_nn.sim.truth import TrueSensorJacobian
 
 FAILURES = ("none", "timeout", "jam", "block_face", "divergence")
 #: the paper's kinematic gate on lambda_min(W J_hat J_hat^T W) (Results, "A separate kinematic gate")
@@ -102,7 +103,7 @@ def make_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
     if cfg.model.effects:
         from kinadapt_nn.features.effects import EffectFeatures
 
-        feats = EffectFeatures(feats, list(cfg.model.effects), cfg, nominal_sensor_map(cfg.sensing, BORE_AXIS_W))
+        feats = EffectFeatures(feats, list(cfg.model.effects), KnownCfg.of(cfg), nominal_sensor_map(cfg.sensing, BORE_AXIS_W))
         theta0 = np.r_[theta0, np.zeros(feats.k)]
     return feats, theta0
 
@@ -124,7 +125,7 @@ def _base_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
         return adjoint, initial_estimate(cfg)
     if kind == "rbf":
         from kinadapt_nn.features.rbf import RBFFeatures, auto_width
-        from kinadapt_nn.workspace import insertion_path, sample_workspace
+        from kinadapt_nn.sim.workspace import insertion_path, sample_workspace
 
         fc = cfg.features
         nominal = cfg.model_copy(update={"tool": cfg.tool.model_copy(update={"offset_f_m": tuple(l_nom), "tilt_deg": (0.0, 0.0)}),
@@ -136,7 +137,7 @@ def _base_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
             centres = sample_workspace(path, fc.rbf_n_centres, 0.03, np.random.default_rng(fc.rbf_seed))
         width = fc.rbf_width_rad or auto_width(centres)
         feats = RBFFeatures(adjoint, l_nom, centres, width)
-        from kinadapt_nn.control import ArmKinematics
+        from kinadapt_nn.robot import ArmKinematics
 
         feats.P0 = feats.prior_from_adjoint(ArmKinematics(arm_mjcf_path(cfg.scene)), adjoint.P0, ad.rbf_prior_floor)
         return feats, np.zeros(feats.n_params)

@@ -3,7 +3,7 @@
 Task: the tool-tip position ``x`` (3,) of a tool with offset ``l`` (flange frame), measured
 (this is Section 2's setting, an exteroceptive task-space measurement, not the F/T loop).
 ``x_dot = J(q) qdot`` with ``J = [I, -[R_wf l]x] J_arm``; command ``qdot = J_hat^T K e``,
-``e = x_d - x`` (eq. control_law); the law is ``kinadapt_nn.adaptation.CompositeLaw`` with
+``e = x_d - x`` (eq. control_law); the law is ``kinadapt_nn.controller.law.CompositeLaw`` with
 ``Gamma gamma_d = gamma`` and ``F = K e``.
 
 Features:
@@ -20,7 +20,7 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
-from kinadapt_nn.adaptation import CompositeLaw
+from kinadapt_nn.controller.law import CompositeLaw
 from kinadapt_nn.features.base import Features, KinState, Regressor
 from kinadapt_nn.geometry import skew
 from kinadapt_nn.robot import FLANGE_SITE, PANDA_MJCF

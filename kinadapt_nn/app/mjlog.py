@@ -5,7 +5,7 @@ by default ``MUJOCO_LOG.TXT`` in the current directory. ``mujoco_log_to(path)`` 
 elsewhere for the duration of a ``with`` block and restores the previous setting afterwards:
 MuJoCo >= 4 through ``mujoco.MjLogConfig.logfile``; older MuJoCo through a warning callback
 (``mujoco.set_mju_user_warning``) that appends to ``path`` and forwards to ``logging``.
-The CLI uses it around every command (``kinadapt_nn.cli``); worker processes forked inside
+The CLI uses it around every command (``kinadapt_nn.app.cli``); worker processes forked inside
 the block inherit the setting.
 """
 

@@ -22,17 +22,16 @@ reference follows ``qdot_ref = J_arm^+ xi + N (k_ns (q_0 - q))``.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import NamedTuple
 
 import mujoco
 import numpy as np
 
 from kinadapt_nn.config import ExperimentCfg, arm_mjcf_path
-from kinadapt_nn.errors import ModelFileError, SensorError
+from kinadapt_nn.errors import SensorError
 from kinadapt_nn.features.base import Features, KinState
-from kinadapt_nn.robot import FLANGE_SITE, PANDA_MJCF
-from kinadapt_nn.adaptation import AdaptStep, CompositeLaw
+from kinadapt_nn.robot import ArmKinematics
+from kinadapt_nn.controller.law import AdaptStep, CompositeLaw
 from kinadapt_nn.sensing import RateFilter, channel_metric, lateral_projector, nominal_sensor_map
 
 
@@ -95,45 +94,6 @@ class ValueFunction:
         np.multiply(s, self._neg_c, out=out)
         out[0] = -min(max(self.k_d * (float(s[0]) - self.d_star), -self.f_max), self.f_max)
         return out
-
-
-class ArmKinematics:
-    """Forward kinematics and ``J_arm`` of the bare arm from encoder readings (MuJoCo).
-
-    ``update(q)`` is the hot-path form: it returns a ``KinState`` of *views* into this object's
-    buffers (``p_w_O``, ``R_wf``, ``J_arm``), valid until the next ``update``/call; ``kin(q)``
-    returns copies that may be kept.
-    """
-
-    def __init__(self, mjcf_path: Path = PANDA_MJCF) -> None:
-        mjcf_path = Path(mjcf_path)
-        if not mjcf_path.is_file():
-            raise ModelFileError(f"arm model file '{mjcf_path}' not found (fix scene.arm_mjcf or reinstall)")
-        try:
-            self.model = mujoco.MjModel.from_xml_path(str(mjcf_path))
-        except Exception as exc:
-            raise ModelFileError(f"arm model '{mjcf_path}' could not be loaded: {str(exc).splitlines()[0]}") from None
-        self.data = mujoco.MjData(self.model)
-        self.site = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, FLANGE_SITE)
-        self._jac = np.zeros((6, self.model.nv))
-        # views into MjData, fetched once (each attribute access builds a new array object)
-        self._qpos = self.data.qpos
-        self._p = self.data.site_xpos[self.site]
-        self._R = self.data.site_xmat[self.site].reshape(3, 3)
-        self._jacp, self._jacr = self._jac[:3], self._jac[3:]
-
-    def update(self, q: np.ndarray) -> KinState:
-        """FK + ``J_arm`` at ``q``; the returned arrays are views, overwritten by the next call."""
-        m, d = self.model, self.data
-        self._qpos[:] = q
-        mujoco.mj_kinematics(m, d)
-        mujoco.mj_comPos(m, d)
-        mujoco.mj_jacSite(m, d, self._jacp, self._jacr, self.site)
-        return KinState(q, self._p, self._R, self._jac)
-
-    def __call__(self, q: np.ndarray) -> KinState:
-        self.update(q)
-        return KinState(q_rad=q, p_w_O=self._p.copy(), R_wf=self._R.copy(), J_arm=self._jac.copy())
 
 
 def prior_cov_of(features: Features, adjoint_half_width: np.ndarray) -> np.ndarray:

@@ -14,7 +14,7 @@ Exit codes:
 ====  ==============================================================================
 
 MuJoCo's own log (``MUJOCO_LOG.TXT``) never lands in the working directory: it goes to a temp
-file while a command runs (``kinadapt_nn.mjlog``) and, when MuJoCo wrote one, into the run
+file while a command runs (``kinadapt_nn.app.mjlog``) and, when MuJoCo wrote one, into the run
 folder afterwards (else its path is printed).
 """
 
@@ -130,7 +130,7 @@ def _write_online(stage: Path, cfg, result) -> None:
 
         fig = rollout_figure(result.trace, result.summary, cfg)
     if cfg.run.tensorboard:
-        from kinadapt_nn.tb import write_tensorboard
+        from kinadapt_nn.runs.tb import write_tensorboard
 
         hp = {"features": cfg.run.features, "law": result.summary["law"], "seed": cfg.run.seed}
         write_tensorboard(stage / "tb", result.trace, result.summary, hp, figure=fig)
@@ -142,7 +142,7 @@ def _write_online(stage: Path, cfg, result) -> None:
 
 def cmd_online(args: argparse.Namespace) -> int:
     from kinadapt_nn.config import load_config
-    from kinadapt_nn.episode import run_insertions
+    from kinadapt_nn.runs.episode import run_insertions
     from kinadapt_nn.runio import check_output_dir, staged_output
 
     cfg = load_config(Path(args.config) if args.config else None, args.set or [])
@@ -157,7 +157,7 @@ def cmd_online(args: argparse.Namespace) -> int:
 
 
 def cmd_pretrain(args: argparse.Namespace) -> int:
-    from kinadapt_nn.pretrain import load_pretrain_config, pretrain
+    from kinadapt_nn.learning.pretrain import load_pretrain_config, pretrain
 
     cfg = load_pretrain_config(Path(args.config) if args.config else None, args.set or [])
     out = Path(args.out) if args.out else _default_out("pretrain")
@@ -188,7 +188,7 @@ def cmd_pretrain(args: argparse.Namespace) -> int:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from kinadapt_nn.compare import load_compare_config, run_compare
+    from kinadapt_nn.runs.compare import load_compare_config, run_compare
     from kinadapt_nn.runio import check_output_dir, staged_output
 
     cfg = load_compare_config(Path(args.config) if args.config else None, args.set or [])
@@ -207,11 +207,11 @@ def cmd_view(args: argparse.Namespace) -> int:
 
     run = Path(args.run)
     if args.out is None and os.environ.get("DISPLAY"):
-        from kinadapt_nn.view import view_interactive
+        from kinadapt_nn.app.view import view_interactive
 
         view_interactive(run)
         return 0
-    from kinadapt_nn.view import render_run
+    from kinadapt_nn.app.view import render_run
 
     out = Path(args.out) if args.out else run / "rollout.gif"
     if out.exists() and not args.overwrite:
@@ -224,7 +224,7 @@ def cmd_view(args: argparse.Namespace) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    from kinadapt_nn.reproduce import PARTS, run_reproduce
+    from kinadapt_nn.paper.reproduce import PARTS, run_reproduce
     from kinadapt_nn.runio import check_output_dir, staged_output
 
     if args.only and args.only not in PARTS:
@@ -243,7 +243,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 def cmd_sweep(args: argparse.Namespace) -> int:
     import shutil
 
-    from kinadapt_nn.sweep import load_sweep_config, run_sweep
+    from kinadapt_nn.runs.sweep import load_sweep_config, run_sweep
 
     cfg = load_sweep_config(Path(args.config) if args.config else None, args.set or [])
     out = args.run_dir = Path(args.out) if args.out else _default_out("sweep")
@@ -400,7 +400,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 def cmd_config(args: argparse.Namespace) -> int:
     """Print every key of the experiment config (after --config/--set) with its value, unit and meaning."""
     from kinadapt_nn.config import load_config
-    from kinadapt_nn.config_doc import describe, format_keys
+    from kinadapt_nn.app.config_doc import describe, format_keys
 
     cfg = load_config(Path(args.config) if args.config else None, args.set or [])
     src = args.config or "built-in defaults"
@@ -599,7 +599,7 @@ def main(argv: list[str] | None = None) -> int:
         return _run(args, None)
     if args.command == "view" and (args.out is not None or not os.environ.get("DISPLAY")):
         os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen: must be chosen before mujoco is imported
-    from kinadapt_nn.mjlog import fresh_log_path, mujoco_log_to
+    from kinadapt_nn.app.mjlog import fresh_log_path, mujoco_log_to
 
     mujoco_log = fresh_log_path()
     rc = EXIT_INTERNAL

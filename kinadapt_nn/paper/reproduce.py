@@ -20,7 +20,7 @@ AXES = ("x_f", "y_f", "z_f")
 
 def _episode(over: list[str]):
     from kinadapt_nn.config import load_config
-    from kinadapt_nn.episode import run_episode
+    from kinadapt_nn.runs.episode import run_episode
 
     # the paper's claims are about the paper's law: composite unless a part says otherwise
     r = run_episode(load_config(None, ["run.progress=false", "adaptation.mode=composite", *over]))
@@ -58,7 +58,7 @@ def _running_gram(trace, cfg_over: list[str]) -> tuple[np.ndarray, np.ndarray]:
     """Eigenvalues of the running mean W-scaled Gram of the (filtered) adjoint regressor over the
     contact samples, labelled by flange axis. -> (t (N,), lam (N, 3))."""
     from kinadapt_nn.config import load_config
-    from kinadapt_nn.episode import make_controller
+    from kinadapt_nn.runs.episode import make_controller
     from kinadapt_nn.sensing import LowPass
 
     cfg = load_config(None, cfg_over)
@@ -163,9 +163,9 @@ def part_gain_sweep(out: Path, ex) -> dict:
 # ---------------------------------------------------------------------------------- ablations
 def part_ablations(out: Path, ex) -> dict:
     from kinadapt_nn.config import load_config
-    from kinadapt_nn.episode import make_controller
-    from kinadapt_nn.rigid_demo import run_rigid_demo
-    from kinadapt_nn.static_estimator import static_offset_estimate
+    from kinadapt_nn.runs.episode import make_controller
+    from kinadapt_nn.paper.rigid_demo import run_rigid_demo
+    from kinadapt_nn.paper.static_estimator import static_offset_estimate
 
     plt = _plt()
     res: dict = {}
@@ -224,7 +224,7 @@ def part_ablations(out: Path, ex) -> dict:
         "no_couple_static_error_m": (st0 - true).tolist(), "no_couple_law_error_m": s0["offset_error_final_m"],
     }
     # (c) the bias floor ladder
-    from kinadapt_nn.floor import LADDER, floor_figure, measure
+    from kinadapt_nn.paper.floor import LADDER, floor_figure, measure
 
     rows = list(ex.map(measure, LADDER))
     res["bias_floor"] = rows
@@ -234,7 +234,7 @@ def part_ablations(out: Path, ex) -> dict:
 
 # ----------------------------------------------------------------------------------------- qp
 def part_qp(out: Path, ex) -> dict:
-    from kinadapt_nn.qp_check import run_qp_checks
+    from kinadapt_nn.paper.qp_check import run_qp_checks
 
     checks = run_qp_checks()
     errs = []
@@ -252,14 +252,13 @@ def part_video(out: Path, ex) -> dict:
     import subprocess
     import sys
 
-    from kinadapt_nn.cli import main as cli_main
-
     run = out / "run_adjoint"
-    rc = cli_main(["online", "--out", str(run), "--quiet", "--overwrite", "--set", "run.tensorboard=false"])
+    rc = subprocess.run([sys.executable, "-m", "kinadapt_nn.app.cli", "online", "--out", str(run), "--quiet",
+                         "--overwrite", "--set", "run.tensorboard=false"], capture_output=True, text=True).returncode
     env = dict(os.environ)
     env.setdefault("MUJOCO_GL", "egl")
     env.pop("DISPLAY", None)
-    p = subprocess.run([sys.executable, "-m", "kinadapt_nn.cli", "view", str(run), "--out", str(out / "rollout.gif"),
+    p = subprocess.run([sys.executable, "-m", "kinadapt_nn.app.cli", "view", str(run), "--out", str(out / "rollout.gif"),
                         "--fps", "12.5", "--width", "400", "--height", "300", "--quiet", "--overwrite"],
                        env=env, capture_output=True, text=True)
     if p.returncode == 0:

@@ -29,7 +29,7 @@ LADDER: list[tuple[str, list[str]]] = [
 
 def measure(item: tuple[str, list[str]]) -> dict:
     from kinadapt_nn.config import load_config
-    from kinadapt_nn.episode import run_episode
+    from kinadapt_nn.runs.episode import run_episode
 
     name, over = item
     base = ["run.progress=false", "run.stop_after_seat_s=1.5", "adaptation.mode=composite"]  # the paper's law

@@ -4,8 +4,8 @@ Data set (deterministic from ``seed``): instances = (tool, arm) pairs. Tools: la
 uniform in a disc, length uniform, grasp tilt uniform (recorded; a rigid tool's tilt does not
 change its Jacobian, eq. ft_factor). Arms: with probability ``arm_error_fraction`` small
 kinematic errors (link lengths, joint zero offsets: ``kinadapt_nn.sim.arm_errors``), else
-nominal. Configurations: around the insertion workspace (``kinadapt_nn.workspace``). Targets:
-the true sensor Jacobian rows 1..5 (``kinadapt_nn.truth``) minus the nominal model, W-scaled.
+nominal. Configurations: around the insertion workspace (``kinadapt_nn.sim.workspace``). Targets:
+the true sensor Jacobian rows 1..5 (``kinadapt_nn.sim.truth``) minus the nominal model, W-scaled.
 Held-out instances are drawn from the same distribution and never trained on.
 
 Training: closed-form per-instance least-squares heads on a support set, loss on a query set
@@ -19,7 +19,6 @@ weights_only=True)``: nothing in it is unpickled as code, so a planted file cann
 
 from __future__ import annotations
 
-import hashlib
 
 import json
 import math
@@ -33,17 +32,16 @@ from pydantic import BaseModel, ConfigDict, Field
 
 import kinadapt_nn
 from kinadapt_nn.config import ExperimentCfg, load_toml_model
-from kinadapt_nn.errors import ConfigError, KinadaptError, ModelFileError
-from kinadapt_nn.nets import N_JOINTS, N_ROWS, JacobianBasisNet, least_squares_heads
+from kinadapt_nn.errors import ConfigError, KinadaptError
+from kinadapt_nn.learning.checkpoint import atomic_torch_save, save_checkpoint
+from kinadapt_nn.learning.nets import N_JOINTS, N_ROWS, JacobianBasisNet, least_squares_heads
 from kinadapt_nn.robot import PANDA_MJCF
 from kinadapt_nn.sensing import channel_metric, nominal_sensor_map
-from kinadapt_nn.sim.adapter import BORE_AXIS_W
+from kinadapt_nn.known import BORE_AXIS_W
 from kinadapt_nn.sim.arm_errors import random_arm_errors
-from kinadapt_nn.truth import TrueSensorJacobian
-from kinadapt_nn.workspace import insertion_path, sample_workspace
+from kinadapt_nn.sim.truth import TrueSensorJacobian
+from kinadapt_nn.sim.workspace import insertion_path, sample_workspace
 
-CHECKPOINT_FORMAT = "kinadapt-jacobian-basis"
-CHECKPOINT_VERSION = 1
 TRAIN_STATE_FORMAT = "kinadapt-train-state"
 TRAIN_STATE_VERSION = 2  # 2: weights_only-loadable (no pickled objects)
 
@@ -142,7 +140,7 @@ def make_dataset(cfg: PretrainCfg, exp: ExperimentCfg | None = None, progress: b
         for k, q in enumerate(qs):
             J_true = truth(q)
             _, R_n, J_n = truth.nominal(q)
-            from kinadapt_nn.truth import sensor_jacobian_rows
+            from kinadapt_nn.sim.truth import sensor_jacobian_rows
 
             J_nom = sensor_jacobian_rows(S[1:], R_n, J_n, l_nom)
             r[k] = W * (J_true[1:] - J_nom)
@@ -160,63 +158,6 @@ def make_dataset(cfg: PretrainCfg, exp: ExperimentCfg | None = None, progress: b
     data["q_mean"] = allq.mean(axis=0)
     data["q_std"] = allq.std(axis=0) + 1e-6
     return data
-
-
-# ----------------------------------------------------------------------------------- checkpoints
-def _atomic_torch_save(obj, path: Path) -> None:
-    from kinadapt_nn.runio import atomic_write
-
-    atomic_write(Path(path), lambda tmp: torch.save(obj, tmp))
-
-
-def state_hash(state: dict[str, torch.Tensor], meta: dict) -> str:
-    """sha256 over the tensors (name, dtype, shape, bytes) and the metadata JSON."""
-    h = hashlib.sha256()
-    for k in sorted(state):
-        t = state[k].detach().cpu().contiguous()
-        h.update(k.encode())
-        h.update(str(t.dtype).encode())
-        h.update(str(tuple(t.shape)).encode())
-        h.update(t.numpy().tobytes())
-    h.update(json.dumps(meta, sort_keys=True).encode())
-    return h.hexdigest()
-
-
-def save_checkpoint(
-    path: Path, net: JacobianBasisNet, theta_mean: np.ndarray, meta: dict, theta_std: np.ndarray | None = None
-) -> None:
-    state = {k: v.detach().cpu().clone() for k, v in net.state_dict().items()}
-    meta = dict(meta, format=CHECKPOINT_FORMAT, version=CHECKPOINT_VERSION, theta_mean=[float(x) for x in theta_mean])
-    if theta_std is not None:
-        meta["theta_std"] = [float(x) for x in theta_std]
-    _atomic_torch_save({"state_dict": state, "meta": meta, "sha256": state_hash(state, meta)}, Path(path))
-
-
-def load_checkpoint(path: Path) -> tuple[JacobianBasisNet, dict]:
-    """Load and verify a checkpoint. One-line ``ModelFileError`` for anything wrong with it."""
-    path = Path(path)
-    if not path.is_file():
-        raise ModelFileError(f"checkpoint '{path}' not found (run 'kinadapt pretrain --out DIR' or fix the path)")
-    try:
-        blob = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for corrupt files
-        raise ModelFileError(f"checkpoint '{path}' is corrupt or not a torch file ({type(exc).__name__})") from None
-    if not isinstance(blob, dict) or not {"state_dict", "meta", "sha256"} <= set(blob):
-        raise ModelFileError(f"checkpoint '{path}' is not a kinadapt checkpoint (missing state_dict/meta/sha256)")
-    meta = blob["meta"]
-    if meta.get("format") != CHECKPOINT_FORMAT:
-        raise ModelFileError(f"checkpoint '{path}' has format {meta.get('format')!r}, expected {CHECKPOINT_FORMAT!r}")
-    if int(meta.get("version", -1)) > CHECKPOINT_VERSION:
-        raise ModelFileError(f"checkpoint '{path}' has version {meta.get('version')}; upgrade kinadapt_nn to read it")
-    if state_hash(blob["state_dict"], meta) != blob["sha256"]:
-        raise ModelFileError(f"checkpoint '{path}' failed its content hash (file modified or damaged)")
-    try:
-        net = JacobianBasisNet(meta["structure"], meta["n_features"], meta["hidden"], meta["q_mean"], meta["q_std"])
-        net.load_state_dict(blob["state_dict"])
-    except (KeyError, RuntimeError, ValueError) as exc:
-        raise ModelFileError(f"checkpoint '{path}' does not match the network it describes ({exc})") from None
-    net.double().eval()
-    return net, meta
 
 
 def _bad_state(path: Path, why: str) -> KinadaptError:
@@ -267,7 +208,7 @@ def adjoint_best_fit_error(data: dict, n_train: int, n_support: int) -> np.ndarr
     W = channel_metric(exp.sensing)[1:, None]
     l_nom = np.asarray(exp.sensing.nominal_offset_f_m, dtype=float)
     nominal = TrueSensorJacobian(S, l_nom, l_nom, PANDA_MJCF)
-    from kinadapt_nn.truth import sensor_jacobian_rows
+    from kinadapt_nn.sim.truth import sensor_jacobian_rows
 
     errs = []
     for i in range(n_train, len(data["q"])):
@@ -349,7 +290,7 @@ def pretrain(cfg: PretrainCfg, out: Path, progress: bool = True, stop_after: int
                 tb.add_scalar("pretrain/adjoint_heldout_rel_jacobian_error_median", float(np.median(adj_err)), step)
                 hist.append((step, float(torch.sqrt(loss.detach())), float(np.median(he))))
             if step % cfg.train.checkpoint_every == 0 or step == cfg.train.steps:
-                _atomic_torch_save(
+                atomic_torch_save(
                     {"format": TRAIN_STATE_FORMAT, "version": TRAIN_STATE_VERSION, "net": net.state_dict(),
                      "opt": opt.state_dict(), "rng": rng.bit_generator.state, "step": step, "config": cfg_json},
                     state_path,
@@ -367,7 +308,7 @@ def pretrain(cfg: PretrainCfg, out: Path, progress: bool = True, stop_after: int
     n_body = sum(p.numel() for p in net.parameters())
     meta = {
         "theta0_online": "zeros: the head of the nominal (CAD) tool on the nominal arm",
-        # the heads' covariance: the neural prior of the kalman law (kinadapt_nn.prior)
+        # the heads' covariance: the neural prior of the kalman law (kinadapt_nn.learning.prior)
         "theta_cov": [[float(x) for x in row] for row in np.atleast_2d(np.cov(theta_all, rowvar=False))],
         "theta_cov_heads": int(len(theta_all)),
         "structure": cfg.net.structure,
@@ -405,13 +346,3 @@ def pretrain(cfg: PretrainCfg, out: Path, progress: bool = True, stop_after: int
     write_text_atomic(out / "metrics.json", json.dumps(metrics, indent=1) + "\n")
     state_path.unlink(missing_ok=True)
     return metrics
-
-
-def checkpoint_bytes_equal(a: Path, b: Path) -> bool:
-    """True when two checkpoints hold the same tensors (for resume tests)."""
-    sa = torch.load(a, weights_only=True)["state_dict"]
-    sb = torch.load(b, weights_only=True)["state_dict"]
-    return sa.keys() == sb.keys() and all(torch.equal(sa[k], sb[k]) for k in sa)
-
-
-

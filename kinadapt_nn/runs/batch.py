@@ -1,6 +1,6 @@
 """Many episodes stepped together: ``mujoco.batch.Batch`` physics + a vectorised controller.
 
-The same controller as ``kinadapt_nn.control.Controller`` with the adjoint features and the
+The same controller as ``kinadapt_nn.controller.controller.Controller`` with the adjoint features and the
 composite law (eqs. ft_force, cp_admittance, ft_composite), written on (B, ...) arrays:
 one numpy call serves all B episodes, so the per-call overhead that bounds the single-episode
 path is paid once per step. The truth firewall holds the same way: the controller's
@@ -26,10 +26,11 @@ import mujoco.batch
 import numpy as np
 
 from kinadapt_nn.config import ExperimentCfg, arm_mjcf_path
-from kinadapt_nn.episode import classify_failure, initial_estimate
+from kinadapt_nn.runs.episode import classify_failure, initial_estimate
 from kinadapt_nn.robot import FLANGE_SITE, SERVO_KP, SERVO_KV
 from kinadapt_nn.sensing import channel_metric, lateral_projector, nominal_sensor_map
-from kinadapt_nn.sim.adapter import BORE_AXIS_W, PegInHoleSim
+from kinadapt_nn.known import BORE_AXIS_W
+from kinadapt_nn.sim.adapter import PegInHoleSim
 
 
 class BatchResult(NamedTuple):

@@ -1,0 +1,477 @@
+"""The effect library, model side: each named physical effect as regressor columns linear in
+physical parameters (the simulator side is ``kinadapt_nn.sim.effects``).
+
+Everything here is computed from what a real robot logs (encoders, the raw F/T reading, time)
+and the known model (nominal tool offset ``l_nom``, the nominal map ``S``, the bore pose, the
+arm's nominal kinematics); nothing reads the simulator or the truth.
+
+Level domain. The nominal model is S's contact at the nominal tip (eq. ft_pred, ``s_dot = S
+[v_tip; omega]``, ``[v_tip; omega] = Ad(R l_nom) J_arm qdot``) without S's linearised lever: the
+measured force acts at the nominal tip ``R l_nom`` (so the measured level of the moment channels
+is ``Z_M = M - (R l_nom) x f_tool``), the lateral force follows ``-k_t P v_tip`` and the couple
+``-k_r omega``. It applies only where the nominal tip is at or below the bore entrance (``d >=
+0``, proprioceptive); above it the model predicts a zero tared wrench. The residual level ``L(t) = s(t) - s(t0) - int s_dot``
+is compared with each effect's level signature ``C_e(t) p_e`` (channels ``LEVEL_CHANNELS``: F_lat
+x/y, the axial force outside contact, M x/y/z; ``d`` is a kinematic identity of the encoders). Effects that act on the
+wrench directly (gravity, drift, sensor rotation, friction couple) give ``C_e`` in closed form;
+effects that change the contact kinematics (stiffness, tool tilt, grasp yield, encoder offset)
+give ``C_e`` as the integral of their rate signature, gated like ``S``.
+
+=========================  ==========================================  ========================
+effect                     parameters (units)                          level signature
+=========================  ==========================================  ========================
+tool_gravity               m [kg], m c_f x/y/z [kg m]                  w += R (G(q) - G(q_tare)):
+                                                                       payload weight at c_f
+ft_bias_drift              rate_f: 3 [N/s] + 3 [N m/s]                 w += R rate (t - t_tare)
+ft_frame_rotation          rotation vector in f, 3 [rad]               r -> r x delta (tared r)
+tool_tilt                  tilt about f x, f y, 2 [rad]                lever R (delta x l_nom):
+                                                                       tip velocity + F x lever
+contact_stiffness          factor - 1 [-]                              int S_c v (gated)
+contact_friction_couple    radius [m]                                  M -= radius |f| w/(|w|+e)
+grasp_compliance           compliance [rad/(N m)]                      S_c [M_perp x R l; M_perp]
+encoder_offset             joint 1..6 zero offsets, 6 [rad]            d/dq_j of the model
+                                                                       (and of its calibrated
+                                                                       part: ranking)
+=========================  ==========================================  ========================
+
+A joint-7 zero offset is not in the library: it turns the reading about the flange axis exactly
+like a sensor rotation about z_f (the nominal tip is on that axis), so no force/encoder
+experiment can tell them apart; it shows up as ``ft_frame_rotation``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, NamedTuple
+
+import numpy as np
+
+from kinadapt_nn.config import EffectsCfg
+from kinadapt_nn.geometry import adjoint_offset
+from kinadapt_nn.sensing import lateral_projector
+
+#: smoothing of sign(omega) in the friction-couple columns [rad/s] (a model constant)
+OMEGA_EPS_RAD_S = 0.005
+#: the level channels the library fits: s's wrench rows plus the axial force (d is an encoder
+#: identity). The nominal model predicts the axial force only outside contact (zero), so F_axial
+#: rows are used only where the contact gate is off.
+LEVEL_CHANNELS: tuple[str, ...] = ("F_lat_x", "F_lat_y", "F_axial", "M_x", "M_y", "M_z")
+LEVEL_UNITS: tuple[str, ...] = ("N", "N", "N", "N m", "N m", "N m")
+AXIAL = 2
+G_W = np.array([0.0, 0.0, -9.81])  # [m/s^2] gravity, world
+
+
+class Signals(NamedTuple):
+    """Per-sample quantities of a replayed log that the columns need (N samples)."""
+
+    t_s: np.ndarray  #: (N,) time from the start of the log [s]
+    dt_s: float  #: sample time [s]
+    s: np.ndarray  #: (N, 6) sensor vector
+    w_env_w: np.ndarray  #: (N, 6) tared wrench tool -> environment, world, about O [N, N m]
+    r_tared_f: np.ndarray  #: (N, 6) tared raw reading in f (flange on tool) [N, N m]
+    R_wf: np.ndarray  #: (N, 3, 3) flange orientation (encoders)
+    twist_tip_w: np.ndarray  #: (N, 6) nominal-tip twist [v_tip; omega] (world)
+    gate: np.ndarray  #: (N,) float: 1 where S's contact rows apply (d >= 0 and active)
+    active: np.ndarray  #: (N,) bool: drive on (after the tare)
+    t_tare_s: float  #: middle of the tare window [s]
+    R_tare: np.ndarray  #: (3, 3) flange orientation during the tare
+    S: np.ndarray  #: (6, 6) nominal map
+    l_nom_f: np.ndarray  #: (3,) nominal offset
+    q_rad: np.ndarray  #: (N, 7)
+    qdot_rad_s: np.ndarray  #: (N, 7)
+    kin: object  #: the controller's ArmKinematics (bare arm, nominal)
+
+
+class Terms(NamedTuple):
+    """An effect's signature on a ``Signals`` (N samples, k parameters), in LEVEL_CHANNELS."""
+
+    level: np.ndarray | None  #: (N, 6, k) closed-form change of the tared levels, or None
+    rate: np.ndarray | None  #: (N, 6, k) gated rate signature (integrated by ``Effect.columns``), or None
+
+
+def cumulative(rate: np.ndarray, dt: float) -> np.ndarray:
+    """Rectangle-rule integral along axis 0, starting at 0 (same rule as the nominal level)."""
+    out = np.cumsum(rate, axis=0) * dt
+    out -= out[0]
+    return out
+
+
+def tip_twist_map(R_wf: np.ndarray, J_arm: np.ndarray, l_nom_f: np.ndarray) -> np.ndarray:
+    """``Ad(R l_nom) J_arm``: joint velocities -> nominal-tip twist [v_tip; omega] (world),
+    eq. ft_factor's middle factor with the nominal offset. (3, 3), (6, n), (3,) -> (6, n)."""
+    return adjoint_offset(R_wf @ l_nom_f) @ J_arm
+
+
+def projector(S: np.ndarray) -> np.ndarray:
+    """S's lateral projector P (2, 3) (``sensing.lateral_projector`` with k_t = |row|)."""
+    return lateral_projector(S, float(np.linalg.norm(S[1, :3])))
+
+
+def moving_average(x: np.ndarray, k: int) -> np.ndarray:
+    """Centred moving average over ``k`` samples along axis 0 (edges: shorter windows)."""
+    if k <= 1 or len(x) < 2:
+        return x
+    c = np.cumsum(np.concatenate([np.zeros((1, *x.shape[1:])), x]), axis=0)
+    i = np.arange(len(x))
+    lo = np.clip(i - k // 2, 0, len(x))
+    hi = np.clip(i + (k - k // 2), 0, len(x))
+    return (c[hi] - c[lo]) / (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
+
+
+def _contact_rate(sig: Signals, tip_twist_w: np.ndarray) -> np.ndarray:
+    """Rate of the tip-contact model for a tip twist (N, 6) -> (N, 6) level-channel rates,
+    gated: lateral force ``-k_t P v_tip`` and the couple ``-k_r omega`` (S's rows without the
+    lever term, which the level ``Z`` takes from the measured force; no axial row)."""
+    out = np.zeros((len(tip_twist_w), 6))
+    out[:, :2] = sig.gate[:, None] * (tip_twist_w[:, :3] @ sig.S[1:3, :3].T)
+    out[:, 3:] = sig.gate[:, None] * (tip_twist_w[:, 3:] @ sig.S[3:6, 3:].T)
+    return out
+
+
+def _contact_rate_to_level(sig: Signals, tip_twist_w: np.ndarray) -> np.ndarray:
+    """``int gate S_c [v; omega]`` -> (N, 6) level channels."""
+    return cumulative(_contact_rate(sig, tip_twist_w), sig.dt_s)
+
+
+def _lever_w(sig: Signals) -> np.ndarray:
+    """The nominal lever ``R_wf l_nom`` (N, 3), world."""
+    return _rot(sig.R_wf, np.broadcast_to(sig.l_nom_f, (len(sig.t_s), 3)))
+
+
+def to_level(sig: Signals, w_w: np.ndarray) -> np.ndarray:
+    """The measured level ``Z`` of a world wrench tool -> env (N, 6): ``_wrench_to_s`` with, in
+    contact, the moment of the force at the nominal tip taken out, ``M - gate (R l_nom) x f_tool``
+    (the tip-contact model: the force acts at the tip, the rest is a couple)."""
+    out = _wrench_to_s(w_w, sig.S)
+    f_tool = -w_w[:, :3]
+    out[:, 3:] -= sig.gate[:, None] * np.cross(_lever_w(sig), f_tool)
+    return out
+
+
+class LevelParts(NamedTuple):
+    """The nominal model's two level series (N samples, LEVEL_CHANNELS)."""
+
+    measured: np.ndarray  #: (N, 6) the measured level Z (tared wrench, tip-contact moment form)
+    predicted_integral: np.ndarray  #: (N, 6) integral of the nominal tip-contact rate (gated)
+
+
+def nominal_parts(sig: Signals) -> LevelParts:
+    """The measured level ``Z`` (tared: absolute) and the integral of the nominal tip-contact
+    prediction (``_contact_rate``); ``ranking.build_design`` combines them (free space: the model
+    predicts a zero tared wrench; contact: the level at entry plus the integral).
+    -> ``LevelParts``."""
+    return LevelParts(to_level(sig, sig.w_env_w), _contact_rate_to_level(sig, sig.twist_tip_w))
+
+
+def _wrench_to_s(w_w: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """Level channels from a world wrench tool -> env: F_lat = -P f, F_axial = -n.f (the force
+    on the tool along the bore axis), M = -m. (N, 6) -> (N, 6)."""
+    P = projector(S)
+    n = S[0, :3]
+    out = np.empty((len(w_w), 6))
+    out[:, :2] = -w_w[:, :3] @ P.T
+    out[:, 2] = -w_w[:, :3] @ n
+    out[:, 3:] = -w_w[:, 3:]
+    return out
+
+
+def _rot(R: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """R_n v_n for (N, 3, 3), (N, 3) -> (N, 3)."""
+    return np.einsum("nij,nj->ni", R, v)
+
+
+# ---------------------------------------------------------------------------------------- columns
+def _smooth_derivative(x: np.ndarray, dt: float, width_s: float = 0.002) -> np.ndarray:
+    """d/dt of a (N, 3) series, central differences then a ``width_s`` moving average."""
+    if len(x) < 3:
+        return np.zeros_like(x)
+    return moving_average(np.gradient(x, dt, axis=0), max(1, int(round(width_s / dt))))
+
+
+def _cols_tool_gravity(sig: Signals) -> Terms:
+    """Payload (m, m c_f) on the tool: the flange holds ``m (a_com - g)`` with
+    ``a_com = a_O + alpha x (R c) + w x (w x (R c))`` (encoder accelerations), tared at the still
+    tare pose: linear in m and m c (the payload's own rotational inertia, quadratic in c, is
+    left out)."""
+    n = len(sig.t_s)
+    w = sig.twist_tip_w[:, 3:]
+    v_O = sig.twist_tip_w[:, :3] - np.cross(w, _lever_w(sig))
+    a_O = _smooth_derivative(v_O, sig.dt_s) * sig.active[:, None]
+    alpha = _smooth_derivative(w, sig.dt_s) * sig.active[:, None]
+    # force per unit mass, tared: (a_O - g) - R R0^T (-g)
+    df_w = a_O - G_W[None, :] + _rot(sig.R_wf, np.broadcast_to(sig.R_tare.T @ G_W, (n, 3)))
+    cols = np.zeros((n, 6, 4))
+    wr = np.zeros((n, 6))
+    wr[:, :3] = df_w  # w_env = R (r - r0) is the flange's force ON the tool: same sign
+    cols[:, :, 0] = to_level(sig, wr)
+    for j in range(3):
+        e_w = sig.R_wf[:, :, j]  # R e_j
+        wr = np.zeros((n, 6))
+        wr[:, :3] = np.cross(alpha, e_w) + np.cross(w, np.cross(w, e_w))
+        wr[:, 3:] = np.cross(e_w, df_w)  # moment of (m c) about O: (R m c) x (a_O - g ...)
+        cols[:, :, 1 + j] = to_level(sig, wr)
+    return Terms(cols, None)
+
+
+def _cols_ft_bias_drift(sig: Signals) -> Terms:
+    cols = np.zeros((len(sig.t_s), 6, 6))
+    dtau = (sig.t_s - sig.t_tare_s)[:, None]
+    for j in range(6):
+        w = np.zeros((len(sig.t_s), 6))
+        part = slice(0, 3) if j < 3 else slice(3, 6)
+        w[:, part] = sig.R_wf[:, :, j % 3] * dtau
+        cols[:, :, j] = to_level(sig, w)
+    return Terms(cols, None)
+
+
+def _cols_ft_frame_rotation(sig: Signals) -> Terms:
+    cols = np.zeros((len(sig.t_s), 6, 3))
+    for j in range(3):
+        e = np.zeros(3)
+        e[j] = 1.0
+        w = np.zeros((len(sig.t_s), 6))
+        w[:, :3] = _rot(sig.R_wf, np.cross(sig.r_tared_f[:, :3], e))  # measured = true x delta
+        w[:, 3:] = _rot(sig.R_wf, np.cross(sig.r_tared_f[:, 3:], e))
+        cols[:, :, j] = to_level(sig, w)
+    return Terms(cols, None)
+
+
+def _cols_tool_tilt(sig: Signals) -> Terms:
+    lev = np.zeros((len(sig.t_s), 6, 2))
+    integ = np.zeros((len(sig.t_s), 6, 2))  # rates
+    f_tool = -sig.w_env_w[:, :3]
+    for j in range(2):
+        e = np.zeros(3)
+        e[j] = 1.0
+        dl_w = _rot(sig.R_wf, np.broadcast_to(np.cross(e, sig.l_nom_f), (len(sig.t_s), 3)))
+        tw = np.zeros((len(sig.t_s), 6))
+        tw[:, :3] = np.cross(sig.twist_tip_w[:, 3:], dl_w)  # the true tip's extra velocity
+        integ[:, :, j] = _contact_rate(sig, tw)
+        lev[:, 3:, j] = sig.gate[:, None] * np.cross(dl_w, f_tool)  # moment of the contact force about O
+    return Terms(lev, integ)
+
+
+def _cols_contact_stiffness(sig: Signals) -> Terms:
+    return Terms(None, _contact_rate(sig, sig.twist_tip_w)[:, :, None])
+
+
+def _cols_contact_friction_couple(sig: Signals) -> Terms:
+    w = sig.twist_tip_w[:, 3:]
+    fn = np.linalg.norm(sig.w_env_w[:, :3], axis=1)
+    cols = np.zeros((len(sig.t_s), 6, 1))
+    cols[:, 3:, 0] = -(sig.gate * fn)[:, None] * w / (np.linalg.norm(w, axis=1) + OMEGA_EPS_RAD_S)[:, None]
+    return Terms(cols, None)
+
+
+def _cols_grasp_compliance(sig: Signals) -> Terms:
+    M = sig.s[:, 3:]  # contact moment on the tool about O (world)
+    z = sig.R_wf[:, :, 2]
+    M_perp = M - np.sum(M * z, axis=1)[:, None] * z  # the hinges yield about f x, f y only
+    lever = _rot(sig.R_wf, np.broadcast_to(sig.l_nom_f, (len(sig.t_s), 3)))
+    disp = np.concatenate([np.cross(M_perp, lever), M_perp], axis=1)  # tip displacement + rotation per unit compliance
+    return Terms(_contact_rate(sig, disp)[:, :, None], None)  # the map is linear: displacement -> level change
+
+
+def encoder_derivatives(sig: Signals, eps: float = 1e-6, grid_s: float = 0.005) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per joint ``j`` = 0..5, the derivatives of the encoder-dependent signals in that joint's
+    zero (``q -> q + eps e_j``, forward differences): ``(dR (N, 3, 3), dtwist (N, 6))`` of
+    ``R_wf`` and of the nominal-tip twist ``Ad(R l_nom) J_arm qdot``. The derivatives of the
+    tip-twist map and of ``R_wf`` depend on ``q`` only, so they are evaluated on a ``grid_s``
+    grid and interpolated, then applied to the full-rate ``qdot``. -> 6 pairs."""
+    n = len(sig.t_s)
+    step = max(1, int(round(grid_s / sig.dt_s)))
+    grid = np.r_[np.arange(0, n, step), n - 1] if n > 1 else np.zeros(1, int)
+    grid = np.unique(grid)
+
+    def tip_map(k) -> np.ndarray:  # (6, 7): [v_tip; omega] = A qdot
+        return tip_twist_map(k.R_wf, k.J_arm, sig.l_nom_f)
+
+    base_A = np.empty((len(grid), 6, 7))
+    base_R = np.empty((len(grid), 3, 3))
+    for gi, i in enumerate(grid):
+        k = sig.kin.update(sig.q_rad[i])
+        base_A[gi], base_R[gi] = tip_map(k), k.R_wf
+    t = sig.t_s
+    out = []
+    for j in range(6):
+        dA = np.empty((len(grid), 6, 7))
+        dR = np.empty((len(grid), 3, 3))
+        for gi, i in enumerate(grid):
+            q = sig.q_rad[i].copy()
+            q[j] += eps
+            k = sig.kin.update(q)
+            dA[gi] = (tip_map(k) - base_A[gi]) / eps
+            dR[gi] = (k.R_wf - base_R[gi]) / eps
+        dA_f = np.stack([np.interp(t, t[grid], dA[:, a, b]) for a in range(6) for b in range(7)], axis=1).reshape(n, 6, 7)
+        dR_f = np.stack([np.interp(t, t[grid], dR[:, a, b]) for a in range(3) for b in range(3)], axis=1).reshape(n, 3, 3)
+        out.append((dR_f, np.einsum("nij,nj->ni", dA_f, sig.qdot_rad_s)))
+    return out
+
+
+def _cols_encoder_offset(sig: Signals, eps: float = 1e-6, grid_s: float = 0.005,
+                         derivs: list[tuple[np.ndarray, np.ndarray]] | None = None) -> Terms:
+    """Finite differences of the nominal model in each joint's zero (``encoder_derivatives``):
+    the measured level ``Z = to_level(R r)`` with the lever ``R l_nom`` and the tip-contact rate
+    of the twist. A joint that sits at reading + offset leaves ``-dZ/dq_j`` in the level and
+    ``+d(rate)/dq_j`` in the prediction's integral (the residual is measured minus predicted).
+    The calibrated part of the prediction also moves with ``q``; ``calibration_derivative``
+    gives that part (added by ``ranking.calibrated_design``). ``derivs``: ``encoder_derivatives``
+    when already computed."""
+    n = len(sig.t_s)
+    lev = np.zeros((n, 6, 6))
+    integ = np.zeros((n, 6, 6))
+    for j, (dR_f, dtw) in enumerate(derivs if derivs is not None else encoder_derivatives(sig, eps, grid_s)):
+        dRr = np.concatenate([_rot(dR_f, sig.r_tared_f[:, :3]), _rot(dR_f, sig.r_tared_f[:, 3:])], axis=1)
+        integ[:, :, j] = _contact_rate(sig, dtw)
+        dZ = to_level(sig, dRr)  # d/dq_j of Z = to_level(R r) with the lever R l_nom:
+        dZ[:, 3:] -= sig.gate[:, None] * np.cross(_rot(dR_f, np.broadcast_to(sig.l_nom_f, (n, 3))), -sig.w_env_w[:, :3])
+        lev[:, :, j] = -dZ
+    return Terms(lev, integ)
+
+
+def shifted_signals(sig: Signals, dR: np.ndarray, dtwist: np.ndarray, h: float, j: int | None = None) -> Signals:
+    """``sig`` with the encoder-dependent quantities moved to first order by ``h`` along a joint
+    zero whose derivatives are ``dR`` (N, 3, 3) and ``dtwist`` (N, 6) (``encoder_derivatives``):
+    ``R_wf``, the tip twist, the tared wrench in world ``R (r - r0)`` (the tare is in the sensor
+    frame), the wrench rows of ``s`` and the tare orientation. The contact gate (an inequality on
+    the encoder depth) is kept: its derivative is zero almost everywhere."""
+    R = sig.R_wf + h * dR
+    w = np.concatenate([_rot(R, sig.r_tared_f[:, :3]), _rot(R, sig.r_tared_f[:, 3:])], axis=1)
+    s = sig.s.copy()
+    ws = _wrench_to_s(w, sig.S)
+    s[:, 1:3], s[:, 3:] = ws[:, :2], ws[:, 3:]
+    i_tare = int(np.clip(np.searchsorted(sig.t_s, sig.t_tare_s), 0, len(sig.t_s) - 1))
+    q = sig.q_rad.copy()
+    if j is not None:
+        q[:, j] += h
+    return sig._replace(R_wf=R, twist_tip_w=sig.twist_tip_w + h * dtwist, w_env_w=w, s=s,
+                        R_tare=sig.R_tare + h * dR[i_tare], q_rad=q)
+
+
+def calibration_derivative(sig: Signals, names, h: float = 1e-4,
+                           derivs: list[tuple[np.ndarray, np.ndarray]] | None = None):
+    """``d Terms_e / d q_j`` for the effects ``names`` (the encoder offset itself excluded: its
+    derivative is second order in the model), by central differences of the effects' terms on
+    ``shifted_signals`` (+-h; ``derivs``: ``encoder_derivatives``, computed when None). The
+    encoder-offset column of a calibrated model is ``C_enc_j + sum_e (dC_e/dq_j) p_e^calib``
+    (``ranking.calibrated_design``: a joint zero moves the whole prediction, its calibrated part
+    included). -> generator over joints j = 0..5 of ``{effect: Terms(level, rate)}`` ((N, 6, k)
+    or None each)."""
+    names = [n for n in names if n != "encoder_offset"]
+    for j, (dR, dtw) in enumerate(derivs if derivs is not None else encoder_derivatives(sig)):
+        plus, minus = shifted_signals(sig, dR, dtw, h, j), shifted_signals(sig, dR, dtw, -h, j)
+        out = {}
+        for n in names:
+            a, b = LIBRARY[n].terms(plus), LIBRARY[n].terms(minus)
+            out[n] = Terms(*(None if x is None else (x - y) / (2.0 * h) for x, y in zip(a, b)))
+        yield out
+
+
+# ---------------------------------------------------------------------------------------- library
+@dataclass(frozen=True)
+class Effect:
+    """One library entry: columns, parameter names/units, the default magnitude, the
+    injected truth in the same parameters (for validation) and what motion excites it."""
+
+    name: str
+    params: tuple[str, ...]
+    units: tuple[str, ...]
+    #: Signals -> Terms(level, rate); the rate part is integrated by ``columns`` and used as is by
+    #: the online regressor (``kinadapt_nn.features.effects``)
+    terms: Callable[[Signals], "Terms"]
+    default: Callable[[EffectsCfg], np.ndarray]  #: the config's magnitude as model parameters (k,)
+    excite_hint: str
+    doc: str
+    #: True: the effect is "one of" its columns (e.g. one joint's offset): the ranking fits each
+    #: column alone, keeps the best held-out one and pays for the choice (Bonferroni x k)
+    one_of: bool = False
+
+    @property
+    def k(self) -> int:
+        return len(self.params)
+
+    def columns(self, sig: Signals, **kw) -> Terms:
+        """Level columns: (closed-form level, integral of the rate), (N, 6, k) each or None
+        (``kw``: passed to ``terms``, e.g. the encoder derivatives already computed)."""
+        lev, rate = self.terms(sig, **kw)
+        return Terms(lev, None if rate is None else cumulative(rate, sig.dt_s))
+
+
+def _p_gravity(e: EffectsCfg) -> np.ndarray:
+    g = e.tool_gravity
+    return np.array([g.mass_kg, *(g.mass_kg * np.asarray(g.com_f_m))])
+
+
+def _p_tilt(e: EffectsCfg) -> np.ndarray:
+    return np.deg2rad(np.asarray(e.tool_tilt.tilt_deg, dtype=float))
+
+
+def _p_encoder(e: EffectsCfg) -> np.ndarray:
+    p = np.zeros(6)
+    if e.encoder_offset.joint <= 6:
+        p[e.encoder_offset.joint - 1] = np.deg2rad(e.encoder_offset.offset_deg)
+    return p
+
+
+LIBRARY: dict[str, Effect] = {
+    e.name: e
+    for e in (
+        Effect("tool_gravity", ("mass", "mass*com_x_f", "mass*com_y_f", "mass*com_z_f"), ("kg", "kg m", "kg m", "kg m"),
+               _cols_tool_gravity, _p_gravity,
+               "reorient the tool in free space through several poses (tilts of 20-30 deg about two axes)",
+               "tool mass and centre of mass loading the wrist sensor"),
+        Effect("ft_bias_drift", ("rate_fx", "rate_fy", "rate_fz", "rate_tx", "rate_ty", "rate_tz"),
+               ("N/s", "N/s", "N/s", "N m/s", "N m/s", "N m/s"), _cols_ft_bias_drift,
+               lambda e: np.asarray(e.ft_bias_drift.rate_f, dtype=float),
+               "hold still in free space for several seconds, at more than one orientation",
+               "the F/T offset drifts linearly in time"),
+        Effect("ft_frame_rotation", ("rot_x_f", "rot_y_f", "rot_z_f"), ("rad", "rad", "rad"), _cols_ft_frame_rotation,
+               lambda e: np.deg2rad(np.asarray(e.ft_frame_rotation.rotvec_deg, dtype=float)),
+               "press axially and push laterally in both directions (large forces along several axes)",
+               "the sensor is mounted slightly rotated"),
+        Effect("tool_tilt", ("tilt_x_f", "tilt_y_f"), ("rad", "rad"), _cols_tool_tilt, _p_tilt,
+               "rotate about the tip in contact and push laterally (the tip lever shows in the moment)",
+               "the tool sits rotated in the grasp"),
+        Effect("contact_stiffness", ("stiffness_factor_minus_1",), ("-",), _cols_contact_stiffness,
+               lambda e: np.array([e.contact_stiffness.factor - 1.0]),
+               "push laterally into the contact and rotate about the tip in contact",
+               "the contact stiffness differs from the model's S"),
+        Effect("contact_friction_couple", ("radius",), ("m",), _cols_contact_friction_couple,
+               lambda e: np.array([e.contact_friction_couple.radius_m]),
+               "rotate back and forth in contact under a steady normal force (a couple that flips with omega)",
+               "a torsional friction couple opposing rotation in contact"),
+        Effect("grasp_compliance", ("compliance",), ("rad/(N m)",), _cols_grasp_compliance,
+               lambda e: np.array([1.0 / e.grasp_compliance.stiffness_Nm_per_rad]),
+               "load the tool with a moment in contact (lateral pushes at the tip)",
+               "the tool yields in the grasp under moment"),
+        Effect("encoder_offset", tuple(f"offset_joint{j}" for j in range(1, 7)), ("rad",) * 6, _cols_encoder_offset,
+               _p_encoder,
+               "push in contact at two tool-axis angles (turn the tool between contacts) and move the arm",
+               "a joint encoder zero offset (one of joints 1-6)", one_of=True),
+    )
+}
+
+
+def physical_report(name: str, p: np.ndarray, sd: np.ndarray) -> dict:
+    """The estimate in physical quantities with units and 1-sigma uncertainty."""
+    def q(v, s, unit):
+        return {"value": float(v), "sd": float(s), "unit": unit}
+
+    if name == "tool_gravity":
+        m, sm = p[0], sd[0]
+        mc, smc = p[1:], sd[1:]
+        com = mc / m if abs(m) > 1e-9 else np.full(3, np.nan)
+        scom = np.abs(com) * np.sqrt((smc / np.maximum(np.abs(mc), 1e-12)) ** 2 + (sm / max(abs(m), 1e-12)) ** 2)
+        return {"mass": q(m, sm, "kg"), **{f"com_{a}_f": q(1e3 * c, 1e3 * s, "mm") for a, c, s in zip("xyz", com, scom)}}
+    if name in ("ft_frame_rotation", "tool_tilt", "encoder_offset"):
+        lib = LIBRARY[name]
+        return {pn: q(np.rad2deg(v), np.rad2deg(s), "deg") for pn, v, s in zip(lib.params, p, sd)}
+    if name == "contact_stiffness":
+        return {"stiffness_factor": q(1.0 + p[0], sd[0], "-")}
+    if name == "contact_friction_couple":
+        return {"radius": q(1e3 * p[0], 1e3 * sd[0], "mm")}
+    if name == "grasp_compliance":
+        return {"compliance": q(p[0], sd[0], "rad/(N m)"),
+                "stiffness": q(1.0 / p[0] if p[0] > 0 else np.inf, sd[0] / max(p[0], 1e-12) ** 2, "N m/rad")}
+    lib = LIBRARY[name]
+    return {pn: q(v, s, u) for pn, v, s, u in zip(lib.params, p, sd, lib.units)}
