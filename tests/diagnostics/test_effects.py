@@ -18,7 +18,7 @@ from kinadapt_nn.diagnostics.importers import RawLog
 from kinadapt_nn.runs.episode import run_episode
 from kinadapt_nn.errors import ConfigError
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 EXCITE = REPO / "online" / "excite.toml"
 QUIET = ["run.tensorboard=false", "run.figure=false", "run.progress=false"]
 

@@ -12,7 +12,7 @@ from kinadapt_nn.app.cli import main
 from kinadapt_nn.config import ExperimentCfg, config_to_toml, load_config
 from kinadapt_nn.errors import ConfigError, ModelFileError
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.mark.parametrize(

@@ -20,7 +20,7 @@ import pytest
 
 from kinadapt_nn.diagnostics.setup import load_setup
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 RIG_PY = ROOT / "examples" / "foreign_rig.py"
 SEED = 3
 GENERATED = ("none", "encoder_offset", "tared_rotation", "ft_bias_drift")

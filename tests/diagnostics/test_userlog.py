@@ -18,7 +18,7 @@ from kinadapt_nn.diagnostics.readers import read_log
 from kinadapt_nn.diagnostics.setup import load_setup
 from kinadapt_nn.diagnostics.userlog import diagnose
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _rig():

@@ -16,7 +16,7 @@ from kinadapt_nn.diagnostics.residual import PHASES, Replay
 from kinadapt_nn.runs.episode import run_episode
 from kinadapt_nn.figures import robust_limits, rollout_figure
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 QUIET = ["run.progress=false", "run.tensorboard=false", "run.figure=false"]
 
 
