@@ -140,11 +140,10 @@ def tensorboard_series(trace: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]
     return steps, series
 
 
-def write_tensorboard(log_dir: Path, trace: Trace, summary: dict, hparams: dict, figure=None,
-                      figure_png: Path | None = None) -> None:
+def write_tensorboard(log_dir: Path, trace: Trace, summary: dict, hparams: dict, figure=None) -> None:
     """Scalars at 100 Hz (step = simulated milliseconds), theta as a histogram at 10 Hz, the
-    summary as hparams, and the rollout figure: ``figure_png`` (a saved PNG, embedded as is) or
-    ``figure`` (a matplotlib figure, rendered here)."""
+    summary as hparams, and ``figure`` (a matplotlib figure) if given; a saved PNG is added by
+    ``write_tensorboard_figure``."""
     t = trace["t_s"]
     if len(t) == 0:
         return
@@ -165,14 +164,20 @@ def write_tensorboard(log_dir: Path, trace: Trace, summary: dict, hparams: dict,
         theta = trace["theta"]
         for i in range(0, len(t), hist_stride):  # theta as a histogram (not p charts)
             wr.add_histogram("learning/theta", theta[i], int(round(t[i] * 1e3)))
-        png = Path(figure_png).read_bytes() if figure_png is not None and Path(figure_png).is_file() else None
-        if png is None and figure is not None:
+        if figure is not None:  # a matplotlib figure: rendered here
             import io
 
             buf = io.BytesIO()
             figure.savefig(buf, format="png", dpi=100)
             png = buf.getvalue()
-        if png is not None:
             width, height = (int.from_bytes(png[16 + 4 * k:20 + 4 * k], "big") for k in range(2))  # IHDR
             wr.add_png("rollout", png, height, width)
         wr.add_hparams(dict(hparams), metrics)
+
+
+def write_tensorboard_figure(log_dir: Path, png_path: Path, tag: str = "rollout") -> None:
+    """A saved PNG figure as a TensorBoard image (embedded as is: no second rendering)."""
+    png = Path(png_path).read_bytes()
+    width, height = (int.from_bytes(png[16 + 4 * k:20 + 4 * k], "big") for k in range(2))  # the IHDR chunk
+    with EventWriter(log_dir) as wr:
+        wr.add_png(tag, png, height, width)
