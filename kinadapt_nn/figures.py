@@ -23,6 +23,39 @@ from kinadapt_nn.trace import Trace  # noqa: E402
 
 #: percentiles the y-limits are taken from
 ROBUST_PCT = (0.5, 99.5)
+#: most points one drawn line keeps (min and max of each bucket: spikes survive; the trace keeps all)
+MAX_LINE_POINTS = 2000
+
+
+def decimate(x: np.ndarray, y: np.ndarray, max_points: int = MAX_LINE_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y) thinned to at most ~``max_points`` for drawing: the first and last sample, each
+    bucket's minimum and maximum (so a one-sample spike is still drawn), and every non-finite
+    sample (so gaps stay gaps). Unchanged when already short enough."""
+    x, y = np.asarray(x), np.asarray(y)
+    n = len(y)
+    if n <= max_points or y.ndim != 1:
+        return x, y
+    nb = max(1, max_points // 2 - 1)
+    k = -(-n // nb)  # bucket length
+    yf = y.astype(float)
+    fin = np.isfinite(yf)
+    lo = np.pad(np.where(fin, yf, np.inf), (0, nb * k - n), constant_values=np.inf).reshape(nb, k)
+    hi = np.pad(np.where(fin, yf, -np.inf), (0, nb * k - n), constant_values=-np.inf).reshape(nb, k)
+    start = np.arange(nb) * k
+    idx = np.concatenate([start + lo.argmin(axis=1), start + hi.argmax(axis=1), np.flatnonzero(~fin), [0, n - 1]])
+    idx = np.unique(idx[idx < n])
+    return x[idx], y[idx]
+
+
+def changes(x: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(x, v) kept only where ``v`` changes (and at both ends): exact for a step drawn with
+    ``where='post'`` or a shaded mask, however long the record."""
+    x, v = np.asarray(x), np.asarray(v)
+    if len(v) < 3:
+        return x, v
+    d = np.flatnonzero(v[1:] != v[:-1])
+    idx = np.unique(np.concatenate([[0, len(v) - 1], d, d + 1]))
+    return x[idx], v[idx]
 
 
 def robust_limits(ys: Sequence[np.ndarray], pct: tuple[float, float] = ROBUST_PCT, margin: float = 0.08,
@@ -112,7 +145,8 @@ def bool_channels(ax, t: np.ndarray, channels: Sequence[tuple[str, np.ndarray]])
     ticks, labels = [], []
     for off, (name, v) in enumerate(channels):
         base = 1.5 * off
-        ax.step(t, np.asarray(v, dtype=float) + base, where="post", color=f"C{off}", label=name)
+        tt, vv = changes(t, np.asarray(v, dtype=float))
+        ax.step(tt, vv + base, where="post", color=f"C{off}", label=name)
         ticks += [base, base + 1]
         labels += [f"{name}: no", "yes"]
     ax.set_yticks(ticks, labels, fontsize=7)
@@ -139,8 +173,8 @@ def rollout_figure(trace: Trace, summary: dict, cfg: ExperimentCfg) -> plt.Figur
             a.sharex(ax[0, 0])
 
     a = ax[0, 0]
-    a.plot(t, 1e3 * s[:, 0], label="sensor depth d (encoders)")
-    a.plot(t, 1e3 * trace["truth_tip_depth_m"], "--", label="true tip depth (truth)")
+    a.plot(*decimate(t, 1e3 * s[:, 0]), label="sensor depth d (encoders)")
+    a.plot(*decimate(t, 1e3 * trace["truth_tip_depth_m"]), "--", label="true tip depth (truth)")
     if insert:
         a.axhline(1e3 * sc.depth_m, color="k", lw=0.8, ls=":",
                   label=f"target {1e3 * sc.depth_m:.0f} mm (seated: d >= {1e3 * (sc.depth_m - sc.depth_tol_m):.1f})")
@@ -150,9 +184,9 @@ def rollout_figure(trace: Trace, summary: dict, cfg: ExperimentCfg) -> plt.Figur
 
     a = ax[0, 1]
     flat = np.hypot(s[:, 1], s[:, 2])
-    a.plot(t, s[:, 1], lw=0.8, label="F_lat x")
-    a.plot(t, s[:, 2], lw=0.8, label="F_lat y")
-    a.plot(t, flat, "k", lw=0.8, label="|F_lat|")
+    a.plot(*decimate(t, s[:, 1]), lw=0.8, label="F_lat x")
+    a.plot(*decimate(t, s[:, 2]), lw=0.8, label="F_lat y")
+    a.plot(*decimate(t, flat), "k", lw=0.8, label="|F_lat|")
     lim = set_robust_ylim(a, t, [s[:, 1], s[:, 2], flat], unit="N", headroom=0.45)
     if insert:
         reference_line(a, sc.max_lateral_force_N, lim, f"seat limit |F_lat| < {sc.max_lateral_force_N:g} N")
@@ -163,8 +197,8 @@ def rollout_figure(trace: Trace, summary: dict, cfg: ExperimentCfg) -> plt.Figur
     a = ax[0, 2]
     mnorm = np.linalg.norm(s[:, 3:], axis=1)
     for i, n in enumerate("xyz"):
-        a.plot(t, s[:, 3 + i], lw=0.8, label=f"M {n}")
-    a.plot(t, mnorm, "k", lw=0.8, label="|M|")
+        a.plot(*decimate(t, s[:, 3 + i]), lw=0.8, label=f"M {n}")
+    a.plot(*decimate(t, mnorm), "k", lw=0.8, label="|M|")
     lim = set_robust_ylim(a, t, [s[:, 3], s[:, 4], s[:, 5], mnorm], unit="N m", headroom=0.45)
     if insert:
         reference_line(a, sc.max_moment_Nm, lim, f"seat limit |M| < {sc.max_moment_Nm:g} N m")
@@ -173,8 +207,8 @@ def rollout_figure(trace: Trace, summary: dict, cfg: ExperimentCfg) -> plt.Figur
     a.set_title("wrist moment")
 
     a = ax[1, 0]
-    a.plot(t, trace["truth_contact_force_N"], color="C1", lw=0.6, alpha=0.8, label="total normal contact (truth)")
-    a.plot(t, -w[:, 2], color="C0", lw=1.0, label="axial force on tool (sensor)")
+    a.plot(*decimate(t, trace["truth_contact_force_N"]), color="C1", lw=0.6, alpha=0.8, label="total normal contact (truth)")
+    a.plot(*decimate(t, -w[:, 2]), color="C0", lw=1.0, label="axial force on tool (sensor)")
     set_robust_ylim(a, t, [-w[:, 2], trace["truth_contact_force_N"]], unit="N", headroom=0.25)
     a.set_ylabel("force [N]")
     a.legend(fontsize=8, loc="upper left")
@@ -195,7 +229,7 @@ def rollout_figure(trace: Trace, summary: dict, cfg: ExperimentCfg) -> plt.Figur
 
     a = ax[1, 2]
     act = trace["drive_scale"] > 0
-    a.semilogy(t[act], trace["lambda_min"][act], label="lambda_min (drive on)")
+    a.semilogy(*decimate(t[act], trace["lambda_min"][act]), label="lambda_min (drive on)")
     a.axhline(1e-6, color="r", lw=0.8, ls=":", label="rank gate 1e-6")
     a.set_ylabel("lambda_min(W J_hat J_hat^T W)")
     a.legend(fontsize=8)
@@ -205,13 +239,13 @@ def rollout_figure(trace: Trace, summary: dict, cfg: ExperimentCfg) -> plt.Figur
     if offset_row:
         a = ax[2, 0]
         for i, (n, col) in enumerate(zip("xy", ("C0", "C1"))):
-            a.plot(t, 1e3 * theta[:, i], col, label=f"estimate {n}_f")
+            a.plot(*decimate(t, 1e3 * theta[:, i]), col, label=f"estimate {n}_f")
             a.axhline(1e3 * true[i], color=col, ls="--", lw=0.8, label=f"true {n}_f")
         a.set_ylabel("lateral offset [mm]")
         a.legend(fontsize=7, ncol=2)
         a.set_title("offset estimate vs truth (flange frame)")
         a = ax[2, 1]
-        a.plot(t, 1e3 * theta[:, 2], "C2", label="estimate z_f")
+        a.plot(*decimate(t, 1e3 * theta[:, 2]), "C2", label="estimate z_f")
         a.axhline(1e3 * true[2], color="C2", ls="--", lw=0.8, label="true z_f (length)")
         a.set_ylabel("axial offset [mm]")
         a.legend(fontsize=7)
@@ -219,7 +253,7 @@ def rollout_figure(trace: Trace, summary: dict, cfg: ExperimentCfg) -> plt.Figur
         a = ax[2, 2]
         err = 1e3 * np.hypot(theta[:, 0] - true[0], theta[:, 1] - true[1])
         floor = 1e-3
-        a.semilogy(t, np.maximum(err, floor), "k",
+        a.semilogy(*decimate(t, np.maximum(err, floor)), "k",
                    label="|lateral error|" + (f" (floored at {floor:g} mm)" if (err < floor).any() else ""))
         a.axhline(1.0, color="r", ls=":", lw=0.8, label="1 mm")
         shade(a, t, gate, "C1", "adapting (sensed contact)", alpha=0.15)
@@ -232,7 +266,7 @@ def rollout_figure(trace: Trace, summary: dict, cfg: ExperimentCfg) -> plt.Figur
         for a, chans, title in ((ax[2, 0], (0, 1, 2), "depth and force"), (ax[2, 1], (3, 4, 5), "moment")):
             shade(a, t, gate, "#ffe6cc", "sensed contact")
             for c in chans:
-                a.plot(t, eps[:, c], lw=0.7, color=f"C{c}", label=("d", "F_lat x", "F_lat y", "M x", "M y", "M z")[c])
+                a.plot(*decimate(t, eps[:, c]), lw=0.7, color=f"C{c}", label=("d", "F_lat x", "F_lat y", "M x", "M y", "M z")[c])
             set_robust_ylim(a, t, [eps[:, c] for c in chans], headroom=0.45)
             a.set_ylabel("W-scaled rate error [-]")
             a.legend(fontsize=7, ncol=2, loc="upper left")
@@ -242,7 +276,7 @@ def rollout_figure(trace: Trace, summary: dict, cfg: ExperimentCfg) -> plt.Figur
             _rms_bars(a, eps[act & ~gate], eps[act & gate])
         else:
             shade(a, t, gate, "C1", "adapting (sensed contact)", alpha=0.15)
-            a.semilogy(t, np.maximum(trace["truth_jacobian_rel_error"], 1e-6), "k", label="|J_hat - J| / |J| (truth)")
+            a.semilogy(*decimate(t, np.maximum(trace["truth_jacobian_rel_error"], 1e-6)), "k", label="|J_hat - J| / |J| (truth)")
             a.set_ylabel("Jacobian relative error")
             a.legend(fontsize=7)
             a.set_title("identification")
@@ -283,7 +317,7 @@ def _rms_bars(a, free: np.ndarray, contact: np.ndarray) -> None:
 
 
 def save_figure(fig: plt.Figure, path: Path) -> None:
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=120, pil_kwargs={"compress_level": 1})  # fast zlib: the PNG is written once
     plt.close(fig)
 
 

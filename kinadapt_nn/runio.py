@@ -1,4 +1,4 @@
-"""Run folders: written completely or not at all.
+"""Run folders: written completely or not at all; TensorBoard event files (``EventWriter``).
 
 Everything is written into a sibling staging folder; only when all files are in place is
 it renamed to the requested name. An existing folder is refused unless ``overwrite`` is
@@ -13,7 +13,9 @@ import shutil
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable, Iterator, Mapping
+
+import numpy as np
 
 from kinadapt_nn.errors import OutputExistsError
 
@@ -72,3 +74,97 @@ def write_text_atomic(path: Path, text: str) -> None:
 
 def write_json(path: Path, obj: dict) -> None:
     path.write_text(json.dumps(obj, indent=2, sort_keys=False) + "\n")
+
+
+#: bins of one histogram (TensorBoard)
+HIST_BINS = 30
+
+
+class EventWriter:
+    """A TensorBoard event file in ``log_dir``: scalars, histograms, PNG images, hparams.
+
+    A drop-in for the few ``SummaryWriter`` methods the package uses (``add_scalar``,
+    ``add_histogram``, ``add_hparams``) plus ``add_scalars_at`` (many tags in one event) and
+    ``add_png`` (an already encoded image). Use as a context manager (flushes and closes)."""
+
+    def __init__(self, log_dir: Path | str):
+        from tensorboard.compat.proto import event_pb2, summary_pb2
+        from tensorboard.summary.writer.event_file_writer import EventFileWriter
+
+        Path(log_dir).mkdir(parents=True, exist_ok=True)
+        self._ev, self._pb = event_pb2, summary_pb2
+        self._writer = EventFileWriter(str(log_dir))
+
+    def __enter__(self) -> EventWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._writer.close()
+
+    def _add(self, values: list, step: int, wall_time: float | None = None) -> None:
+        import time
+
+        ev = self._ev.Event(wall_time=time.time() if wall_time is None else wall_time, step=int(step),
+                            summary=self._pb.Summary(value=values))
+        self._writer.add_event(ev)
+
+    def add_scalar(self, tag: str, value: float, step: int) -> None:
+        self._add([self._pb.Summary.Value(tag=tag, simple_value=float(value))], step)
+
+    def add_scalars_at(self, step: int, values: Mapping[str, float]) -> None:
+        """Every (tag, value) of ``values`` at one step, in one event (non-finite values skipped)."""
+        vals = [self._pb.Summary.Value(tag=k, simple_value=float(v)) for k, v in values.items() if np.isfinite(v)]
+        if vals:
+            self._add(vals, step)
+
+    def add_histogram(self, tag: str, values: np.ndarray, step: int, bins: int = HIST_BINS) -> None:
+        """``values`` (any shape) as a histogram of ``bins`` equal bins over [min, max]."""
+        v = np.ravel(np.asarray(values, dtype=float))
+        v = v[np.isfinite(v)]
+        if not v.size:
+            return
+        lo, hi = float(v.min()), float(v.max())
+        if hi - lo <= 1e-12 * max(abs(lo), abs(hi), 1e-300):  # one value: a narrow bin around it
+            half = 0.5 * max(abs(lo) * 1e-3, 1e-12)
+            lo, hi = lo - half, hi + half
+        counts, limits = np.histogram(v, bins=bins, range=(lo, hi))
+        # TensorBoard stores right bucket limits only: an empty bucket first keeps the left edge
+        hist = self._pb.HistogramProto(min=float(v.min()), max=float(v.max()), num=float(v.size),
+                                       sum=float(v.sum()), sum_squares=float(v @ v),
+                                       bucket_limit=limits.tolist(), bucket=[0.0, *counts.tolist()])
+        self._add([self._pb.Summary.Value(tag=tag, histo=hist)], step)
+
+    def add_png(self, tag: str, png: bytes, height: int, width: int, step: int = 0) -> None:
+        """An encoded PNG image (e.g. the bytes of a saved figure: no second rendering)."""
+        img = self._pb.Summary.Image(height=int(height), width=int(width), colorspace=4, encoded_image_string=png)
+        self._add([self._pb.Summary.Value(tag=tag, image=img)], step)
+
+    def add_hparams(self, hparams: Mapping[str, float | int | str | bool], metrics: Mapping[str, float]) -> None:
+        """The run's hyperparameters and final metrics for TensorBoard's HParams tab (the
+        experiment, session-start and session-end records, as ``SummaryWriter.add_hparams``
+        writes them), and each metric as a scalar at step 0."""
+        from tensorboard.plugins.hparams import api_pb2, metadata, plugin_data_pb2
+
+        ssi = plugin_data_pb2.SessionStartInfo()
+        infos = []
+        for k, v in hparams.items():
+            if isinstance(v, bool):
+                ssi.hparams[k].bool_value, kind = v, "DATA_TYPE_BOOL"
+            elif isinstance(v, (int, float)):
+                ssi.hparams[k].number_value, kind = float(v), "DATA_TYPE_FLOAT64"
+            elif isinstance(v, str):
+                ssi.hparams[k].string_value, kind = v, "DATA_TYPE_STRING"
+            else:
+                raise TypeError(f"hparam {k!r} is a {type(v).__name__}; use int, float, str or bool")
+            infos.append(api_pb2.HParamInfo(name=k, type=api_pb2.DataType.Value(kind)))
+        exp = api_pb2.Experiment(hparam_infos=infos,
+                                 metric_infos=[api_pb2.MetricInfo(name=api_pb2.MetricName(tag=k)) for k in metrics])
+        sei = plugin_data_pb2.SessionEndInfo(status=api_pb2.Status.Value("STATUS_SUCCESS"))
+        for tag, data in ((metadata.EXPERIMENT_TAG, plugin_data_pb2.HParamsPluginData(experiment=exp)),
+                          (metadata.SESSION_START_INFO_TAG, plugin_data_pb2.HParamsPluginData(session_start_info=ssi)),
+                          (metadata.SESSION_END_INFO_TAG, plugin_data_pb2.HParamsPluginData(session_end_info=sei))):
+            self._add([self._pb.Summary.Value(tag=tag, metadata=metadata.create_summary_metadata(data))], 0)
+        self.add_scalars_at(0, metrics)

@@ -116,41 +116,67 @@ def _summary_lines(summary: dict, out: Path) -> list[str]:
     ]
 
 
-def _write_online(stage: Path, cfg, result) -> None:
-    """The run folder contents (config, summary, trace, figure, TensorBoard) into ``stage``."""
+def _write_online(stage: Path, cfg, result, figures=None) -> None:
+    """The run folder contents (config, summary, trace, figure, TensorBoard) into ``stage``.
+
+    ``figures``: a started ``FigureWorker`` (the figure is drawn there, beside this process's
+    writing); without one, or if it fails, the figure is drawn here."""
     from kinadapt_nn.config import config_to_toml
     from kinadapt_nn.runio import write_json
 
+    png = stage / "rollout.png"
+    if figures is not None:
+        figures.submit(result.trace, result.summary, cfg, png)
     (stage / "config.toml").write_text(config_to_toml(cfg))
     write_json(stage / "summary.json", result.summary)
     result.trace.save(stage / "trace.npz")
-    fig = None
-    if cfg.run.figure:  # (matplotlib is imported only when a figure is wanted)
-        from kinadapt_nn.figures import rollout_figure
-
-        fig = rollout_figure(result.trace, result.summary, cfg)
     if cfg.run.tensorboard:
         from kinadapt_nn.runs.tb import write_tensorboard
 
         hp = {"features": cfg.run.features, "law": result.summary["law"], "seed": cfg.run.seed}
-        write_tensorboard(stage / "tb", result.trace, result.summary, hp, figure=fig)
-    if fig is not None:
-        from kinadapt_nn.figures import save_figure
+        write_tensorboard(stage / "tb", result.trace, result.summary, hp)
+    if not cfg.run.figure:
+        return
+    drawn = False
+    if figures is not None:
+        from kinadapt_nn.app.figure_worker import FigureWorkerError
 
-        save_figure(fig, stage / "rollout.png")
+        try:
+            figures.wait()
+            drawn = True
+        except FigureWorkerError as exc:
+            log.warning("%s; drawing the figure here instead", exc)
+    if not drawn:  # (matplotlib is imported only when a figure is wanted)
+        from kinadapt_nn.figures import rollout_figure, save_figure
+
+        save_figure(rollout_figure(result.trace, result.summary, cfg), png)
+    if cfg.run.tensorboard:
+        from kinadapt_nn.runs.tb import write_tensorboard_figure
+
+        write_tensorboard_figure(stage / "tb", png)
 
 
 def cmd_online(args: argparse.Namespace) -> int:
     from kinadapt_nn.config import load_config
-    from kinadapt_nn.runs.episode import run_insertions
     from kinadapt_nn.runio import check_output_dir, staged_output
 
     cfg = load_config(Path(args.config) if args.config else None, args.set or [])
     out = args.run_dir = Path(args.out) if args.out else _default_out("online")
     check_output_dir(out, args.overwrite)
-    result = run_insertions(cfg, progress=cfg.run.progress and not args.quiet)
-    with staged_output(out, args.overwrite) as stage:
-        _write_online(stage, cfg, result)
+    figures = None
+    if cfg.run.figure:  # matplotlib warms up in a second process while the episode runs
+        from kinadapt_nn.app.figure_worker import FigureWorker
+
+        figures = FigureWorker.start()
+    try:
+        from kinadapt_nn.runs.episode import run_insertions
+
+        result = run_insertions(cfg, progress=cfg.run.progress and not args.quiet)
+        with staged_output(out, args.overwrite) as stage:
+            _write_online(stage, cfg, result, figures)
+    finally:
+        if figures is not None:
+            figures.close()
     if not args.quiet:
         print("\n".join(_summary_lines(result.summary, out)))
     return 0 if result.summary["success"] else 1

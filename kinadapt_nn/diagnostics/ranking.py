@@ -47,8 +47,9 @@ from typing import NamedTuple
 import numpy as np
 
 from kinadapt_nn.config import EffectsCfg
+from kinadapt_nn.diagnostics.effects import headline_errors
 from kinadapt_nn.features.effect_library import (AXIAL, LEVEL_CHANNELS, LIBRARY, Signals, calibration_derivative,
-                                             cumulative, encoder_derivatives, headline_errors, moving_average,
+                                             cumulative, encoder_derivatives, moving_average,
                                              nominal_parts, physical_report)
 from kinadapt_nn.diagnostics.selection import jackknife_cov, paired_p, wald_pvalue
 from kinadapt_nn.errors import KinadaptError

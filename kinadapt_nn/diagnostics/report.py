@@ -124,13 +124,14 @@ def _phase_share(a, rep: Replay, present: list[int]) -> None:
 
 
 def write_tb(log_dir: Path, rep: Replay) -> None:
-    from torch.utils.tensorboard import SummaryWriter
+    from kinadapt_nn.runio import EventWriter
 
     idx = np.arange(0, len(rep.t_s), 10)
-    with SummaryWriter(log_dir=str(log_dir)) as wr:
-        for i, n in enumerate(CHANNEL_NAMES):
-            for k in idx:
-                st = int(round(rep.t_s[k] * 1e3))
-                wr.add_scalar(f"pred_error/{n}", float(rep.residual[k, i]), st)
-                wr.add_scalar(f"diagnose/measured_rate/{n}", float(rep.s_dot_meas[k, i]), st)
-                wr.add_scalar(f"diagnose/predicted_rate/{n}", float(rep.s_dot_pred[k, i]), st)
+    with EventWriter(log_dir) as wr:
+        for k in idx:
+            row = {}
+            for i, n in enumerate(CHANNEL_NAMES):
+                row[f"pred_error/{n}"] = float(rep.residual[k, i])
+                row[f"diagnose/measured_rate/{n}"] = float(rep.s_dot_meas[k, i])
+                row[f"diagnose/predicted_rate/{n}"] = float(rep.s_dot_pred[k, i])
+            wr.add_scalars_at(int(round(rep.t_s[k] * 1e3)), row)

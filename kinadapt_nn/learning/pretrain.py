@@ -229,7 +229,7 @@ def adjoint_best_fit_error(data: dict, n_train: int, n_support: int) -> np.ndarr
 
 def pretrain(cfg: PretrainCfg, out: Path, progress: bool = True, stop_after: int | None = None) -> dict:
     """Train (or resume) into ``out``. ``stop_after`` simulates an interruption (tests)."""
-    from torch.utils.tensorboard import SummaryWriter
+    from kinadapt_nn.runio import EventWriter
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -266,7 +266,7 @@ def pretrain(cfg: PretrainCfg, out: Path, progress: bool = True, stop_after: int
 
         bar = tqdm(total=cfg.train.steps, initial=step, desc="pretrain", unit="step")
     hist = []
-    with SummaryWriter(log_dir=str(out / "tb")) as tb:
+    with EventWriter(out / "tb") as tb:
         while step < cfg.train.steps:
             idx = torch.as_tensor(rng.choice(nt, cfg.train.batch_instances, replace=False), device=dev)
             lr = cfg.train.lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * step / cfg.train.steps)))

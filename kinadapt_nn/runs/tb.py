@@ -1,4 +1,10 @@
-"""TensorBoard logging: the same tag names for every features type, so runs overlay."""
+"""TensorBoard logging: the same tag names for every features type, so runs overlay.
+
+Written with TensorBoard's own event writer and protos (``EventWriter``), not
+``torch.utils.tensorboard``: importing torch costs seconds and the episode never needs it
+(nothing here imports torch or tensorflow -- ``tests/test_config_cli.py`` checks the
+``online`` path).
+"""
 
 from __future__ import annotations
 
@@ -6,20 +12,19 @@ from pathlib import Path
 
 import numpy as np
 
+from kinadapt_nn.runio import EventWriter
 from kinadapt_nn.sensing import CHANNEL_NAMES
 from kinadapt_nn.trace import Trace
 
-#: TensorBoard sample period [s] (the trace itself keeps every step)
+#: TensorBoard sample period of the scalars [s] (the trace itself keeps every step)
 TB_PERIOD_S = 0.01
+#: sample period of the theta histogram [s]
+HIST_PERIOD_S = 0.1
 
 
-def write_tensorboard(log_dir: Path, trace: Trace, summary: dict, hparams: dict, figure=None) -> None:
-    """Scalars at 100 Hz (step = simulated milliseconds), the summary as hparams, the figure."""
-    from torch.utils.tensorboard import SummaryWriter
-
+def tensorboard_series(trace: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The scalars TensorBoard shows, sampled at ``TB_PERIOD_S``: (steps in simulated ms, tag -> values)."""
     t = trace["t_s"]
-    if len(t) == 0:
-        return
     dt = float(trace.meta.get("dt_s", t[1] - t[0] if len(t) > 1 else 1e-3))
     stride = max(1, int(round(TB_PERIOD_S / dt)))
     idx = np.arange(0, len(t), stride)
@@ -38,23 +43,49 @@ def write_tensorboard(log_dir: Path, trace: Trace, summary: dict, hparams: dict,
     series["learning/jacobian_rel_error"] = trace["truth_jacobian_rel_error"][idx]
     if "theta_uncertainty" in trace.arrays:
         series["learning/theta_uncertainty"] = trace["theta_uncertainty"][idx]
-    hist_stride = max(1, int(round(0.1 / dt)))
     for name in ("depth_ok", "force_ok", "moment_ok"):
         series[f"success/{name}"] = trace[name][idx].astype(float)
-    with SummaryWriter(log_dir=str(log_dir)) as wr:
-        for tag, vals in series.items():
-            for st, v in zip(steps, vals):
-                if np.isfinite(v):
-                    wr.add_scalar(tag, float(v), int(st))
+    return steps, series
+
+
+def write_tensorboard(log_dir: Path, trace: Trace, summary: dict, hparams: dict, figure=None) -> None:
+    """Scalars at 100 Hz (step = simulated milliseconds), theta as a histogram at 10 Hz, the
+    summary as hparams, and ``figure`` (a matplotlib figure) if given; a saved PNG is added by
+    ``write_tensorboard_figure``."""
+    t = trace["t_s"]
+    if len(t) == 0:
+        return
+    steps, series = tensorboard_series(trace)
+    dt = float(trace.meta.get("dt_s", t[1] - t[0] if len(t) > 1 else 1e-3))
+    hist_stride = max(1, int(round(HIST_PERIOD_S / dt)))
+    tags = list(series)
+    table = np.column_stack([series[k] for k in tags]).astype(float)  # (steps, tags)
+    metrics = {
+        f"summary/{k}": float(v)
+        for k, v in summary.items()
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and v is not None
+    }
+    metrics["summary/success"] = float(summary["success"])
+    with EventWriter(log_dir) as wr:
+        for st, row in zip(steps.tolist(), table):
+            wr.add_scalars_at(st, dict(zip(tags, row.tolist())))
         theta = trace["theta"]
-        for i in range(0, len(t), hist_stride):  # theta as a histogram at 10 Hz (not p charts)
+        for i in range(0, len(t), hist_stride):  # theta as a histogram (not p charts)
             wr.add_histogram("learning/theta", theta[i], int(round(t[i] * 1e3)))
-        if figure is not None:
-            wr.add_figure("rollout", figure, close=False)
-        metrics = {
-            f"summary/{k}": float(v)
-            for k, v in summary.items()
-            if isinstance(v, (int, float)) and not isinstance(v, bool) and v is not None
-        }
-        metrics["summary/success"] = float(summary["success"])
-        wr.add_hparams({k: v for k, v in hparams.items()}, metrics, run_name=".")
+        if figure is not None:  # a matplotlib figure: rendered here
+            import io
+
+            buf = io.BytesIO()
+            figure.savefig(buf, format="png", dpi=100)
+            png = buf.getvalue()
+            width, height = (int.from_bytes(png[16 + 4 * k:20 + 4 * k], "big") for k in range(2))  # IHDR
+            wr.add_png("rollout", png, height, width)
+        wr.add_hparams(dict(hparams), metrics)
+
+
+def write_tensorboard_figure(log_dir: Path, png_path: Path, tag: str = "rollout") -> None:
+    """A saved PNG figure as a TensorBoard image (embedded as is: no second rendering)."""
+    png = Path(png_path).read_bytes()
+    width, height = (int.from_bytes(png[16 + 4 * k:20 + 4 * k], "big") for k in range(2))  # the IHDR chunk
+    with EventWriter(log_dir) as wr:
+        wr.add_png(tag, png, height, width)

@@ -1,0 +1,67 @@
+"""TensorBoard output and the ``kinadapt online`` import diet: the adjoint default path runs
+without torch (or matplotlib: the figure is drawn in a second process), and its event files
+read back in TensorBoard with the tags, steps and values of the trace."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+
+#: modules the online path with adjoint features must not import
+NOT_IMPORTED = ("torch", "matplotlib", "scipy", "pyarrow", "rosbags", "tensorflow")
+
+_PROBE = """
+import sys
+from kinadapt_nn.app.cli import main
+rc = main(["online", "--out", sys.argv[1], "--quiet", "--set", "run.duration_s=1.0"])
+bad = [m for m in {mods!r} if m in sys.modules]
+print("IMPORTED", ",".join(bad))
+sys.exit(0 if rc in (0, 1) and not bad else 9)
+"""
+
+
+def test_online_adjoint_path_imports_no_torch_and_tensorboard_reads_it_back(tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from kinadapt_nn.runs.tb import TB_PERIOD_S
+    from kinadapt_nn.trace import Trace
+
+    out = tmp_path / "run"
+    proc = subprocess.run([sys.executable, "-c", _PROBE.format(mods=NOT_IMPORTED), str(out)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "IMPORTED \n" in proc.stdout  # none of them
+    assert (out / "rollout.png").stat().st_size > 10_000  # drawn by the figure process
+
+    tr = Trace.load(out / "trace.npz")
+    ea = EventAccumulator(str(out / "tb"), size_guidance={"scalars": 0, "histograms": 0, "images": 0})
+    ea.Reload()
+    tags = ea.Tags()
+    for tag in ("sensor/d", "sensor/F_lat_x", "pred_error/M_z", "truth/tip_depth_m", "value/V_J",
+                "stability/lambda_min", "learning/jacobian_rel_error", "success/depth_ok", "summary/success"):
+        assert tag in tags["scalars"], tag
+    assert tags["histograms"] == ["learning/theta"]
+    assert tags["images"] == ["rollout"]
+    # scalars at TB_PERIOD_S, step = simulated ms, values those of the trace
+    d = ea.Scalars("sensor/d")
+    steps = np.array([e.step for e in d])
+    stride = int(round(TB_PERIOD_S / tr.meta["dt_s"]))
+    idx = np.arange(0, len(tr), stride)
+    np.testing.assert_array_equal(steps, np.round(tr["t_s"][idx] * 1e3).astype(int))
+    np.testing.assert_allclose([e.value for e in d], tr["s"][idx, 0], rtol=1e-6, atol=1e-9)
+    # theta as a histogram: every sample holds the p entries of theta, within [min, max]
+    h = ea.Histograms("learning/theta")
+    assert len(h) >= 9
+    first = h[0].histogram_value
+    theta0 = tr["theta"][0]
+    assert first.num == theta0.size and np.isclose(first.min, theta0.min()) and np.isclose(first.max, theta0.max())
+    assert sum(first.bucket) == theta0.size
+    # the hparams plugin records (what the HParams tab reads)
+    assert {"_hparams_/experiment", "_hparams_/session_start_info"} <= set(ea.summary_metadata)
+    img = ea.Images("rollout")[0]
+    assert img.width == 1680 and img.height == 1200
