@@ -173,9 +173,10 @@ def make_dataset(
     a cached chain; each perturbed arm on a chain built from its ``perturbed_arm_model``). Both
     give the same arrays (``r`` to ~1e-13 relative, the rest bit-identical; tests). MuJoCo stays
     the default because it is faster on CPU (benchmarks/bench_pretrain_data.py, 2 cores, one run
-    each: 4.6 s vs 7.7 s for the default config with 1 torch thread, 3.1 s vs 21 s with 2): building one pk chain costs ~16 ms against ~1.4 ms to
-    compile the MjModel, and pk's batched FK + Jacobian ~17 us per configuration against ~6 us
-    for ``mj_kinematics`` + ``mj_jacSite`` in a Python loop.
+    each: 4.6 s vs 7.7 s for the default config with 1 torch thread, 3.1 s vs 21 s with 2):
+    building one pk chain costs ~16 ms against ~1.4 ms to compile the MjModel, and pk's batched
+    FK + Jacobian ~17 us per configuration against ~6 us for ``mj_kinematics`` +
+    ``mj_jacSite`` in a Python loop.
     """
     if kinematics not in ("torch", "mujoco"):
         raise ConfigError(f"kinematics must be 'torch' or 'mujoco', got {kinematics!r}")
