@@ -23,11 +23,19 @@ simply ends at the ``flange`` frame, and ``SerialChain.jacobian`` (geometric, in
 root frame, for the end-frame origin, rows [v; omega]) is then the flange Jacobian. The root
 is MuJoCo's ``world`` body, so root frame = ``w`` and the Jacobian equals
 ``mj_jacSite(model, data, jacp, jacr, flange)`` stacked ``[jacp; jacr]``.
+
+``build_chain_from_model`` takes any compiled bare-arm ``MjModel`` -- the shipped arm or a
+perturbed one from ``kinadapt_nn.sim.arm_errors.perturbed_arm_model`` -- so pretraining reads
+every arm from the one definition the simulator uses. ``nominal_panda_chain`` caches the
+shipped arm's chain (it never changes within a process); ``flange_kinematics_pk`` returns pose
+and Jacobian from one forward-kinematics pass.
 """
 
 from __future__ import annotations
 
+from functools import lru_cache
 from pathlib import Path
+from typing import NamedTuple
 
 import mujoco
 import pytorch_kinematics as pk
@@ -38,7 +46,15 @@ from pytorch_kinematics.transforms import Transform3d
 from kinadapt_nn.errors import ModelFileError
 from kinadapt_nn.robot import FLANGE_SITE, JOINT_NAMES, N_JOINTS, PANDA_MJCF
 
-__all__ = ["build_panda_chain", "flange_pose_pk", "flange_jacobian_pk"]
+__all__ = [
+    "FlangeKinematics",
+    "build_chain_from_model",
+    "build_panda_chain",
+    "flange_jacobian_pk",
+    "flange_kinematics_pk",
+    "flange_pose_pk",
+    "nominal_panda_chain",
+]
 
 #: MuJoCo joint type (as a plain ``int``) -> pytorch-kinematics joint type.
 _JOINT_TYPES: dict[int, str] = {
@@ -92,35 +108,71 @@ def _frame_tree(model: mujoco.MjModel, body_id: int, dtype: torch.dtype, device:
     return frame
 
 
-def build_panda_chain(
-    mjcf_path: Path | None = None,
+def build_chain_from_model(
+    model: mujoco.MjModel,
     dtype: torch.dtype = torch.float64,
     device: str | torch.device = "cpu",
+    source: str = "MjModel",
 ) -> pk.SerialChain:
-    """Serial chain world -> ... -> link7 -> ``flange`` site, built in ``dtype`` on ``device``.
+    """Serial chain world -> ... -> link7 -> ``flange`` site of a compiled bare-arm model.
 
     Args:
-        mjcf_path: Panda MJCF; ``None`` means ``kinadapt_nn.robot.PANDA_MJCF``.
+        model: a compiled Panda arm (no tool, no block), e.g. from
+            ``kinadapt_nn.sim.arm_errors.perturbed_arm_model``; read, never modified.
         dtype: dtype of every offset and axis of the chain (float64 recommended).
         device: torch device of the chain.
+        source: what the model was read from, for error messages.
 
     Returns:
         A ``pytorch_kinematics.SerialChain`` with root frame ``w`` (MuJoCo's world body),
         end frame ``f`` (the flange site) and joints ``JOINT_NAMES`` in that order.
 
     Raises:
-        ModelFileError: the MJCF file does not exist.
+        ModelFileError: the model has no ``flange`` site or other joints than ``JOINT_NAMES``.
     """
-    path = Path(PANDA_MJCF if mjcf_path is None else mjcf_path)
-    if not path.is_file():
-        raise ModelFileError(f"MJCF file not found: {path}")
-    model = mujoco.MjModel.from_xml_path(str(path))
+    if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, FLANGE_SITE) < 0:
+        raise ModelFileError(f"{source}: no site named {FLANGE_SITE!r}")
     root = _frame_tree(model, 0, dtype, device)
     chain = pk.SerialChain(pk.Chain(root, dtype=dtype, device=device), FLANGE_SITE, dtype=dtype, device=device)
     names = tuple(chain.get_joint_parameter_names())
     if names != JOINT_NAMES:
-        raise ModelFileError(f"{path}: joints to {FLANGE_SITE!r} are {names}, expected {JOINT_NAMES}")
+        raise ModelFileError(f"{source}: joints to {FLANGE_SITE!r} are {names}, expected {JOINT_NAMES}")
     return chain
+
+
+def build_panda_chain(
+    mjcf_path: Path | None = None,
+    dtype: torch.dtype = torch.float64,
+    device: str | torch.device = "cpu",
+) -> pk.SerialChain:
+    """``build_chain_from_model`` of the MJCF at ``mjcf_path`` (``None``: ``PANDA_MJCF``).
+
+    Raises:
+        ModelFileError: the MJCF file does not exist, or its chain is not the Panda's.
+    """
+    path = Path(PANDA_MJCF if mjcf_path is None else mjcf_path)
+    if not path.is_file():
+        raise ModelFileError(f"MJCF file not found: {path}")
+    return build_chain_from_model(mujoco.MjModel.from_xml_path(str(path)), dtype, device, source=str(path))
+
+
+@lru_cache(maxsize=4)
+def nominal_panda_chain(dtype: torch.dtype = torch.float64, device: str = "cpu") -> pk.SerialChain:
+    """The shipped arm's chain (``build_panda_chain()``), built once per (dtype, device).
+
+    Shared: callers must not modify it (pk's kinematics calls do not)."""
+    return build_panda_chain(None, dtype, device)
+
+
+class FlangeKinematics(NamedTuple):
+    """Flange pose and Jacobian of a batch of configurations (one FK pass)."""
+
+    pos_w: torch.Tensor
+    """(B, 3) flange origin O in ``w`` [m]."""
+    R_w_f: torch.Tensor
+    """(B, 3, 3) rotation taking ``f`` coordinates to ``w`` coordinates."""
+    J: torch.Tensor
+    """(B, 6, n) world Jacobian of O, rows [v_O; omega] (``mj_jacSite``'s ``[jacp; jacr]``)."""
 
 
 def _as_batch(chain: pk.SerialChain, q: torch.Tensor) -> tuple[torch.Tensor, bool]:
@@ -164,3 +216,21 @@ def flange_jacobian_pk(chain: pk.SerialChain, q: torch.Tensor) -> torch.Tensor:
     qb, single = _as_batch(chain, q)
     J = chain.jacobian(qb)  # root frame (= w), end-frame (= flange) origin
     return J[0] if single else J
+
+
+def flange_kinematics_pk(chain: pk.SerialChain, q: torch.Tensor) -> FlangeKinematics:
+    """Flange pose and world Jacobian from one forward-kinematics pass (batch only).
+
+    Args:
+        chain: from ``build_chain_from_model`` / ``build_panda_chain``.
+        q: joint angles [rad], (B, n); cast to the chain's dtype/device.
+
+    Returns:
+        ``FlangeKinematics`` with ``pos_w`` (B, 3), ``R_w_f`` (B, 3, 3), ``J`` (B, 6, n), equal to
+        ``flange_pose_pk`` and ``flange_jacobian_pk`` (which each run their own FK pass).
+    """
+    qb, single = _as_batch(chain, q)
+    if single:
+        raise ValueError(f"q must have shape (B, {N_JOINTS}), got {tuple(qb.shape[1:])}")
+    J, T_w_f = chain.jacobian(qb, ret_eef_pose=True)  # (B, 6, n), (B, 4, 4)
+    return FlangeKinematics(T_w_f[:, :3, 3], T_w_f[:, :3, :3], J)

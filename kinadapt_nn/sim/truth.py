@@ -26,6 +26,15 @@ def sensor_jacobian_rows(S: np.ndarray, R_wf: np.ndarray, J_arm: np.ndarray, off
     return S @ adjoint_offset(R_wf @ offset_f) @ J_arm
 
 
+def sensor_jacobian_rows_batch(S: np.ndarray, R_wf: np.ndarray, J_arm: np.ndarray, offset_f: np.ndarray) -> np.ndarray:
+    """``sensor_jacobian_rows`` over a batch: S (m, 6), R_wf (B, 3, 3), J_arm (B, 6, n),
+    offset (3,) -> (B, m, n). ``Ad(l) [v; w] = [v - l x w; w]`` (eq. ft_factor's middle factor)."""
+    l_w = R_wf @ np.asarray(offset_f, dtype=float)  # (B, 3)
+    Jv, Jw = J_arm[:, :3], J_arm[:, 3:]  # (B, 3, n) each
+    Jv_tip = Jv - np.cross(l_w[:, :, None], Jw, axis=1)  # (B, 3, n): v_tip = v_O - l x w
+    return S @ np.concatenate([Jv_tip, Jw], axis=1)  # (B, m, n)
+
+
 class TrueSensorJacobian:
     """``q -> J_true(q)`` (6, n) for a given true tool offset and arm errors."""
 

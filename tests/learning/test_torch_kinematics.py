@@ -118,3 +118,21 @@ def test_bad_inputs(chain, tmp_path: Path) -> None:
         flange_pose_pk(chain, torch.zeros(4, N_JOINTS - 1, dtype=torch.float64))
     with pytest.raises(ModelFileError):
         build_panda_chain(tmp_path / "missing.xml")
+
+
+def test_chain_of_a_perturbed_model_matches_mujoco(q_samples) -> None:
+    """``build_chain_from_model`` reads a compiled, perturbed arm as MuJoCo evaluates it."""
+    from kinadapt_nn.learning.torch_kinematics import build_chain_from_model, flange_kinematics_pk
+    from kinadapt_nn.sim.arm_errors import ArmJacobians, perturbed_arm_model
+
+    rng = np.random.default_rng(7)
+    model = perturbed_arm_model(PANDA_MJCF, rng.normal(0, 0.002, 8), rng.normal(0, 0.01, 7))
+    kin = flange_kinematics_pk(build_chain_from_model(model), torch.from_numpy(q_samples))
+    arm = ArmJacobians(model)
+    for b, q in enumerate(q_samples):
+        pos, R, J = arm(q)
+        np.testing.assert_allclose(kin.pos_w[b].numpy(), pos, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(kin.R_w_f[b].numpy(), R, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(kin.J[b].numpy(), J, rtol=0, atol=1e-12)
+    with pytest.raises(ValueError):
+        flange_kinematics_pk(build_chain_from_model(model), torch.from_numpy(q_samples[0]))
