@@ -31,12 +31,18 @@ class AdjointFeatures(Features):
 
     n_params = 3
     name = "adjoint"
+    theta_is_offset = True  # theta is the wrist-to-tip offset in f [m]: comparable with the true tool
 
-    def __init__(self, S: np.ndarray, nominal_offset_f_m: np.ndarray) -> None:
+    def __init__(self, S: np.ndarray, nominal_offset_f_m: np.ndarray,
+                 omega_half_width_m: np.ndarray | None = None) -> None:
+        """S (m, 6) the nominal map; the nominal (CAD) offset (3,) in f [m]; Omega's half widths
+        (3,) [m] about it (the law's projection box; ``None``: unbounded)."""
         self.S = np.asarray(S, dtype=float)  # (m, 6)
         self.S_v = self.S[:, :3].copy()
         self.S_v[0] = 0.0  # the depth row does not see theta
         self.l_nom_f = np.asarray(nominal_offset_f_m, dtype=float)
+        self._half = (np.full(3, np.inf) if omega_half_width_m is None
+                      else np.asarray(omega_half_width_m, dtype=float).copy())
         # -- constants of the hot-path kernels
         self._n = tuple(self.S[0, :3].tolist())  # depth row, linear part (the bore axis)
         self._K = np.vstack([self.S.T, self.S_v.T])  # (9, m): K F = [S^T F; S_v^T F]
@@ -46,6 +52,10 @@ class AdjointFeatures(Features):
         self._w = self._xi[3:]
         self._B = np.zeros(self._T.shape[1])
         self._B3m = self._B.reshape(3, -1)
+
+    def omega(self) -> tuple[np.ndarray, np.ndarray]:
+        """Omega: the box of half widths ``omega_half_width_m`` about the nominal offset."""
+        return self.l_nom_f.copy(), self._half.copy()
 
     def twist_jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray:
         """``S Ad(R_wf theta)`` with the depth row on the nominal offset. -> (m, 6)."""

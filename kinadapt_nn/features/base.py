@@ -44,6 +44,10 @@ class Features(abc.ABC):
     def regressor(self, kin: KinState, qdot: np.ndarray) -> Regressor:
         """Prediction regressor on joint velocity ``qdot`` (n,)."""
 
+    #: True where theta is the physical wrist-to-tip offset in f [m] (the adjoint): the run then
+    #: reports theta's error against the true tool; learned features' theta has no such meaning
+    theta_is_offset: bool = False
+
     def twist_jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray | None:
         """``J_hat_xi`` (m, 6) with ``J_hat = J_hat_xi J_arm`` where the parameterisation
         factors through the wrist twist (the adjoint does); ``None`` otherwise."""

@@ -43,11 +43,7 @@ class EffectFeatures(Features):
         self.l_nom = np.asarray(known.sensing.nominal_offset_f_m, dtype=float)
         self.dt = known.dt_s
         self.t_tare = known.settle_s - 0.5 * known.sensing.tare_window_s
-        ad = known.adaptation
-        if base.name == "adjoint":
-            centre, half = self.l_nom, np.array([ad.omega_lateral_m, ad.omega_lateral_m, ad.omega_axial_m])
-        else:
-            centre, half = base.omega()
+        centre, half = base.omega()
         self._omega = (np.r_[centre, np.zeros(self.k)], np.r_[half, np.full(self.k, np.inf)])
         # kalman law: the base prior, and 3x each effect's default magnitude (1 where it is 0)
         base_P0 = getattr(base, "P0", None)

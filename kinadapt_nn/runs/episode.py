@@ -115,11 +115,11 @@ def _base_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
     the adjoint's initial estimate (true offset + the configured error, experiment design)."""
     S = nominal_sensor_map(cfg.sensing, BORE_AXIS_W)
     l_nom = np.asarray(cfg.sensing.nominal_offset_f_m, dtype=float)
-    adjoint = AdjointFeatures(S, l_nom)
+    ad = cfg.adaptation
+    adjoint = AdjointFeatures(S, l_nom, np.array([ad.omega_lateral_m, ad.omega_lateral_m, ad.omega_axial_m]))
     kind = cfg.run.features
     if kind == "oracle":
         return adjoint, np.asarray(cfg.tool.offset_f_m, dtype=float)
-    ad = cfg.adaptation
     adjoint.P0 = np.diag([ad.prior_sd_lateral_m**2, ad.prior_sd_lateral_m**2, ad.prior_sd_axial_m**2])
     if kind == "adjoint":
         return adjoint, initial_estimate(cfg)
