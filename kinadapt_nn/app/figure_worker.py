@@ -206,9 +206,14 @@ def _draw(trace, summary: dict, cfg, path: str) -> None:
 
 
 def _forked_main(conn) -> None:
-    """The forked worker: warm up, take one job from ``conn``, draw it, answer None or the error."""
+    """The forked worker: import matplotlib, warm up unless the job is already waiting (a short
+    episode: warming up would only delay it), take one job from ``conn``, draw it, answer None or
+    the error."""
     try:
-        _warm_up()
+        import kinadapt_nn.figures  # noqa: F401  (matplotlib)
+
+        if not conn.poll():
+            _warm_up()
         try:
             job = conn.recv()
         except EOFError:  # the parent ended without a figure to draw
