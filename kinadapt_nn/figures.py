@@ -315,7 +315,7 @@ def _fixed_margins(fig: plt.Figure, title_lines: int, footer_lines: int) -> None
     half of the figure's cost."""
     w, h = fig.get_size_inches()
     left, right, wgap = 0.85, 0.12, 1.3  # y tick labels + y label of the panel to the right
-    top = 0.82 + 0.22 * (title_lines - 1)  # the suptitle (0.2 in below the edge) and the first row's titles
+    top = 0.75 + 0.22 * (title_lines - 1)  # the suptitle (0.2 in below the edge) and the first row's titles
     bottom = 0.55 + (0.14 * footer_lines + 0.12 if footer_lines else 0.0)  # x labels (+ the footer)
     hgap = 0.95  # x tick labels, x label, a two-line title
     aw = (w - left - right - 2 * wgap) / 3
