@@ -167,7 +167,7 @@ def rollout_figure(trace: Trace, summary: dict, cfg: ExperimentCfg) -> plt.Figur
     held = cfg.run.features == "oracle" or cfg.adaptation.mode == "frozen"
     theta = trace["theta"]
     offset_row = theta.shape[1] == 3 and not held
-    fig, ax = plt.subplots(3, 3, figsize=(14, 10), constrained_layout=True)
+    fig, ax = plt.subplots(3, 3, figsize=ROLLOUT_SIZE_IN)
     for a in ax.ravel()[1:]:
         if a is not ax[2, 2] or not held:  # held: the last panel is a bar chart, not a time series
             a.sharex(ax[0, 0])
@@ -292,13 +292,36 @@ def rollout_figure(trace: Trace, summary: dict, cfg: ExperimentCfg) -> plt.Figur
     fig.suptitle(f"kinadapt online - program={cfg.control.program}, features={summary['features']}, "
                  f"law={summary['law']}, seed={summary['seed']}: {status}{extra}")
     ident = (summary.get("identification") or {}).get("text")
+    ident_lines = 0
     if ident:  # what was and was not identified, and why, in plain words (the summary's line)
         import textwrap
 
-        fig.text(0.01, 0.002, "identification: " + "\n".join(textwrap.wrap(ident, 190)), fontsize=8, va="bottom",
-                 ha="left", color="0.25")
-        fig.get_layout_engine().set(rect=(0, 0.045, 1, 0.955)) if fig.get_layout_engine() is not None else None
+        lines = textwrap.wrap("identification: " + ident, 190)
+        ident_lines = len(lines)
+        fig.text(0.01, 0.004, "\n".join(lines), fontsize=8, va="bottom", ha="left", color="0.25")
+    _fixed_margins(fig, title_lines=1 + extra.count("\n"), footer_lines=ident_lines)
     return fig
+
+
+#: size of the rollout figure [in] (width, height)
+ROLLOUT_SIZE_IN = (14.0, 10.0)
+
+
+def _fixed_margins(fig: plt.Figure, title_lines: int, footer_lines: int) -> None:
+    """Place the 3x3 grid with fixed margins [in], sized for the widest content the rollout
+    figure draws (two-line titles, 'truth: bore/socket: no' tick labels, log-axis labels and a
+    rotated y label left of each panel). Fixed rather than ``constrained_layout``: that solver
+    measures every text object and, on ``savefig``, draws the whole figure a second time -- about
+    half of the figure's cost."""
+    w, h = fig.get_size_inches()
+    left, right, wgap = 0.85, 0.12, 1.3  # y tick labels + y label of the panel to the right
+    top = 0.75 + 0.22 * (title_lines - 1)  # the suptitle (0.2 in below the edge) and the first row's titles
+    bottom = 0.55 + (0.14 * footer_lines + 0.12 if footer_lines else 0.0)  # x labels (+ the footer)
+    hgap = 0.95  # x tick labels, x label, a two-line title
+    aw = (w - left - right - 2 * wgap) / 3
+    ah = (h - top - bottom - 2 * hgap) / 3
+    fig.subplots_adjust(left=left / w, right=1 - right / w, bottom=bottom / h, top=1 - top / h,
+                        wspace=wgap / aw, hspace=hgap / ah)
 
 
 def _rms_bars(a, free: np.ndarray, contact: np.ndarray) -> None:
