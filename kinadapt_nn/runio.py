@@ -7,14 +7,10 @@ set, and even then it is replaced only after the new run has been written.
 
 from __future__ import annotations
 
-import itertools
 import json
 import os
 import shutil
-import socket
-import struct
 import tempfile
-import time
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterator, Mapping
@@ -84,45 +80,6 @@ def write_json(path: Path, obj: dict) -> None:
 HIST_BINS = 30
 
 
-_CRC32C_TABLE: list[int] = []
-_event_files = itertools.count()
-
-
-def _masked_crc32c(data: bytes) -> int:
-    """CRC-32C (Castagnoli) of ``data``, masked as TFRecord files store it."""
-    if not _CRC32C_TABLE:
-        for i in range(256):
-            c = i
-            for _ in range(8):
-                c = (c >> 1) ^ 0x82F63B78 if c & 1 else c >> 1
-            _CRC32C_TABLE.append(c)
-    table, crc = _CRC32C_TABLE, 0xFFFFFFFF
-    for b in data:
-        crc = table[(crc ^ b) & 0xFF] ^ (crc >> 8)
-    crc ^= 0xFFFFFFFF
-    return (((crc >> 15) | (crc << 17)) + 0xA282EAD8) & 0xFFFFFFFF
-
-
-class _RecordFile:
-    """A TensorBoard event file written synchronously in the TFRecord format (length, masked
-    CRC-32C of the length, data, masked CRC-32C of the data): what tensorboard's
-    ``EventFileWriter`` writes, without importing ``tensorboard.summary`` (0.15 s of imports)
-    or a writer thread."""
-
-    def __init__(self, log_dir: Path):
-        name = f"events.out.tfevents.{int(time.time()):010d}.{socket.gethostname()}.{os.getpid()}.{next(_event_files)}"
-        self._fh = open(log_dir / name, "wb")
-
-    def add_event(self, event) -> None:
-        data = event.SerializeToString()
-        header = struct.pack("<Q", len(data))
-        self._fh.write(header + struct.pack("<I", _masked_crc32c(header)) + data
-                       + struct.pack("<I", _masked_crc32c(data)))
-
-    def close(self) -> None:
-        self._fh.close()
-
-
 class EventWriter:
     """A TensorBoard event file in ``log_dir``: scalars, histograms, PNG images, hparams.
 
@@ -132,11 +89,11 @@ class EventWriter:
 
     def __init__(self, log_dir: Path | str):
         from tensorboard.compat.proto import event_pb2, summary_pb2
+        from tensorboard.summary.writer.event_file_writer import EventFileWriter
 
         Path(log_dir).mkdir(parents=True, exist_ok=True)
         self._ev, self._pb = event_pb2, summary_pb2
-        self._writer = _RecordFile(Path(log_dir))
-        self._writer.add_event(event_pb2.Event(wall_time=time.time(), file_version="brain.Event:2"))
+        self._writer = EventFileWriter(str(log_dir))
 
     def __enter__(self) -> EventWriter:
         return self
@@ -148,6 +105,8 @@ class EventWriter:
         self._writer.close()
 
     def _add(self, values: list, step: int, wall_time: float | None = None) -> None:
+        import time
+
         ev = self._ev.Event(wall_time=time.time() if wall_time is None else wall_time, step=int(step),
                             summary=self._pb.Summary(value=values))
         self._writer.add_event(ev)
