@@ -22,6 +22,7 @@ from kinadapt_nn.control import Controller, rank_margin
 from kinadapt_nn.errors import SensorError
 from kinadapt_nn.features import AdjointFeatures
 from kinadapt_nn.features.base import Features
+from kinadapt_nn.known import KnownCfg
 from kinadapt_nn.sensing import CHANNEL_NAMES, channel_metric, nominal_sensor_map
 from kinadapt_nn.sim.adapter import BORE_AXIS_W, PegInHoleSim
 from kinadapt_nn.sim.faults import SensorFaults
@@ -157,7 +158,7 @@ def law_name(cfg: ExperimentCfg) -> str:
 
 def make_controller(cfg: ExperimentCfg) -> Controller:
     feats, theta0 = make_features(cfg)
-    return Controller(cfg, feats, theta0, BORE_AXIS_W, mode=law_name(cfg))
+    return Controller(KnownCfg.of(cfg), feats, theta0)
 
 
 class EpisodeResult(NamedTuple):
