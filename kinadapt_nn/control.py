@@ -408,7 +408,7 @@ class Controller:
              st.k[0, core.K_KF_INIT]) = keep
         self.out[...] = 0.0
         self.law = LawView(st, self.consts, self.mode)
-        self.last: StepLog | None = None
+        self._stepped = False
 
     # ------------------------------------------------------------------------------------
     def rank_margin_now(self) -> float:
@@ -444,7 +444,25 @@ class Controller:
 
     def step(self, t: float, q: np.ndarray, qdot: np.ndarray, wrench: np.ndarray) -> JointCommand:
         """One control period. Inputs: time [s], encoders (n,), raw F/T reading (6,) in f.
-        The maths is ``controller_core`` at B = 1 (see its module docstring)."""
+        The maths is ``controller_core`` at B = 1 (see its module docstring). -> copies."""
+        self.advance(t, q, qdot, wrench)
+        return JointCommand(self.state.q_ref[0].copy(), self._o["qdot_ref"].copy())
+
+    @property
+    def last(self) -> StepLog | None:
+        """This step's controller-side quantities (views of ``out``, valid until the next step)."""
+        if not self._stepped:
+            return None
+        o = self._o
+        out = self.out[0]
+        a = AdaptStep(o["s_dot_pred"], o["eps_w"], o["d_track"], o["d_pred"], float(out[self._i_gate]),
+                      float(out[self._i_n2]))
+        return StepLog(o["s"], o["s_dot_meas"], o["s_dot_pred"], o["F"], o["xi_cmd"], o["w_env"],
+                       o["theta_used"], float(out[self._i_rho]), a)
+
+    def advance(self, t: float, q: np.ndarray, qdot: np.ndarray, wrench: np.ndarray) -> None:
+        """``step`` without building the command: the hot path of ``run_episode``, which reads the
+        command from ``state.q_ref[0]`` and ``out`` (the ``qdot_ref`` block) directly."""
         st, cs = self.state, self.consts
         self._q[:] = q
         self._qdot[:] = qdot
@@ -465,13 +483,7 @@ class Controller:
                              cs.pv, cs.L0, cs.seg, self.out)
         else:
             self._generic_step(t)
-        o = self._o
-        out = self.out[0]
-        a = AdaptStep(o["s_dot_pred"], o["eps_w"], o["d_track"], o["d_pred"], float(out[self._i_gate]),
-                      float(out[self._i_n2]))
-        self.last = StepLog(o["s"], o["s_dot_meas"], o["s_dot_pred"], o["F"], o["xi_cmd"], o["w_env"],
-                            o["theta_used"], float(out[self._i_rho]), a)
-        return JointCommand(st.q_ref[0].copy(), o["qdot_ref"].copy())
+        self._stepped = True
 
     def _generic_step(self, t: float) -> None:
         """Features that are not fused: kinematics and sense in the kernel, the regressor rows and

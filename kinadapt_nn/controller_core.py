@@ -76,7 +76,7 @@ class Layout:
         outs = {}
         for name, size in (("s", m), ("s_dot_meas", m), ("s_dot_pred", m), ("F", m), ("xi_cmd", 6), ("w_env", 6),
                            ("theta_used", p), ("rho", 1), ("eps_w", m), ("d_track", p), ("d_pred", p), ("gate", 1),
-                           ("phi_norm2", 1), ("qdot_ref", n), ("lam_min", 1)):
+                           ("phi_norm2", 1), ("qdot_ref", n), ("lam_min", 1), ("p_trace", 1)):
             outs[name] = (o, size)
             o += size
         self.out_blocks, self.nout = outs, o
@@ -87,7 +87,7 @@ class Layout:
 # offsets into Layout.arr
 (L_N, L_M, L_P, X_XI, X_QREF, X_QPOST, X_TSUM, X_TARE, X_FILT, X_TH, X_THKF, X_THPR, X_P, X_ACT, X_R2, X_R1,
  X_GRAM, X_HELD, O_S, O_SDM, O_SDP, O_F, O_XI, O_WENV, O_TH, O_RHO, O_EPS, O_DTR, O_DPR, O_GATE, O_N2, O_QDR,
- O_LAM) = range(33)
+ O_LAM, O_PTR) = range(34)
 
 
 class ControllerState:
@@ -695,6 +695,10 @@ def act_kernel(t, inp, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, L0, seg, o
         rho = out[b, lay[O_RHO]]
         _act(t, b, rho, inp, p_O, R, J, ext_J, x, k, lay, c, mats, pv, L0, seg, out)
         _law(b, reg, x, k, lay, c, pv, L0, out)
+        tr = 0.0  # tr P: theta's remaining uncertainty (the trace's theta_uncertainty)
+        for j in range(lay[L_P]):
+            tr += x[b, lay[X_P] + j * (lay[L_P] + 1)]
+        out[b, lay[O_PTR]] = tr
         if c[FEAT] == FEAT_ADJOINT and c[RANK_ON] > 0.0 and rho > 0.0:
             _rank_margin_adjoint(b, R, J, x, lay, c, mats, out)
 
