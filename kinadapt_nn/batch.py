@@ -119,6 +119,7 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
     max_flat = np.zeros(B)
     max_m = np.zeros(B)
     sim_steps = 0
+    n_sim = np.zeros(B, dtype=np.int64)  # physics steps per episode
     setup = time.perf_counter() - t_setup
     t0 = time.perf_counter()
     t = 0.0  # accumulated as mj_step does (d.time += dt), so t < settle switches on the same step
@@ -179,6 +180,7 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
         act_ids = np.flatnonzero(active)
         scene.step(act_ids)
         sim_steps += len(act_ids)
+        n_sim[act_ids] += 1
         t = t + dt
         active &= (t < stop_at) & ~breach
         if not active.any():
@@ -199,7 +201,7 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
             "success": bool(success), "failure": failure, "seat_time_s": float(seat[b]) if success else None,
             "max_force_N": float(max_f[b]), "max_lateral_force_N": float(max_flat[b]), "max_moment_Nm": float(max_m[b]),
             "offset_error_final_m": err.tolist(), "offset_error_lateral_final_m": float(math.hypot(err[0], err[1])),
-            "seed": cfgs[b].run.seed, "law": known.law,
+            "seed": cfgs[b].run.seed, "law": known.law, "steps": int(n_sim[b]),
         })
     return BatchResult(summaries, k + 1, sim_steps, wall, setup, theta,
                        None if ctrl_log is None else ctrl_log[: k + 1])

@@ -463,10 +463,20 @@ class Controller:
     def advance(self, t: float, q: np.ndarray, qdot: np.ndarray, wrench: np.ndarray) -> None:
         """``step`` without building the command: the hot path of ``run_episode``, which reads the
         command from ``state.q_ref[0]`` and ``out`` (the ``qdot_ref`` block) directly."""
-        st, cs = self.state, self.consts
         self._q[:] = q
         self._qdot[:] = qdot
         self._wrench[:] = wrench
+        self.advance_input(t)
+
+    @property
+    def input_row(self) -> np.ndarray:
+        """(2n + 6,) the next step's input [q; qdot; wrench]: a caller may write the sample here
+        and call :meth:`advance_input` (no copies on the hot path)."""
+        return self._inp[0]
+
+    def advance_input(self, t: float) -> None:
+        """``advance`` on the sample already in :attr:`input_row`."""
+        st, cs = self.state, self.consts
         core.intake_kernel(self._inp, st.x, st.k, self.layout.arr, cs.c)  # hold non-finite samples
         if st.k[0, core.K_ERROR]:
             st.k[0, core.K_ERROR] = 0

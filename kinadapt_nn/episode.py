@@ -206,7 +206,6 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False, ctrl: Controller | N
     n_rec = n_steps // every + 1
     monitor = SeatMonitor(cfg)
     faults = SensorFaults(cfg.faults, cfg.run.seed, cfg.start.settle_s) if SensorFaults.active(cfg.faults) else None
-    obs = sim.sense() if faults is None else faults(sim.time_s, sim.sense())
     theta_true = np.asarray(tcfg.tool.offset_f_m, dtype=float) if isinstance(ctrl.features, AdjointFeatures) else None
     diverged = False
     divergence_reason = None
@@ -237,10 +236,24 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False, ctrl: Controller | N
     lam_min_all = math.inf  # the rank gate, every step with the drive on
     lam_since = math.inf  # its minimum since the last logged sample
     rank_breach_t: float | None = None
+    inp = ctrl.input_row  # the sample is written straight into the controller's input row
+    q_in, qd_in, w_in = inp[:n], inp[n:2 * n], inp[2 * n:]
+
+    def read_sample() -> None:
+        if faults is None:
+            sim.sense_into(q_in, qd_in, w_in)
+        else:
+            o = faults(sim.time_s, sim.sense())
+            q_in[:], qd_in[:], w_in[:] = o.q_rad, o.qdot_rad_s, o.wrench_raw_f
+
+    read_sample()
+    t = sim.time_s
     for k in range(n_steps):
-        t = sim.time_s
+        logged = k % every == 0
+        if logged:
+            io_log[k // every, :2 * n + 6] = inp  # the sample as given (before any dropout hold)
         try:
-            ctrl.advance(t, obs.q_rad, obs.qdot_rad_s, obs.wrench_raw_f)
+            ctrl.advance_input(t)
         except SensorError as exc:
             diverged = True
             divergence_reason = f"non-finite sensor sample: {exc}"
@@ -255,30 +268,27 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False, ctrl: Controller | N
                 lam_min_all = lam
                 if lam < RANK_GATE and rank_breach_t is None:
                     rank_breach_t = t
-        if k % every == 0:
+        if logged:
             j = k // every
             n_logged = j + 1
             lam_log[j] = lam_since
             lam_since = math.inf
             t_log[j] = t
             out_log[j] = out
-            row = io_log[j]
-            row[:n] = obs.q_rad
-            row[n:2 * n] = obs.qdot_rad_s
-            row[2 * n:2 * n + 6] = obs.wrench_raw_f
-            row[2 * n + 6:] = q_ref
+            io_log[j, 2 * n + 6:] = q_ref
             if phi_log is not None:
                 phi_log[j] = x_row[f0:f0 + p * m]
             tr = sim.truth()
             tip_log[j] = tr.tip_pos_w_m
             truth_log[j] = (tr.tip_depth_m, tr.contact_face, tr.contact_bore, tr.contact_force_N)
         sim.step()
-        obs = sim.sense() if faults is None else faults(sim.time_s, sim.sense())
+        read_sample()
+        t = sim.time_s
         if bar is not None and k % 250 == 0:
             bar.update(250 if k else 1)
         if monitor.seat_time is not None and stop_at is None:
             stop_at = monitor.seat_time + cfg.run.stop_after_seat_s
-        if stop_at is not None and sim.time_s >= stop_at:
+        if stop_at is not None and t >= stop_at:
             break
         # (a non-finite simulator state reaches the controller as a sensor sample: SensorError)
         if rank_breach_t is not None:
@@ -289,7 +299,7 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False, ctrl: Controller | N
             nwarn = int(sim.data.warning.number.sum())
             if nwarn > warn0:
                 diverged = True
-                divergence_reason = f"MuJoCo warning(s) at t={sim.time_s:.3f} s"
+                divergence_reason = f"MuJoCo warning(s) at t={t:.3f} s"
                 break
     if bar is not None:
         bar.close()

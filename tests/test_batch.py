@@ -7,7 +7,7 @@ import pytest
 
 from kinadapt_nn.batch import run_batch
 from kinadapt_nn.config import load_config
-from kinadapt_nn.episode import run_episode
+from kinadapt_nn.episode import make_features, run_episode
 from kinadapt_nn.sweep import SweepCfg, tool_overrides
 
 
@@ -32,5 +32,5 @@ def test_batch_runs_learned_features_and_the_kalman_law():
     cfgs = [load_config(None, ["run.progress=false", "run.features=neural", "run.duration_s=1.2", f"run.seed={s}"])
             for s in range(2)]
     res = run_batch(cfgs, nthread=1)
-    assert res.theta_final.shape == (2, cfgs[0].features and res.theta_final.shape[1])
+    assert res.theta_final.shape == (2, make_features(cfgs[0])[0].n_params)
     assert all(s["law"] == "kalman" for s in res.summaries) and np.all(np.isfinite(res.theta_final))
