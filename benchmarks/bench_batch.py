@@ -30,7 +30,7 @@ def raw_physics(cfgs, ctrl_log: np.ndarray, steps: np.ndarray) -> float:
     """Step the same models with mujoco.batch, replaying ``ctrl_log`` (T, B, n); episode b for
     ``steps[b]`` steps (as in the controlled run). -> wall seconds of the stepping loop."""
     sims = [PegInHoleSim(c) for c in cfgs]
-    scene = mujoco.batch.Batch(sims[0].model, len(cfgs), 1, True)
+    scene = mujoco.batch.Batch(sims[0].model, len(cfgs), 1, False)
     scene.set_models([s.model for s in sims])
     ids = sims[0].ids
     qpos, qvel, ctrl_b = scene.bind("qpos"), scene.bind("qvel"), scene.bind("ctrl")

@@ -65,7 +65,7 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
     known = _known_of(cfgs)
     B = len(cfgs)
     sims = [PegInHoleSim(c) for c in cfgs]
-    scene = mujoco.batch.Batch(sims[0].model, B, nthread, True)
+    scene = mujoco.batch.Batch(sims[0].model, B, nthread, nthread > 1)
     scene.set_models([s.model for s in sims])
     ids = sims[0].ids
     qpos, qvel, ctrl_b = scene.bind("qpos"), scene.bind("qvel"), scene.bind("ctrl")
@@ -77,7 +77,7 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
     sensordata = scene.bind("sensordata")
     # controller side: bare-arm batch fed with encoders
     arm_model = mujoco.MjModel.from_xml_path(str(known.arm_mjcf))
-    arm = mujoco.batch.Batch(arm_model, B, nthread, True)
+    arm = mujoco.batch.Batch(arm_model, B, nthread, nthread > 1)
     arm_q = arm.bind("qpos")
     site = mujoco.mj_name2id(arm_model, mujoco.mjtObj.mjOBJ_SITE, FLANGE_SITE)
     site_xpos, site_xmat = arm.bind("site_xpos"), arm.bind("site_xmat")
