@@ -2,9 +2,9 @@
 
 The controller is ``kinadapt_nn.controller_core`` -- the same kernels ``Controller.step`` runs at
 B = 1 -- on (B, ...) state, so the per-step maths exists once. The truth firewall holds the same
-way: the controller's kinematics come from a second batch of *bare-arm* models fed with the
-encoder readings (one forward at the position stage: hinge axes/anchors and the flange site); the
-scene batch only supplies encoders and raw F/T readings.
+way: the controller's kinematics come from its own model of the *bare arm* fed with the
+encoder readings (forward kinematics of the bare arm's chain, in the kernel); the scene batch only
+supplies encoders and raw F/T readings.
 
 Every law (kalman by default), the rigid loop, dither, the excitation program and the sensor-side
 rank gate run as in the single episode; the adjoint is fused in the kernel, other features (RBF,
@@ -75,18 +75,15 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
     ctrl_b[:] = q0
     scene.forward()
     sensordata = scene.bind("sensordata")
-    # controller side: bare-arm batch fed with encoders
+    # controller side: the bare arm's kinematic chain (forward kinematics in the kernel, from encoders)
     arm_model = mujoco.MjModel.from_xml_path(str(known.arm_mjcf))
-    arm = mujoco.batch.Batch(arm_model, B, nthread, nthread > 1)
-    arm_q = arm.bind("qpos")
     site = mujoco.mj_name2id(arm_model, mujoco.mjtObj.mjOBJ_SITE, FLANGE_SITE)
-    site_xpos, site_xmat = arm.bind("site_xpos"), arm.bind("site_xmat")
-    xaxis, xanchor = arm.bind("xaxis"), arm.bind("xanchor")  # hinge axes and anchors (world)
+    chain = core.arm_chain(arm_model, site)
     # the controllers: one ControllerState for B, the same kernels as Controller.step
     feats, theta_c0 = make_features(c0)  # the known side is shared; theta0 is per episode (experiment design)
     per_episode = known.features_kind in ("adjoint", "oracle")
     theta0 = np.array([make_features(c)[1] if per_episode else theta_c0 for c in cfgs])
-    cs, law_args = core_consts(known, feats, site=site)
+    cs, law_args = core_consts(known, feats)
     n, m, p = arm_model.nq, 6, feats.n_params
     lay = core.Layout(n, m, p)
     st = core.ControllerState(lay, B)
@@ -128,14 +125,12 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
         inp[:, :n] = qpos[:, ids.qpos_adr]
         inp[:, n:2 * n] = qvel[:, ids.dof_adr]
         inp[:, 2 * n:] = sensordata[:, f_adr]
-        core.intake_kernel(inp, st.x, st.k, lay.arr, cs.c)
-        arm_q[:] = inp[:, :n]
-        arm.forward(stage=int(mujoco.mjtStage.mjSTAGE_POS))
         if fused:
-            core.step_kernel(t, inp, xaxis, xanchor, site_xpos, site_xmat, p_O, R, J, reg, ext_J, st.x, st.k, lay.arr,
-                             cs.c, cs.mats, cs.pv, cs.L0, cs.seg, out)
+            core.step_kernel(t, inp, chain, p_O, R, J, reg, ext_J, st.x, st.k, lay.arr, cs.c, cs.mats, cs.pv, cs.L0,
+                             cs.seg, out)
         else:
-            core.arm_kinematics(xaxis, xanchor, site_xpos, site_xmat, site, p_O, R, J)
+            core.intake_kernel(inp, st.x, st.k, lay.arr, cs.c)
+            core.fk_batch(chain, inp, p_O, R, J)
             core.sense_kernel(t, inp, p_O, R, st.x, st.k, lay.arr, cs.c, cs.mats, out)
             for b in np.flatnonzero(active):  # the features' rows from Python, per episode
                 kin = KinState(inp[b, :n], p_O[b], R[b], J[b])

@@ -171,7 +171,7 @@ def feature_kind(features: Features) -> int:
     return core.FEAT_ADJOINT if bool(getattr(features, "has_fused_kernels", lambda: False)()) else core.FEAT_JHAT
 
 
-def core_consts(known: KnownCfg, features: Features, site: int = 0) -> tuple[core.CoreConsts, dict]:
+def core_consts(known: KnownCfg, features: Features) -> tuple[core.CoreConsts, dict]:
     """The kernels' constants from the known config and the features. -> (CoreConsts, law_args)."""
     c, sc, ad, dt = known.control, known.sensing, known.adaptation, known.dt_s
     n_axis = known.n_axis
@@ -218,7 +218,7 @@ def core_consts(known: KnownCfg, features: Features, site: int = 0) -> tuple[cor
         core.N_PERSIST: 2.0 * ad.persist_tau_s / dt, core.ACT_RATIO: ad.act_sd_ratio,
         core.ACT_EVERY: max(1, int(round((0.02 if p <= 30 else 0.1) / dt))),
         core.MAX_HOLD: max(0, int(round(sc.max_dropout_s / dt))), core.FEAT: feature_kind(features),
-        core.SITE: site, core.RANK_ON: 1.0,
+        core.RANK_ON: 1.0,
     }
     for i, val in scal.items():
         v[i] = val
@@ -331,7 +331,8 @@ class Controller:
         self.P = lateral_projector(self.S, sc.stiffness_lat_N_per_m)  # (2, 3)
         self.W = channel_metric(sc)
         self.value_fn = ValueFunction(known)
-        self.consts, self.law_args = core_consts(known, features, site=self.kin.site)
+        self.consts, self.law_args = core_consts(known, features)
+        self.chain = core.arm_chain(self.kin.model, self.kin.site)  # the kernels' kinematics of the bare arm
         self.M_virt = self.consts.c[core.V_M:core.V_M + 6].copy()
         self.D_virt = self.consts.c[core.V_D:core.V_D + 6].copy()
         self.theta0 = np.asarray(theta0, dtype=float).copy()
@@ -347,10 +348,6 @@ class Controller:
         self._reg = np.zeros((1, 1 + p, m))
         self._ext_J = np.zeros((1, m, max(n, 6)))
         self.out = np.zeros((1, self.layout.nout))
-        d = self.kin.data
-        self._mj = (self.kin.model, d)
-        self._xaxis, self._xanchor = d.xaxis[None], d.xanchor[None]
-        self._site_xpos, self._site_xmat = d.site_xpos[None], d.site_xmat[None]
         ob = {k: self.out[0, o:o + size] for k, (o, size) in self.layout.out_blocks.items()}
         self._o = ob
         self._i_rho, self._i_gate = self.layout.out_blocks["rho"][0], self.layout.out_blocks["gate"][0]
@@ -477,30 +474,26 @@ class Controller:
     def advance_input(self, t: float) -> None:
         """``advance`` on the sample already in :attr:`input_row`."""
         st, cs = self.state, self.consts
-        core.intake_kernel(self._inp, st.x, st.k, self.layout.arr, cs.c)  # hold non-finite samples
+        if self._fused:  # intake, kinematics, sense, regressor, drive, admittance, law: one dispatch
+            core.step_kernel(t, self._inp, self.chain, self._p_O, self._R, self._J, self._reg, self._ext_J, st.x, st.k,
+                             self.layout.arr, cs.c, cs.mats, cs.pv, cs.L0, cs.seg, self.out)
+        else:
+            core.intake_kernel(self._inp, st.x, st.k, self.layout.arr, cs.c)
+            if not st.k[0, core.K_ERROR]:
+                self._generic_step(t)
         if st.k[0, core.K_ERROR]:
             st.k[0, core.K_ERROR] = 0
             raise SensorError(
                 f"non-finite sensor sample at t={t:.3f} s ({int(st.k[0, core.K_BAD_RUN])} in a row; check the "
                 "encoders and the F/T sensor for NaN/inf)"
             )
-        m, d = self._mj
-        self.kin._qpos[:] = self._q
-        mujoco.mj_kinematics(m, d)
-        if self._fused:
-            core.step_kernel(t, self._inp, self._xaxis, self._xanchor, self._site_xpos, self._site_xmat, self._p_O,
-                             self._R, self._J, self._reg, self._ext_J, st.x, st.k, self.layout.arr, cs.c, cs.mats,
-                             cs.pv, cs.L0, cs.seg, self.out)
-        else:
-            self._generic_step(t)
         self._stepped = True
 
     def _generic_step(self, t: float) -> None:
         """Features that are not fused: kinematics and sense in the kernel, the regressor rows and
         J_hat (or J_hat_xi) from Python, then the rest of the step in the kernel."""
         st, cs, lay = self.state, self.consts, self.layout.arr
-        core.arm_kinematics(self._xaxis, self._xanchor, self._site_xpos, self._site_xmat, self.kin.site, self._p_O,
-                            self._R, self._J)
+        core.fk_batch(self.chain, self._inp, self._p_O, self._R, self._J)
         core.sense_kernel(t, self._inp, self._p_O, self._R, st.x, st.k, lay, cs.c, cs.mats, self.out)
         kin = KinState(self._q, self._p_O[0], self._R[0], self._J[0])
         if self._observe is not None:  # effect columns need the sensor-side context
