@@ -90,6 +90,7 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
     st.theta[:] = theta0
     st.P[:] = np.asarray(law_args["prior_cov"], dtype=float)
     fused = cs.c[core.FEAT] == core.FEAT_ADJOINT
+    cs.c[core.RANK_ON] = 2.0  # the rank gate every step as a Cholesky test; lambda_min itself only on a breach
     inp = np.zeros((B, 2 * n + 6))
     p_O, R, J = np.zeros((B, 3)), np.zeros((B, 3, 3)), np.zeros((B, 6, n))
     reg, ext_J = np.zeros((B, 1 + p, m)), np.zeros((B, m, max(n, 6)))

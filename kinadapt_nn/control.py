@@ -218,7 +218,7 @@ def core_consts(known: KnownCfg, features: Features) -> tuple[core.CoreConsts, d
         core.N_PERSIST: 2.0 * ad.persist_tau_s / dt, core.ACT_RATIO: ad.act_sd_ratio,
         core.ACT_EVERY: max(1, int(round((0.02 if p <= 30 else 0.1) / dt))),
         core.MAX_HOLD: max(0, int(round(sc.max_dropout_s / dt))), core.FEAT: feature_kind(features),
-        core.RANK_ON: 1.0,
+        core.RANK_ON: 1.0, core.RANK_GATE_V: core.RANK_GATE,  # 1: lambda_min every step; 2: the gate only
     }
     for i, val in scal.items():
         v[i] = val

@@ -32,6 +32,8 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+#: the paper's kinematic gate on lambda_min(W J_hat J_hat^T W) (Results, "A separate kinematic gate")
+RANK_GATE = 1e-6
 # -- feature kinds ----------------------------------------------------------------------------
 FEAT_ADJOINT, FEAT_TWIST, FEAT_JHAT = 0, 1, 2
 # -- laws (adaptation.MODES order) -------------------------------------------------------------
@@ -40,7 +42,7 @@ LAW_CODES = {"kalman": 0, "composite": 1, "prediction": 2, "tracking": 3, "froze
 # -- scalar constants: indices into CoreConsts.c -----------------------------------------------
 (DT, T_SETTLE, T_TARE0, RAMP, D_STAR, K_D, F_MAX, C_F, C_M, V_MAX, W_MAX, K_NS, DAMP, ALPHA, INV_TAU,
  N_ENTRY, RIGID, DITHER_ON, TWO_PI_F, EXCITE, BLEND, LAW, C_TRACK, GAMMA_D, ETA, EPS_NORM, F_GATE, M_GATE,
- N_CORR, R_ALPHA, R_FLOOR, M_ALPHA, N_PERSIST, ACT_RATIO, ACT_EVERY, MAX_HOLD, FEAT, RANK_ON) = range(38)
+ N_CORR, R_ALPHA, R_FLOOR, M_ALPHA, N_PERSIST, ACT_RATIO, ACT_EVERY, MAX_HOLD, FEAT, RANK_ON, RANK_GATE_V) = range(39)
 # small vectors, at these offsets of c
 V_N = 40  # bore axis n (3)
 V_LNOM = 43  # nominal offset l_nom, f (3)
@@ -151,6 +153,31 @@ def _chol_solve(L, k, x):
         for r in range(i + 1, k):
             v -= L[r, i] * x[r]
         x[i] = v / L[i, i]
+
+
+@nb.njit(cache=True)
+def _mm(A, B):
+    """A @ B by loops (the operands here are a few rows: a BLAS call costs more than the product)."""
+    out = np.zeros((A.shape[0], B.shape[1]))
+    for i in range(A.shape[0]):
+        for r in range(A.shape[1]):
+            a = A[i, r]
+            for j in range(B.shape[1]):
+                out[i, j] += a * B[r, j]
+    return out
+
+
+@nb.njit(cache=True)
+def _mm_nt(A, B):
+    """A @ B.T by loops."""
+    out = np.empty((A.shape[0], B.shape[0]))
+    for i in range(A.shape[0]):
+        for j in range(B.shape[0]):
+            v = 0.0
+            for r in range(A.shape[1]):
+                v += A[i, r] * B[j, r]
+            out[i, j] = v
+    return out
 
 
 @nb.njit(cache=True)
@@ -486,7 +513,7 @@ def _law(b, reg, x, k, lay, c, pv, L0, out):
     for j in range(p):
         for i in range(m):
             Phi_wT[j, i] = Phi_fT[j, i] * W[i]
-    G = Phi_wT @ Phi_wT.T  # (p, p)
+    G = _mm_nt(Phi_wT, Phi_wT)  # (p, p) = (W Phi_f)^T (W Phi_f)
     gs = xs[lay[X_GRAM]:lay[X_GRAM] + p * p].reshape((p, p))
     gs += G  # observability: <Phi^T Phi> over the contact phase
     k[b, K_GRAM_N] += 1
@@ -561,8 +588,8 @@ def _kalman(b, x, k, lay, c, L0, Ht, PhiF, eps, theta, d_track, d_pred, lo, hi):
         for j in range(p):
             v += (th[j] - theta[j]) * Ht[j, i]
         e_kf[i] = eps[i] - v  # innovation of the filter's estimate
-    PHt = P @ Ht  # (p, m)
-    S = Ht.T @ PHt  # (m, m) = H P H^T + diag r
+    PHt = _mm(P, Ht)  # (p, m)
+    S = _mm(Ht.T, PHt)  # (m, m) = H P H^T + diag r
     for i in range(m):
         S[i, i] += r[i]
     if not _chol(S, m):
@@ -580,7 +607,7 @@ def _kalman(b, x, k, lay, c, L0, Ht, PhiF, eps, theta, d_track, d_pred, lo, hi):
         for i in range(m):
             v += X[i, j] * e_kf[i]
         d_pred[j] = v
-    P -= X.T @ PHt.T  # P = (1 - K H) P, symmetrised
+    P -= _mm_nt(X.T, PHt)  # P = (1 - K H) P, symmetrised
     for i in range(p):
         for j in range(i + 1, p):
             v = 0.5 * (P[i, j] + P[j, i])
@@ -651,10 +678,20 @@ def _rank_margin_adjoint(b, R, J, x, lay, c, mats, out):
         Jx[i, 3] -= v1 * a2 - v2 * a1  # row i of S_v [a]x is v^T [a]x = (v x a)^T
         Jx[i, 4] -= v2 * a0 - v0 * a2
         Jx[i, 5] -= v0 * a1 - v1 * a0
-    WJ = Jx @ J[b]
+    WJ = _mm(Jx, J[b])
     for i in range(6):
         WJ[i] *= c[V_W + i]
-    out[b, lay[O_LAM]] = np.linalg.eigvalsh(WJ @ WJ.T)[0]
+    G = _mm_nt(WJ, WJ)
+    if c[RANK_ON] == 2.0:  # gate only: lambda_min > gate  <=>  G - gate I is positive definite
+        for i in range(6):
+            G[i, i] -= c[RANK_GATE_V]
+        if _chol(G, 6):
+            out[b, lay[O_LAM]] = np.inf
+            return
+        for i in range(6):
+            G[i, i] += c[RANK_GATE_V]
+        G = _mm_nt(WJ, WJ)
+    out[b, lay[O_LAM]] = np.linalg.eigvalsh(G)[0]
 
 
 # ================================================================================================

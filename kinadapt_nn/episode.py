@@ -19,6 +19,7 @@ import numpy as np
 
 from kinadapt_nn.config import ExperimentCfg, arm_mjcf_path
 from kinadapt_nn.control import Controller, rank_margin
+from kinadapt_nn.controller_core import RANK_GATE  # the paper's kinematic gate (1e-6)
 from kinadapt_nn.errors import SensorError
 from kinadapt_nn.features import AdjointFeatures
 from kinadapt_nn.features.base import Features
@@ -30,8 +31,6 @@ from kinadapt_nn.trace import Trace, TraceRecorder
 from kinadapt_nn.truth import TrueSensorJacobian
 
 FAILURES = ("none", "timeout", "jam", "block_face", "divergence")
-#: the paper's kinematic gate on lambda_min(W J_hat J_hat^T W) (Results, "A separate kinematic gate")
-RANK_GATE = 1e-6
 
 
 class SeatMonitor:
