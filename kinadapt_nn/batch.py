@@ -27,7 +27,7 @@ import numpy as np
 
 from kinadapt_nn import controller_core as core
 from kinadapt_nn.config import ExperimentCfg
-from kinadapt_nn.control import core_consts
+from kinadapt_nn.control import core_consts, feature_consts
 from kinadapt_nn.episode import RANK_GATE, classify_failure, make_features
 from kinadapt_nn.errors import ConfigError
 from kinadapt_nn.features.base import KinState
@@ -89,7 +89,8 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
     st = core.ControllerState(lay, B)
     st.theta[:] = theta0
     st.P[:] = np.asarray(law_args["prior_cov"], dtype=float)
-    fused = cs.c[core.FEAT] == core.FEAT_ADJOINT
+    fused = cs.c[core.FEAT] in (core.FEAT_ADJOINT, core.FEAT_NEURAL)  # features computed in the kernel
+    fx = feature_consts(feats)
     cs.c[core.RANK_ON] = 2.0  # the rank gate every step as a Cholesky test; lambda_min itself only on a breach
     inp = np.zeros((B, 2 * n + 6))
     p_O, R, J = np.zeros((B, 3)), np.zeros((B, 3, 3)), np.zeros((B, 6, n))
@@ -128,7 +129,7 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
         inp[:, 2 * n:] = sensordata[:, f_adr]
         if fused:
             core.step_kernel(t, inp, chain, p_O, R, J, reg, ext_J, st.x, st.k, lay.arr, cs.c, cs.mats, cs.pv, cs.L0,
-                             cs.seg, out)
+                             cs.seg, fx, out)
         else:
             core.intake_kernel(inp, st.x, st.k, lay.arr, cs.c)
             core.fk_batch(chain, inp, p_O, R, J)
@@ -145,7 +146,7 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
                     cs.c[core.FEAT] = core.FEAT_JHAT
                     ext_J[b, :, :n] = feats.jacobian(kin, st.theta[b])
             core.act_kernel(t, inp, p_O, R, J, reg, ext_J, st.x, st.k, lay.arr, cs.c, cs.mats, cs.pv, cs.L0, cs.seg,
-                            out)
+                            fx, out)
         err = st.k[:, core.K_ERROR] != 0  # a dropout longer than max_dropout_s: divergence
         if err.any():
             diverged |= err & active

@@ -167,8 +167,21 @@ def _law_code(mode: str) -> int:
 
 
 def feature_kind(features: Features) -> int:
-    """The adjoint is computed in the kernel (fused); others supply their rows from Python."""
-    return core.FEAT_ADJOINT if bool(getattr(features, "has_fused_kernels", lambda: False)()) else core.FEAT_JHAT
+    """The adjoint and the neural basis are computed in the kernel; others supply their rows from
+    Python (``FEAT_JHAT``, switched to ``FEAT_TWIST`` where the features factor through the twist)."""
+    from kinadapt_nn.features.neural import NeuralFeatures
+
+    if bool(getattr(features, "has_fused_kernels", lambda: False)()):
+        return core.FEAT_ADJOINT
+    if (type(features) is NeuralFeatures and features.structure == "basis"
+            and bool(getattr(features.known, "has_fused_kernels", lambda: False)())):
+        return core.FEAT_NEURAL
+    return core.FEAT_JHAT
+
+
+def feature_consts(features: Features) -> np.ndarray:
+    """The in-kernel features' constants (the neural body), else a placeholder."""
+    return core.neural_consts(features) if feature_kind(features) == core.FEAT_NEURAL else np.zeros(1)
 
 
 def core_consts(known: KnownCfg, features: Features) -> tuple[core.CoreConsts, dict]:
@@ -339,7 +352,8 @@ class Controller:
         p, m = features.n_params, self.S.shape[0]
         self.layout = core.Layout(n, m, p)
         self.state = core.ControllerState(self.layout, 1)
-        self._fused = self.consts.c[core.FEAT] == core.FEAT_ADJOINT
+        self._fused = self.consts.c[core.FEAT] in (core.FEAT_ADJOINT, core.FEAT_NEURAL)  # one kernel call per step
+        self._fx = feature_consts(features)
         self._observe = getattr(features, "observe", None)
         # -- kernel buffers (B = 1), allocated once
         self._inp = np.zeros((1, 2 * n + 6))
@@ -476,7 +490,7 @@ class Controller:
         st, cs = self.state, self.consts
         if self._fused:  # intake, kinematics, sense, regressor, drive, admittance, law: one dispatch
             core.step_kernel(t, self._inp, self.chain, self._p_O, self._R, self._J, self._reg, self._ext_J, st.x, st.k,
-                             self.layout.arr, cs.c, cs.mats, cs.pv, cs.L0, cs.seg, self.out)
+                             self.layout.arr, cs.c, cs.mats, cs.pv, cs.L0, cs.seg, self._fx, self.out)
         else:
             core.intake_kernel(self._inp, st.x, st.k, self.layout.arr, cs.c)
             if not st.k[0, core.K_ERROR]:
@@ -510,4 +524,4 @@ class Controller:
                 cs.c[core.FEAT] = core.FEAT_JHAT
                 self._ext_J[0, :, :self.kin_n] = self.features.jacobian(kin, self.theta)
         core.act_kernel(t, self._inp, self._p_O, self._R, self._J, self._reg, self._ext_J, st.x, st.k, lay, cs.c,
-                        cs.mats, cs.pv, cs.L0, cs.seg, self.out)
+                        cs.mats, cs.pv, cs.L0, cs.seg, self._fx, self.out)

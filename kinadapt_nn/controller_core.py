@@ -17,7 +17,8 @@ Shapes: B episodes, n joints, m = 6 sensor channels, p parameters. All state liv
 (``xi``, ``q_ref``, ``filt``, ``theta``, ``P``, ...) are what the wrappers read. Constants are
 bundled into few arrays (``CoreConsts``) so a kernel call costs one dispatch.
 
-Features: the adjoint's regressor and drive are computed in the kernel (``FEAT_ADJOINT``);
+Features: the adjoint's regressor and drive are computed in the kernel (``FEAT_ADJOINT``), and so
+is the neural basis (``FEAT_NEURAL``: the frozen MLP body evaluated here, ``neural_consts``);
 other features supply ``[known; Phi^T]`` and either ``J_hat_xi`` (``FEAT_TWIST``) or ``J_hat``
 (``FEAT_JHAT``) from Python between :func:`sense_kernel` and :func:`act_kernel`.
 
@@ -35,7 +36,7 @@ import numpy as np
 #: the paper's kinematic gate on lambda_min(W J_hat J_hat^T W) (Results, "A separate kinematic gate")
 RANK_GATE = 1e-6
 # -- feature kinds ----------------------------------------------------------------------------
-FEAT_ADJOINT, FEAT_TWIST, FEAT_JHAT = 0, 1, 2
+FEAT_ADJOINT, FEAT_TWIST, FEAT_JHAT, FEAT_NEURAL = 0, 1, 2, 3
 # -- laws (adaptation.MODES order) -------------------------------------------------------------
 LAW_CODES = {"kalman": 0, "composite": 1, "prediction": 2, "tracking": 3, "frozen": 4}
 
@@ -660,16 +661,99 @@ def _identified_projector(P, L0, ratio, A):
 
 @nb.njit(cache=True)
 def _rank_margin_adjoint(b, R, J, x, lay, c, mats, out):
-    """lambda_min(W J_hat J_hat^T W) of the next step's J_hat = S Ad(R theta) J (the rank gate)."""
-    n = lay[L_N]
-    S = mats[0]
+    """The rank gate of the next step's J_hat = S Ad(R theta) J."""
     theta = x[b, lay[X_TH]:lay[X_TH] + 3]
+    _rank_margin(b, _mm(_adjoint_twist_jacobian(b, R, theta, c, mats), J[b]), c, out, lay)
+
+
+# ================================================================================================
+# neural features in the kernel: J_hat = K(q) + [0; Y(q) theta], K the adjoint at the prior offset
+def neural_consts(features) -> np.ndarray:
+    """The frozen MLP of ``NeuralFeatures`` (structure ``basis``) as one array for the kernel:
+    [H, K, prior offset (3), q_mean (n), 1/q_std (n), W1, b1, W2, b2, W3, b3] (W3, b3 already
+    scaled by W^-1 as in NeuralFeatures)."""
+    H, n = features.W1.shape
+    parts = [np.array([H, features.K], dtype=float), features.prior, features.q_mean, features.q_inv_std,
+             features.W1.ravel(), features.b1, features.W2.ravel(), features.b2, features.W3.ravel(), features.b3]
+    return np.ascontiguousarray(np.concatenate([np.asarray(a, dtype=float).ravel() for a in parts]))
+
+
+@nb.njit(cache=True)
+def _neural_body(fx, q, n):
+    """Y(q) (5, n, K): y = W3 tanh(W2 tanh(W1 (q - mu)/sd + b1) + b2) + b3 (NeuralFeatures._body)."""
+    H, K = int(fx[0]), int(fx[1])
+    o = 5 + 2 * n
+    x = np.empty(n)
+    for j in range(n):
+        x[j] = (q[j] - fx[5 + j]) * fx[5 + n + j]
+    W1 = fx[o:o + H * n].reshape((H, n))
+    o += H * n
+    h1 = np.tanh(_mv(W1, x) + fx[o:o + H])
+    o += H
+    W2 = fx[o:o + H * H].reshape((H, H))
+    o += H * H
+    h2 = np.tanh(_mv(W2, h1) + fx[o:o + H])
+    o += H
+    nout = 5 * n * K
+    W3 = fx[o:o + nout * H].reshape((nout, H))
+    o += nout * H
+    return (_mv(W3, h2) + fx[o:o + nout]).reshape((5, n, K))
+
+
+@nb.njit(cache=True)
+def _mv(A, x):
+    y = np.empty(A.shape[0])
+    for i in range(A.shape[0]):
+        v = 0.0
+        for j in range(A.shape[1]):
+            v += A[i, j] * x[j]
+        y[i] = v
+    return y
+
+
+@nb.njit(cache=True)
+def _neural_rows(b, inp, R, J, Y, lay, c, mats, fx, known, Phi_T):
+    """Regressor of the neural basis: known = adjoint's known + Phi_adj l_prior; Phi rows 1..5 =
+    qdot^T Y_i (NeuralFeatures.regressor)."""
+    n, p = lay[L_N], lay[L_P]
+    PhiA = np.zeros((3, 6))
+    _adjoint_regressor(b, inp, R, J, lay, c, mats, known, PhiA)
+    for i in range(6):
+        known[i] += PhiA[0, i] * fx[2] + PhiA[1, i] * fx[3] + PhiA[2, i] * fx[4]
+    for kk in range(p):
+        Phi_T[kk, 0] = 0.0
+        for i in range(5):
+            v = 0.0
+            for j in range(n):
+                v += inp[b, n + j] * Y[i, j, kk]
+            Phi_T[kk, 1 + i] = v
+
+
+@nb.njit(cache=True)
+def _neural_jhat(b, R, J, Y, theta, c, mats, fx):
+    """J_hat (6, n) = S Ad(R l_prior) J + [0; Y theta]."""
+    Jx = _adjoint_twist_jacobian(b, R, fx[2:5], c, mats)
+    Jh = _mm(Jx, J[b])
+    n, K = Y.shape[1], Y.shape[2]
+    for i in range(5):
+        for j in range(n):
+            v = 0.0
+            for kk in range(K):
+                v += Y[i, j, kk] * theta[kk]
+            Jh[1 + i, j] += v
+    return Jh
+
+
+@nb.njit(cache=True)
+def _adjoint_twist_jacobian(b, R, theta, c, mats):
+    """S Ad(R theta) (6, 6) with the depth row on the nominal lever (AdjointFeatures.twist_jacobian)."""
+    S = mats[0]
     Rb = R[b]
     a = np.empty(3)
     for i in range(3):
         a[i] = Rb[i, 0] * theta[0] + Rb[i, 1] * theta[1] + Rb[i, 2] * theta[2]
     l0, l1, l2 = _lever(b, R, c)
-    Jx = S.copy()  # S Ad(l) = [S_v, S_w - S_v [l]x]; depth row on the nominal lever
+    Jx = S.copy()  # S Ad(l) = [S_v, S_w - S_v [l]x]
     for i in range(6):
         if i == 0:
             v0, v1, v2, a0, a1, a2 = S[0, 0], S[0, 1], S[0, 2], l0, l1, l2
@@ -678,7 +762,13 @@ def _rank_margin_adjoint(b, R, J, x, lay, c, mats, out):
         Jx[i, 3] -= v1 * a2 - v2 * a1  # row i of S_v [a]x is v^T [a]x = (v x a)^T
         Jx[i, 4] -= v2 * a0 - v0 * a2
         Jx[i, 5] -= v0 * a1 - v1 * a0
-    WJ = _mm(Jx, J[b])
+    return Jx
+
+
+@nb.njit(cache=True)
+def _rank_margin(b, Jh, c, out, lay):
+    """lambda_min(W J_hat J_hat^T W) (the rank gate); with RANK_ON = 2 only the gate (Cholesky)."""
+    WJ = Jh.copy()
     for i in range(6):
         WJ[i] *= c[V_W + i]
     G = _mm_nt(WJ, WJ)
@@ -688,8 +778,6 @@ def _rank_margin_adjoint(b, R, J, x, lay, c, mats, out):
         if _chol(G, 6):
             out[b, lay[O_LAM]] = np.inf
             return
-        for i in range(6):
-            G[i, i] += c[RANK_GATE_V]
         G = _mm_nt(WJ, WJ)
     out[b, lay[O_LAM]] = np.linalg.eigvalsh(G)[0]
 
@@ -704,30 +792,41 @@ def sense_kernel(t, inp, p_O, R, x, k, lay, c, mats, out):
 
 
 @nb.njit(cache=True)
-def act_kernel(t, inp, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, L0, seg, out):
+def act_kernel(t, inp, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, L0, seg, fx, out):
     """The rest of the step after ``sense_kernel``, with the regressor rows ``reg`` (B, 1+p, m) =
-    [known; Phi^T] (adjoint: computed here) and ``ext_J`` (J_hat_xi or J_hat) from the features."""
+    [known; Phi^T] and ``ext_J`` (J_hat_xi or J_hat) from the features (the adjoint's and the
+    neural basis' are computed here; ``fx``: ``neural_consts``)."""
+    n, p = lay[L_N], lay[L_P]
+    feat = int(c[FEAT])
     for b in range(inp.shape[0]):
         if k[b, K_ERROR] != 0:
             continue
-        if c[FEAT] == FEAT_ADJOINT:
+        if feat == FEAT_ADJOINT:
             _adjoint_regressor(b, inp, R, J, lay, c, mats, reg[b, 0], reg[b, 1:])
+        elif feat == FEAT_NEURAL:  # Y(q) once per step: regressor, J_hat for the drive and the gate
+            Y = _neural_body(fx, inp[b, :n], n)
+            _neural_rows(b, inp, R, J, Y, lay, c, mats, fx, reg[b, 0], reg[b, 1:])
+            ext_J[b, :, :n] = _neural_jhat(b, R, J, Y, x[b, lay[X_TH]:lay[X_TH] + p], c, mats, fx)
         _filter_regressor(b, reg, x, lay, c)
         rho = out[b, lay[O_RHO]]
         _act(t, b, rho, inp, p_O, R, J, ext_J, x, k, lay, c, mats, pv, L0, seg, out)
         _law(b, reg, x, k, lay, c, pv, L0, out)
         tr = 0.0  # tr P: theta's remaining uncertainty (the trace's theta_uncertainty)
-        for j in range(lay[L_P]):
-            tr += x[b, lay[X_P] + j * (lay[L_P] + 1)]
+        for j in range(p):
+            tr += x[b, lay[X_P] + j * (p + 1)]
         out[b, lay[O_PTR]] = tr
-        if c[FEAT] == FEAT_ADJOINT and c[RANK_ON] > 0.0 and rho > 0.0:
-            _rank_margin_adjoint(b, R, J, x, lay, c, mats, out)
+        if c[RANK_ON] > 0.0 and rho > 0.0:  # the rank gate on the next step's J_hat
+            if feat == FEAT_ADJOINT:
+                _rank_margin_adjoint(b, R, J, x, lay, c, mats, out)
+            elif feat == FEAT_NEURAL:
+                _rank_margin(b, _neural_jhat(b, R, J, Y, x[b, lay[X_TH]:lay[X_TH] + p], c, mats, fx), c, out, lay)
 
 
 @nb.njit(cache=True)
-def step_kernel(t, inp, chain, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, L0, seg, out):
-    """One whole period for B episodes with the adjoint features (one dispatch): intake (dropout
-    hold), forward kinematics of the bare arm, sense, regressor, act, law, rank gate."""
+def step_kernel(t, inp, chain, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, L0, seg, fx, out):
+    """One whole period for B episodes with in-kernel features (adjoint, neural basis; one
+    dispatch): intake (dropout hold), forward kinematics of the bare arm, sense, regressor, act,
+    law, rank gate."""
     nbody = chain.shape[0] - 1
     for b in range(inp.shape[0]):
         if k[b, K_ERROR] == 0:
@@ -735,7 +834,7 @@ def step_kernel(t, inp, chain, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, L0
         if k[b, K_ERROR] == 0:
             _fk(chain[:nbody], chain[nbody], inp[b], p_O[b], R[b], J[b])
             _sense(t, b, inp, p_O, R, x, k, lay, c, mats, out)
-    act_kernel(t, inp, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, L0, seg, out)
+    act_kernel(t, inp, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, L0, seg, fx, out)
 
 
 # ================================================================================================

@@ -175,3 +175,32 @@ def test_known_cfg_is_the_controllers_only_config():
     feats, theta0 = make_features(cfg)
     ctrl = Controller(replace(KnownCfg.of(cfg), law="frozen"), feats, theta0)
     assert ctrl.mode == "frozen" and not hasattr(ctrl, "cfg")
+
+
+def test_neural_basis_in_the_kernel_equals_the_features():
+    """The neural body evaluated in the kernel gives NeuralFeatures' regressor and J_hat (the rank
+    gate's lambda_min and the filtered regressor after one step from zero filter state)."""
+    from kinadapt_nn.control import rank_margin
+    from kinadapt_nn.features.base import KinState
+
+    cfg = load_config(None, ["run.progress=false", "run.features=neural"])
+    ctrl = make_controller(cfg)
+    assert ctrl.consts.c[core.FEAT] == core.FEAT_NEURAL
+    rng = np.random.default_rng(3)
+    ctrl.theta = 0.1 * rng.normal(size=ctrl.features.n_params)
+    th = ctrl.theta.copy()
+    q = np.array([0.05, -0.55, 0.02, -2.35, 0.03, 1.85, 0.75])
+    qdot = 0.05 * rng.normal(size=7)
+    t = cfg.start.settle_s + 1.0
+    ctrl.state.k[0, core.K_PRIMED] = 1
+    ctrl.step(t, q, qdot, np.zeros(6))  # free space: the law does not move theta
+    np.testing.assert_array_equal(ctrl.theta, th)
+    model = mujoco.MjModel.from_xml_path(str(KnownCfg.of(cfg).arm_mjcf))
+    p_O, R, J = _jac_site(model, mujoco.MjData(model), q)
+    kin = KinState(q, p_O, R, J)
+    reg = ctrl.features.regressor(kin, qdot)
+    alpha = cfg.run.dt_s / (cfg.sensing.filter_tau_s + cfg.run.dt_s)
+    np.testing.assert_allclose(ctrl.state.known_f[0], alpha * reg.known, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(ctrl.state.Phi_fT[0], alpha * reg.Phi.T, rtol=1e-9, atol=1e-12)
+    lam = rank_margin(ctrl.W, ctrl.features.jacobian(kin, th))
+    assert ctrl.rank_margin_now() == pytest.approx(lam, rel=1e-8)
