@@ -158,7 +158,10 @@ def _chol_solve(L, k, x):
 
 @nb.njit(cache=True)
 def _mm(A, B):
-    """A @ B by loops (the operands here are a few rows: a BLAS call costs more than the product)."""
+    """A @ B: by loops for the small products of the per-step maths (a BLAS call costs more than
+    the product), by BLAS for large ones (p in the hundreds: the RBF features)."""
+    if A.shape[0] * B.shape[1] > 400:
+        return np.ascontiguousarray(A) @ np.ascontiguousarray(B)
     out = np.zeros((A.shape[0], B.shape[1]))
     for i in range(A.shape[0]):
         for r in range(A.shape[1]):
@@ -170,7 +173,9 @@ def _mm(A, B):
 
 @nb.njit(cache=True)
 def _mm_nt(A, B):
-    """A @ B.T by loops."""
+    """A @ B.T (loops when small, as ``_mm``)."""
+    if A.shape[0] * B.shape[0] > 400:
+        return np.ascontiguousarray(A) @ np.ascontiguousarray(B.T)
     out = np.empty((A.shape[0], B.shape[0]))
     for i in range(A.shape[0]):
         for j in range(B.shape[0]):
