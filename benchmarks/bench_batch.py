@@ -12,18 +12,24 @@ Usage: python benchmarks/bench_batch.py [--episodes 256] [--processes 2] [--chec
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from concurrent.futures import ProcessPoolExecutor
 
-import mujoco
-import mujoco.batch
-import numpy as np
+# one process per core: BLAS/LAPACK (the kalman law's eigh every 20 steps) must not start its own
+# spinning thread pools, or the processes fight over the cores
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from kinadapt_nn.batch import run_batch
-from kinadapt_nn.config import load_config
-from kinadapt_nn.episode import run_episode
-from kinadapt_nn.sim.adapter import PegInHoleSim
-from kinadapt_nn.sweep import SweepCfg, tool_overrides
+import mujoco  # noqa: E402
+import mujoco.batch  # noqa: E402
+import numpy as np  # noqa: E402
+
+from kinadapt_nn.batch import run_batch  # noqa: E402
+from kinadapt_nn.config import load_config  # noqa: E402
+from kinadapt_nn.episode import run_episode  # noqa: E402
+from kinadapt_nn.sim.adapter import PegInHoleSim  # noqa: E402
+from kinadapt_nn.sweep import SweepCfg, tool_overrides  # noqa: E402
 
 
 def raw_physics(cfgs, ctrl_log: np.ndarray, steps: np.ndarray) -> float:
