@@ -8,23 +8,22 @@ Targets: adjoint (issues 2/3) <= 0.3 s wall per 5 s simulated, ratio <= 5, contr
 neural (issue 4) <= 0.6 s per 5 s episode, ratio <= 10.
 Run single-threaded for a "one core" figure:  taskset -c 0 python benchmarks/bench_episode.py
 
-Measured (2-core VM, timing noise +-30 %; A/B in one session, three alternating runs each):
+Measured (shared 2-core VM; before = the numpy controller at 2858a89, after = the numba kernels
+of kinadapt_nn/controller/core.py; one session, back to back):
 
 =====================  ====================  ====================
-                       before (33785273)     after the hot-path work
+                       before                after
 =====================  ====================  ====================
-step p50 / p99 [us]    83-84 / 170-206       25-34 / 60-87
-episode wall [s]       0.80-0.91             0.34-0.37
-ratio to raw physics   23-25                 9.4-10.2
+adjoint p50 / p99 [us] 26.5 / 153            8.9-9.0 / 17-23
+adjoint ratio          19.7                  4.5-4.8
+neural ratio           23.8                  9.0
+rbf ratio              34.9                  27.2
 =====================  ====================  ====================
 
-Where a step goes now (closed loop, ~62 us/step + ~45 ms set-up and offline evaluation per
-episode): Controller.step ~27 us (~45 numpy / MuJoCo calls at 0.3-1 us each: kinematics 3,
-composite law 4.5 (+5 on contact steps), fused regressor 3, drive 2, joint reference 5), mj_step
-8-12 us, the episode loop's own bookkeeping ~15 us (episode.py), TraceRecorder.record ~6 us
-(27 channels), truth() ~3 us, sense() + apply() ~3 us. The ratio target (<= 5) is out of reach
-in numpy: the loop without the controller (physics in the closed loop, bookkeeping, logging,
-truth) is already ~5x raw physics.
+Where a step goes now (adjoint, ~33 us/step): mj_step ~7 us; the controller ~9 us (one numba
+dispatch: intake, bare-arm kinematics, sense, regressor, drive, admittance, joint reference, law,
+rank gate); the loop's copies into preallocated logs, sense_into/apply, truth() on logged steps
+and the seat monitor ~10 us; set-up and the offline evaluation ~25 ms per episode.
 """
 
 from __future__ import annotations
@@ -74,6 +73,33 @@ def step_latencies_us(cfg) -> np.ndarray:
     return lat * 1e6
 
 
+def kinematics_cost_us(n: int = 20000) -> tuple[float, float]:
+    """Per-call cost of the bare arm's FK + flange Jacobian at encoder readings: MuJoCo's own
+    (mj_kinematics + mj_comPos + mj_jacSite from Python, ``ArmKinematics.update``) against the
+    kernel's chain (``controller.core.fk_batch`` at B = 1, the same formulas on MuJoCo's model
+    constants; equal to mj_jacSite to ~1e-15, tests/controller/test_core.py). -> (mujoco, kernel) [us]."""
+    from kinadapt_nn.controller import core
+    from kinadapt_nn.robot import FLANGE_SITE, PANDA_MJCF, Q_HOME_RAD, ArmKinematics
+
+    kin = ArmKinematics(PANDA_MJCF)
+    site = mujoco.mj_name2id(kin.model, mujoco.mjtObj.mjOBJ_SITE, FLANGE_SITE)
+    chain = core.arm_chain(kin.model, site)
+    qs = Q_HOME_RAD + 0.1 * np.random.default_rng(0).standard_normal((n, 7))
+    inp = np.zeros((1, 2 * 7 + 6))
+    p_O, R, J = np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 6, 7))
+    core.fk_batch(chain, inp, p_O, R, J)  # compile / load from the cache
+    t0 = time.perf_counter()
+    for q in qs:
+        kin.update(q)
+    t_mj = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    for q in qs:
+        inp[0, :7] = q
+        core.fk_batch(chain, inp, p_O, R, J)
+    t_k = time.perf_counter() - t0
+    return 1e6 * t_mj / n, 1e6 * t_k / n
+
+
 def bench_one(features: str, repeats: int, extra: list[str]) -> None:
     """Print the two lines for one features type."""
     cfg = load_config(None, ["run.progress=false", "run.stop_after_seat_s=0.0", f"run.features={features}", *extra])
@@ -102,6 +128,8 @@ def main() -> None:
                     help="features types, one pair of lines each (the neural line last by default)")
     ap.add_argument("--set", action="append", default=[], help="config override key=value")
     args = ap.parse_args()
+    mj_us, k_us = kinematics_cost_us()
+    print(f"# arm kinematics per call: mujoco_calls_us={mj_us:.2f} kernel_fk_us={k_us:.2f}")
     for f in args.features:
         bench_one(f, args.repeats, args.set)
 

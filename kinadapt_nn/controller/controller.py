@@ -1,5 +1,9 @@
 """The controller: value force, second-order twist admittance, joint reference.
 
+The per-step maths lives once, over B episodes, in ``kinadapt_nn.controller.core`` (numba
+kernels); ``Controller`` here is that core at B = 1 with the public interface (``step`` ->
+``JointCommand``, ``last`` -> ``StepLog``); ``kinadapt_nn.runs.batch`` runs the same kernels for B.
+
 Truth firewall: ``Controller.step(t, q, qdot, wrench)`` sees joint encoders and the raw
 wrist F/T reading only. Its kinematics come from its own MuJoCo model of the *bare arm*
 (``models/panda.xml``: no tool, no block); the known constants it holds (bore pose,
@@ -24,15 +28,15 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import mujoco
 import numpy as np
 
-from kinadapt_nn.config import ExperimentCfg, arm_mjcf_path
-from kinadapt_nn.errors import SensorError
+from kinadapt_nn.controller import core
+from kinadapt_nn.controller.law import MODES, AdaptStep
+from kinadapt_nn.errors import ConfigError, SensorError
 from kinadapt_nn.features.base import Features, KinState
+from kinadapt_nn.known import KnownCfg
 from kinadapt_nn.robot import ArmKinematics
-from kinadapt_nn.controller.law import AdaptStep, CompositeLaw
-from kinadapt_nn.sensing import RateFilter, channel_metric, lateral_projector, nominal_sensor_map
+from kinadapt_nn.sensing import channel_metric, lateral_projector, nominal_sensor_map
 
 
 class JointCommand(NamedTuple):
@@ -67,8 +71,8 @@ class ValueFunction:
     F in [N, m, m, rad, rad, rad] so that ``F . s_dot`` is a power.
     """
 
-    def __init__(self, cfg: ExperimentCfg) -> None:
-        c = cfg.control
+    def __init__(self, known: KnownCfg) -> None:
+        c = known.control
         self.d_star = c.depth_target_m
         self.k_d = c.k_depth_N_per_m
         self.f_max = c.depth_force_max_N
@@ -96,13 +100,13 @@ class ValueFunction:
         return out
 
 
-def prior_cov_of(features: Features, adjoint_half_width: np.ndarray) -> np.ndarray:
+def prior_cov_of(features: Features) -> np.ndarray:
     """theta's prior covariance (p, p): ``features.P0`` when the features declare one, else a
     diagonal with sd = a third of Omega's half width (finite entries; 1 where Omega is open)."""
     P0 = getattr(features, "P0", None)
     if P0 is not None:
         return np.asarray(P0, dtype=float)
-    half = adjoint_half_width if features.name == "adjoint" else features.omega()[1]
+    half = features.omega()[1]
     sd = np.where(np.isfinite(half), np.asarray(half, dtype=float) / 3.0, 1.0)
     return np.diag(sd**2)
 
@@ -114,331 +118,360 @@ def rank_margin(W: np.ndarray, J_hat: np.ndarray) -> float:
     return float(np.linalg.eigvalsh(WJ.dot(WJ.T))[0])
 
 
-class Controller:
-    """F/T + encoder admittance controller. ``step(t, q, qdot, wrench) -> JointCommand``.
 
-    Parameters are known constants only (config sections ``sensing``, ``control`` and the
-    bore pose); ``features`` and ``theta0`` define ``J_hat``; ``theta`` is adapted by the
-    composite law (``adaptation.mode``; ``features=oracle`` holds the true offset frozen as a
-    declared baseline).
+def _law_code(mode: str) -> int:
+    if mode not in MODES:
+        raise ConfigError(f"adaptation mode {mode!r} not in {MODES}")
+    return core.LAW_CODES[mode]
+
+
+def feature_kind(features: Features) -> int:
+    """The adjoint and the neural basis are computed in the kernel (``features.kernel``); others
+    supply their rows from Python (``FEAT_JHAT``, switched to ``FEAT_TWIST`` where the features
+    factor through the twist)."""
+    return {"adjoint": core.FEAT_ADJOINT, "neural": core.FEAT_NEURAL}.get(features.kernel, core.FEAT_JHAT)
+
+
+def feature_consts(features: Features) -> np.ndarray:
+    """The in-kernel features' constants (the neural body), else a placeholder."""
+    return core.neural_consts(features) if feature_kind(features) == core.FEAT_NEURAL else np.zeros(1)
+
+
+def core_consts(known: KnownCfg, features: Features) -> tuple[core.CoreConsts, dict]:
+    """The kernels' constants from the known config and the features. -> (CoreConsts, law_args)."""
+    c, sc, ad, dt = known.control, known.sensing, known.adaptation, known.dt_s
+    n_axis = known.n_axis
+    S = nominal_sensor_map(sc, n_axis)
+    P = lateral_projector(S, sc.stiffness_lat_N_per_m)
+    W = channel_metric(sc)
+    l_nom = np.asarray(sc.nominal_offset_f_m, dtype=float)
+    tau = np.array([c.tau_trans_s] * 3 + [c.tau_ang_s] * 3)
+    gain = np.array([c.gain_trans] * 3 + [c.gain_ang] * 3)
+    beta = np.array([c.beta_trans] * 3 + [c.beta_ang] * 3)
+    M_virt = tau / gain  # [kg | kg m^2] virtual inertia per twist channel
+    D_virt = (1.0 + beta) / gain  # [N s/m | N m s/rad] damping (I + beta) / g
+    theta_nominal, half = features.omega()  # Omega: the features' own box (the adjoint's about l_nom)
+    law_args = dict(
+        features=features, mode=known.law, gamma=ad.gamma, gamma_d=ad.gamma_d, eta=ad.eta, eps_norm=ad.eps_norm,
+        W=W, filter_tau_s=sc.filter_tau_s, dt_s=dt,
+        theta_nominal=theta_nominal, omega_half_width=half,
+        contact_force_N=ad.contact_force_N, contact_moment_Nm=ad.contact_moment_Nm,
+        # kalman law: the features' prior covariance (declared by make_features), else Omega/3
+        prior_cov=prior_cov_of(features),
+        corr_s=ad.corr_s, resid_tau_s=ad.resid_tau_s, resid_floor_w=ad.resid_floor_w,
+        persist_tau_s=ad.persist_tau_s, act_sd_ratio=ad.act_sd_ratio,
+    )
+    p = features.n_params
+    v = np.zeros(core.N_C)
+    alpha, inv_tau = dt / (sc.filter_tau_s + dt), 1.0 / (sc.filter_tau_s + dt)
+    dither = np.asarray(c.dither_rad_s, dtype=float)
+    scal = {
+        core.DT: dt, core.T_SETTLE: known.settle_s, core.T_TARE0: max(0.0, known.settle_s - sc.tare_window_s),
+        core.RAMP: c.ramp_s, core.D_STAR: c.depth_target_m, core.K_D: c.k_depth_N_per_m, core.F_MAX: c.depth_force_max_N,
+        core.C_F: c.compliance_lat_m_per_N, core.C_M: c.compliance_mom_rad_per_Nm, core.V_MAX: c.v_max_m_per_s,
+        core.W_MAX: c.w_max_rad_per_s, core.K_NS: c.nullspace_gain, core.DAMP: 1e-6, core.ALPHA: alpha,
+        core.INV_TAU: inv_tau, core.N_ENTRY: float(n_axis @ np.asarray(known.bore_entry_w_m, dtype=float)),
+        core.RIGID: float(c.loop == "rigid"), core.DITHER_ON: float(np.any(dither)),
+        core.TWO_PI_F: 2.0 * math.pi * c.dither_hz, core.EXCITE: float(c.program == "excite"),
+        core.BLEND: known.excite.blend_s, core.LAW: _law_code(known.law),
+        core.C_TRACK: -dt * ad.gamma * ad.gamma_d, core.GAMMA_D: ad.gamma_d, core.ETA: ad.eta,
+        core.EPS_NORM: ad.eps_norm, core.F_GATE: ad.contact_force_N, core.M_GATE: ad.contact_moment_Nm,
+        core.N_CORR: max(1.0, ad.corr_s / dt), core.R_ALPHA: min(1.0, dt / ad.resid_tau_s),
+        core.R_FLOOR: ad.resid_floor_w, core.M_ALPHA: min(1.0, dt / ad.persist_tau_s),
+        core.N_PERSIST: 2.0 * ad.persist_tau_s / dt, core.ACT_RATIO: ad.act_sd_ratio,
+        core.ACT_EVERY: max(1, int(round((0.02 if p <= 30 else 0.1) / dt))),
+        core.MAX_HOLD: max(0, int(round(sc.max_dropout_s / dt))), core.FEAT: feature_kind(features),
+        core.RANK_ON: 1.0, core.RANK_GATE_V: core.RANK_GATE,  # 1: lambda_min every step; 2: the gate only
+    }
+    for i, val in scal.items():
+        v[i] = val
+    v[core.V_N:core.V_N + 3] = n_axis
+    v[core.V_LNOM:core.V_LNOM + 3] = l_nom
+    v[core.V_M:core.V_M + 6] = M_virt
+    v[core.V_INVDEN:core.V_INVDEN + 6] = 1.0 / (M_virt + dt * D_virt)
+    v[core.V_GRIGID:core.V_GRIGID + 6] = gain / (1.0 + beta)  # rigid: the admittance's DC gain
+    v[core.V_W:core.V_W + 6] = W
+    v[core.V_D:core.V_D + 6] = D_virt
+    v[core.V_DITHER:core.V_DITHER + 3] = dither
+    G = np.zeros((6, 6))  # s[1:] = G[1:] w_env: F_lat = -P f_env, M = -m_env
+    G[1:3, 0:3] = -P
+    G[3:6, 3:6] = -np.eye(3)
+    lo = np.asarray(law_args["theta_nominal"], dtype=float) - law_args["omega_half_width"]
+    hi = np.asarray(law_args["theta_nominal"], dtype=float) + law_args["omega_half_width"]
+    track_rows = getattr(features, "track_rows", None)  # rows of Phi the tracking term uses
+    mask = np.ones(p) if track_rows is None else np.asarray(track_rows, dtype=float)
+    P0 = np.asarray(law_args["prior_cov"], dtype=float)
+    L0 = np.linalg.cholesky(P0)
+    segs = np.asarray(known.excite.segments, dtype=float).reshape(-1, 7)
+    seg = np.column_stack([np.cumsum(segs[:, 0]), segs[:, 1:]]) if len(segs) else np.zeros((0, 7))
+    return core.CoreConsts(
+        c=v, mats=np.stack([S, G]), pv=np.ascontiguousarray(np.stack([lo, hi, mask])),
+        L0=np.stack([L0, np.linalg.inv(L0)]), seg=np.ascontiguousarray(seg),
+    ), law_args
+
+
+class LawView:
+    """What the law learned, read from the controller's state (episode b): the names
+    ``adaptation.CompositeLaw`` offers to the summaries (``uncertainty_ratio``, ``gram_sum``, ...)."""
+
+    def __init__(self, state: core.ControllerState, consts: core.CoreConsts, mode: str, b: int = 0) -> None:
+        self._st, self._b, self.mode = state, b, mode
+        self.lo, self.hi = consts.pv[0], consts.pv[1]
+        self._act_ratio = float(consts.c[core.ACT_RATIO])
+        P0 = consts.L0[0] @ consts.L0[0].T
+        self._trP0 = float(np.trace(P0))
+
+    class _Filtered:
+        def __init__(self, z: np.ndarray) -> None:
+            self.z = z
+
+    @property
+    def Phi_f(self) -> "_Filtered":
+        """The law's filtered regressor (``.z`` (m, p))."""
+        return self._Filtered(self._st.Phi_fT[self._b].T)
+
+    @property
+    def P(self) -> np.ndarray:
+        return self._st.P[self._b]
+
+    @property
+    def r2(self) -> np.ndarray:
+        return self._st.r2[self._b]
+
+    @property
+    def r1(self) -> np.ndarray:
+        return self._st.r1[self._b]
+
+    @property
+    def _r2_primed(self) -> bool:
+        return bool(self._st.k[self._b, core.K_R2_PRIMED])
+
+    @property
+    def gram_sum(self) -> np.ndarray:
+        return self._st.gram_sum[self._b]
+
+    @property
+    def gram_n(self) -> int:
+        return int(self._st.k[self._b, core.K_GRAM_N])
+
+    def identified_directions(self) -> int:
+        """How many directions of theta the controller acts on (0 before the first kalman step)."""
+        if not self._st.k[self._b, core.K_ACT_INIT]:
+            return 0
+        return int(round(float(np.trace(self._st.act_proj[self._b]))))
+
+    def uncertainty_ratio(self) -> float:
+        """``sqrt(tr P / tr P0)``: the remaining uncertainty of theta as a fraction of the prior."""
+        return math.sqrt(max(float(np.trace(self.P)), 0.0) / self._trP0)
+
+    def information_sd(self) -> np.ndarray:
+        """Posterior standard deviation of each parameter, sqrt(diag P)."""
+        return np.sqrt(np.clip(np.diag(self.P), 0.0, None))
+
+
+class Controller:
+    """F/T + encoder admittance controller at B = 1. ``step(t, q, qdot, wrench) -> JointCommand``.
+
+    Built from the known constants only (``KnownCfg``: sensing, control, adaptation, the bore
+    pose, the arm model); ``features`` and ``theta0`` define ``J_hat``; ``theta`` is adapted by
+    ``known.law``. All filter and law state is one ``controller/core.py: ControllerState``.
     """
 
-    def __init__(
-        self,
-        cfg: ExperimentCfg,
-        features: Features,
-        theta0: np.ndarray,
-        bore_axis_w: np.ndarray,
-        mode: str | None = None,
-    ) -> None:
-        self.cfg = cfg
-        c, sc = cfg.control, cfg.sensing
-        self.dt = cfg.run.dt_s
+    def __init__(self, known: KnownCfg, features: Features, theta0: np.ndarray) -> None:
+        self.known = known
+        sc = known.sensing
+        self.dt = known.dt_s
         self.features = features
-        self.theta = np.asarray(theta0, dtype=float).copy()
-        self.kin = ArmKinematics(arm_mjcf_path(cfg.scene))
-        self.kin_n = self.kin.model.nq
+        self.mode = known.law
+        self.kin = ArmKinematics(known.arm_mjcf)
+        self.kin_n = n = self.kin.model.nq
         #: longest run of non-finite samples bridged by holding the last valid one [steps]
-        self.max_hold_steps = max(0, int(round(cfg.sensing.max_dropout_s / cfg.run.dt_s)))
-        self.n_axis = np.asarray(bore_axis_w, dtype=float)
-        self.entry_w = np.asarray(cfg.scene.bore_entry_w_m, dtype=float)  # known bore pose
+        self.max_hold_steps = max(0, int(round(sc.max_dropout_s / self.dt)))
+        self.n_axis = known.n_axis
+        self.entry_w = np.asarray(known.bore_entry_w_m, dtype=float)  # known bore pose
         self.l_nom_f = np.asarray(sc.nominal_offset_f_m, dtype=float)
         self.S = nominal_sensor_map(sc, self.n_axis)
         self.P = lateral_projector(self.S, sc.stiffness_lat_N_per_m)  # (2, 3)
         self.W = channel_metric(sc)
-        self._n_entry = float(self.n_axis @ self.entry_w)
-        self._G = np.zeros((5, 6))  # s[1:] = G w_env: F_lat = -P f_env, M = -m_env
-        self._G[0:2, 0:3] = -self.P
-        self._G[2:5, 3:6] = -np.eye(3)
-        self._zero6 = np.zeros(6)
-        self.value_fn = ValueFunction(cfg)
-        tau = np.array([c.tau_trans_s] * 3 + [c.tau_ang_s] * 3)
-        gain = np.array([c.gain_trans] * 3 + [c.gain_ang] * 3)
-        beta = np.array([c.beta_trans] * 3 + [c.beta_ang] * 3)
-        self.M_virt = tau / gain  # [kg | kg m^2] virtual inertia per twist channel
-        self.D_virt = (1.0 + beta) / gain  # [N s/m | N m s/rad] damping (I + beta) / g
-        self._inv_den = 1.0 / (self.M_virt + self.dt * self.D_virt)
-        self._rigid = c.loop == "rigid"
-        self._gain_t = tuple((gain / (1.0 + beta)).tolist())  # rigid: xi = g/(1+beta) (S Ad)^T F, the admittance's DC gain
-        self.v_max, self.w_max = c.v_max_m_per_s, c.w_max_rad_per_s
-        self.k_ns = c.nullspace_gain
-        self._dither = np.asarray(c.dither_rad_s, dtype=float)
-        self._dither_on = bool(np.any(self._dither))
-        self._two_pi_f = 2.0 * math.pi * c.dither_hz
-        self._damp = 1e-6  # Tikhonov term of J_arm^+ = J^T (J J^T + 1e-6 I)^-1
-        # scripted excitation (control.program = "excite"): a commanded nominal-tip twist per segment
-        self._excite = c.program == "excite"
-        segs = np.asarray(cfg.excite.segments, dtype=float).reshape(-1, 7)
-        self._seg_end = np.cumsum(segs[:, 0])
-        self._seg_twist = segs[:, 1:]
-        self._blend = cfg.excite.blend_s
-        self.t_settle = cfg.start.settle_s
-        self.t_tare0 = max(0.0, self.t_settle - sc.tare_window_s)
-        self.ramp_s = c.ramp_s
-        # -- work buffers of step() (allocated once; step() fills them in place)
+        self.value_fn = ValueFunction(known)
+        self.consts, self.law_args = core_consts(known, features)
+        self.chain = core.arm_chain(self.kin.model, self.kin.site)  # the kernels' kinematics of the bare arm
+        self.M_virt = self.consts.c[core.V_M:core.V_M + 6].copy()
+        self.D_virt = self.consts.c[core.V_D:core.V_D + 6].copy()
+        self.theta0 = np.asarray(theta0, dtype=float).copy()
         p, m = features.n_params, self.S.shape[0]
-        # One filter pass for every filtered channel (README: the prediction goes through the
-        # *same* filter as the measured rate): rows [s; known; Phi^T] -> states
-        # [y (rate filter of s); known_f; Phi_f^T] (the law's LowPass states are views of rows 1:).
-        self._U = np.zeros((2 + p, m))  # filter inputs this step
-        self._Z = np.zeros((2 + p, m))  # filter states
-        self._D = np.zeros((2 + p, m))  # scratch: U - Z
-        self._s, self._s_tail, self._known, self._Phi_T = self._U[0], self._U[0, 1:], self._U[1], self._U[2:]
-        self._D0 = self._D[0]
-        self.rate_meas = RateFilter(sc.filter_tau_s, self.dt, m, y=self._Z[0])
-        self._alpha, self._inv_tau = self.rate_meas.alpha, self.rate_meas.inv
-        self._dw = np.zeros(6)  # wrench - tare
-        self._dw23 = self._dw.reshape(2, 3)
-        self._w_env = np.zeros(6)  # tool -> environment wrench, world
-        self._w_env23 = self._w_env.reshape(2, 3)
-        self._L = np.zeros((6, 6))  # J J^T + 1e-6 I, then its Cholesky factor
-        self._L_diag = self._L.reshape(-1)[::7]
-        # adjoint features: fused kernels (no J_hat_xi formed); other features: generic path
-        self._fused = bool(getattr(features, "has_fused_kernels", lambda: False)())
+        self.layout = core.Layout(n, m, p)
+        self.state = core.ControllerState(self.layout, 1)
+        self._fused = self.consts.c[core.FEAT] in (core.FEAT_ADJOINT, core.FEAT_NEURAL)  # one kernel call per step
+        self._fx = feature_consts(features)
         self._observe = getattr(features, "observe", None)
-        track_rows = getattr(features, "track_rows", None)  # rows of Phi the tracking term uses
-        self._track_mask = None if track_rows is None else np.asarray(track_rows, dtype=float)[:, None]
-        self._n_t = tuple(self.n_axis.tolist())
-        self._M_t = tuple(self.M_virt.tolist())
-        self._inv_den_t = tuple(self._inv_den.tolist())
-        ad = cfg.adaptation
-        self.theta0 = self.theta.copy()
-        half = np.array([ad.omega_lateral_m, ad.omega_lateral_m, ad.omega_axial_m])
-        self.law_args = dict(
-            features=features,
-            mode=mode or ad.mode,
-            gamma=ad.gamma,
-            gamma_d=ad.gamma_d,
-            eta=ad.eta,
-            eps_norm=ad.eps_norm,
-            W=self.W,
-            filter_tau_s=sc.filter_tau_s,
-            dt_s=self.dt,
-            # Omega: the adjoint's box about the nominal offset; learned features give their own
-            theta_nominal=self.l_nom_f if features.name == "adjoint" else features.omega()[0],
-            omega_half_width=half if features.name == "adjoint" else features.omega()[1],
-            contact_force_N=ad.contact_force_N,
-            contact_moment_Nm=ad.contact_moment_Nm,
-            # kalman law: the features' prior covariance (declared by make_features), else Omega/3
-            prior_cov=prior_cov_of(features, half),
-            corr_s=ad.corr_s,
-            resid_tau_s=ad.resid_tau_s,
-            resid_floor_w=ad.resid_floor_w,
-            persist_tau_s=ad.persist_tau_s,
-            act_sd_ratio=ad.act_sd_ratio,
-        )
+        # -- kernel buffers (B = 1), allocated once
+        self._inp = np.zeros((1, 2 * n + 6))
+        self._q, self._qdot, self._wrench = self._inp[0, :n], self._inp[0, n:2 * n], self._inp[0, 2 * n:]
+        self._p_O, self._R, self._J = np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 6, n))
+        self._reg = np.zeros((1, 1 + p, m))
+        self._ext_J = np.zeros((1, m, max(n, 6)))
+        self.out = np.zeros((1, self.layout.nout))
+        ob = {k: self.out[0, o:o + size] for k, (o, size) in self.layout.out_blocks.items()}
+        self._o = ob
+        self._i_rho, self._i_gate = self.layout.out_blocks["rho"][0], self.layout.out_blocks["gate"][0]
+        self._i_n2, self._i_lam = self.layout.out_blocks["phi_norm2"][0], self.layout.out_blocks["lam_min"][0]
         self.reset()
+
+    # -- state views -----------------------------------------------------------------------
+    @property
+    def theta(self) -> np.ndarray:
+        """(p,) the estimate the next step uses."""
+        return self.state.theta[0]
+
+    @theta.setter
+    def theta(self, value: np.ndarray) -> None:
+        self.state.theta[0] = value
+
+    @property
+    def xi(self) -> np.ndarray:
+        return self.state.xi[0]
+
+    @property
+    def q_ref(self) -> np.ndarray | None:
+        return self.state.q_ref[0] if self.state.k[0, core.K_STARTED] else None
+
+    @property
+    def tare(self) -> np.ndarray:
+        return self.state.tare[0]
+
+    @property
+    def tared(self) -> bool:
+        return bool(self.state.k[0, core.K_TARED])
+
+    @property
+    def dropouts(self) -> int:
+        return int(self.state.k[0, core.K_DROPOUTS])
+
+    @property
+    def F(self) -> np.ndarray:
+        return self._o["F"]
 
     def reset(self, carry_estimate: bool = False) -> None:
         """Back to the start of an insertion. ``carry_estimate``: keep theta and what the law
         learned about it (covariance, residual level) -- the next insertion of the same tool."""
-        carried = (self.theta.copy(), self.law) if carry_estimate else None
-        self.dropouts = 0
-        self._bad_run = 0
-        self._held = (np.zeros(self.kin_n), np.zeros(self.kin_n), np.zeros(6))
-        self._have_held = False
-        p = self.features.n_params
-        self._hold_step = AdaptStep(np.zeros(6), np.zeros(6), np.zeros(p), np.zeros(p), 0.0, 0.0)
-        self.xi = np.zeros(6)
-        self.q_ref: np.ndarray | None = None
-        self.q_posture: np.ndarray | None = None
-        self.tare_sum = np.zeros(6)
-        self.tare_n = 0
-        self.tare = np.zeros(6)
-        self.F = np.zeros(6)
-        self.tared = False
-        self._tmp6 = np.zeros(6)
-        self._xi_t = (0.0,) * 6
-        self._Z[...] = 0.0
-        self.rate_meas.primed = False
-        self.theta = self.theta0.copy()
-        self.law = CompositeLaw(**self.law_args, filter_state=self._Z[1:])
-        if carried is not None:
-            self.theta = carried[0]
-            self.law.carry_from(carried[1])
-        self.last: StepLog | None = None
+        st = self.state
+        keep = None
+        if carry_estimate:
+            keep = (st.theta[0].copy(), st.P[0].copy(), st.r2[0].copy(), st.r1[0].copy(), st.theta_kf[0].copy(),
+                    st.theta_prior[0].copy(), int(st.k[0, core.K_R2_PRIMED]), int(st.k[0, core.K_KF_INIT]))
+        st.x[...] = 0.0
+        st.k[...] = 0
+        st.theta[0] = self.theta0
+        st.P[0] = np.asarray(self.law_args["prior_cov"], dtype=float)
+        if keep is not None:
+            (st.theta[0], st.P[0], st.r2[0], st.r1[0], st.theta_kf[0], st.theta_prior[0], st.k[0, core.K_R2_PRIMED],
+             st.k[0, core.K_KF_INIT]) = keep
+        self.out[...] = 0.0
+        self.law = LawView(st, self.consts, self.mode)
+        self._stepped = False
 
     # ------------------------------------------------------------------------------------
     def rank_margin_now(self) -> float:
         """``lambda_min(W J_hat J_hat^T W)`` of the Jacobian the controller will use next (the
-        current theta) at this step's configuration (the kinematics' buffers of the last step, no
-        new forward kinematics). The rank gate, every step (~10 us; benchmarks/bench_episode.py)."""
-        k = self.kin
-        kin = KinState(k._qpos[: self.kin_n].copy(), k._p, k._R, k._jac)
+        current theta) at this step's configuration (the rank gate, every step). The adjoint's is
+        computed in the kernel; other features evaluate ``features.jacobian`` here."""
+        if self._fused:
+            return float(self.out[0, self._i_lam])
+        kin = KinState(self._q.copy(), self._p_O[0], self._R[0], self._J[0])
         return rank_margin(self.W, self.features.jacobian(kin, self.theta))
 
     def sensor_vector(self, kin: KinState, w_env_w: np.ndarray) -> np.ndarray:
         """s = [d, F_lat, M] (see kinadapt_nn.sensing). -> (6,)."""
         s = np.empty(6)
-        s[0] = self.n_axis @ (kin.p_w_O + kin.R_wf @ self.l_nom_f) - self._n_entry
-        s[1:] = self._G @ w_env_w  # F_lat = P f_on_tool = -P w_env_f ; M = -w_env_m
+        s[0] = self.n_axis @ (kin.p_w_O + kin.R_wf @ self.l_nom_f) - self.consts.c[core.N_ENTRY]
+        s[1:] = self.consts.mats[1, 1:] @ w_env_w  # F_lat = P f_on_tool = -P w_env_f ; M = -w_env_m
         return s
 
     def excite_twist(self, t_rel: float) -> np.ndarray:
         """The excitation program's commanded nominal-tip twist [v_tip; omega] (world) at time
         ``t_rel`` after the settle, blended linearly from the previous segment's over
         ``excite.blend_s``. -> (6,); zero before the program, ramping to zero after it."""
-        if t_rel < 0.0 or not len(self._seg_end):
+        seg, blend = self.consts.seg, self.known.excite.blend_s
+        if t_rel < 0.0 or not len(seg):
             return np.zeros(6)
-        k = int(np.searchsorted(self._seg_end, t_rel, side="right"))
-        cur = self._seg_twist[k] if k < len(self._seg_end) else np.zeros(6)
-        start = self._seg_end[k - 1] if k > 0 else 0.0
-        prev = self._seg_twist[k - 1] if k > 0 else np.zeros(6)
-        if self._blend > 0.0 and t_rel - start < self._blend:  # linear blend: bounded acceleration
-            a = (t_rel - start) / self._blend
-            return prev + a * (cur - prev)
+        k = int(np.searchsorted(seg[:, 0], t_rel, side="right"))
+        cur = seg[k, 1:] if k < len(seg) else np.zeros(6)
+        start = seg[k - 1, 0] if k > 0 else 0.0
+        prev = seg[k - 1, 1:] if k > 0 else np.zeros(6)
+        if blend > 0.0 and t_rel - start < blend:
+            return prev + (t_rel - start) / blend * (cur - prev)
         return cur.copy()
-
-    def _excite_drive(self, t_rel: float, lever_w: list[float]) -> list[float]:
-        """``D xi_ref`` for the admittance: in free space the wrist twist follows ``xi_ref``
-        (time constant M/D), in contact the contact wrench balances it (compliant). The tip
-        twist is moved to O: ``v_O = v_tip - omega x (R l_nom)``."""
-        x = self.excite_twist(t_rel)
-        x[:3] -= np.cross(x[3:], lever_w)
-        return (self.D_virt * x).tolist()
 
     def step(self, t: float, q: np.ndarray, qdot: np.ndarray, wrench: np.ndarray) -> JointCommand:
         """One control period. Inputs: time [s], encoders (n,), raw F/T reading (6,) in f.
+        The maths is ``controller.core`` at B = 1 (see its module docstring). -> copies."""
+        self.advance(t, q, qdot, wrench)
+        return JointCommand(self.state.q_ref[0].copy(), self._o["qdot_ref"].copy())
 
-        Hot path (1 kHz): numpy calls cost ~0.3-1 us each whatever the size here, so small
-        vectors are handled as Python floats and the rest is fused into few calls on
-        preallocated buffers; the comments name what each fused line implements."""
-        if math.isfinite(q.dot(q) + qdot.dot(qdot) + wrench.dot(wrench)):
-            holding = False
-            self._bad_run = 0
-            self._held[0][:] = q
-            self._held[1][:] = qdot
-            self._held[2][:] = wrench
-            self._have_held = True
-        else:  # a dropout: hold the last valid sample (no adaptation on it); never let NaN in
-            self.dropouts += 1
-            self._bad_run += 1
-            enc_ok = math.isfinite(q.dot(q) + qdot.dot(qdot))
-            if self._bad_run > self.max_hold_steps or not (self._have_held or enc_ok):
-                raise SensorError(
-                    f"non-finite sensor sample at t={t:.3f} s ({self._bad_run} in a row; check the encoders and "
-                    "the F/T sensor for NaN/inf)"
-                )
-            holding = True
-            if self._have_held:
-                q, qdot, wrench = self._held
-            else:  # the very first samples: valid encoders, no valid wrench yet -> zero wrench, no tare
-                wrench = self._zero6
-        kin = self.kin.update(q)  # views, valid for this step
-        R, J = kin.R_wf, kin.J_arm
-        if self.q_ref is None:
-            self.q_ref = q.copy()
-            self.q_posture = q.copy()
-        # -- tare: average the free-space reading (tool weight) while holding still
-        if t < self.t_settle:
-            if t >= self.t_tare0 and not holding:
-                self.tare_sum += wrench
-                self.tare_n += 1
-            rho = 0.0
-            w_env = self._zero6
+    @property
+    def last(self) -> StepLog | None:
+        """This step's controller-side quantities (views of ``out``, valid until the next step)."""
+        if not self._stepped:
+            return None
+        o = self._o
+        out = self.out[0]
+        a = AdaptStep(o["s_dot_pred"], o["eps_w"], o["d_track"], o["d_pred"], float(out[self._i_gate]),
+                      float(out[self._i_n2]))
+        return StepLog(o["s"], o["s_dot_meas"], o["s_dot_pred"], o["F"], o["xi_cmd"], o["w_env"],
+                       o["theta_used"], float(out[self._i_rho]), a)
+
+    def advance(self, t: float, q: np.ndarray, qdot: np.ndarray, wrench: np.ndarray) -> None:
+        """``step`` without building the command: the hot path of ``run_episode``, which reads the
+        command from ``state.q_ref[0]`` and ``out`` (the ``qdot_ref`` block) directly."""
+        self._q[:] = q
+        self._qdot[:] = qdot
+        self._wrench[:] = wrench
+        self.advance_input(t)
+
+    @property
+    def input_row(self) -> np.ndarray:
+        """(2n + 6,) the next step's input [q; qdot; wrench]: a caller may write the sample here
+        and call :meth:`advance_input` (no copies on the hot path)."""
+        return self._inp[0]
+
+    def advance_input(self, t: float) -> None:
+        """``advance`` on the sample already in :attr:`input_row`."""
+        st, cs = self.state, self.consts
+        if self._fused:  # intake, kinematics, sense, regressor, drive, admittance, law: one dispatch
+            core.step_kernel(t, self._inp, self.chain, self._p_O, self._R, self._J, self._reg, self._ext_J, st.x, st.k,
+                             self.layout.arr, cs.c, cs.mats, cs.pv, cs.L0, cs.seg, self._fx, self.out)
         else:
-            if not self.tared:
-                self.tare = self.tare_sum / max(self.tare_n, 1)
-                self.tared = True
-            rho = min(1.0, (t - self.t_settle) / self.ramp_s) if self.ramp_s > 0 else 1.0
-            # tool -> environment, world axes, about O: [R (r_f - r0_f); R (r_m - r0_m)]
-            np.subtract(wrench, self.tare, out=self._dw)
-            np.dot(self._dw23, R.T, out=self._w_env23)
-            w_env = self._w_env
-        # -- s = [d, F_lat, M] (kinadapt_nn.sensing), written into row 0 of the filter input
-        s = self._s
-        np.dot(self._G, w_env, out=self._s_tail)  # F_lat = P f_on_tool = -P w_env_f ; M = -w_env_m
-        p0, p1, p2 = kin.p_w_O.tolist()
-        lw = R.dot(self.l_nom_f).tolist()  # nominal lever R l_nom, shared with the fused kernels
-        l0, l1, l2 = lw
-        n0, n1, n2 = self._n_t
-        s[0] = n0 * (p0 + l0) + n1 * (p1 + l1) + n2 * (p2 + l2) - self._n_entry  # n . (p_O + R l_nom) - n . p_entry
-        # -- regressor on the realised velocity (rows 1: of the filter input)
-        if self._fused:
-            self.features.regressor_rows(kin, qdot, self._known, self._Phi_T, lw)
-        else:
-            if self._observe is not None:  # effect columns need the sensor-side context
-                self._observe(t, s, w_env, rho > 0.0)
-            reg = self.features.regressor(kin, qdot)
-            self._known[:] = reg.known
-            self._Phi_T[:] = reg.Phi.T
-        # -- one pass of the shared first-order filter (sensing.RateFilter / LowPass):
-        #    s_dot_meas = (s - y) / (tau + dt);  y, known_f, Phi_f += alpha (input - state)
-        U, Z, D = self._U, self._Z, self._D
-        if not self.rate_meas.primed:
-            Z[0] = s
-            self.rate_meas.primed = True
-        np.subtract(U, Z, out=D)
-        s_dot_meas = self._D0 * self._inv_tau
-        D *= self._alpha
-        Z += D
-        # -- value force and the twist admittance (eq. ft_force, eq. cp_admittance)
-        F = self.value_fn.force(s, self.F)
-        L = self._L
-        mujoco.mju_mulMatMatT(L, J, J)
-        self._L_diag += self._damp
-        mujoco.mju_cholFactor(L, 0.0)
-        if self._excite:  # the scripted program replaces V's drive (control.program = "excite")
-            drive = self._excite_drive(t - self.t_settle, lw)
-        elif self._fused:
-            drive = self.features.twist_drive(kin, self.theta, F, lw)  # (S Ad)^T F: wrench at O
-        else:
+            core.intake_kernel(self._inp, st.x, st.k, self.layout.arr, cs.c)
+            if not st.k[0, core.K_ERROR]:
+                self._generic_step(t)
+        if st.k[0, core.K_ERROR]:
+            st.k[0, core.K_ERROR] = 0
+            raise SensorError(
+                f"non-finite sensor sample at t={t:.3f} s ({int(st.k[0, core.K_BAD_RUN])} in a row; check the "
+                "encoders and the F/T sensor for NaN/inf)"
+            )
+        self._stepped = True
+
+    def _generic_step(self, t: float) -> None:
+        """Features that are not fused: kinematics and sense in the kernel, the regressor rows and
+        J_hat (or J_hat_xi) from Python, then the rest of the step in the kernel."""
+        st, cs, lay = self.state, self.consts, self.layout.arr
+        core.fk_batch(self.chain, self._inp, self._p_O, self._R, self._J)
+        core.sense_kernel(t, self._inp, self._p_O, self._R, st.x, st.k, lay, cs.c, cs.mats, self.out)
+        kin = KinState(self._q, self._p_O[0], self._R[0], self._J[0])
+        if self._observe is not None:  # effect columns need the sensor-side context
+            self._observe(t, self._o["s"], self._o["w_env"], self.out[0, self._i_rho] > 0.0)
+        reg = self.features.regressor(kin, self._qdot)
+        self._reg[0, 0] = reg.known
+        self._reg[0, 1:] = reg.Phi.T
+        if not cs.c[core.EXCITE]:
             J_xi = self.features.twist_jacobian(kin, self.theta)  # (m, 6) or None
             if J_xi is not None:
-                drive = J_xi.T.dot(F).tolist()
-            else:  # J_hat_xi^T F = J_arm^{+T} J_hat^T F
-                dr = np.empty(6)
-                mujoco.mju_cholSolve(dr, L, J.dot(self.features.jacobian(kin, self.theta).T.dot(F)))
-                drive = dr.tolist()
-        # M (xi+ - xi)/dt + D xi+ = rho drive - w_env   (implicit in the damping), per channel,
-        # unrolled on Python floats (same operations, in the same order, as the vector form)
-        dt = self.dt
-        m0, m1, m2, m3, m4, m5 = self._M_t
-        i0, i1, i2, i3, i4, i5 = self._inv_den_t
-        x0, x1, x2, x3, x4, x5 = self._xi_t
-        d0, d1, d2, d3, d4, d5 = drive
-        w0, w1, w2, w3, w4, w5 = w_env.tolist()
-        if self._rigid:  # eq. ft_control: the commanded twist is realised, no contact feedback
-            g0, g1, g2, g3, g4, g5 = self._gain_t
-            x0, x1, x2, x3, x4, x5 = g0 * rho * d0, g1 * rho * d1, g2 * rho * d2, g3 * rho * d3, g4 * rho * d4, g5 * rho * d5
-        else:
-            x0 = (m0 * x0 + dt * (rho * d0 - w0)) * i0
-            x1 = (m1 * x1 + dt * (rho * d1 - w1)) * i1
-            x2 = (m2 * x2 + dt * (rho * d2 - w2)) * i2
-            x3 = (m3 * x3 + dt * (rho * d3 - w3)) * i3
-            x4 = (m4 * x4 + dt * (rho * d4 - w4)) * i4
-            x5 = (m5 * x5 + dt * (rho * d5 - w5)) * i5
-        vn = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
-        if vn > self.v_max:
-            c = self.v_max / vn
-            x0, x1, x2 = x0 * c, x1 * c, x2 * c
-        wn = math.sqrt(x3 * x3 + x4 * x4 + x5 * x5)
-        if wn > self.w_max:
-            c = self.w_max / wn
-            x3, x4, x5 = x3 * c, x4 * c, x5 * c
-        self._xi_t = (x0, x1, x2, x3, x4, x5)
-        self.xi = xi = np.array(self._xi_t)
-        if self._dither_on and rho > 0.0:  # commanded excitation (Remark ft_excitation), not stored
-            ph = self._two_pi_f * (t - self.t_settle)
-            xi = xi.copy()
-            xi[3] += rho * self._dither[0] * math.sin(ph)
-            xi[4] += rho * self._dither[1] * math.cos(ph)
-            xi[5] += rho * self._dither[2] * math.sin(1.7 * ph)
-        # -- joint reference: qdot = J^+ xi + (I - J^+ J) k_ns (q_0 - q)
-        z = self.q_posture - q
-        z *= self.k_ns
-        y = self._tmp6
-        mujoco.mju_cholSolve(y, L, xi - J.dot(z))
-        qdot_ref = y.dot(J)  # J^T y
-        qdot_ref += z
-        self.q_ref = self.q_ref + dt * qdot_ref
-        # -- adaptation (eq. ft_composite) on the realised velocity; theta_{k+1} is used next step
-        theta = self.theta
-        if holding:  # a held sample carries no new information: theta stays
-            a = self._hold_step._replace(s_dot_pred=s_dot_meas.copy())
-        else:
-            Phi_r = self._Phi_T if self._track_mask is None else self._Phi_T * self._track_mask
-            self.theta, a = self.law.step_filtered(theta, Phi_r, s_dot_meas, F, w_env)
-        # -- diagnostics for the trace (V and lambda_min are evaluated off the hot path)
-        self.last = StepLog(s, s_dot_meas, a.s_dot_pred, F, xi, w_env, theta, rho, a)
-        return JointCommand(self.q_ref, qdot_ref)
+                cs.c[core.FEAT] = core.FEAT_TWIST
+                self._ext_J[0, :, :6] = J_xi
+            else:
+                cs.c[core.FEAT] = core.FEAT_JHAT
+                self._ext_J[0, :, :self.kin_n] = self.features.jacobian(kin, self.theta)
+        core.act_kernel(t, self._inp, self._p_O, self._R, self._J, self._reg, self._ext_J, st.x, st.k, lay, cs.c,
+                        cs.mats, cs.pv, cs.L0, cs.seg, self._fx, self.out)

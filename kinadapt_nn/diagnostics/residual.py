@@ -70,13 +70,15 @@ def load_log(path: Path) -> RawLog:
 def replay(log: RawLog, cfg: ExperimentCfg, theta: np.ndarray | None = None) -> Replay:
     """Feed the log through a frozen controller and collect its sensing channels."""
     from kinadapt_nn.runs.episode import make_features
+    from dataclasses import replace
+
     from kinadapt_nn.controller.controller import Controller
-    from kinadapt_nn.known import BORE_AXIS_W
+    from kinadapt_nn.known import KnownCfg
 
     feats, theta0 = make_features(cfg.model_copy(update={"run": cfg.run.model_copy(update={"features": "adjoint"})}))
     th = np.asarray(theta if theta is not None else (log.theta if log.theta is not None and len(log.theta) == 3
                                                     else cfg.sensing.nominal_offset_f_m), dtype=float)
-    ctrl = Controller(cfg, feats, th, BORE_AXIS_W, mode="frozen")
+    ctrl = Controller(replace(KnownCfg.of(cfg), features_kind="adjoint", law="frozen"), feats, th)
     n = len(log.t_s)
     out = {k: np.zeros((n, 6)) for k in ("s", "w", "m", "p")}
     contact = np.zeros(n, bool)

@@ -78,6 +78,11 @@ class AdjointFeatures(Features):
         self.regressor_rows(kin, qdot, known, Phi_T)
         return Regressor(known=known, Phi=Phi_T.T)
 
+    @property
+    def kernel(self) -> str | None:
+        """"adjoint" unless a subclass changed the maths the kernel implements."""
+        return "adjoint" if self.has_fused_kernels() else None
+
     # -- hot-path kernels ------------------------------------------------------------------
     def has_fused_kernels(self) -> bool:
         """True when the kernels below compute what ``regressor``/``twist_jacobian`` do (a

@@ -48,6 +48,12 @@ class Features(abc.ABC):
     #: reports theta's error against the true tool; learned features' theta has no such meaning
     theta_is_offset: bool = False
 
+    @property
+    def kernel(self) -> str | None:
+        """Which in-kernel implementation of ``kinadapt_nn.controller.core`` computes these
+        features ("adjoint", "neural"); ``None``: the controller takes their rows from Python."""
+        return None
+
     def twist_jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray | None:
         """``J_hat_xi`` (m, 6) with ``J_hat = J_hat_xi J_arm`` where the parameterisation
         factors through the wrist twist (the adjoint does); ``None`` otherwise."""

@@ -55,6 +55,12 @@ class NeuralFeatures(Features):
         self._cache_val: np.ndarray | None = None
         self.theta_std = np.asarray(meta.get("theta_std", np.full(self.n_params, np.inf)), dtype=float)
 
+    @property
+    def kernel(self) -> str | None:
+        """"neural": the basis-structure body and regressor run in the controller's kernel (on
+        the in-kernel adjoint's known part); per-entry checkpoints supply rows from Python."""
+        return "neural" if self.structure == "basis" and self.known.kernel == "adjoint" else None
+
     def prior_cov(self) -> np.ndarray:
         """theta's prior covariance about the nominal head (0): the pretraining heads' covariance
         (``theta_cov`` in the checkpoint, else their per-parameter sd) plus their mean's outer

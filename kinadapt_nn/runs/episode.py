@@ -19,19 +19,19 @@ import numpy as np
 
 from kinadapt_nn.config import ExperimentCfg, arm_mjcf_path
 from kinadapt_nn.controller.controller import Controller, rank_margin
+from kinadapt_nn.controller.core import RANK_GATE  # the paper's kinematic gate (1e-6)
 from kinadapt_nn.errors import SensorError
 from kinadapt_nn.features import AdjointFeatures
 from kinadapt_nn.features.base import Features
+from kinadapt_nn.known import KnownCfg
 from kinadapt_nn.sensing import CHANNEL_NAMES, channel_metric, nominal_sensor_map
-from kinadapt_nn.known import BORE_AXIS_W, KnownCfg
+from kinadapt_nn.known import BORE_AXIS_W
 from kinadapt_nn.sim.adapter import PegInHoleSim
 from kinadapt_nn.sim.faults import SensorFaults
 from kinadapt_nn.trace import Trace, TraceRecorder
 from kinadapt_nn.sim.truth import TrueSensorJacobian
 
 FAILURES = ("none", "timeout", "jam", "block_face", "divergence")
-#: the paper's kinematic gate on lambda_min(W J_hat J_hat^T W) (Results, "A separate kinematic gate")
-RANK_GATE = 1e-6
 
 
 class SeatMonitor:
@@ -47,9 +47,10 @@ class SeatMonitor:
         self.seat_time: float | None = None
 
     def update(self, t: float, s: np.ndarray) -> tuple[bool, bool, bool]:
-        depth_ok = bool(s[0] >= self.d_seat)
-        force_ok = bool(np.hypot(s[1], s[2]) < self.f_max)
-        moment_ok = bool(np.sqrt(s[3] ** 2 + s[4] ** 2 + s[5] ** 2) < self.m_max)
+        s0, s1, s2, s3, s4, s5 = s.tolist()
+        depth_ok = s0 >= self.d_seat
+        force_ok = math.hypot(s1, s2) < self.f_max
+        moment_ok = math.sqrt(s3 * s3 + s4 * s4 + s5 * s5) < self.m_max
         if depth_ok and force_ok and moment_ok:
             if self.since is None:
                 self.since = t
@@ -137,7 +138,7 @@ def _base_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
             centres = sample_workspace(path, fc.rbf_n_centres, 0.03, np.random.default_rng(fc.rbf_seed))
         width = fc.rbf_width_rad or auto_width(centres)
         feats = RBFFeatures(adjoint, l_nom, centres, width)
-        from kinadapt_nn.robot import ArmKinematics
+        from kinadapt_nn.controller.controller import ArmKinematics
 
         feats.P0 = feats.prior_from_adjoint(ArmKinematics(arm_mjcf_path(cfg.scene)), adjoint.P0, ad.rbf_prior_floor)
         return feats, np.zeros(feats.n_params)
@@ -158,7 +159,7 @@ def law_name(cfg: ExperimentCfg) -> str:
 
 def make_controller(cfg: ExperimentCfg) -> Controller:
     feats, theta0 = make_features(cfg)
-    return Controller(cfg, feats, theta0, BORE_AXIS_W, mode=law_name(cfg))
+    return Controller(KnownCfg.of(cfg), feats, theta0)
 
 
 class EpisodeResult(NamedTuple):
@@ -202,12 +203,10 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False, ctrl: Controller | N
     dt = cfg.run.dt_s
     n_steps = int(round(cfg.run.duration_s / dt))
     every = cfg.run.log_every
-    rec = TraceRecorder(n_steps // every + 1, ctrl.features.n_params)
+    n_rec = n_steps // every + 1
     monitor = SeatMonitor(cfg)
     faults = SensorFaults(cfg.faults, cfg.run.seed, cfg.start.settle_s) if SensorFaults.active(cfg.faults) else None
-    obs = sim.sense() if faults is None else faults(sim.time_s, sim.sense())
-    theta_true = np.asarray(tcfg.tool.offset_f_m, dtype=float) if isinstance(ctrl.features, AdjointFeatures) else None
-    nan6 = np.full(6, np.nan)
+    theta_true = np.asarray(tcfg.tool.offset_f_m, dtype=float) if ctrl.features.theta_is_offset else None
     diverged = False
     divergence_reason = None
     warn0 = int(sim.data.warning.number.sum())
@@ -217,73 +216,79 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False, ctrl: Controller | N
         from tqdm import tqdm
 
         bar = tqdm(total=n_steps, unit="step", desc="episode", leave=False, mininterval=0.25)
+    # -- the hot loop only copies into preallocated logs; trace channels are built after it
+    lay = ctrl.layout
+    n, m, p = lay.n, lay.m, lay.p
+    out, q_ref, qdot_ref = ctrl.out[0], ctrl.state.q_ref[0], ctrl._o["qdot_ref"]
+    i_rho, i_lam, i_s = lay.out_blocks["rho"][0], lay.out_blocks["lam_min"][0], lay.out_blocks["s"][0]
+    fused = ctrl._fused
+    x_row = ctrl.state.x[0]
+    f0 = lay.x_blocks["filt"][0] + 2 * m  # Phi_f^T rows of the state (truth_bias_w, evaluation only)
+    t_log = np.zeros(n_rec)
+    out_log = np.zeros((n_rec, lay.nout))
+    io_log = np.zeros((n_rec, 3 * n + 6))  # q, qdot, wrench (raw, as given), q_ref
+    phi_log = np.zeros((n_rec, p * m)) if theta_true is not None else None
+    tip_log = np.zeros((n_rec, 3))
+    truth_log = np.zeros((n_rec, 4))  # depth, face, bore, normal force
+    lam_log = np.full(n_rec, math.inf)
     k = 0
+    n_logged = 0
     lam_min_all = math.inf  # the rank gate, every step with the drive on
     lam_since = math.inf  # its minimum since the last logged sample
-    lam_log: list[float] = []
     rank_breach_t: float | None = None
+    inp = ctrl.input_row  # the sample is written straight into the controller's input row
+    q_in, qd_in, w_in = inp[:n], inp[n:2 * n], inp[2 * n:]
+
+    def read_sample() -> None:
+        if faults is None:
+            sim.sense_into(q_in, qd_in, w_in)
+        else:
+            o = faults(sim.time_s, sim.sense())
+            q_in[:], qd_in[:], w_in[:] = o.q_rad, o.qdot_rad_s, o.wrench_raw_f
+
+    read_sample()
+    t = sim.time_s
     for k in range(n_steps):
-        t = sim.time_s
+        logged = k % every == 0
+        if logged:
+            io_log[k // every, :2 * n + 6] = inp  # the sample as given (before any dropout hold)
         try:
-            cmd = ctrl.step(t, obs.q_rad, obs.qdot_rad_s, obs.wrench_raw_f)
+            ctrl.advance_input(t)
         except SensorError as exc:
             diverged = True
             divergence_reason = f"non-finite sensor sample: {exc}"
             break
-        sim.apply(cmd.q_ref_rad, cmd.qdot_ref_rad_s)
-        lg = ctrl.last
-        ok = monitor.update(t, lg.s) if lg.drive_scale > 0 else (False, False, False)
-        if lg.drive_scale > 0:  # rank gate every step (paper Results, "A separate kinematic gate")
-            lam = ctrl.rank_margin_now()
-            lam_since = min(lam_since, lam)
+        sim.apply(q_ref, qdot_ref)
+        if out[i_rho] > 0:  # seat monitor and the rank gate every step (paper Results, "A separate kinematic gate")
+            monitor.update(t, out[i_s:i_s + 6])
+            lam = float(out[i_lam]) if fused else ctrl.rank_margin_now()
+            if lam < lam_since:
+                lam_since = lam
             if lam < lam_min_all:
                 lam_min_all = lam
                 if lam < RANK_GATE and rank_breach_t is None:
                     rank_breach_t = t
-        if k % every == 0:
-            lam_log.append(lam_since)
+        if logged:
+            j = k // every
+            n_logged = j + 1
+            lam_log[j] = lam_since
             lam_since = math.inf
+            t_log[j] = t
+            out_log[j] = out
+            io_log[j, 2 * n + 6:] = q_ref
+            if phi_log is not None:
+                phi_log[j] = x_row[f0:f0 + p * m]
             tr = sim.truth()
-            rec.record(
-                t_s=t,
-                q_rad=obs.q_rad,
-                qdot_rad_s=obs.qdot_rad_s,
-                q_ref_rad=cmd.q_ref_rad,
-                wrench_raw_f=obs.wrench_raw_f,
-                w_env_w=lg.w_env_w,
-                s=lg.s,
-                s_dot_meas=lg.s_dot_meas,
-                s_dot_pred=lg.s_dot_pred,
-                F_value=lg.F,
-                xi=lg.xi,
-                theta=lg.theta,
-                drive_scale=lg.drive_scale,
-                eps_w=lg.adapt.eps_w,
-                phi_norm2=lg.adapt.phi_norm2,
-                # evaluation side reads the law's filtered regressor (never writes it)
-                truth_bias_w=lg.adapt.eps_w - ctrl.W * (ctrl.law.Phi_f.z @ (theta_true - lg.theta))
-                if (theta_true is not None and lg.adapt.gate > 0.0)
-                else nan6,
-                adapt_gate=lg.adapt.gate,
-                theta_dot_track=lg.adapt.d_track / dt,
-                theta_dot_pred=lg.adapt.d_pred / dt,
-                theta_uncertainty=ctrl.law.uncertainty_ratio(),
-                depth_ok=ok[0],
-                force_ok=ok[1],
-                moment_ok=ok[2],
-                truth_tip_depth_m=tr.tip_depth_m,
-                truth_tip_pos_w_m=tr.tip_pos_w_m,
-                truth_contact_face=tr.contact_face,
-                truth_contact_bore=tr.contact_bore,
-                truth_contact_force_N=tr.contact_force_N,
-            )
+            tip_log[j] = tr.tip_pos_w_m
+            truth_log[j] = (tr.tip_depth_m, tr.contact_face, tr.contact_bore, tr.contact_force_N)
         sim.step()
-        obs = sim.sense() if faults is None else faults(sim.time_s, sim.sense())
+        read_sample()
+        t = sim.time_s
         if bar is not None and k % 250 == 0:
             bar.update(250 if k else 1)
         if monitor.seat_time is not None and stop_at is None:
             stop_at = monitor.seat_time + cfg.run.stop_after_seat_s
-        if stop_at is not None and sim.time_s >= stop_at:
+        if stop_at is not None and t >= stop_at:
             break
         # (a non-finite simulator state reaches the controller as a sensor sample: SensorError)
         if rank_breach_t is not None:
@@ -294,7 +299,7 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False, ctrl: Controller | N
             nwarn = int(sim.data.warning.number.sum())
             if nwarn > warn0:
                 diverged = True
-                divergence_reason = f"MuJoCo warning(s) at t={sim.time_s:.3f} s"
+                divergence_reason = f"MuJoCo warning(s) at t={t:.3f} s"
                 break
     if bar is not None:
         bar.close()
@@ -310,13 +315,15 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False, ctrl: Controller | N
         "start_lateral_w_m": [float(x) for x in sim.start_lateral_w_m],
         "start_tilt_deg": [float(x) for x in sim.start_tilt_deg],
     }
-    trace = rec.finish(meta)
+    trace = _trace_from_logs(ctrl, cfg, meta, n_logged, t_log, out_log, io_log, phi_log, tip_log, truth_log,
+                             theta_true, monitor)
+    lam_log = lam_log[:n_logged]
     truth_jac = TrueSensorJacobian(
         ctrl.S, ctrl.l_nom_f, np.asarray(tcfg.tool.offset_f_m), arm_mjcf_path(cfg.scene),
         tcfg.arm.link_length_error_m, tcfg.arm.joint_offset_rad,
     )
     evaluate_offline(trace, ctrl, truth_jac=truth_jac)
-    lam_arr = np.asarray(lam_log[: len(trace)], dtype=float)  # per-step minima where the drive was on
+    lam_arr = lam_log[: len(trace)]  # per-step minima where the drive was on
     if len(lam_arr) == len(trace):
         trace.arrays["lambda_min"] = np.where(np.isfinite(lam_arr), lam_arr, trace["lambda_min"])
     trace.meta["min_lambda_JJt_all_steps"] = float(lam_min_all) if math.isfinite(lam_min_all) else None
@@ -327,6 +334,55 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False, ctrl: Controller | N
     summary["sensor_dropouts"] = int(ctrl.dropouts)
     summary["divergence_reason"] = divergence_reason
     return EpisodeResult(trace, summary)
+
+
+def _trace_from_logs(ctrl: Controller, cfg: ExperimentCfg, meta: dict, n_rec: int, t_log, out_log, io_log, phi_log,
+                     tip_log, truth_log, theta_true, monitor: SeatMonitor) -> Trace:
+    """The trace channels from the loop's raw logs (controller ``out`` rows, I/O rows, truth), built
+    vectorised after the loop; the same numbers the per-step recorder wrote."""
+    lay = ctrl.layout
+    n, m, p = lay.n, lay.m, lay.p
+    rec = TraceRecorder(n_rec, p)
+    a = rec.arrays
+    o = out_log[:n_rec]
+
+    def blk(name: str) -> np.ndarray:
+        off, size = lay.out_blocks[name]
+        return o[:, off:off + size]
+
+    io = io_log[:n_rec]
+    rho = blk("rho")[:, 0]
+    s = blk("s")
+    gate = blk("gate")[:, 0]
+    a["t_s"][:] = t_log[:n_rec]
+    a["q_rad"][:], a["qdot_rad_s"][:] = io[:, :n], io[:, n:2 * n]
+    a["wrench_raw_f"][:], a["q_ref_rad"][:] = io[:, 2 * n:2 * n + 6], io[:, 2 * n + 6:]
+    for ch, name in (("w_env_w", "w_env"), ("s", "s"), ("s_dot_meas", "s_dot_meas"), ("s_dot_pred", "s_dot_pred"),
+                     ("F_value", "F"), ("xi", "xi_cmd"), ("theta", "theta_used"), ("eps_w", "eps_w")):
+        a[ch][:] = blk(name)
+    a["drive_scale"][:] = rho
+    a["adapt_gate"][:] = gate
+    a["phi_norm2"][:] = blk("phi_norm2")[:, 0]
+    a["theta_dot_track"][:] = blk("d_track") / ctrl.dt
+    a["theta_dot_pred"][:] = blk("d_pred") / ctrl.dt
+    a["theta_uncertainty"][:] = np.sqrt(np.maximum(blk("p_trace")[:, 0], 0.0) / ctrl.law._trP0)
+    on = rho > 0
+    a["depth_ok"][:] = on & (s[:, 0] >= monitor.d_seat)
+    a["force_ok"][:] = on & (np.hypot(s[:, 1], s[:, 2]) < monitor.f_max)
+    a["moment_ok"][:] = on & (np.sqrt(s[:, 3] ** 2 + s[:, 4] ** 2 + s[:, 5] ** 2) < monitor.m_max)
+    if theta_true is not None:  # evaluation side: the law's filtered regressor against the true offset
+        Phi_f = phi_log[:n_rec].reshape(n_rec, p, m).transpose(0, 2, 1)  # (N, m, p)
+        bias = a["eps_w"] - ctrl.W * np.matmul(Phi_f, (theta_true - a["theta"])[:, :, None])[:, :, 0]
+        a["truth_bias_w"][:] = np.where(gate[:, None] > 0.0, bias, np.nan)
+    else:
+        a["truth_bias_w"][:] = np.nan
+    a["truth_tip_depth_m"][:] = truth_log[:n_rec, 0]
+    a["truth_tip_pos_w_m"][:] = tip_log[:n_rec]
+    a["truth_contact_face"][:] = truth_log[:n_rec, 1] > 0
+    a["truth_contact_bore"][:] = truth_log[:n_rec, 2] > 0
+    a["truth_contact_force_N"][:] = truth_log[:n_rec, 3]
+    rec.n = n_rec
+    return rec.finish(meta)
 
 
 def implied_offset(ctrl: Controller, q: np.ndarray, theta: np.ndarray) -> np.ndarray:
@@ -409,7 +465,7 @@ def certificate_check(cfg: ExperimentCfg, trace: Trace, ctrl: Controller, window
     the prediction term runs). Reports the worst excess of ``Delta V_tot`` over the integrated
     bound in ``window_s`` windows after the drive ramp. Returns None for non-adjoint features.
     """
-    if not isinstance(ctrl.features, AdjointFeatures) or len(trace) < 3:
+    if not ctrl.features.theta_is_offset or len(trace) < 3:
         return None
     ad, sc = cfg.adaptation, cfg.sensing
     dt = float(trace.meta["dt_s"])
@@ -544,7 +600,7 @@ def summarize(
     # offset: the estimate itself (adjoint) or the offset implied by a LS fit of J_hat (others)
     if not len(trace):
         off0 = off_T = np.full(3, np.nan)
-    elif isinstance(ctrl.features, AdjointFeatures):
+    elif ctrl.features.theta_is_offset:
         off0, off_T = trace["theta"][0], theta
     elif len(trace):
         off0 = implied_offset(ctrl, trace["q_rad"][0], trace["theta"][0])

@@ -150,6 +150,18 @@ class PegInHoleSim:
             return SensorSample(self._q_v.copy(), self._qdot_v.copy(), wrench)
         return SensorSample(d.qpos[a.qpos_adr], d.qvel[a.dof_adr], wrench)  # fancy indexing copies
 
+    def sense_into(self, q: np.ndarray, qdot: np.ndarray, wrench: np.ndarray) -> None:
+        """``sense()`` written into the caller's arrays (the episode loop's hot path; no new arrays)."""
+        if not (self._views and self._wrench_v is not None):
+            o = self.sense()
+            q[:], qdot[:], wrench[:] = o.q_rad, o.qdot_rad_s, o.wrench_raw_f
+            return
+        q[:] = self._q_v
+        qdot[:] = self._qdot_v
+        wrench[:] = self._wrench_v
+        if self._sensor_fx.active:
+            self._sensor_fx(float(self.data.time), wrench)
+
     def apply(self, q_ref: np.ndarray, qdot_ref: np.ndarray) -> None:
         """Joint servo set-point with velocity feed-forward (q_ref + kv/kp qdot_ref)."""
         u = self._ctrl_v

@@ -8,7 +8,7 @@ import numpy as np
 from kinadapt_nn.config import load_config
 from kinadapt_nn.controller.controller import Controller
 from kinadapt_nn.runs.episode import make_features
-from kinadapt_nn.known import BORE_AXIS_W
+from kinadapt_nn.known import KnownCfg
 from kinadapt_nn.sim.adapter import PegInHoleSim
 
 
@@ -17,7 +17,7 @@ def _record_stream(overrides: list[str], n_steps: int = 1500):
     cfg = load_config(None, overrides)
     sim = PegInHoleSim(cfg)
     feats, theta0 = make_features(cfg)
-    ctrl = Controller(cfg, feats, theta0, BORE_AXIS_W)
+    ctrl = Controller(KnownCfg.of(cfg), feats, theta0)
     stream, cmds = [], []
     obs = sim.sense()
     for _ in range(n_steps):
@@ -57,7 +57,7 @@ def test_identical_streams_give_identical_commands_under_different_truth():
     for _ in range(50):
         sim_b.step()
     feats_b, _ = make_features(cfg_b)
-    ctrl_b = Controller(cfg_b, feats_b, theta0, BORE_AXIS_W)  # same declared theta0
+    ctrl_b = Controller(KnownCfg.of(cfg_b), feats_b, theta0)  # same declared theta0
     cmds_b = np.array([np.concatenate(ctrl_b.step(*sample)) for sample in stream])
     np.testing.assert_array_equal(cmds_a, cmds_b)
     # and the stream really did contain contact (otherwise the test would be weak)
@@ -69,7 +69,7 @@ def test_different_streams_give_different_commands():
     _, theta0, stream, cmds_a = _record_stream(["run.progress=false"], n_steps=800)
     cfg = load_config(None, [])
     feats, _ = make_features(cfg)
-    ctrl = Controller(cfg, feats, theta0, BORE_AXIS_W)
+    ctrl = Controller(KnownCfg.of(cfg), feats, theta0)
     bump = np.array([0.0, 0.0, 0.5, 0.0, 0.0, 0.0])  # after the tare, so it is not tared away
     perturbed = [(t, q, qd, w + bump * (t > 0.4)) for (t, q, qd, w) in stream]
     cmds_b = np.array([np.concatenate(ctrl.step(*s)) for s in perturbed])
@@ -96,7 +96,7 @@ def test_controller_holds_no_reference_to_the_world():
     """The controller's object graph holds no simulator and no MuJoCo model with the tool or block."""
     cfg = load_config(None, [])
     feats, theta0 = make_features(cfg)
-    ctrl = Controller(cfg, feats, theta0, BORE_AXIS_W)
+    ctrl = Controller(KnownCfg.of(cfg), feats, theta0)
     for obj in _walk(ctrl, set()):
         assert not isinstance(obj, PegInHoleSim)
         if isinstance(obj, mujoco.MjModel):

@@ -125,7 +125,7 @@ def test_rigid_lyapunov_derivative_eq_composite_vdot():
 def test_gate_freezes_adaptation_in_free_space_and_projection_keeps_omega():
     cfg = load_config(None, [])
     ctrl = make_controller(cfg)
-    law = ctrl.law
+    law = CompositeLaw(**ctrl.law_args)  # the stand-alone law (the kernel's is tested in tests/controller/test_core.py)
     kin = ctrl.kin(np.array([0.0, -0.6, 0.0, -2.4, 0.0, 1.9, 0.7]))
     qdot = np.full(7, 0.1)
     th = np.array([0.007, -0.005, 0.1])

@@ -7,7 +7,7 @@ import pytest
 
 from kinadapt_nn.runs.batch import run_batch
 from kinadapt_nn.config import load_config
-from kinadapt_nn.runs.episode import run_episode
+from kinadapt_nn.runs.episode import make_features, run_episode
 from kinadapt_nn.runs.sweep import SweepCfg, tool_overrides
 
 
@@ -15,7 +15,7 @@ def test_batch_equals_single_episodes():
     """Randomised tools and starts: the same outcome and seat time as run_episode (the contact is
     chaotic, so this is a strong check that the vectorised controller is the same controller)."""
     base = ["run.progress=false", "start.lateral_jitter_m=0.0003", "start.tilt_jitter_deg=0.5", "run.stop_after_seat_s=0.05",
-            "adaptation.mode=composite"]  # the batch implements the paper's laws
+            "adaptation.mode=composite"]
     cfgs = [load_config(None, [*base, *tool_overrides(SweepCfg(), s), f"run.seed={s}"]) for s in range(4)]
     res = run_batch(cfgs, nthread=1)
     assert res.sim_steps > 4 * 4000
@@ -27,6 +27,10 @@ def test_batch_equals_single_episodes():
         np.testing.assert_allclose(b["offset_error_final_m"], e["offset_error_final_m"], atol=1e-3)
 
 
-def test_batch_refuses_unsupported_settings():
-    with pytest.raises(ValueError, match="adjoint"):
-        run_batch([load_config(None, ["run.features=rbf"])])
+def test_batch_runs_learned_features_and_the_kalman_law():
+    """The batch is the same controller for every features type and law (rows from Python)."""
+    cfgs = [load_config(None, ["run.progress=false", "run.features=neural", "run.duration_s=1.2", f"run.seed={s}"])
+            for s in range(2)]
+    res = run_batch(cfgs, nthread=1)
+    assert res.theta_final.shape == (2, make_features(cfgs[0])[0].n_params)
+    assert all(s["law"] == "kalman" for s in res.summaries) and np.all(np.isfinite(res.theta_final))

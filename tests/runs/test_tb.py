@@ -12,8 +12,10 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
 
-#: modules the online path with adjoint features must not import
-NOT_IMPORTED = ("torch", "matplotlib", "scipy", "pyarrow", "rosbags", "tensorflow")
+#: modules the online path with adjoint features must not import (numba itself imports ``scipy``
+#: and, for np.linalg inside the controller's kernels, ``scipy.linalg.cython_blas/lapack``)
+NOT_IMPORTED = ("torch", "matplotlib", "scipy.stats", "scipy.optimize", "scipy.signal", "pyarrow", "rosbags",
+                "tensorflow")
 
 _PROBE = """
 import sys

@@ -1,0 +1,956 @@
+"""The controller's per-step maths, written once over B episodes (numba kernels).
+
+One control period of episode b (eq. names as in docs/method.md and ``kinadapt_nn.controller.law``):
+
+    intake       non-finite samples are held (at most ``max_dropout_s``), never let in
+    w_env        = [R (r_f - r0_f); R (r_m - r0_m)]                    tared wrench, world, at O
+    s            = [n . (p_O + R l_nom) - n . p_entry ;  G w_env]      (kinadapt_nn.sensing)
+    filters      y, known_f, Phi_f += alpha (input - state);  s_dot_meas = (s - y) / (tau + dt)
+    F            = -grad V(s)                                          eq. ft_force
+    drive        = J_hat_xi^T F = (S Ad(R theta))^T F (adjoint, fused) eq. cp_admittance's drive
+    xi+          = (M xi + dt (rho drive - w_env)) / (M + dt D)        eq. cp_admittance
+    qdot_ref     = J^+ xi + (I - J^+ J) k_ns (q_0 - q)
+    theta+       = the law (kalman | composite | prediction | tracking | frozen)  eq. ft_composite
+
+Shapes: B episodes, n joints, m = 6 sensor channels, p parameters. All state lives in one
+``ControllerState`` (float rows ``x`` (B, NX) and counters ``k`` (B, NK)); its named views
+(``xi``, ``q_ref``, ``filt``, ``theta``, ``P``, ...) are what the wrappers read. Constants are
+bundled into few arrays (``CoreConsts``) so a kernel call costs one dispatch.
+
+Features: the adjoint's regressor and drive are computed in the kernel (``FEAT_ADJOINT``), and so
+is the neural basis (``FEAT_NEURAL``: the frozen MLP body evaluated here, ``neural_consts``);
+other features supply ``[known; Phi^T]`` and either ``J_hat_xi`` (``FEAT_TWIST``) or ``J_hat``
+(``FEAT_JHAT``) from Python between :func:`sense_kernel` and :func:`act_kernel`.
+
+The controller side only: this module imports no simulator, no episode, no experiment config.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+#: the paper's kinematic gate on lambda_min(W J_hat J_hat^T W) (Results, "A separate kinematic gate")
+RANK_GATE = 1e-6
+# -- feature kinds ----------------------------------------------------------------------------
+FEAT_ADJOINT, FEAT_TWIST, FEAT_JHAT, FEAT_NEURAL = 0, 1, 2, 3
+# -- laws (adaptation.MODES order) -------------------------------------------------------------
+LAW_CODES = {"kalman": 0, "composite": 1, "prediction": 2, "tracking": 3, "frozen": 4}
+
+# -- scalar constants: indices into CoreConsts.c -----------------------------------------------
+(DT, T_SETTLE, T_TARE0, RAMP, D_STAR, K_D, F_MAX, C_F, C_M, V_MAX, W_MAX, K_NS, DAMP, ALPHA, INV_TAU,
+ N_ENTRY, RIGID, DITHER_ON, TWO_PI_F, EXCITE, BLEND, LAW, C_TRACK, GAMMA_D, ETA, EPS_NORM, F_GATE, M_GATE,
+ N_CORR, R_ALPHA, R_FLOOR, M_ALPHA, N_PERSIST, ACT_RATIO, ACT_EVERY, MAX_HOLD, FEAT, RANK_ON, RANK_GATE_V) = range(39)
+# small vectors, at these offsets of c
+V_N = 40  # bore axis n (3)
+V_LNOM = 43  # nominal offset l_nom, f (3)
+V_M = 46  # virtual inertia M (6)
+V_INVDEN = 52  # 1 / (M + dt D) (6)
+V_GRIGID = 58  # rigid loop DC gain g / (1 + beta) (6)
+V_W = 64  # channel metric W (6)
+V_D = 70  # damping D (6)
+V_DITHER = 76  # dither amplitudes (3)
+N_C = 79
+
+# -- counters: columns of ControllerState.k ---------------------------------------------------
+(K_TARE_N, K_TARED, K_PRIMED, K_STARTED, K_HAVE_HELD, K_BAD_RUN, K_DROPOUTS, K_HOLDING, K_ERROR, K_R2_PRIMED,
+ K_KF_INIT, K_ACT_K, K_ACT_INIT, K_GRAM_N) = range(14)
+N_K = 14
+
+
+class Layout:
+    """Offsets of the named state blocks in a ``ControllerState.x`` row and of the per-step
+    outputs in an ``out`` row (n joints, m channels, p parameters)."""
+
+    def __init__(self, n: int, m: int, p: int) -> None:
+        self.n, self.m, self.p = n, m, p
+        o = 0
+        blocks = {}
+        for name, size in (("xi", 6), ("q_ref", n), ("q_post", n), ("tare_sum", 6), ("tare", 6),
+                           ("filt", (2 + p) * m), ("theta", p), ("theta_kf", p), ("theta_prior", p), ("P", p * p),
+                           ("act_proj", p * p), ("r2", m), ("r1", m), ("gram_sum", p * p), ("held", 2 * n + 6)):
+            blocks[name] = (o, size)
+            o += size
+        self.x_blocks, self.nx = blocks, o
+        o = 0
+        outs = {}
+        for name, size in (("s", m), ("s_dot_meas", m), ("s_dot_pred", m), ("F", m), ("xi_cmd", 6), ("w_env", 6),
+                           ("theta_used", p), ("rho", 1), ("eps_w", m), ("d_track", p), ("d_pred", p), ("gate", 1),
+                           ("phi_norm2", 1), ("qdot_ref", n), ("lam_min", 1), ("p_trace", 1)):
+            outs[name] = (o, size)
+            o += size
+        self.out_blocks, self.nout = outs, o
+        # the kernels' view: [n, m, p, offsets of x blocks..., offsets of out blocks...]
+        self.arr = np.array([n, m, p] + [blocks[k][0] for k in blocks] + [outs[k][0] for k in outs], dtype=np.int64)
+
+
+# offsets into Layout.arr
+(L_N, L_M, L_P, X_XI, X_QREF, X_QPOST, X_TSUM, X_TARE, X_FILT, X_TH, X_THKF, X_THPR, X_P, X_ACT, X_R2, X_R1,
+ X_GRAM, X_HELD, O_S, O_SDM, O_SDP, O_F, O_XI, O_WENV, O_TH, O_RHO, O_EPS, O_DTR, O_DPR, O_GATE, O_N2, O_QDR,
+ O_LAM, O_PTR) = range(34)
+
+
+class ControllerState:
+    """All filter and law state of B controllers, one owner: ``x`` (B, NX) float rows and ``k``
+    (B, NK) counters; the named blocks are views into them (shapes with a leading B)."""
+
+    def __init__(self, layout: Layout, B: int) -> None:
+        self.layout = layout
+        self.x = np.zeros((B, layout.nx))
+        self.k = np.zeros((B, N_K), dtype=np.int64)
+        n, m, p = layout.n, layout.m, layout.p
+        shapes = {"filt": (2 + p, m), "P": (p, p), "act_proj": (p, p), "gram_sum": (p, p)}
+        for name, (o, size) in layout.x_blocks.items():
+            setattr(self, name, self.x[:, o:o + size].reshape((B, *shapes.get(name, (size,)))))
+        # the filter rows: y (rate filter of s), known_f, Phi_f^T
+        self.y, self.known_f, self.Phi_fT = self.filt[:, 0], self.filt[:, 1], self.filt[:, 2:]
+
+
+@dataclass(frozen=True)
+class CoreConsts:
+    """The known constants the kernels read (built once by the wrappers)."""
+
+    c: np.ndarray  #: (N_C,) scalars and small vectors (indices above)
+    mats: np.ndarray  #: (2, 6, 6): S; G (row 0 zero, s[1:] = G[1:] w_env)
+    pv: np.ndarray  #: (3, p): Omega's lo, hi; the tracking term's row mask
+    L0: np.ndarray  #: (2, p, p): Cholesky factor of P0 and its inverse (kalman)
+    seg: np.ndarray  #: (nseg, 7): excite program [end time s, twist (6)]
+
+
+# ================================================================================================
+# small dense helpers (no allocation beyond scratch; p, m, n are small)
+@nb.njit(cache=True)
+def _chol(A, k):
+    """In-place lower Cholesky of A[:k, :k]; False if not positive definite."""
+    for j in range(k):
+        d = A[j, j]
+        for i in range(j):
+            d -= A[j, i] * A[j, i]
+        if not d > 0.0:
+            return False
+        d = math.sqrt(d)
+        A[j, j] = d
+        for i in range(j + 1, k):
+            v = A[i, j]
+            for r in range(j):
+                v -= A[i, r] * A[j, r]
+            A[i, j] = v / d
+    return True
+
+
+@nb.njit(cache=True)
+def _chol_solve(L, k, x):
+    """Solve (L L^T) x = b in place (b given in x)."""
+    for i in range(k):
+        v = x[i]
+        for r in range(i):
+            v -= L[i, r] * x[r]
+        x[i] = v / L[i, i]
+    for i in range(k - 1, -1, -1):
+        v = x[i]
+        for r in range(i + 1, k):
+            v -= L[r, i] * x[r]
+        x[i] = v / L[i, i]
+
+
+@nb.njit(cache=True)
+def _mm(A, B):
+    """A @ B: by loops for the small products of the per-step maths (a BLAS call costs more than
+    the product), by BLAS for large ones (p in the hundreds: the RBF features)."""
+    if A.shape[0] * B.shape[1] > 400:
+        return np.ascontiguousarray(A) @ np.ascontiguousarray(B)
+    out = np.zeros((A.shape[0], B.shape[1]))
+    for i in range(A.shape[0]):
+        for r in range(A.shape[1]):
+            a = A[i, r]
+            for j in range(B.shape[1]):
+                out[i, j] += a * B[r, j]
+    return out
+
+
+@nb.njit(cache=True)
+def _mm_nt(A, B):
+    """A @ B.T (loops when small, as ``_mm``)."""
+    if A.shape[0] * B.shape[0] > 400:
+        return np.ascontiguousarray(A) @ np.ascontiguousarray(B.T)
+    out = np.empty((A.shape[0], B.shape[0]))
+    for i in range(A.shape[0]):
+        for j in range(B.shape[0]):
+            v = 0.0
+            for r in range(A.shape[1]):
+                v += A[i, r] * B[j, r]
+            out[i, j] = v
+    return out
+
+
+@nb.njit(cache=True)
+def lambda_max_sym3(G):
+    """Largest eigenvalue of a symmetric 3x3 (lower triangle), closed form (adaptation.lambda_max_sym3)."""
+    a, b, d, c, e, f = G[0, 0], G[1, 0], G[1, 1], G[2, 0], G[2, 1], G[2, 2]
+    p1 = b * b + c * c + e * e
+    q = (a + d + f) / 3.0
+    if p1 == 0.0:
+        return max(a, d, f)
+    a, d, f = a - q, d - q, f - q
+    p = math.sqrt((a * a + d * d + f * f + 2.0 * p1) / 6.0)
+    a, b, c, d, e, f = a / p, b / p, c / p, d / p, e / p, f / p
+    r = 0.5 * (a * (d * f - e * e) - b * (b * f - e * c) + c * (b * e - d * c))
+    r = -1.0 if r < -1.0 else (1.0 if r > 1.0 else r)
+    return q + 2.0 * p * math.cos(math.acos(r) / 3.0)
+
+
+# ================================================================================================
+@nb.njit(cache=True)
+def intake_kernel(inp, x, k, lay, c):
+    """Hold non-finite samples: ``inp`` (B, 2n+6) = [q; qdot; wrench] is replaced in place by the
+    last valid sample (or a zero wrench before any); flags K_HOLDING, K_ERROR (dropout too long)."""
+    for b in range(inp.shape[0]):
+        _intake(b, inp, x, k, lay, c)
+
+
+@nb.njit(cache=True)
+def _intake(b, inp, x, k, lay, c):
+    """Episode b's sample: kept (and remembered) when finite, else the last valid one is held."""
+    n = lay[L_N]
+    hd = lay[X_HELD]
+    enc, wr = 0.0, 0.0
+    for i in range(2 * n):
+        enc += inp[b, i] * inp[b, i]
+    for i in range(2 * n, 2 * n + 6):
+        wr += inp[b, i] * inp[b, i]
+    k[b, K_HOLDING] = 0
+    if math.isfinite(enc + wr):
+        k[b, K_BAD_RUN] = 0
+        x[b, hd:hd + 2 * n + 6] = inp[b]
+        k[b, K_HAVE_HELD] = 1
+        return
+    k[b, K_DROPOUTS] += 1
+    k[b, K_BAD_RUN] += 1
+    if k[b, K_BAD_RUN] > c[MAX_HOLD] or not (k[b, K_HAVE_HELD] == 1 or math.isfinite(enc)):
+        k[b, K_ERROR] = 1
+        return
+    k[b, K_HOLDING] = 1
+    if k[b, K_HAVE_HELD] == 1:
+        inp[b] = x[b, hd:hd + 2 * n + 6]
+    else:  # the very first samples: valid encoders, no valid wrench yet -> zero wrench, no tare
+        inp[b, 2 * n:] = 0.0
+
+
+@nb.njit(cache=True)
+def _sense(t, b, inp, p_O, R, x, k, lay, c, mats, out):
+    """Tare, w_env and s of episode b (written to out); returns rho."""
+    n = lay[L_N]
+    q, wrench = inp[b, :n], inp[b, 2 * n:2 * n + 6]
+    xs, o = x[b], out[b]
+    if k[b, K_STARTED] == 0:  # the first sample: the joint reference and the posture start at q
+        xs[lay[X_QREF]:lay[X_QREF] + n] = q
+        xs[lay[X_QPOST]:lay[X_QPOST] + n] = q
+        k[b, K_STARTED] = 1
+    w_env = o[lay[O_WENV]:lay[O_WENV] + 6]
+    tare = xs[lay[X_TARE]:lay[X_TARE] + 6]
+    if t < c[T_SETTLE]:  # tare: average the free-space reading (tool weight) while holding still
+        if t >= c[T_TARE0] and k[b, K_HOLDING] == 0:
+            xs[lay[X_TSUM]:lay[X_TSUM] + 6] += wrench
+            k[b, K_TARE_N] += 1
+        rho = 0.0
+        w_env[:] = 0.0
+    else:
+        if k[b, K_TARED] == 0:
+            tare[:] = xs[lay[X_TSUM]:lay[X_TSUM] + 6] / max(k[b, K_TARE_N], 1)
+            k[b, K_TARED] = 1
+        rho = min(1.0, (t - c[T_SETTLE]) / c[RAMP]) if c[RAMP] > 0 else 1.0
+        Rb = R[b]
+        for i in range(3):  # tool -> environment, world, about O: [R (r_f - r0_f); R (r_m - r0_m)]
+            w_env[i] = (Rb[i, 0] * (wrench[0] - tare[0]) + Rb[i, 1] * (wrench[1] - tare[1])
+                        + Rb[i, 2] * (wrench[2] - tare[2]))
+            w_env[3 + i] = (Rb[i, 0] * (wrench[3] - tare[3]) + Rb[i, 1] * (wrench[4] - tare[4])
+                            + Rb[i, 2] * (wrench[5] - tare[5]))
+    s = o[lay[O_S]:lay[O_S] + 6]
+    G = mats[1]
+    for i in range(1, 6):  # F_lat = -P f_env ; M = -m_env
+        v = 0.0
+        for j in range(6):
+            v += G[i, j] * w_env[j]
+        s[i] = v
+    dep = -c[N_ENTRY]
+    for i in range(3):  # d = n . (p_O + R l_nom) - n . p_entry
+        lw = R[b, i, 0] * c[V_LNOM] + R[b, i, 1] * c[V_LNOM + 1] + R[b, i, 2] * c[V_LNOM + 2]
+        dep += c[V_N + i] * (p_O[b, i] + lw)
+    s[0] = dep
+    o[lay[O_RHO]] = rho
+    return rho
+
+
+@nb.njit(cache=True)
+def _adjoint_regressor(b, inp, R, J, lay, c, mats, known, Phi_T):
+    """Adjoint regressor on the realised velocity: known = S xi + e_0 n . (w x R l_nom),
+    Phi = S_v [w]x R (Phi_T (p=3, m)), xi = J qdot."""
+    n = lay[L_N]
+    S = mats[0]
+    xi = np.zeros(6)
+    for i in range(6):
+        v = 0.0
+        for j in range(n):
+            v += J[b, i, j] * inp[b, n + j]
+        xi[i] = v
+    for i in range(6):
+        v = 0.0
+        for j in range(6):
+            v += S[i, j] * xi[j]
+        known[i] = v
+    w0, w1, w2 = xi[3], xi[4], xi[5]
+    Rb = R[b]
+    for jj in range(3):  # ([w]x R)[:, jj] = w x R[:, jj]
+        c0, c1, c2 = Rb[0, jj], Rb[1, jj], Rb[2, jj]
+        x0, x1, x2 = w1 * c2 - w2 * c1, w2 * c0 - w0 * c2, w0 * c1 - w1 * c0
+        Phi_T[jj, 0] = 0.0  # depth row: not adapted
+        for i in range(1, 6):
+            Phi_T[jj, i] = S[i, 0] * x0 + S[i, 1] * x1 + S[i, 2] * x2
+    lw0, lw1, lw2 = _lever(b, R, c)
+    n0, n1, n2 = c[V_N], c[V_N + 1], c[V_N + 2]
+    known[0] += n0 * (w1 * lw2 - w2 * lw1) + n1 * (w2 * lw0 - w0 * lw2) + n2 * (w0 * lw1 - w1 * lw0)
+
+
+@nb.njit(cache=True)
+def _lever(b, R, c):
+    """R l_nom: the nominal lever, world."""
+    Rb = R[b]
+    return (Rb[0, 0] * c[V_LNOM] + Rb[0, 1] * c[V_LNOM + 1] + Rb[0, 2] * c[V_LNOM + 2],
+            Rb[1, 0] * c[V_LNOM] + Rb[1, 1] * c[V_LNOM + 1] + Rb[1, 2] * c[V_LNOM + 2],
+            Rb[2, 0] * c[V_LNOM] + Rb[2, 1] * c[V_LNOM + 1] + Rb[2, 2] * c[V_LNOM + 2])
+
+
+@nb.njit(cache=True)
+def _adjoint_drive(b, R, theta, F, c, mats, drive):
+    """(S Ad(R theta))^T F without forming it (AdjointFeatures.twist_drive): with a = R theta,
+    u = S_v^T F, m = F_0 n: [S_v^T F + m; S_w^T F + a x u + lw x m]."""
+    S = mats[0]
+    for j in range(6):
+        v = 0.0
+        for i in range(6):
+            v += S[i, j] * F[i]
+        drive[j] = v
+    u0, u1, u2 = drive[0] - S[0, 0] * F[0], drive[1] - S[0, 1] * F[0], drive[2] - S[0, 2] * F[0]  # S_v^T F
+    Rb = R[b]
+    a0 = Rb[0, 0] * theta[0] + Rb[0, 1] * theta[1] + Rb[0, 2] * theta[2]
+    a1 = Rb[1, 0] * theta[0] + Rb[1, 1] * theta[1] + Rb[1, 2] * theta[2]
+    a2 = Rb[2, 0] * theta[0] + Rb[2, 1] * theta[1] + Rb[2, 2] * theta[2]
+    l0, l1, l2 = _lever(b, R, c)
+    m0, m1, m2 = F[0] * c[V_N], F[0] * c[V_N + 1], F[0] * c[V_N + 2]
+    drive[3] += (a1 * u2 - a2 * u1) + (l1 * m2 - l2 * m1)
+    drive[4] += (a2 * u0 - a0 * u2) + (l2 * m0 - l0 * m2)
+    drive[5] += (a0 * u1 - a1 * u0) + (l0 * m1 - l1 * m0)
+
+
+@nb.njit(cache=True)
+def _excite_drive(t_rel, b, R, c, seg, drive):
+    """D xi_ref of the excitation program (Controller.excite_twist, moved from the tip to O)."""
+    x = np.zeros(6)
+    ns = seg.shape[0]
+    if t_rel >= 0.0 and ns > 0:
+        kk = 0
+        while kk < ns and seg[kk, 0] <= t_rel:
+            kk += 1
+        start = seg[kk - 1, 0] if kk > 0 else 0.0
+        for i in range(6):
+            cur = seg[kk, 1 + i] if kk < ns else 0.0
+            prev = seg[kk - 1, 1 + i] if kk > 0 else 0.0
+            if c[BLEND] > 0.0 and t_rel - start < c[BLEND]:  # linear blend: bounded acceleration
+                x[i] = prev + (t_rel - start) / c[BLEND] * (cur - prev)
+            else:
+                x[i] = cur
+    l0, l1, l2 = _lever(b, R, c)
+    x[0] -= x[4] * l2 - x[5] * l1  # v_O = v_tip - omega x (R l_nom)
+    x[1] -= x[5] * l0 - x[3] * l2
+    x[2] -= x[3] * l1 - x[4] * l0
+    for i in range(6):
+        drive[i] = c[V_D + i] * x[i]
+
+
+@nb.njit(cache=True)
+def _act(t, b, rho, inp, p_O, R, J, ext_J, x, k, lay, c, mats, pv, L0, seg, out):
+    """Rate filter, value force, drive, admittance and joint reference of episode b (after
+    ``_sense``; the drive reads theta before this step's law update)."""
+    n, m, p = lay[L_N], lay[L_M], lay[L_P]
+    xs, o = x[b], out[b]
+    filt = xs[lay[X_FILT]:lay[X_FILT] + (2 + p) * m].reshape((2 + p, m))
+    s = o[lay[O_S]:lay[O_S] + m]
+    sdm = o[lay[O_SDM]:lay[O_SDM] + m]
+    F = o[lay[O_F]:lay[O_F] + m]
+    w_env = o[lay[O_WENV]:lay[O_WENV] + 6]
+    theta = xs[lay[X_TH]:lay[X_TH] + p]
+    o[lay[O_TH]:lay[O_TH] + p] = theta
+    # -- the rate filter (sensing.RateFilter): s_dot_meas = (s - y) / (tau + dt); y += alpha (s - y)
+    if k[b, K_PRIMED] == 0:
+        filt[0] = s
+        k[b, K_PRIMED] = 1
+    for i in range(m):
+        sdm[i] = (s[i] - filt[0, i]) * c[INV_TAU]  # s_dot_meas = (s - y) / (tau + dt)
+        filt[0, i] += c[ALPHA] * (s[i] - filt[0, i])
+    # -- value force, eq. ft_force: F = -grad V = [-sat(k_d (d - d*)); -c_F F_lat; -c_M M]
+    F[0] = -min(max(c[K_D] * (s[0] - c[D_STAR]), -c[F_MAX]), c[F_MAX])
+    F[1], F[2] = -c[C_F] * s[1], -c[C_F] * s[2]
+    F[3], F[4], F[5] = -c[C_M] * s[3], -c[C_M] * s[4], -c[C_M] * s[5]
+    # -- L L^T = J J^T + damp I (J^+ = J^T (J J^T + damp I)^-1)
+    Jb = J[b]
+    Lc = np.empty((6, 6))
+    for i in range(6):
+        for j in range(i + 1):
+            v = 0.0
+            for r in range(n):
+                v += Jb[i, r] * Jb[j, r]
+            Lc[i, j] = v
+        Lc[i, i] += c[DAMP]
+    _chol(Lc, 6)
+    # -- the drive J_hat_xi^T F (eq. cp_admittance's drive)
+    drive = np.empty(6)
+    feat = int(c[FEAT])
+    if c[EXCITE] > 0.0:  # the scripted program replaces V's drive (control.program = "excite")
+        _excite_drive(t - c[T_SETTLE], b, R, c, seg, drive)
+    elif feat == FEAT_ADJOINT:
+        _adjoint_drive(b, R, theta, F, c, mats, drive)
+    elif feat == FEAT_TWIST:  # J_hat_xi (m, 6) from the features
+        for j in range(6):
+            v = 0.0
+            for i in range(m):
+                v += ext_J[b, i, j] * F[i]
+            drive[j] = v
+    else:  # J_hat (m, n): J_hat_xi^T F = (J J^T + damp)^-1 J J_hat^T F
+        g = np.zeros(n)
+        for j in range(n):
+            for i in range(m):
+                g[j] += ext_J[b, i, j] * F[i]
+        for i in range(6):
+            v = 0.0
+            for j in range(n):
+                v += Jb[i, j] * g[j]
+            drive[i] = v
+        _chol_solve(Lc, 6, drive)
+    # -- eq. cp_admittance: M (xi+ - xi)/dt + D xi+ = rho drive - w_env (implicit in the damping)
+    xi = xs[lay[X_XI]:lay[X_XI] + 6]
+    for i in range(6):
+        if c[RIGID] > 0.0:  # eq. ft_control: the commanded twist is realised, no contact feedback
+            xi[i] = c[V_GRIGID + i] * rho * drive[i]
+        else:
+            xi[i] = (c[V_M + i] * xi[i] + c[DT] * (rho * drive[i] - w_env[i])) * c[V_INVDEN + i]
+    vn = math.sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2])
+    if vn > c[V_MAX]:
+        xi[0:3] *= c[V_MAX] / vn
+    wn = math.sqrt(xi[3] * xi[3] + xi[4] * xi[4] + xi[5] * xi[5])
+    if wn > c[W_MAX]:
+        xi[3:6] *= c[W_MAX] / wn
+    xc = o[lay[O_XI]:lay[O_XI] + 6]
+    xc[:] = xi
+    if c[DITHER_ON] > 0.0 and rho > 0.0:  # commanded excitation (Remark ft_excitation), not stored
+        ph = c[TWO_PI_F] * (t - c[T_SETTLE])
+        xc[3] += rho * c[V_DITHER] * math.sin(ph)
+        xc[4] += rho * c[V_DITHER + 1] * math.cos(ph)
+        xc[5] += rho * c[V_DITHER + 2] * math.sin(1.7 * ph)
+    # -- joint reference: qdot_ref = J^T y + z, (J J^T + damp) y = xi - J z, z = k_ns (q_0 - q)
+    q = inp[b, :n]
+    qpost = xs[lay[X_QPOST]:lay[X_QPOST] + n]
+    z = np.empty(n)
+    for j in range(n):
+        z[j] = (qpost[j] - q[j]) * c[K_NS]
+    y = np.empty(6)
+    for i in range(6):
+        v = 0.0
+        for j in range(n):
+            v += Jb[i, j] * z[j]
+        y[i] = xc[i] - v
+    _chol_solve(Lc, 6, y)
+    qdr = o[lay[O_QDR]:lay[O_QDR] + n]
+    qref = xs[lay[X_QREF]:lay[X_QREF] + n]
+    for j in range(n):
+        v = 0.0
+        for i in range(6):
+            v += y[i] * Jb[i, j]
+        qdr[j] = v + z[j]
+        qref[j] = qref[j] + c[DT] * qdr[j]
+
+
+@nb.njit(cache=True)
+def _filter_regressor(b, reg, x, lay, c):
+    """known_f, Phi_f^T += alpha (input - state) (the same filter as the measured rate)."""
+    m, p = lay[L_M], lay[L_P]
+    filt = x[b, lay[X_FILT]:lay[X_FILT] + (2 + p) * m].reshape((2 + p, m))
+    for r in range(1 + p):
+        for i in range(m):
+            filt[1 + r, i] += c[ALPHA] * (reg[b, r, i] - filt[1 + r, i])
+
+
+@nb.njit(cache=True)
+def _law(b, reg, x, k, lay, c, pv, L0, out):
+    """eq. ft_composite (adaptation.CompositeLaw.step_filtered) on this step's filtered rows;
+    theta_{k+1} is written to the state (used next step)."""
+    m, p = lay[L_M], lay[L_P]
+    xs, o = x[b], out[b]
+    filt = xs[lay[X_FILT]:lay[X_FILT] + (2 + p) * m].reshape((2 + p, m))
+    known_f, Phi_fT = filt[1], filt[2:]
+    theta = xs[lay[X_TH]:lay[X_TH] + p]
+    sdm, F = o[lay[O_SDM]:lay[O_SDM] + m], o[lay[O_F]:lay[O_F] + m]
+    pred, eps = o[lay[O_SDP]:lay[O_SDP] + m], o[lay[O_EPS]:lay[O_EPS] + m]
+    d_track, d_pred = o[lay[O_DTR]:lay[O_DTR] + p], o[lay[O_DPR]:lay[O_DPR] + p]
+    d_track[:] = 0.0
+    d_pred[:] = 0.0
+    o[lay[O_GATE]] = 0.0
+    o[lay[O_N2]] = 0.0
+    if k[b, K_HOLDING] == 1:  # a held sample carries no new information: theta stays
+        pred[:] = sdm
+        eps[:] = 0.0
+        return
+    W = c[V_W:V_W + m]
+    for i in range(m):  # eq. ft_pred: e = W (s_dot_meas - (known_f + Phi_f theta))
+        v = 0.0
+        for j in range(p):
+            v += theta[j] * Phi_fT[j, i]
+        pred[i] = v + known_f[i]
+        eps[i] = (sdm[i] - pred[i]) * W[i]
+    w_env = o[lay[O_WENV]:lay[O_WENV] + 6]
+    fn = math.sqrt(w_env[0] ** 2 + w_env[1] ** 2 + w_env[2] ** 2)
+    mn = math.sqrt(w_env[3] ** 2 + w_env[4] ** 2 + w_env[5] ** 2)
+    if not (fn >= c[F_GATE] or mn >= c[M_GATE]):  # free space: gate g_k = 0
+        return
+    o[lay[O_GATE]] = 1.0
+    Phi_wT = np.empty((p, m))  # (W Phi_f)^T
+    for j in range(p):
+        for i in range(m):
+            Phi_wT[j, i] = Phi_fT[j, i] * W[i]
+    G = _mm_nt(Phi_wT, Phi_wT)  # (p, p) = (W Phi_f)^T (W Phi_f)
+    gs = xs[lay[X_GRAM]:lay[X_GRAM] + p * p].reshape((p, p))
+    gs += G  # observability: <Phi^T Phi> over the contact phase
+    k[b, K_GRAM_N] += 1
+    law = int(c[LAW])
+    if law == 4:  # frozen
+        return
+    lo, hi, mask = pv[0], pv[1], pv[2]
+    PhiF = np.zeros(p)  # Phi_r^T F, on the realised (unfiltered) regressor, tracking rows only
+    for j in range(p):
+        v = 0.0
+        for i in range(m):
+            v += reg[b, 1 + j, i] * F[i]
+        PhiF[j] = v * mask[j]
+    if law == 0:
+        _kalman(b, x, k, lay, c, L0, Phi_wT, PhiF, eps, theta, d_track, d_pred, lo, hi)
+        tr = 0.0
+        for j in range(p):
+            tr += G[j, j]
+        o[lay[O_N2]] = tr
+        return
+    th = theta.copy()
+    if law == 1 or law == 3:  # eq. ft_composite, 1st term: -dt Gamma gamma_d Phi_r^T F
+        for j in range(p):
+            d_track[j] = PhiF[j] * c[C_TRACK]
+            th[j] += d_track[j]
+    if law == 1 or law == 2:  # eq. ident_qp_solution (fractional, normalised)
+        if p <= m:
+            n2 = lambda_max_sym3(G) if p == 3 else np.linalg.eigvalsh(G)[-1]
+        else:
+            n2 = np.linalg.eigvalsh(Phi_wT.T @ Phi_wT)[-1]
+        g = c[ETA] / (n2 + c[EPS_NORM])
+        for j in range(p):
+            v = 0.0
+            for i in range(m):
+                v += Phi_wT[j, i] * eps[i]
+            d_pred[j] = v * g
+            th[j] += d_pred[j]
+        o[lay[O_N2]] = n2
+    for j in range(p):  # Proj_Omega (clip)
+        theta[j] = min(max(th[j], lo[j]), hi[j])
+
+
+@nb.njit(cache=True)
+def _kalman(b, x, k, lay, c, L0, Ht, PhiF, eps, theta, d_track, d_pred, lo, hi):
+    """The information-weighted step (adaptation module docstring, 'kalman')."""
+    m, p = lay[L_M], lay[L_P]
+    xs = x[b]
+    r2, r1 = xs[lay[X_R2]:lay[X_R2] + m], xs[lay[X_R1]:lay[X_R1] + m]
+    if k[b, K_R2_PRIMED] == 0:
+        for i in range(m):
+            r2[i] = eps[i] * eps[i]
+            r1[i] = 0.0
+        k[b, K_R2_PRIMED] = 1
+    else:
+        for i in range(m):
+            r2[i] += c[R_ALPHA] * (eps[i] * eps[i] - r2[i])  # measured residual level (bias included)
+            r1[i] += c[M_ALPHA] * (eps[i] - r1[i])  # its slow mean: the persistent part
+    P = xs[lay[X_P]:lay[X_P] + p * p].reshape((p, p))
+    th = xs[lay[X_THKF]:lay[X_THKF] + p]
+    prior = xs[lay[X_THPR]:lay[X_THPR] + p]
+    if k[b, K_KF_INIT] == 0:
+        th[:] = theta
+        prior[:] = theta
+        k[b, K_KF_INIT] = 1
+    # R = diag(r2 + floor) n_eff; n_eff = max(corr_s/dt, (2 tau_m/dt) r1^2 / r2)
+    r = np.empty(m)
+    e_kf = np.empty(m)
+    for i in range(m):
+        n_eff = max(c[N_CORR], c[N_PERSIST] * (r1[i] * r1[i]) / (r2[i] + c[R_FLOOR]))
+        r[i] = (r2[i] + c[R_FLOOR]) * n_eff
+        v = 0.0
+        for j in range(p):
+            v += (th[j] - theta[j]) * Ht[j, i]
+        e_kf[i] = eps[i] - v  # innovation of the filter's estimate
+    PHt = _mm(P, Ht)  # (p, m)
+    S = _mm(Ht.T, PHt)  # (m, m) = H P H^T + diag r
+    for i in range(m):
+        S[i, i] += r[i]
+    if not _chol(S, m):
+        return
+    X = PHt.T.copy()  # (m, p) -> S^-1 P H^T  (K = X^T)
+    col = np.empty(m)
+    for j in range(p):
+        for i in range(m):
+            col[i] = X[i, j]
+        _chol_solve(S, m, col)
+        for i in range(m):
+            X[i, j] = col[i]
+    for j in range(p):  # K e
+        v = 0.0
+        for i in range(m):
+            v += X[i, j] * e_kf[i]
+        d_pred[j] = v
+    P -= _mm_nt(X.T, PHt)  # P = (1 - K H) P, symmetrised
+    for i in range(p):
+        for j in range(i + 1, p):
+            v = 0.5 * (P[i, j] + P[j, i])
+            P[i, j] = v
+            P[j, i] = v
+    for j in range(p):
+        th[j] += d_pred[j]
+    if c[GAMMA_D] > 0.0:  # eq. ft_composite's tracking term with Gamma = P
+        for i in range(p):
+            v = 0.0
+            for j in range(p):
+                v += P[i, j] * PhiF[j]
+            d_track[i] = v * (-c[DT] * c[GAMMA_D])
+            th[i] += d_track[i]
+    for j in range(p):  # Proj_Omega (clip)
+        th[j] = min(max(th[j], lo[j]), hi[j])
+    A = xs[lay[X_ACT]:lay[X_ACT] + p * p].reshape((p, p))
+    k[b, K_ACT_K] += 1
+    if k[b, K_ACT_K] >= c[ACT_EVERY] or k[b, K_ACT_INIT] == 0:
+        k[b, K_ACT_K] = 0
+        k[b, K_ACT_INIT] = 1
+        _identified_projector(P, L0, c[ACT_RATIO], A)
+    for i in range(p):  # act on the identified part only
+        v = 0.0
+        for j in range(p):
+            v += A[i, j] * (th[j] - prior[j])
+        theta[i] = prior[i] + v
+
+
+@nb.njit(cache=True)
+def _identified_projector(P, L0, ratio, A):
+    """Projector onto the directions the data identified (CompositeLaw._identified_projector)."""
+    p = P.shape[0]
+    if ratio >= 1.0:
+        A[:] = 0.0
+        for i in range(p):
+            A[i, i] = 1.0
+        return
+    L, Linv = L0[0], L0[1]
+    M = Linv @ P @ Linv.T
+    lam, V = np.linalg.eigh(0.5 * (M + M.T))
+    UUt = np.zeros((p, p))
+    for kk in range(p):
+        if lam[kk] < ratio * ratio:
+            for i in range(p):
+                for j in range(p):
+                    UUt[i, j] += V[i, kk] * V[j, kk]
+    A[:] = L @ UUt @ Linv
+
+
+@nb.njit(cache=True)
+def _rank_margin_adjoint(b, R, J, x, lay, c, mats, out):
+    """The rank gate of the next step's J_hat = S Ad(R theta) J."""
+    theta = x[b, lay[X_TH]:lay[X_TH] + 3]
+    _rank_margin(b, _mm(_adjoint_twist_jacobian(b, R, theta, c, mats), J[b]), c, out, lay)
+
+
+# ================================================================================================
+# neural features in the kernel: J_hat = K(q) + [0; Y(q) theta], K the adjoint at the prior offset
+def neural_consts(features) -> np.ndarray:
+    """The frozen MLP of ``NeuralFeatures`` (structure ``basis``) as one array for the kernel:
+    [H, K, prior offset (3), q_mean (n), 1/q_std (n), W1, b1, W2, b2, W3, b3] (W3, b3 already
+    scaled by W^-1 as in NeuralFeatures)."""
+    H, n = features.W1.shape
+    parts = [np.array([H, features.K], dtype=float), features.prior, features.q_mean, features.q_inv_std,
+             features.W1.ravel(), features.b1, features.W2.ravel(), features.b2, features.W3.ravel(), features.b3]
+    return np.ascontiguousarray(np.concatenate([np.asarray(a, dtype=float).ravel() for a in parts]))
+
+
+@nb.njit(cache=True)
+def _neural_body(fx, q, n):
+    """Y(q) (5, n, K): y = W3 tanh(W2 tanh(W1 (q - mu)/sd + b1) + b2) + b3 (NeuralFeatures._body)."""
+    H, K = int(fx[0]), int(fx[1])
+    o = 5 + 2 * n
+    x = np.empty(n)
+    for j in range(n):
+        x[j] = (q[j] - fx[5 + j]) * fx[5 + n + j]
+    W1 = fx[o:o + H * n].reshape((H, n))
+    o += H * n
+    h1 = np.tanh(_mv(W1, x) + fx[o:o + H])
+    o += H
+    W2 = fx[o:o + H * H].reshape((H, H))
+    o += H * H
+    h2 = np.tanh(_mv(W2, h1) + fx[o:o + H])
+    o += H
+    nout = 5 * n * K
+    W3 = fx[o:o + nout * H].reshape((nout, H))
+    o += nout * H
+    return (_mv(W3, h2) + fx[o:o + nout]).reshape((5, n, K))
+
+
+@nb.njit(cache=True)
+def _mv(A, x):
+    y = np.empty(A.shape[0])
+    for i in range(A.shape[0]):
+        v = 0.0
+        for j in range(A.shape[1]):
+            v += A[i, j] * x[j]
+        y[i] = v
+    return y
+
+
+@nb.njit(cache=True)
+def _neural_rows(b, inp, R, J, Y, lay, c, mats, fx, known, Phi_T):
+    """Regressor of the neural basis: known = adjoint's known + Phi_adj l_prior; Phi rows 1..5 =
+    qdot^T Y_i (NeuralFeatures.regressor)."""
+    n, p = lay[L_N], lay[L_P]
+    PhiA = np.zeros((3, 6))
+    _adjoint_regressor(b, inp, R, J, lay, c, mats, known, PhiA)
+    for i in range(6):
+        known[i] += PhiA[0, i] * fx[2] + PhiA[1, i] * fx[3] + PhiA[2, i] * fx[4]
+    for kk in range(p):
+        Phi_T[kk, 0] = 0.0
+        for i in range(5):
+            v = 0.0
+            for j in range(n):
+                v += inp[b, n + j] * Y[i, j, kk]
+            Phi_T[kk, 1 + i] = v
+
+
+@nb.njit(cache=True)
+def _neural_jhat(b, R, J, Y, theta, c, mats, fx):
+    """J_hat (6, n) = S Ad(R l_prior) J + [0; Y theta]."""
+    Jx = _adjoint_twist_jacobian(b, R, fx[2:5], c, mats)
+    Jh = _mm(Jx, J[b])
+    n, K = Y.shape[1], Y.shape[2]
+    for i in range(5):
+        for j in range(n):
+            v = 0.0
+            for kk in range(K):
+                v += Y[i, j, kk] * theta[kk]
+            Jh[1 + i, j] += v
+    return Jh
+
+
+@nb.njit(cache=True)
+def _adjoint_twist_jacobian(b, R, theta, c, mats):
+    """S Ad(R theta) (6, 6) with the depth row on the nominal lever (AdjointFeatures.twist_jacobian)."""
+    S = mats[0]
+    Rb = R[b]
+    a = np.empty(3)
+    for i in range(3):
+        a[i] = Rb[i, 0] * theta[0] + Rb[i, 1] * theta[1] + Rb[i, 2] * theta[2]
+    l0, l1, l2 = _lever(b, R, c)
+    Jx = S.copy()  # S Ad(l) = [S_v, S_w - S_v [l]x]
+    for i in range(6):
+        if i == 0:
+            v0, v1, v2, a0, a1, a2 = S[0, 0], S[0, 1], S[0, 2], l0, l1, l2
+        else:
+            v0, v1, v2, a0, a1, a2 = S[i, 0], S[i, 1], S[i, 2], a[0], a[1], a[2]
+        Jx[i, 3] -= v1 * a2 - v2 * a1  # row i of S_v [a]x is v^T [a]x = (v x a)^T
+        Jx[i, 4] -= v2 * a0 - v0 * a2
+        Jx[i, 5] -= v0 * a1 - v1 * a0
+    return Jx
+
+
+@nb.njit(cache=True)
+def _rank_margin(b, Jh, c, out, lay):
+    """lambda_min(W J_hat J_hat^T W) (the rank gate); with RANK_ON = 2 only the gate (Cholesky)."""
+    WJ = Jh.copy()
+    for i in range(6):
+        WJ[i] *= c[V_W + i]
+    G = _mm_nt(WJ, WJ)
+    if c[RANK_ON] == 2.0:  # gate only: lambda_min > gate  <=>  G - gate I is positive definite
+        for i in range(6):
+            G[i, i] -= c[RANK_GATE_V]
+        if _chol(G, 6):
+            out[b, lay[O_LAM]] = np.inf
+            return
+        G = _mm_nt(WJ, WJ)
+    out[b, lay[O_LAM]] = np.linalg.eigvalsh(G)[0]
+
+
+# ================================================================================================
+@nb.njit(cache=True)
+def sense_kernel(t, inp, p_O, R, x, k, lay, c, mats, out):
+    """Tare, w_env, s for every episode (the generic path: features run in Python next)."""
+    for b in range(inp.shape[0]):
+        if k[b, K_ERROR] == 0:
+            _sense(t, b, inp, p_O, R, x, k, lay, c, mats, out)
+
+
+@nb.njit(cache=True)
+def act_kernel(t, inp, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, L0, seg, fx, out):
+    """The rest of the step after ``sense_kernel``, with the regressor rows ``reg`` (B, 1+p, m) =
+    [known; Phi^T] and ``ext_J`` (J_hat_xi or J_hat) from the features (the adjoint's and the
+    neural basis' are computed here; ``fx``: ``neural_consts``)."""
+    n, p = lay[L_N], lay[L_P]
+    feat = int(c[FEAT])
+    for b in range(inp.shape[0]):
+        if k[b, K_ERROR] != 0:
+            continue
+        if feat == FEAT_ADJOINT:
+            _adjoint_regressor(b, inp, R, J, lay, c, mats, reg[b, 0], reg[b, 1:])
+        elif feat == FEAT_NEURAL:  # Y(q) once per step: regressor, J_hat for the drive and the gate
+            Y = _neural_body(fx, inp[b, :n], n)
+            _neural_rows(b, inp, R, J, Y, lay, c, mats, fx, reg[b, 0], reg[b, 1:])
+            ext_J[b, :, :n] = _neural_jhat(b, R, J, Y, x[b, lay[X_TH]:lay[X_TH] + p], c, mats, fx)
+        _filter_regressor(b, reg, x, lay, c)
+        rho = out[b, lay[O_RHO]]
+        _act(t, b, rho, inp, p_O, R, J, ext_J, x, k, lay, c, mats, pv, L0, seg, out)
+        _law(b, reg, x, k, lay, c, pv, L0, out)
+        tr = 0.0  # tr P: theta's remaining uncertainty (the trace's theta_uncertainty)
+        for j in range(p):
+            tr += x[b, lay[X_P] + j * (p + 1)]
+        out[b, lay[O_PTR]] = tr
+        if c[RANK_ON] > 0.0 and rho > 0.0:  # the rank gate on the next step's J_hat
+            if feat == FEAT_ADJOINT:
+                _rank_margin_adjoint(b, R, J, x, lay, c, mats, out)
+            elif feat == FEAT_NEURAL:
+                _rank_margin(b, _neural_jhat(b, R, J, Y, x[b, lay[X_TH]:lay[X_TH] + p], c, mats, fx), c, out, lay)
+
+
+@nb.njit(cache=True)
+def step_kernel(t, inp, chain, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, L0, seg, fx, out):
+    """One whole period for B episodes with in-kernel features (adjoint, neural basis; one
+    dispatch): intake (dropout hold), forward kinematics of the bare arm, sense, regressor, act,
+    law, rank gate."""
+    nbody = chain.shape[0] - 1
+    for b in range(inp.shape[0]):
+        if k[b, K_ERROR] == 0:
+            _intake(b, inp, x, k, lay, c)
+        if k[b, K_ERROR] == 0:
+            _fk(chain[:nbody], chain[nbody], inp[b], p_O[b], R[b], J[b])
+            _sense(t, b, inp, p_O, R, x, k, lay, c, mats, out)
+    act_kernel(t, inp, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, L0, seg, fx, out)
+
+
+# ================================================================================================
+# forward kinematics of the bare arm in the kernel (a chain of hinges; mj_kinematics' formulas)
+def arm_chain(model, site: int) -> np.ndarray:
+    """The bare arm's kinematic tree as one array for :func:`_fk`, read once from an ``MjModel``:
+    row i (body i, parents first): [parent, pos (3), quat (4), joint qpos address or -1, joint
+    pos (3), joint axis (3), qpos0]; last row: [site body, site pos (3), site quat (4), 0...].
+    Only hinge joints (one per body at most) are accepted."""
+    import mujoco
+
+    nb_ = model.nbody
+    chain = np.zeros((nb_ + 1, 16))
+    for i in range(nb_):
+        chain[i, 0] = model.body_parentid[i]
+        chain[i, 1:4] = model.body_pos[i]
+        chain[i, 4:8] = model.body_quat[i]
+        chain[i, 8] = -1.0
+        nj = model.body_jntnum[i]
+        if nj > 1 or (nj == 1 and int(model.jnt_type[model.body_jntadr[i]]) != int(mujoco.mjtJoint.mjJNT_HINGE)):
+            raise ValueError("the controller's kinematics support one hinge per body (the bare arm)")
+        if nj == 1:
+            j = model.body_jntadr[i]
+            adr = model.jnt_qposadr[j]
+            chain[i, 8] = adr
+            chain[i, 9:12] = model.jnt_pos[j]
+            chain[i, 12:15] = model.jnt_axis[j]
+            chain[i, 15] = model.qpos0[adr]
+    chain[nb_, 0] = model.site_bodyid[site]
+    chain[nb_, 1:4] = model.site_pos[site]
+    chain[nb_, 4:8] = model.site_quat[site]
+    return chain
+
+
+@nb.njit(cache=True)
+def _quat_mul(a, b, out):
+    a0, a1, a2, a3, b0, b1, b2, b3 = a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3]
+    out[0] = a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3
+    out[1] = a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2
+    out[2] = a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1
+    out[3] = a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0
+
+
+@nb.njit(cache=True)
+def _quat_mat(q, M):
+    q0, q1, q2, q3 = q[0], q[1], q[2], q[3]
+    M[0, 0] = q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3
+    M[0, 1] = 2.0 * (q1 * q2 - q0 * q3)
+    M[0, 2] = 2.0 * (q1 * q3 + q0 * q2)
+    M[1, 0] = 2.0 * (q1 * q2 + q0 * q3)
+    M[1, 1] = q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3
+    M[1, 2] = 2.0 * (q2 * q3 - q0 * q1)
+    M[2, 0] = 2.0 * (q1 * q3 - q0 * q2)
+    M[2, 1] = 2.0 * (q2 * q3 + q0 * q1)
+    M[2, 2] = q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3
+
+
+@nb.njit(cache=True)
+def _fk(chain, site, q, p_O, R, J):
+    """Flange pose and geometric Jacobian (6, n) at q: body frames down the chain (body pos/quat,
+    hinge rotation about its anchor), then column j = [a_j x (p_O - anchor_j); a_j]."""
+    nbody = chain.shape[0]
+    xpos = np.zeros((nbody, 3))
+    xquat = np.zeros((nbody, 4))
+    xquat[0, 0] = 1.0
+    axes = np.zeros((J.shape[1], 3))
+    anchors = np.zeros((J.shape[1], 3))
+    M = np.empty((3, 3))
+    tmp = np.empty(4)
+    ql = np.empty(4)
+    for i in range(1, nbody):
+        par = int(chain[i, 0])
+        _quat_mat(xquat[par], M)
+        for r in range(3):
+            xpos[i, r] = xpos[par, r] + M[r, 0] * chain[i, 1] + M[r, 1] * chain[i, 2] + M[r, 2] * chain[i, 3]
+        _quat_mul(xquat[par], chain[i, 4:8], xquat[i])
+        adr = int(chain[i, 8])
+        if adr >= 0:
+            _quat_mat(xquat[i], M)
+            for r in range(3):
+                axes[adr, r] = M[r, 0] * chain[i, 12] + M[r, 1] * chain[i, 13] + M[r, 2] * chain[i, 14]
+                anchors[adr, r] = xpos[i, r] + M[r, 0] * chain[i, 9] + M[r, 1] * chain[i, 10] + M[r, 2] * chain[i, 11]
+            half = 0.5 * (q[adr] - chain[i, 15])
+            sh = math.sin(half)
+            ql[0], ql[1], ql[2], ql[3] = math.cos(half), chain[i, 12] * sh, chain[i, 13] * sh, chain[i, 14] * sh
+            _quat_mul(xquat[i], ql, tmp)
+            xquat[i] = tmp
+            _quat_mat(xquat[i], M)
+            for r in range(3):  # off-centre rotation: the anchor stays put
+                xpos[i, r] = anchors[adr, r] - (M[r, 0] * chain[i, 9] + M[r, 1] * chain[i, 10] + M[r, 2] * chain[i, 11])
+        nrm = math.sqrt(xquat[i, 0] ** 2 + xquat[i, 1] ** 2 + xquat[i, 2] ** 2 + xquat[i, 3] ** 2)
+        xquat[i] /= nrm
+    sb = int(site[0])
+    _quat_mat(xquat[sb], M)
+    for r in range(3):
+        p_O[r] = xpos[sb, r] + M[r, 0] * site[1] + M[r, 1] * site[2] + M[r, 2] * site[3]
+    Ms = np.empty((3, 3))
+    _quat_mat(site[4:8], Ms)
+    for r in range(3):
+        for c_ in range(3):
+            R[r, c_] = M[r, 0] * Ms[0, c_] + M[r, 1] * Ms[1, c_] + M[r, 2] * Ms[2, c_]
+    for j in range(J.shape[1]):
+        a0, a1, a2 = axes[j, 0], axes[j, 1], axes[j, 2]
+        r0, r1, r2 = p_O[0] - anchors[j, 0], p_O[1] - anchors[j, 1], p_O[2] - anchors[j, 2]
+        J[0, j], J[1, j], J[2, j] = a1 * r2 - a2 * r1, a2 * r0 - a0 * r2, a0 * r1 - a1 * r0
+        J[3, j], J[4, j], J[5, j] = a0, a1, a2
+
+
+@nb.njit(cache=True)
+def fk_batch(chain, inp, p_O, R, J):
+    """``_fk`` for every episode at the encoder readings in ``inp`` (B, 2n+6)."""
+    nbody = chain.shape[0] - 1
+    for b in range(inp.shape[0]):
+        _fk(chain[:nbody], chain[nbody], inp[b], p_O[b], R[b], J[b])

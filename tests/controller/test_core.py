@@ -1,0 +1,206 @@
+"""The batch-first controller core: a batch equals a loop over its members, and one step of the
+kernel equals an independent numpy evaluation of the equations."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import mujoco
+import numpy as np
+import pytest
+
+from kinadapt_nn.controller import core
+from kinadapt_nn.runs.batch import run_batch
+from kinadapt_nn.config import load_config
+from kinadapt_nn.controller.controller import Controller
+from kinadapt_nn.runs.episode import make_controller, make_features, run_episode
+from kinadapt_nn.errors import ConfigError
+from kinadapt_nn.features import AdjointFeatures
+from kinadapt_nn.known import KnownCfg
+from kinadapt_nn.robot import FLANGE_SITE
+from kinadapt_nn.sensing import channel_metric, nominal_sensor_map
+from kinadapt_nn.runs.sweep import SweepCfg, tool_overrides
+
+
+@pytest.mark.parametrize("law", ["kalman", "composite"])
+def test_batch_of_three_equals_three_single_episodes(law):
+    """run_batch (B = 3, mujoco.batch) and three run_episode calls run the same kernels on the same
+    physics (mj_step per model): seat times, peak forces and final estimates agree exactly."""
+    base = ["run.progress=false", "start.lateral_jitter_m=0.0003", "start.tilt_jitter_deg=0.5",
+            "run.stop_after_seat_s=0.05", f"adaptation.mode={law}"]
+    cfgs = [load_config(None, [*base, *tool_overrides(SweepCfg(), s), f"run.seed={s}"]) for s in range(3)]
+    res = run_batch(cfgs, nthread=1)
+    assert len({round(s["seat_time_s"], 6) for s in res.summaries}) == 3  # three different episodes
+    steps = 0
+    for c, b, theta_b in zip(cfgs, res.summaries, res.theta_final):
+        ctrl = make_controller(c)
+        e = run_episode(c, ctrl=ctrl).summary
+        steps += e["steps"]
+        assert b["success"] and e["success"]
+        assert b["seat_time_s"] == e["seat_time_s"]
+        assert b["max_force_N"] == e["max_force_N"]
+        assert b["max_lateral_force_N"] == e["max_lateral_force_N"]
+        np.testing.assert_array_equal(theta_b, ctrl.theta)
+    assert res.sim_steps == steps
+
+
+def test_batch_refuses_per_episode_feature_state():
+    with pytest.raises(ConfigError, match="model.effects"):
+        run_batch([load_config(None, ["model.effects=[ft_bias_drift]"])])
+
+
+def _jac_site(model, data, q):
+    """Independent kinematics: mj_kinematics + mj_comPos + mj_jacSite."""
+    data.qpos[:] = q
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_comPos(model, data)
+    site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, FLANGE_SITE)
+    jp, jr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+    mujoco.mj_jacSite(model, data, jp, jr, site)
+    return data.site_xpos[site].copy(), data.site_xmat[site].reshape(3, 3).copy(), np.vstack([jp, jr])
+
+
+def test_kernel_step_equals_numpy_equations():
+    """One composite step in contact at B = 1 against the equations written out in numpy:
+    eq. ft_force, eq. cp_admittance, the joint reference, eq. ft_pred and eq. ft_composite."""
+    cfg = load_config(None, ["run.progress=false", "adaptation.mode=composite"])
+    known = KnownCfg.of(cfg)
+    feats, _ = make_features(cfg)
+    rng = np.random.default_rng(7)
+    theta = np.asarray(cfg.sensing.nominal_offset_f_m) + np.array([0.004, -0.003, 0.002])
+    ctrl = Controller(known, feats, theta)
+    n, p = ctrl.kin_n, 3
+    st = ctrl.state
+    # a state in the middle of an insertion: tared, filters primed, a twist, an estimate
+    q = np.array([0.05, -0.55, 0.02, -2.35, 0.03, 1.85, 0.75])
+    qdot = 0.05 * rng.normal(size=n)
+    wrench = np.array([3.0, -2.0, -6.0, 0.2, -0.1, 0.05])
+    tare, xi0 = 0.1 * rng.normal(size=6), 1e-3 * rng.normal(size=6)
+    y0, known_f0, Phi_f0 = rng.normal(size=6) * 1e-3, rng.normal(size=6), rng.normal(size=(6, 3))
+    q_ref0, q_post = q + 1e-3 * rng.normal(size=n), q + 1e-2 * rng.normal(size=n)
+    st.tare[0], st.xi[0], st.y[0], st.known_f[0], st.Phi_fT[0] = tare, xi0, y0, known_f0, Phi_f0.T
+    st.q_ref[0], st.q_post[0] = q_ref0, q_post
+    for col in (core.K_TARED, core.K_PRIMED, core.K_STARTED):
+        st.k[0, col] = 1
+    t = cfg.start.settle_s + 2.0 * cfg.control.ramp_s + 0.1  # drive fully on
+    cmd = ctrl.step(t, q, qdot, wrench)
+    lg = ctrl.last
+
+    # ---- the same step, written out independently
+    model = mujoco.MjModel.from_xml_path(str(known.arm_mjcf))
+    p_O, R, J = _jac_site(model, mujoco.MjData(model), q)
+    c, sc, ad, dt = cfg.control, cfg.sensing, cfg.adaptation, cfg.run.dt_s
+    n_ax = np.array([0.0, 0.0, -1.0])
+    S = nominal_sensor_map(sc, n_ax)
+    W = channel_metric(sc)
+    l_nom = np.asarray(sc.nominal_offset_f_m)
+    w_env = np.r_[R @ (wrench[:3] - tare[:3]), R @ (wrench[3:] - tare[3:])]  # tool -> environment, world
+    P_lat = -S[1:3, :3] / sc.stiffness_lat_N_per_m
+    s = np.r_[n_ax @ (p_O + R @ l_nom - np.asarray(cfg.scene.bore_entry_w_m)), -P_lat @ w_env[:3], -w_env[3:]]
+    np.testing.assert_allclose(lg.w_env_w, w_env, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(lg.s, s, rtol=1e-12, atol=1e-12)
+    # eq. ft_force: F = -grad V
+    F = np.r_[-np.clip(c.k_depth_N_per_m * (s[0] - c.depth_target_m), -c.depth_force_max_N, c.depth_force_max_N),
+              -c.compliance_lat_m_per_N * s[1:3], -c.compliance_mom_rad_per_Nm * s[3:]]
+    np.testing.assert_allclose(lg.F, F, rtol=1e-12, atol=1e-15)
+    # eq. cp_admittance, implicit in the damping, on the drive (S Ad(R theta))^T F
+    J_xi = AdjointFeatures(S, l_nom).twist_jacobian(type("K", (), {"R_wf": R})(), theta)
+    tau = np.array([c.tau_trans_s] * 3 + [c.tau_ang_s] * 3)
+    g = np.array([c.gain_trans] * 3 + [c.gain_ang] * 3)
+    beta = np.array([c.beta_trans] * 3 + [c.beta_ang] * 3)
+    M, D = tau / g, (1.0 + beta) / g
+    xi = np.linalg.solve(np.diag(M / dt + D), M / dt * xi0 + J_xi.T @ F - w_env)
+    assert np.linalg.norm(xi[:3]) < c.v_max_m_per_s and np.linalg.norm(xi[3:]) < c.w_max_rad_per_s
+    np.testing.assert_allclose(lg.xi, xi, rtol=1e-9, atol=1e-15)
+    # joint reference: qdot = J^+ xi + (I - J^+ J) k_ns (q_0 - q), J^+ = J^T (J J^T + 1e-6 I)^-1
+    J_pinv = J.T @ np.linalg.inv(J @ J.T + 1e-6 * np.eye(6))
+    z = c.nullspace_gain * (q_post - q)
+    qdot_ref = J_pinv @ xi + (np.eye(n) - J_pinv @ J) @ z
+    np.testing.assert_allclose(cmd.qdot_ref_rad_s, qdot_ref, rtol=1e-7, atol=1e-12)
+    np.testing.assert_allclose(cmd.q_ref_rad, q_ref0 + dt * qdot_ref, rtol=1e-12, atol=1e-14)
+    # filters and eq. ft_pred on the adjoint regressor Phi = S_v [w]x R, known = S xi_m + depth lever
+    alpha = dt / (sc.filter_tau_s + dt)
+    s_dot_meas = (s - y0) / (sc.filter_tau_s + dt)
+    np.testing.assert_allclose(lg.s_dot_meas, s_dot_meas, rtol=1e-12, atol=1e-12)
+    xi_m = J @ qdot
+    w = xi_m[3:]
+    S_v = S[:, :3].copy()
+    S_v[0] = 0.0
+    Phi = S_v @ np.cross(w[:, None], R, axis=0)  # [w]x R column by column
+    known_rate = S @ xi_m
+    known_rate[0] += n_ax @ np.cross(w, R @ l_nom)
+    known_f = known_f0 + alpha * (known_rate - known_f0)
+    Phi_f = Phi_f0 + alpha * (Phi - Phi_f0)
+    pred = known_f + Phi_f @ theta
+    eps_w = W * (s_dot_meas - pred)
+    np.testing.assert_allclose(lg.s_dot_pred, pred, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(lg.adapt.eps_w, eps_w, rtol=1e-10, atol=1e-12)
+    # eq. ft_composite: tracking + normalised prediction step (spectral norm), then Proj_Omega
+    assert lg.adapt.gate == 1.0
+    Hw = W[:, None] * Phi_f
+    n2 = np.linalg.eigvalsh(Hw.T @ Hw)[-1]
+    d_track = -dt * ad.gamma * ad.gamma_d * Phi.T @ F
+    d_pred = ad.eta * Hw.T @ eps_w / (n2 + ad.eps_norm)
+    half = np.array([ad.omega_lateral_m, ad.omega_lateral_m, ad.omega_axial_m])
+    theta_next = np.clip(theta + d_track + d_pred, l_nom - half, l_nom + half)
+    assert lg.adapt.phi_norm2 == pytest.approx(n2, rel=1e-12)
+    np.testing.assert_allclose(lg.adapt.d_track, d_track, rtol=1e-10, atol=1e-18)
+    np.testing.assert_allclose(lg.adapt.d_pred, d_pred, rtol=1e-10, atol=1e-18)
+    np.testing.assert_allclose(ctrl.theta, theta_next, rtol=1e-12, atol=1e-15)
+    assert not np.array_equal(ctrl.theta, theta)  # the step did move the estimate
+    # the rank gate of the next step: lambda_min(W J_hat J_hat^T W), J_hat = J_hat_xi(theta+) J
+    J_hat = AdjointFeatures(S, l_nom).twist_jacobian(type("K", (), {"R_wf": R})(), ctrl.theta) @ J
+    lam = np.linalg.eigvalsh((W[:, None] * J_hat) @ (W[:, None] * J_hat).T)[0]
+    assert ctrl.rank_margin_now() == pytest.approx(lam, rel=1e-8)
+
+
+def test_dropout_is_held_then_refused():
+    """Non-finite samples are held (theta unchanged); a run longer than max_dropout_s raises."""
+    from kinadapt_nn.errors import SensorError
+
+    cfg = load_config(None, ["run.progress=false", "sensing.max_dropout_s=0.003"])
+    ctrl = make_controller(cfg)
+    q, qd, w = np.array([0.0, -0.6, 0.0, -2.4, 0.0, 1.9, 0.7]), np.zeros(7), np.zeros(6)
+    ctrl.step(0.0, q, qd, w)
+    bad = np.full(6, np.nan)
+    for i in range(3):
+        cmd = ctrl.step(0.001 * (i + 1), q, qd, bad)
+        assert np.all(np.isfinite(cmd.q_ref_rad)) and ctrl.dropouts == i + 1
+    with pytest.raises(SensorError, match="non-finite"):
+        ctrl.step(0.004, q, qd, bad)
+
+
+def test_known_cfg_is_the_controllers_only_config():
+    cfg = load_config(None, [])
+    feats, theta0 = make_features(cfg)
+    ctrl = Controller(replace(KnownCfg.of(cfg), law="frozen"), feats, theta0)
+    assert ctrl.mode == "frozen" and not hasattr(ctrl, "cfg")
+
+
+def test_neural_basis_in_the_kernel_equals_the_features():
+    """The neural body evaluated in the kernel gives NeuralFeatures' regressor and J_hat (the rank
+    gate's lambda_min and the filtered regressor after one step from zero filter state)."""
+    from kinadapt_nn.controller.controller import rank_margin
+    from kinadapt_nn.features.base import KinState
+
+    cfg = load_config(None, ["run.progress=false", "run.features=neural"])
+    ctrl = make_controller(cfg)
+    assert ctrl.consts.c[core.FEAT] == core.FEAT_NEURAL
+    rng = np.random.default_rng(3)
+    ctrl.theta = 0.1 * rng.normal(size=ctrl.features.n_params)
+    th = ctrl.theta.copy()
+    q = np.array([0.05, -0.55, 0.02, -2.35, 0.03, 1.85, 0.75])
+    qdot = 0.05 * rng.normal(size=7)
+    t = cfg.start.settle_s + 1.0
+    ctrl.state.k[0, core.K_PRIMED] = 1
+    ctrl.step(t, q, qdot, np.zeros(6))  # free space: the law does not move theta
+    np.testing.assert_array_equal(ctrl.theta, th)
+    model = mujoco.MjModel.from_xml_path(str(KnownCfg.of(cfg).arm_mjcf))
+    p_O, R, J = _jac_site(model, mujoco.MjData(model), q)
+    kin = KinState(q, p_O, R, J)
+    reg = ctrl.features.regressor(kin, qdot)
+    alpha = cfg.run.dt_s / (cfg.sensing.filter_tau_s + cfg.run.dt_s)
+    np.testing.assert_allclose(ctrl.state.known_f[0], alpha * reg.known, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(ctrl.state.Phi_fT[0], alpha * reg.Phi.T, rtol=1e-9, atol=1e-12)
+    lam = rank_margin(ctrl.W, ctrl.features.jacobian(kin, th))
+    assert ctrl.rank_margin_now() == pytest.approx(lam, rel=1e-8)
