@@ -39,7 +39,8 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
 from kinadapt_nn.config import load_config  # noqa: E402
-from kinadapt_nn.runs.episode import make_controller, run_episode  # noqa: E402
+from kinadapt_nn.runs.build import make_controller
+from kinadapt_nn.runs.episode import run_episode  # noqa: E402
 from kinadapt_nn.sim.adapter import PegInHoleSim  # noqa: E402
 
 

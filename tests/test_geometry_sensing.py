@@ -11,7 +11,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from kinadapt_nn.config import load_config
-from kinadapt_nn.runs.episode import make_controller
+from kinadapt_nn.runs.build import make_controller
 from kinadapt_nn.geometry import adjoint_offset, skew
 from kinadapt_nn.robot import JOINT_LIMITS_RAD, N_JOINTS
 from kinadapt_nn.sensing import LowPass, RateFilter, nominal_sensor_map

@@ -69,7 +69,7 @@ def load_log(path: Path) -> RawLog:
 
 def replay(log: RawLog, cfg: ExperimentCfg, theta: np.ndarray | None = None) -> Replay:
     """Feed the log through a frozen controller and collect its sensing channels."""
-    from kinadapt_nn.runs.episode import make_features
+    from kinadapt_nn.runs.build import make_features
     from dataclasses import replace
 
     from kinadapt_nn.controller.controller import Controller

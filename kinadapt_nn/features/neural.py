@@ -3,7 +3,7 @@
 ``J_hat(q) = K(q) + W^-1 Y(q) theta`` on rows 1..5 (``K`` the known nominal model -- the adjoint
 at the nominal offset, depth row included; ``W`` the channel metric the body was trained in).
 The per-step path is a hand-written numpy forward of the checkpoint's MLP (no torch, no
-autograd in the loop); ``tests/test_features_learned.py`` proves it equals the torch network.
+autograd in the loop); ``tests/features/test_learned.py`` proves it equals the torch network.
 """
 
 from __future__ import annotations

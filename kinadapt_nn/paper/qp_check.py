@@ -76,7 +76,7 @@ def check_features(name: str, feats, kin, qdot: np.ndarray, theta: np.ndarray, W
 def run_qp_checks(seed: int = 0) -> list[QPCheck]:
     """All features types at a random state near the insertion start."""
     from kinadapt_nn.config import load_config
-    from kinadapt_nn.runs.episode import make_controller, make_features
+    from kinadapt_nn.runs.build import make_controller, make_features
 
     rng = np.random.default_rng(seed)
     from kinadapt_nn.sim.workspace import insertion_path

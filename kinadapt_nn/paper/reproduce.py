@@ -58,7 +58,7 @@ def _running_gram(trace, cfg_over: list[str]) -> tuple[np.ndarray, np.ndarray]:
     """Eigenvalues of the running mean W-scaled Gram of the (filtered) adjoint regressor over the
     contact samples, labelled by flange axis. -> (t (N,), lam (N, 3))."""
     from kinadapt_nn.config import load_config
-    from kinadapt_nn.runs.episode import make_controller
+    from kinadapt_nn.runs.build import make_controller
     from kinadapt_nn.sensing import LowPass
 
     cfg = load_config(None, cfg_over)
@@ -163,7 +163,7 @@ def part_gain_sweep(out: Path, ex) -> dict:
 # ---------------------------------------------------------------------------------- ablations
 def part_ablations(out: Path, ex) -> dict:
     from kinadapt_nn.config import load_config
-    from kinadapt_nn.runs.episode import make_controller
+    from kinadapt_nn.runs.build import make_controller
     from kinadapt_nn.paper.rigid_demo import run_rigid_demo
     from kinadapt_nn.paper.static_estimator import static_offset_estimate
 

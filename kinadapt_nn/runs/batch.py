@@ -28,7 +28,9 @@ import numpy as np
 from kinadapt_nn.controller import core
 from kinadapt_nn.config import ExperimentCfg
 from kinadapt_nn.controller.controller import core_consts, feature_consts
-from kinadapt_nn.runs.episode import RANK_GATE, classify_failure, make_features
+from kinadapt_nn.runs.episode import RANK_GATE
+from kinadapt_nn.runs.monitor import classify_failure
+from kinadapt_nn.runs.build import make_features
 from kinadapt_nn.errors import ConfigError
 from kinadapt_nn.features.base import KinState
 from kinadapt_nn.known import KnownCfg
@@ -193,7 +195,7 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
         act = tl >= c0.start.settle_s
         failure = "none" if success else ("rank_gate" if breach[b] else
                                           classify_failure(cfgs[b], tl[act], sl[act, b], wl[act, b], bool(diverged[b])))
-        err = theta[b, :3] - true_off[b] if feats.name == "adjoint" else np.full(3, np.nan)
+        err = theta[b, :3] - true_off[b] if feats.theta_is_offset else np.full(3, np.nan)
         summaries.append({
             "success": bool(success), "failure": failure, "seat_time_s": float(seat[b]) if success else None,
             "max_force_N": float(max_f[b]), "max_lateral_force_N": float(max_flat[b]), "max_moment_Nm": float(max_m[b]),

@@ -2,7 +2,7 @@
 
 Written with TensorBoard's own event writer and protos (``EventWriter``), not
 ``torch.utils.tensorboard``: importing torch costs seconds and the episode never needs it
-(nothing here imports torch or tensorflow -- ``tests/test_config_cli.py`` checks the
+(nothing here imports torch or tensorflow -- ``tests/app/test_config_cli.py`` checks the
 ``online`` path).
 """
 

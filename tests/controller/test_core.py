@@ -13,7 +13,8 @@ from kinadapt_nn.controller import core
 from kinadapt_nn.runs.batch import run_batch
 from kinadapt_nn.config import load_config
 from kinadapt_nn.controller.controller import Controller
-from kinadapt_nn.runs.episode import make_controller, make_features, run_episode
+from kinadapt_nn.runs.build import make_controller, make_features
+from kinadapt_nn.runs.episode import run_episode
 from kinadapt_nn.errors import ConfigError
 from kinadapt_nn.features import AdjointFeatures
 from kinadapt_nn.known import KnownCfg

@@ -7,7 +7,7 @@ import numpy as np
 
 from kinadapt_nn.config import load_config
 from kinadapt_nn.controller.controller import Controller
-from kinadapt_nn.runs.episode import make_features
+from kinadapt_nn.runs.build import make_features
 from kinadapt_nn.known import KnownCfg
 from kinadapt_nn.sim.adapter import PegInHoleSim
 

@@ -9,7 +9,8 @@ import pytest
 
 from kinadapt_nn.controller.law import CompositeLaw, kalman_update
 from kinadapt_nn.config import load_config
-from kinadapt_nn.runs.episode import make_features, run_episode, run_insertions
+from kinadapt_nn.runs.build import make_features
+from kinadapt_nn.runs.episode import run_episode, run_insertions
 from kinadapt_nn.features.base import Features, KinState, Regressor
 
 QUIET = ["run.progress=false", "run.tensorboard=false", "run.figure=false"]

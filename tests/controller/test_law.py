@@ -7,7 +7,8 @@ import pytest
 
 from kinadapt_nn.controller.law import CompositeLaw, exact_qp_step, prediction_step
 from kinadapt_nn.config import load_config
-from kinadapt_nn.runs.episode import make_controller, run_episode
+from kinadapt_nn.runs.build import make_controller
+from kinadapt_nn.runs.episode import run_episode
 from kinadapt_nn.features.base import Features, KinState, Regressor
 
 

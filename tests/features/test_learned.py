@@ -11,7 +11,8 @@ import torch
 
 from kinadapt_nn.controller.law import prediction_step
 from kinadapt_nn.config import load_config
-from kinadapt_nn.runs.episode import make_controller, make_features, run_episode
+from kinadapt_nn.runs.build import make_controller, make_features
+from kinadapt_nn.runs.episode import run_episode
 from kinadapt_nn.errors import ModelFileError
 from kinadapt_nn.robot import MODELS_DIR
 

@@ -8,7 +8,8 @@ import numpy as np
 
 from kinadapt_nn.app.cli import main
 from kinadapt_nn.config import load_config
-from kinadapt_nn.runs.episode import make_controller, run_episode
+from kinadapt_nn.runs.build import make_controller
+from kinadapt_nn.runs.episode import run_episode
 from kinadapt_nn.paper.qp_check import run_qp_checks
 from kinadapt_nn.paper.static_estimator import static_offset_estimate
 

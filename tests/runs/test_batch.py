@@ -7,7 +7,8 @@ import pytest
 
 from kinadapt_nn.runs.batch import run_batch
 from kinadapt_nn.config import load_config
-from kinadapt_nn.runs.episode import make_features, run_episode
+from kinadapt_nn.runs.build import make_features
+from kinadapt_nn.runs.episode import run_episode
 from kinadapt_nn.runs.sweep import SweepCfg, tool_overrides
 
 

@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from kinadapt_nn.config import load_config
-from kinadapt_nn.runs.episode import SeatMonitor, classify_failure, make_controller, run_episode
+from kinadapt_nn.runs.monitor import SeatMonitor, classify_failure
+from kinadapt_nn.runs.build import make_controller
+from kinadapt_nn.runs.episode import run_episode
 from kinadapt_nn.errors import SensorError
 
 

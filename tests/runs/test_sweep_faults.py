@@ -36,7 +36,7 @@ def test_faults_never_let_nan_into_theta_or_the_command():
     assert r.summary["sensor_dropouts"] > 100
     assert np.isfinite(r.trace["theta"]).all() and np.isfinite(r.trace["q_ref_rad"]).all()
     assert np.isfinite(r.trace["xi"]).all()
-    from kinadapt_nn.runs.episode import make_controller
+    from kinadapt_nn.runs.build import make_controller
 
     ctrl = make_controller(load_config(None, []))
     q = np.array([0.0, -0.5, 0.0, -2.3, 0.0, 1.8, 0.8])

@@ -1,0 +1,103 @@
+"""What a run builds from an experiment config: the features and theta0, and the controller.
+
+This is where the truth firewall is cut: ``make_controller`` hands the controller
+``KnownCfg.of(cfg)`` (what a real robot knows) and nothing else. The only declared uses of the
+truth are experiment design: ``oracle`` (the true offset) and the adjoint's initial estimate
+(true offset + the configured error).
+"""
+
+from __future__ import annotations
+
+
+from pathlib import Path
+
+import numpy as np
+
+from kinadapt_nn.config import ExperimentCfg, arm_mjcf_path
+from kinadapt_nn.controller.controller import Controller
+from kinadapt_nn.features import AdjointFeatures
+from kinadapt_nn.features.base import Features
+from kinadapt_nn.known import KnownCfg
+from kinadapt_nn.sensing import channel_metric, nominal_sensor_map
+from kinadapt_nn.known import BORE_AXIS_W
+
+FAILURES = ("none", "timeout", "jam", "block_face", "divergence")
+
+
+def initial_estimate(cfg: ExperimentCfg) -> np.ndarray:
+    """theta0 = true offset + ``initial_error_m`` along ``initial_error_dir_f`` (default: away
+    from the flange axis, along the true lateral offset). Experiment design: the controller
+    receives the number, never the truth it was derived from. -> (3,) in f [m]."""
+    ad = cfg.adaptation
+    true = np.asarray(cfg.tool.offset_f_m, dtype=float)
+    direction = np.asarray(ad.initial_error_dir_f, dtype=float)
+    if not np.any(direction):
+        direction = np.array([true[0], true[1], 0.0])
+        if not np.any(direction):
+            direction = np.array([1.0, 0.0, 0.0])
+    return true + ad.initial_error_m * direction / np.linalg.norm(direction)
+
+
+def make_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
+    """``_base_features`` plus, with ``model.effects``, the library effects' columns
+    (``kinadapt_nn.features.effects``; their parameters start at 0)."""
+    feats, theta0 = _base_features(cfg)
+    if cfg.model.effects:
+        from kinadapt_nn.features.effects import EffectFeatures
+
+        feats = EffectFeatures(feats, list(cfg.model.effects), KnownCfg.of(cfg), nominal_sensor_map(cfg.sensing, BORE_AXIS_W))
+        theta0 = np.r_[theta0, np.zeros(feats.k)]
+    return feats, theta0
+
+
+def _base_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
+    """Features object and the initial parameters for ``run.features``.
+
+    Nothing here uses the truth except the two declared cases: ``oracle`` (the true offset) and
+    the adjoint's initial estimate (true offset + the configured error, experiment design)."""
+    S = nominal_sensor_map(cfg.sensing, BORE_AXIS_W)
+    l_nom = np.asarray(cfg.sensing.nominal_offset_f_m, dtype=float)
+    ad = cfg.adaptation
+    adjoint = AdjointFeatures(S, l_nom, np.array([ad.omega_lateral_m, ad.omega_lateral_m, ad.omega_axial_m]))
+    kind = cfg.run.features
+    if kind == "oracle":
+        return adjoint, np.asarray(cfg.tool.offset_f_m, dtype=float)
+    adjoint.P0 = np.diag([ad.prior_sd_lateral_m**2, ad.prior_sd_lateral_m**2, ad.prior_sd_axial_m**2])
+    if kind == "adjoint":
+        return adjoint, initial_estimate(cfg)
+    if kind == "rbf":
+        from kinadapt_nn.features.rbf import RBFFeatures, auto_width
+        from kinadapt_nn.sim.workspace import insertion_path, sample_workspace
+
+        fc = cfg.features
+        nominal = cfg.model_copy(update={"tool": cfg.tool.model_copy(update={"offset_f_m": tuple(l_nom), "tilt_deg": (0.0, 0.0)}),
+                                         "arm": type(cfg.arm)()})
+        if fc.rbf_centres == "path":
+            centres = insertion_path(nominal, n=fc.rbf_n_centres)
+        else:
+            path = insertion_path(nominal)
+            centres = sample_workspace(path, fc.rbf_n_centres, 0.03, np.random.default_rng(fc.rbf_seed))
+        width = fc.rbf_width_rad or auto_width(centres)
+        feats = RBFFeatures(adjoint, l_nom, centres, width)
+        from kinadapt_nn.controller.controller import ArmKinematics
+
+        feats.P0 = feats.prior_from_adjoint(ArmKinematics(arm_mjcf_path(cfg.scene)), adjoint.P0, ad.rbf_prior_floor)
+        return feats, np.zeros(feats.n_params)
+    if kind == "neural":
+        from kinadapt_nn.features.neural import NeuralFeatures
+        from kinadapt_nn.robot import MODELS_DIR
+
+        ckpt = Path(cfg.features.neural_checkpoint) if cfg.features.neural_checkpoint else MODELS_DIR / "neural_default.pt"
+        feats = NeuralFeatures(adjoint, l_nom, ckpt, channel_metric(cfg.sensing))
+        feats.P0 = feats.prior_cov()  # the pretraining heads' second moment about the nominal head
+        return feats, np.zeros(feats.n_params)  # the head of the nominal tool (zero residual)
+    raise ValueError(f"unknown features {kind!r}")  # pragma: no cover (validated by the config)
+
+
+def law_name(cfg: ExperimentCfg) -> str:
+    return "frozen" if cfg.run.features == "oracle" else cfg.adaptation.mode
+
+
+def make_controller(cfg: ExperimentCfg) -> Controller:
+    feats, theta0 = make_features(cfg)
+    return Controller(KnownCfg.of(cfg), feats, theta0)
