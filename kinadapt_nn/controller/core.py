@@ -57,8 +57,8 @@ N_C = 79
 
 # -- counters: columns of ControllerState.k ---------------------------------------------------
 (K_TARE_N, K_TARED, K_PRIMED, K_STARTED, K_HAVE_HELD, K_BAD_RUN, K_DROPOUTS, K_HOLDING, K_ERROR, K_R2_PRIMED,
- K_KF_INIT, K_ACT_K, K_ACT_INIT, K_GRAM_N) = range(14)
-N_K = 14
+ K_KF_INIT, K_ACT_K, K_ACT_INIT, K_GRAM_N, K_DONE) = range(15)
+N_K = 15
 
 
 class Layout:
@@ -804,7 +804,7 @@ def act_kernel(t, inp, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, L0, seg, f
     n, p = lay[L_N], lay[L_P]
     feat = int(c[FEAT])
     for b in range(inp.shape[0]):
-        if k[b, K_ERROR] != 0:
+        if k[b, K_ERROR] != 0 or k[b, K_DONE] != 0:  # diverged, or a batch episode that has stopped
             continue
         if feat == FEAT_ADJOINT:
             _adjoint_regressor(b, inp, R, J, lay, c, mats, reg[b, 0], reg[b, 1:])
@@ -834,6 +834,8 @@ def step_kernel(t, inp, chain, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, L0
     law, rank gate."""
     nbody = chain.shape[0] - 1
     for b in range(inp.shape[0]):
+        if k[b, K_DONE] != 0:  # a batch episode that has stopped
+            continue
         if k[b, K_ERROR] == 0:
             _intake(b, inp, x, k, lay, c)
         if k[b, K_ERROR] == 0:

@@ -23,12 +23,13 @@ from typing import NamedTuple
 
 import mujoco
 import mujoco.batch
+import numba as nb
 import numpy as np
 
 from kinadapt_nn.controller import core
 from kinadapt_nn.config import ExperimentCfg
 from kinadapt_nn.controller.controller import core_consts, feature_consts
-from kinadapt_nn.runs.episode import RANK_GATE
+from kinadapt_nn.controller.core import RANK_GATE
 from kinadapt_nn.runs.monitor import classify_failure
 from kinadapt_nn.runs.build import make_features
 from kinadapt_nn.errors import ConfigError
@@ -57,6 +58,47 @@ def _known_of(cfgs: list[ExperimentCfg]) -> KnownCfg:
     if known.model_effects:
         raise ConfigError("model.effects (library effect columns) keep per-episode state: run those episodes one by one")
     return known
+
+
+@nb.njit(cache=True)
+def _gather(qpos, qvel, sens, qadr, vadr, fadr, inp):
+    """The controller's input rows [q; qdot; raw F/T] (B, 2n+6) from the batch's buffers."""
+    n = qadr.shape[0]
+    for b in range(inp.shape[0]):
+        for j in range(n):
+            inp[b, j] = qpos[b, qadr[j]]
+            inp[b, n + j] = qvel[b, vadr[j]]
+        for j in range(6):
+            inp[b, 2 * n + j] = sens[b, fadr[j]]
+
+
+@nb.njit(cache=True)
+def _monitor(t, out, i_s, i_w, i_rho, i_lam, lim, active, since, seat, stop_at, peaks, breach):
+    """The sensor-side seat check (``runs.monitor.SeatMonitor``), peak wrenches and the rank gate,
+    per episode. lim = [d_seat, max |F_lat|, max |M|, hold_s, stop_after_seat_s, gate on (0/1)];
+    peaks (B, 3) = [max |f_env|, max |F_lat|, max |m_env|]."""
+    for b in range(out.shape[0]):
+        if not (active[b] and out[b, i_rho] > 0.0):
+            since[b] = np.nan
+            continue
+        s0, s1, s2 = out[b, i_s], out[b, i_s + 1], out[b, i_s + 2]
+        flat = math.hypot(s1, s2)
+        mom = math.sqrt(out[b, i_s + 3] ** 2 + out[b, i_s + 4] ** 2 + out[b, i_s + 5] ** 2)
+        if s0 >= lim[0] and flat < lim[1] and mom < lim[2]:
+            if np.isnan(since[b]):
+                since[b] = t
+            if np.isnan(seat[b]) and t - since[b] >= lim[3] - 1e-12:
+                seat[b] = t
+                stop_at[b] = t + lim[4]
+        else:
+            since[b] = np.nan
+        fm = math.sqrt(out[b, i_w] ** 2 + out[b, i_w + 1] ** 2 + out[b, i_w + 2] ** 2)
+        mm = math.sqrt(out[b, i_w + 3] ** 2 + out[b, i_w + 4] ** 2 + out[b, i_w + 5] ** 2)
+        peaks[b, 0] = max(peaks[b, 0], fm)
+        peaks[b, 1] = max(peaks[b, 1], flat)
+        peaks[b, 2] = max(peaks[b, 2], mm)
+        if lim[5] > 0.0 and out[b, i_lam] < RANK_GATE:
+            breach[b] = True
 
 
 def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = False) -> BatchResult:
@@ -116,9 +158,11 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
     log_every = 10
     logs = {k: [] for k in ("t", "s", "w")}
     ctrl_log = np.zeros((n_steps, B, n)) if record_ctrl else None
-    max_f = np.zeros(B)
-    max_flat = np.zeros(B)
-    max_m = np.zeros(B)
+    peaks = np.zeros((B, 3))  # max |f_env|, max |F_lat|, max |m_env| while the drive is on
+    lim = np.array([d_seat, su.max_lateral_force_N, su.max_moment_Nm, su.hold_s, c0.run.stop_after_seat_s,
+                    1.0 if fused else 0.0])
+    i_s, i_w = lay.out_blocks["s"][0], lay.out_blocks["w_env"][0]
+    qadr, vadr = np.ascontiguousarray(ids.qpos_adr), np.ascontiguousarray(ids.dof_adr)
     sim_steps = 0
     n_sim = np.zeros(B, dtype=np.int64)  # physics steps per episode
     setup = time.perf_counter() - t_setup
@@ -126,9 +170,7 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
     t = 0.0  # accumulated as mj_step does (d.time += dt), so t < settle switches on the same step
     k = 0
     for k in range(n_steps):
-        inp[:, :n] = qpos[:, ids.qpos_adr]
-        inp[:, n:2 * n] = qvel[:, ids.dof_adr]
-        inp[:, 2 * n:] = sensordata[:, f_adr]
+        _gather(qpos, qvel, sensordata, qadr, vadr, f_adr, inp)
         if fused:
             core.step_kernel(t, inp, chain, p_O, R, J, reg, ext_J, st.x, st.k, lay.arr, cs.c, cs.mats, cs.pv, cs.L0,
                              cs.seg, fx, out)
@@ -153,25 +195,11 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
         if err.any():
             diverged |= err & active
             active &= ~err
-        rho = out[:, i_rho]
-        s, w_env = ob["s"], ob["w_env"]
-        on = active & (rho > 0)
-        if on.any():  # sensor-side success monitor (SeatMonitor), the rank gate
-            ok = (s[:, 0] >= d_seat) & (np.hypot(s[:, 1], s[:, 2]) < su.max_lateral_force_N) & (
-                np.sqrt(s[:, 3] ** 2 + s[:, 4] ** 2 + s[:, 5] ** 2) < su.max_moment_Nm) & on
-            since = np.where(ok, np.where(np.isnan(since), t, since), np.nan)
-            newly = np.isnan(seat) & ok & (t - since >= su.hold_s - 1e-12)
-            seat[newly] = t
-            stop_at[newly] = t + c0.run.stop_after_seat_s
-            max_f = np.maximum(max_f, np.where(on, np.linalg.norm(w_env[:, :3], axis=1), 0))
-            max_flat = np.maximum(max_flat, np.where(on, np.hypot(s[:, 1], s[:, 2]), 0))
-            max_m = np.maximum(max_m, np.where(on, np.linalg.norm(w_env[:, 3:], axis=1), 0))
-            if fused:
-                breach |= on & (out[:, i_lam] < RANK_GATE)
+        _monitor(t, out, i_s, i_w, i_rho, i_lam, lim, active, since, seat, stop_at, peaks, breach)
         if k % log_every == 0:
             logs["t"].append(t)
-            logs["s"].append(s.copy())
-            logs["w"].append(w_env.copy())
+            logs["s"].append(ob["s"].copy())
+            logs["w"].append(ob["w_env"].copy())
         # servo set-points and physics for the active episodes
         ctrl_b[:] = st.q_ref + kv_kp * ob["qdot_ref"]
         if record_ctrl:
@@ -182,6 +210,7 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
         n_sim[act_ids] += 1
         t = t + dt
         active &= (t < stop_at) & ~breach
+        st.k[~active, core.K_DONE] = 1  # the kernels skip episodes that have stopped
         if not active.any():
             break
     wall = time.perf_counter() - t0
@@ -198,7 +227,7 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
         err = theta[b, :3] - true_off[b] if feats.theta_is_offset else np.full(3, np.nan)
         summaries.append({
             "success": bool(success), "failure": failure, "seat_time_s": float(seat[b]) if success else None,
-            "max_force_N": float(max_f[b]), "max_lateral_force_N": float(max_flat[b]), "max_moment_Nm": float(max_m[b]),
+            "max_force_N": float(peaks[b, 0]), "max_lateral_force_N": float(peaks[b, 1]), "max_moment_Nm": float(peaks[b, 2]),
             "offset_error_final_m": err.tolist(), "offset_error_lateral_final_m": float(math.hypot(err[0], err[1])),
             "seed": cfgs[b].run.seed, "law": known.law, "steps": int(n_sim[b]),
         })
