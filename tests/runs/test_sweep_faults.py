@@ -83,7 +83,10 @@ def test_killed_sweep_completes_every_episode_exactly_once(tmp_path):
     n = 16  # enough episodes that the interrupt lands mid-way (an episode takes ~0.2 s)
     cmd = [sys.executable, "-m", "kinadapt_nn.app.cli", "sweep", "--out", str(out), "--quiet",
            "--set", f"seeds={n}", "--set", "jobs=1", "--set", "base=['run.duration_s=5.0']"]
-    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    # SIGINT at its default in the child: a shell that starts the tests in the background sets it to
+    # SIG_IGN, which the child would inherit (and then finish every episode)
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     t0 = time.time()
     while time.time() - t0 < 60:
         if len(list((out / "episodes").glob("*.json"))) >= 2:
