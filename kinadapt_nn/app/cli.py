@@ -169,8 +169,12 @@ def cmd_online(args: argparse.Namespace) -> int:
 
         figures = FigureWorker.start()
     try:
+        from kinadapt_nn.controller.core import kernels_cached
         from kinadapt_nn.runs.episode import run_insertions
 
+        if not args.quiet and not kernels_cached():
+            print("kinadapt online: compiling the controller's kernels (the first run on this machine, ~35 s, once)",
+                  file=sys.stderr, flush=True)
         result = run_insertions(cfg, progress=cfg.run.progress and not args.quiet)
         with staged_output(out, args.overwrite) as stage:
             _write_online(stage, cfg, result, figures)

@@ -956,3 +956,12 @@ def fk_batch(chain, inp, p_O, R, J):
     nbody = chain.shape[0] - 1
     for b in range(inp.shape[0]):
         _fk(chain[:nbody], chain[nbody], inp[b], p_O[b], R[b], J[b])
+
+
+def kernels_cached() -> bool:
+    """True when the step kernel's compiled code is in numba's on-disk cache (the first run on a
+    machine compiles it, ~35 s once); True also when that cannot be told (no message then)."""
+    try:  # the index is empty when missing or written for another version of this source file
+        return bool(step_kernel._cache._cache_file._load_index())
+    except Exception:  # numba's cache internals moved: say nothing
+        return True
