@@ -21,30 +21,18 @@ from concurrent.futures import ProcessPoolExecutor
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import mujoco  # noqa: E402
-import mujoco.batch  # noqa: E402
 import numpy as np  # noqa: E402
 
-from kinadapt_nn.runs.batch import run_batch  # noqa: E402
+from kinadapt_nn.runs.batch import batch_scene, run_batch  # noqa: E402
 from kinadapt_nn.config import load_config  # noqa: E402
 from kinadapt_nn.runs.episode import run_episode  # noqa: E402
-from kinadapt_nn.sim.adapter import PegInHoleSim  # noqa: E402
 from kinadapt_nn.runs.sweep import SweepCfg, tool_overrides  # noqa: E402
 
 
 def raw_physics(cfgs, ctrl_log: np.ndarray, steps: np.ndarray) -> float:
     """Step the same models with mujoco.batch, replaying ``ctrl_log`` (T, B, n); episode b for
     ``steps[b]`` steps (as in the controlled run). -> wall seconds of the stepping loop."""
-    sims = [PegInHoleSim(c) for c in cfgs]
-    scene = mujoco.batch.Batch(sims[0].model, len(cfgs), 1, False)
-    scene.set_models([s.model for s in sims])
-    ids = sims[0].ids
-    qpos, qvel, ctrl_b = scene.bind("qpos"), scene.bind("qvel"), scene.bind("ctrl")
-    q0 = np.array([s.q_start for s in sims])
-    qpos[:, ids.qpos_adr] = q0
-    qvel[:] = 0.0
-    ctrl_b[:] = q0
-    scene.forward()
+    _, scene, _, _, ctrl_b = batch_scene(cfgs, nthread=1)  # the same start as run_batch's
     t0 = time.perf_counter()
     for k in range(len(ctrl_log)):
         ctrl_b[:] = ctrl_log[k]

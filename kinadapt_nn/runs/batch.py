@@ -30,7 +30,7 @@ from kinadapt_nn.controller import core
 from kinadapt_nn.config import ExperimentCfg
 from kinadapt_nn.controller.controller import core_consts, feature_consts
 from kinadapt_nn.controller.core import RANK_GATE
-from kinadapt_nn.runs.monitor import classify_failure
+from kinadapt_nn.runs.monitor import classify_failure, seat_step
 from kinadapt_nn.runs.build import make_features
 from kinadapt_nn.errors import ConfigError
 from kinadapt_nn.features.base import KinState
@@ -60,6 +60,23 @@ def _known_of(cfgs: list[ExperimentCfg]) -> KnownCfg:
     return known
 
 
+def batch_scene(cfgs: list[ExperimentCfg], nthread: int = 1):
+    """One ``mujoco.batch.Batch`` of the episodes' scenes (per-episode tool models), every arm at
+    its start pose and at rest, servo set-points there. -> (sims, scene, qpos, qvel, ctrl): the
+    PegInHoleSim per episode (models, ids, truth side) and the batch's bound (B, .) buffers."""
+    sims = [PegInHoleSim(c) for c in cfgs]
+    scene = mujoco.batch.Batch(sims[0].model, len(cfgs), nthread, nthread > 1)
+    scene.set_models([s.model for s in sims])
+    ids = sims[0].ids
+    qpos, qvel, ctrl_b = scene.bind("qpos"), scene.bind("qvel"), scene.bind("ctrl")
+    q0 = np.array([s.q_start for s in sims])
+    qpos[:, ids.qpos_adr] = q0
+    qvel[:] = 0.0
+    ctrl_b[:] = q0
+    scene.forward()
+    return sims, scene, qpos, qvel, ctrl_b
+
+
 @nb.njit(cache=True)
 def _gather(qpos, qvel, sens, qadr, vadr, fadr, inp):
     """The controller's input rows [q; qdot; raw F/T] (B, 2n+6) from the batch's buffers."""
@@ -73,33 +90,25 @@ def _gather(qpos, qvel, sens, qadr, vadr, fadr, inp):
 
 
 @nb.njit(cache=True)
-def _monitor(t, out, i_s, i_w, i_rho, i_lam, lim, active, since, seat, stop_at, peaks, breach):
-    """The sensor-side seat check (``runs.monitor.SeatMonitor``), peak wrenches and the rank gate,
-    per episode. lim = [d_seat, max |F_lat|, max |M|, hold_s, stop_after_seat_s, gate on (0/1)];
-    peaks (B, 3) = [max |f_env|, max |F_lat|, max |m_env|]."""
+def _monitor(t, out, i_s, i_w, i_rho, i_lam, lim, active, clock, stop_at, peaks, breach):
+    """Per episode with the drive on: the seat check (``runs.monitor.seat_step``, clock (B, 2) =
+    [since, seat_time]), peak wrenches and the rank gate. lim = [d_seat, max |F_lat|, max |M|,
+    hold_s, stop_after_seat_s, gate on (0/1)]; peaks (B, 3) = [max |f_env|, max |F_lat|, max |m_env|]."""
     for b in range(out.shape[0]):
         if not (active[b] and out[b, i_rho] > 0.0):
-            since[b] = np.nan
+            clock[b, 0] = np.nan
             continue
-        s0, s1, s2 = out[b, i_s], out[b, i_s + 1], out[b, i_s + 2]
-        flat = math.hypot(s1, s2)
-        mom = math.sqrt(out[b, i_s + 3] ** 2 + out[b, i_s + 4] ** 2 + out[b, i_s + 5] ** 2)
-        if s0 >= lim[0] and flat < lim[1] and mom < lim[2]:
-            if np.isnan(since[b]):
-                since[b] = t
-            if np.isnan(seat[b]) and t - since[b] >= lim[3] - 1e-12:
-                seat[b] = t
-                stop_at[b] = t + lim[4]
-        else:
-            since[b] = np.nan
+        seated = not np.isnan(clock[b, 1])
+        seat_step(t, out[b, i_s:i_s + 6], lim[:4], clock[b])
+        if not seated and not np.isnan(clock[b, 1]):
+            stop_at[b] = t + lim[4]
         fm = math.sqrt(out[b, i_w] ** 2 + out[b, i_w + 1] ** 2 + out[b, i_w + 2] ** 2)
         mm = math.sqrt(out[b, i_w + 3] ** 2 + out[b, i_w + 4] ** 2 + out[b, i_w + 5] ** 2)
         peaks[b, 0] = max(peaks[b, 0], fm)
-        peaks[b, 1] = max(peaks[b, 1], flat)
+        peaks[b, 1] = max(peaks[b, 1], math.hypot(out[b, i_s + 1], out[b, i_s + 2]))
         peaks[b, 2] = max(peaks[b, 2], mm)
         if lim[5] > 0.0 and out[b, i_lam] < RANK_GATE:
             breach[b] = True
-
 
 def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = False) -> BatchResult:
     """Run len(cfgs) episodes together. All cfgs share every KNOWN setting (sensing, control,
@@ -108,16 +117,8 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
     c0 = cfgs[0]
     known = _known_of(cfgs)
     B = len(cfgs)
-    sims = [PegInHoleSim(c) for c in cfgs]
-    scene = mujoco.batch.Batch(sims[0].model, B, nthread, nthread > 1)
-    scene.set_models([s.model for s in sims])
+    sims, scene, qpos, qvel, ctrl_b = batch_scene(cfgs, nthread)
     ids = sims[0].ids
-    qpos, qvel, ctrl_b = scene.bind("qpos"), scene.bind("qvel"), scene.bind("ctrl")
-    q0 = np.array([s.q_start for s in sims])
-    qpos[:, ids.qpos_adr] = q0
-    qvel[:] = 0.0
-    ctrl_b[:] = q0
-    scene.forward()
     sensordata = scene.bind("sensordata")
     # controller side: the bare arm's kinematic chain (forward kinematics in the kernel, from encoders)
     arm_model = mujoco.MjModel.from_xml_path(str(known.arm_mjcf))
@@ -147,8 +148,8 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
     su = c0.success
     d_seat = su.depth_m - su.depth_tol_m
     true_off = np.array([c.tool.offset_f_m for c in cfgs])
-    since = np.full(B, np.nan)
-    seat = np.full(B, np.nan)
+    clock = np.full((B, 2), np.nan)  # per episode [since, seat_time] (runs.monitor.seat_step)
+    seat = clock[:, 1]
     stop_at = np.full(B, np.inf)
     active = np.ones(B, bool)
     breach = np.zeros(B, bool)
@@ -195,7 +196,7 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
         if err.any():
             diverged |= err & active
             active &= ~err
-        _monitor(t, out, i_s, i_w, i_rho, i_lam, lim, active, since, seat, stop_at, peaks, breach)
+        _monitor(t, out, i_s, i_w, i_rho, i_lam, lim, active, clock, stop_at, peaks, breach)
         if k % log_every == 0:
             logs["t"].append(t)
             logs["s"].append(ob["s"].copy())

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 
-
+import numba as nb
 import numpy as np
 
 from kinadapt_nn.config import ExperimentCfg
@@ -14,31 +14,43 @@ from kinadapt_nn.config import ExperimentCfg
 FAILURES = ("none", "timeout", "jam", "block_face", "divergence")
 
 
+@nb.njit(cache=True)
+def seat_step(t, s, lim, clock) -> bool:
+    """One control step of the seat check, for the single episode and every batch episode alike:
+    depth reached, |F_lat| and |M| inside their limits, all three held ``hold_s``. s (6,) the
+    sensor vector; lim = [d_seat, max |F_lat|, max |M|, hold_s]; clock = [since, seat_time] [s],
+    NaN while not yet, updated in place. -> whether all three conditions hold now."""
+    ok = (s[0] >= lim[0] and math.hypot(s[1], s[2]) < lim[1]
+          and math.sqrt(s[3] * s[3] + s[4] * s[4] + s[5] * s[5]) < lim[2])
+    if ok:
+        if np.isnan(clock[0]):
+            clock[0] = t
+        if np.isnan(clock[1]) and t - clock[0] >= lim[3] - 1e-12:
+            clock[1] = t
+    else:
+        clock[0] = np.nan
+    return ok
+
+
 class SeatMonitor:
-    """Sensor-side success: depth reached, |F_lat| and |M| inside limits, held ``hold_s``."""
+    """Sensor-side success of one episode (``seat_step``): ``update(t, s)`` each step with the drive on."""
 
     def __init__(self, cfg: ExperimentCfg) -> None:
         sc = cfg.success
         self.d_seat = sc.depth_m - sc.depth_tol_m
         self.f_max = sc.max_lateral_force_N
         self.m_max = sc.max_moment_Nm
-        self.hold = sc.hold_s
-        self.since: float | None = None
-        self.seat_time: float | None = None
+        self.lim = np.array([self.d_seat, self.f_max, self.m_max, sc.hold_s])
+        self.clock = np.full(2, np.nan)  # [since, seat_time]
 
-    def update(self, t: float, s: np.ndarray) -> tuple[bool, bool, bool]:
-        s0, s1, s2, s3, s4, s5 = s.tolist()
-        depth_ok = s0 >= self.d_seat
-        force_ok = math.hypot(s1, s2) < self.f_max
-        moment_ok = math.sqrt(s3 * s3 + s4 * s4 + s5 * s5) < self.m_max
-        if depth_ok and force_ok and moment_ok:
-            if self.since is None:
-                self.since = t
-            if self.seat_time is None and t - self.since >= self.hold - 1e-12:
-                self.seat_time = t
-        else:
-            self.since = None
-        return depth_ok, force_ok, moment_ok
+    @property
+    def seat_time(self) -> float | None:
+        """When the seat check first held for ``hold_s`` [s], else None."""
+        return None if math.isnan(self.clock[1]) else float(self.clock[1])
+
+    def update(self, t: float, s: np.ndarray) -> bool:
+        """One step; s (6,) the sensor vector. -> whether all three conditions hold now."""
+        return seat_step(t, s, self.lim, self.clock)
 
 
 def classify_failure(cfg: ExperimentCfg, t: np.ndarray, s: np.ndarray, w_env: np.ndarray, diverged: bool) -> str:
