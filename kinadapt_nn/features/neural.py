@@ -61,10 +61,26 @@ class NeuralFeatures(Features):
         the in-kernel adjoint's known part); per-entry checkpoints supply rows from Python."""
         return "neural" if self.structure == "basis" and self.known.kernel == "adjoint" else None
 
-    def prior_cov(self) -> np.ndarray:
-        """theta's prior covariance about the nominal head (0): the pretraining heads' covariance
-        (``theta_cov`` in the checkpoint, else their per-parameter sd) plus their mean's outer
-        product (the heads spread about the nominal tool's, not about their mean). (p, p)."""
+    def prior_cov(self, arm: str = "all_arms") -> np.ndarray:
+        """theta's prior covariance about the nominal head (0). (p, p).
+
+        ``arm = "all_arms"``: the pretraining heads' covariance (``theta_cov`` in the checkpoint,
+        else their per-parameter sd) plus their mean's outer product (the heads spread about the
+        nominal tool's, not about their mean). ``"calibrated_arm"``: the second moment of the heads
+        of the tools on the nominal arm only (``theta_moment_calibrated_arm``; rank 3, the tool
+        offset), for an arm whose kinematics are known to be right; a floor of 1e-9 of its mean
+        eigenvalue keeps it invertible (the other directions then stay at the prior)."""
+        if arm == "calibrated_arm":
+            M = self.meta.get("theta_moment_calibrated_arm")
+            if M is None:
+                from kinadapt_nn.errors import ModelFileError
+
+                raise ModelFileError(
+                    f"checkpoint '{self.checkpoint}' has no calibrated-arm prior (add it with "
+                    f"'python -m kinadapt_nn.learning.prior {self.checkpoint}', or set features.neural_prior = \"all_arms\")"
+                )
+            C = np.asarray(M, dtype=float)
+            return C + 1e-9 * max(float(np.trace(C)) / len(C), 1e-30) * np.eye(len(C))
         m = self.theta_mean
         cov = self.meta.get("theta_cov")
         if cov is not None:

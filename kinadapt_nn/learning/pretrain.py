@@ -226,6 +226,19 @@ def make_dataset(
     return data
 
 
+def calibrated_arm_moment(theta: np.ndarray, arm_error: np.ndarray) -> dict:
+    """The second moment about 0 of the heads ``theta`` (I, p) of the instances on the nominal arm
+    (``arm_error`` (I,) False): the neural prior for an arm whose kinematics are calibrated
+    (``features.neural_prior = "calibrated_arm"``). A rigid tool's sensor Jacobian is linear in
+    its offset (eq. ft_factor), so these heads span a 3-dimensional subspace. -> meta entries."""
+    T = np.asarray(theta, dtype=float)[~np.asarray(arm_error, dtype=bool)]
+    if len(T) == 0:
+        return {}
+    M = T.T @ T / len(T)
+    return {"theta_moment_calibrated_arm": [[float(x) for x in row] for row in M],
+            "theta_moment_calibrated_arm_heads": int(len(T))}
+
+
 def _bad_state(path: Path, why: str) -> KinadaptError:
     return KinadaptError(f"resume state '{path}' {why}; pass --overwrite to start afresh (or choose another --out)")
 
@@ -376,6 +389,8 @@ def pretrain(cfg: PretrainCfg, out: Path, progress: bool = True, stop_after: int
         # the heads' covariance: the neural prior of the kalman law (kinadapt_nn.learning.prior)
         "theta_cov": [[float(x) for x in row] for row in np.atleast_2d(np.cov(theta_all, rowvar=False))],
         "theta_cov_heads": int(len(theta_all)),
+        # the heads of the tools on the nominal arm only: the prior of a calibrated arm
+        **calibrated_arm_moment(theta_all, data["arm_error"][:nt]),
         "structure": cfg.net.structure,
         "n_features": cfg.net.n_features,
         "hidden": cfg.net.hidden,

@@ -7,7 +7,9 @@ the kalman law (``kinadapt_nn.controller.law``) starts ``theta`` at the nominal 
 covariance ``theta_cov + theta_mean theta_mean^T`` (the second moment about 0,
 ``NeuralFeatures.prior_cov``): directions the training tools never moved stay put unless the data
 insist; the directions they did move are learned quickly (the learned prior metric of
-control-oriented meta-learning / Neural-Fly's Kalman prior).
+control-oriented meta-learning / Neural-Fly's Kalman prior). ``theta_moment_calibrated_arm``: the
+same second moment over the tools on the nominal arm only (rank 3: the tool offset), the prior of
+``features.neural_prior = "calibrated_arm"``.
 
 ``python -m kinadapt_nn.learning.prior CHECKPOINT`` adds the statistics to a checkpoint that lacks them
 (the network's weights are not touched; the data set is rebuilt from the checkpoint's own
@@ -22,14 +24,15 @@ from pathlib import Path
 import numpy as np
 
 
-def head_statistics(checkpoint: Path, progress: bool = False) -> tuple[np.ndarray, np.ndarray, int]:
+def head_statistics(checkpoint: Path, progress: bool = False) -> tuple[np.ndarray, np.ndarray, int, dict]:
     """Rebuild the training set of ``checkpoint`` and fit every training head with its network.
-    -> (mean (p,), covariance (p, p), number of heads)."""
+    -> (mean (p,), covariance (p, p), number of heads, the calibrated-arm prior's meta entries
+    (``pretrain.calibrated_arm_moment``))."""
     import torch
 
     from kinadapt_nn.learning.nets import least_squares_heads
     from kinadapt_nn.learning.checkpoint import load_checkpoint
-    from kinadapt_nn.learning.pretrain import PretrainCfg, make_dataset
+    from kinadapt_nn.learning.pretrain import PretrainCfg, calibrated_arm_moment, make_dataset
 
     net, meta = load_checkpoint(Path(checkpoint))
     cfg = PretrainCfg.model_validate(meta["config"])
@@ -39,7 +42,7 @@ def head_statistics(checkpoint: Path, progress: bool = False) -> tuple[np.ndarra
         q = torch.as_tensor(data["q"][:nt], dtype=torch.float64)
         r = torch.as_tensor(data["r"][:nt], dtype=torch.float64)
         theta = least_squares_heads(net, q, r, cfg.train.ridge).cpu().numpy()
-    return theta.mean(axis=0), np.cov(theta, rowvar=False), len(theta)
+    return theta.mean(axis=0), np.cov(theta, rowvar=False), len(theta), calibrated_arm_moment(theta, data["arm_error"][:nt])
 
 
 def add_head_statistics(checkpoint: Path, out: Path | None = None, progress: bool = False) -> Path:
@@ -47,8 +50,8 @@ def add_head_statistics(checkpoint: Path, out: Path | None = None, progress: boo
     from kinadapt_nn.learning.checkpoint import load_checkpoint, save_checkpoint
 
     net, meta = load_checkpoint(Path(checkpoint))
-    mean, cov, n = head_statistics(checkpoint, progress)
-    meta = dict(meta, theta_cov=[[float(x) for x in row] for row in cov], theta_cov_heads=int(n))
+    mean, cov, n, calibrated = head_statistics(checkpoint, progress)
+    meta = dict(meta, theta_cov=[[float(x) for x in row] for row in cov], theta_cov_heads=int(n), **calibrated)
     out = Path(out or checkpoint)
     save_checkpoint(out, net, mean, meta, theta_std=np.sqrt(np.diag(cov)))  # weights as loaded (float64)
     return out

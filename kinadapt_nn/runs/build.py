@@ -89,7 +89,7 @@ def _base_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
 
         ckpt = Path(cfg.features.neural_checkpoint) if cfg.features.neural_checkpoint else MODELS_DIR / "neural_default.pt"
         feats = NeuralFeatures(adjoint, l_nom, ckpt, channel_metric(cfg.sensing))
-        feats.P0 = feats.prior_cov()  # the pretraining heads' second moment about the nominal head
+        feats.P0 = feats.prior_cov(cfg.features.neural_prior)  # the pretraining heads' second moment about the nominal head
         return feats, np.zeros(feats.n_params)  # the head of the nominal tool (zero residual)
     raise ValueError(f"unknown features {kind!r}")  # pragma: no cover (validated by the config)
 

@@ -206,3 +206,62 @@ def test_default_neural_run_works_from_the_shipped_checkpoint():
     r = run_episode(load_config(None, ["run.features=neural", "run.duration_s=1.5"]))
     assert r.summary["n_params"] == 12 and r.summary["features"] == "neural"
     assert np.isfinite(r.summary["jacobian_rel_error_final"])
+
+
+def _head(feats, truth, qs, W):
+    """Least-squares head of ``truth`` on the neural basis: min sum_q |W (J_true - K(q) - Y(q) theta)|^2
+    over rows 1..5 (an independent fit: the truth's Jacobian, not the pretraining data)."""
+    A, y = [], []
+    for q in qs:
+        kin = feats.known.kin(q) if hasattr(feats.known, "kin") else None
+        J0 = feats.jacobian(kin, np.zeros(feats.n_params))
+        Y = feats.body(q)  # (5, n, p), raw units
+        A.append((W[1:, None, None] * Y).reshape(-1, feats.n_params))
+        y.append((W[1:, None] * (truth(q)[1:] - J0[1:])).ravel())
+    return np.linalg.lstsq(np.concatenate(A), np.concatenate(y), rcond=None)[0]
+
+
+def test_calibrated_arm_prior_spans_the_tools_of_a_nominal_arm_only():
+    """``features.neural_prior = "calibrated_arm"``: the prior is the nominal-arm heads' second moment,
+    rank 3 (a rigid tool's Jacobian is linear in its offset, eq. ft_factor). The head fitted to the
+    true Jacobian of a held-out tool on the nominal arm lies in its span; on an arm with kinematic
+    errors it does not -- and the pooled prior (every training arm) covers both."""
+    from kinadapt_nn.sensing import channel_metric, nominal_sensor_map
+    from kinadapt_nn.known import BORE_AXIS_W
+    from kinadapt_nn.sim.truth import TrueSensorJacobian
+
+    cfg = load_config(None, ["run.features=neural", "features.neural_prior=calibrated_arm"])
+    feats, _ = make_features(cfg)
+    ctrl = make_controller(cfg)
+    lam, V = np.linalg.eigh(feats.P0)
+    assert lam[-3] > 1e4 * lam[-4]  # rank 3 (to the precision of the fitted heads)
+    U = V[:, -3:]
+    S = nominal_sensor_map(cfg.sensing, BORE_AXIS_W)
+    W = channel_metric(cfg.sensing)
+    rng = np.random.default_rng(11)
+    qs = [feats.q_mean + rng.normal(size=7) / feats.q_inv_std for _ in range(12)]  # the training distribution
+    feats.known.kin = ctrl.kin
+    tool = np.array([0.004, -0.003, 0.102])
+    out_of_span = {}
+    for name, link, joint in [("nominal", None, None),
+                              ("arm_errors", 0.001 * rng.normal(size=8), 0.004 * rng.normal(size=7))]:
+        truth = TrueSensorJacobian(S, np.asarray(cfg.sensing.nominal_offset_f_m), tool, MODELS_DIR / "panda.xml", link, joint)
+        th = _head(feats, truth, qs, W)
+        out_of_span[name] = np.linalg.norm(th - U @ (U.T @ th)) / np.linalg.norm(th)
+    assert out_of_span["nominal"] < 0.02, out_of_span
+    assert out_of_span["arm_errors"] > 0.2, out_of_span
+    pooled, _ = make_features(load_config(None, ["run.features=neural"]))
+    assert np.linalg.eigvalsh(pooled.P0)[-4] > 1e-3 * np.linalg.eigvalsh(pooled.P0)[-1]  # more than 3 directions
+
+
+def test_calibrated_arm_prior_missing_from_a_checkpoint_is_a_one_line_error(tmp_path):
+    from kinadapt_nn.learning.checkpoint import load_checkpoint, save_checkpoint
+
+    net, meta = load_checkpoint(MODELS_DIR / "neural_default.pt")
+    meta = {k: v for k, v in meta.items() if not k.startswith("theta_moment_calibrated_arm")}
+    path = tmp_path / "old.pt"
+    save_checkpoint(path, net, np.asarray(meta["theta_mean"]), meta, np.asarray(meta["theta_std"]))
+    cfg = load_config(None, ["run.features=neural", f"features.neural_checkpoint={path}",
+                             "features.neural_prior=calibrated_arm"])
+    with pytest.raises(ModelFileError, match="no calibrated-arm prior.*kinadapt_nn.learning.prior"):
+        make_features(cfg)
