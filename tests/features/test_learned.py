@@ -208,13 +208,12 @@ def test_default_neural_run_works_from_the_shipped_checkpoint():
     assert np.isfinite(r.summary["jacobian_rel_error_final"])
 
 
-def _head(feats, truth, qs, W):
+def _head(feats, kin_of, truth, qs, W):
     """Least-squares head of ``truth`` on the neural basis: min sum_q |W (J_true - K(q) - Y(q) theta)|^2
     over rows 1..5 (an independent fit: the truth's Jacobian, not the pretraining data)."""
     A, y = [], []
     for q in qs:
-        kin = feats.known.kin(q) if hasattr(feats.known, "kin") else None
-        J0 = feats.jacobian(kin, np.zeros(feats.n_params))
+        J0 = feats.jacobian(kin_of(q), np.zeros(feats.n_params))
         Y = feats.body(q)  # (5, n, p), raw units
         A.append((W[1:, None, None] * Y).reshape(-1, feats.n_params))
         y.append((W[1:, None] * (truth(q)[1:] - J0[1:])).ravel())
@@ -240,13 +239,12 @@ def test_calibrated_arm_prior_spans_the_tools_of_a_nominal_arm_only():
     W = channel_metric(cfg.sensing)
     rng = np.random.default_rng(11)
     qs = [feats.q_mean + rng.normal(size=7) / feats.q_inv_std for _ in range(12)]  # the training distribution
-    feats.known.kin = ctrl.kin
     tool = np.array([0.004, -0.003, 0.102])
     out_of_span = {}
     for name, link, joint in [("nominal", None, None),
                               ("arm_errors", 0.001 * rng.normal(size=8), 0.004 * rng.normal(size=7))]:
         truth = TrueSensorJacobian(S, np.asarray(cfg.sensing.nominal_offset_f_m), tool, MODELS_DIR / "panda.xml", link, joint)
-        th = _head(feats, truth, qs, W)
+        th = _head(feats, ctrl.kin, truth, qs, W)
         out_of_span[name] = np.linalg.norm(th - U @ (U.T @ th)) / np.linalg.norm(th)
     assert out_of_span["nominal"] < 0.02, out_of_span
     assert out_of_span["arm_errors"] > 0.2, out_of_span
