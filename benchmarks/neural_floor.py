@@ -16,7 +16,7 @@ prints, as Jacobian errors ``|W (J_hat - J_true)| / |W J_true|`` at the episode'
 * ``evid``: the log-evidence of the calibrated-arm prior minus that of the all-arms prior
   (the kalman filter's innovations; > 0 favours a calibrated arm).
 
-``python benchmarks/neural_floor.py [--family nominal|arm_errors] [--tools 4]`` (2 cores: ~15 s a tool).
+``python benchmarks/neural_floor.py [--family nominal|arm_errors] [--tools 4]`` (2 cores: ~4 s a tool).
 """
 
 from __future__ import annotations
