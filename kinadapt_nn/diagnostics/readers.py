@@ -67,6 +67,7 @@ class UserLog(NamedTuple):
     qdot_rad_s: np.ndarray | None  # (N, 7) [rad/s] joint velocities, or None (differentiate q)
     wrench_log: np.ndarray  # (N, 6) [N, N m] the F/T reading as logged (its own sign convention and frame)
     source: str  # the path read
+    extra: dict | None = None  # declared extra columns ([log] extra): name -> (N,) values, or None
 
 
 # --------------------------------------------------------------------------------------------- helpers
@@ -106,9 +107,10 @@ def _sample_label(i: int) -> str:
 
 
 def _build(path: Path, time: np.ndarray, scale: float, cols: np.ndarray, names: Sequence[str], n_qdot: int,
-           angle_unit: str, label: Label, time_name: str) -> UserLog:
+           angle_unit: str, label: Label, time_name: str, extra: Sequence[str] = ()) -> UserLog:
     """Validate and assemble. ``time`` (N,) raw (integer or float) times, ``scale`` [s per unit];
-    ``cols`` (N, 13 + n_qdot) float: q (7), qdot (``n_qdot`` = 0 or 7), wrench (6) named ``names``."""
+    ``cols`` (N, 13 + n_qdot + len(extra)) float: q (7), qdot (``n_qdot`` = 0 or 7), wrench (6),
+    the declared extra columns, named ``names``."""
     n = int(time.shape[0])
     _check_count(path, n)
     bad = ~np.isfinite(cols)
@@ -142,13 +144,15 @@ def _build(path: Path, time: np.ndarray, scale: float, cols: np.ndarray, names: 
                             f"the median step is {med:.4g} s); split the log at the gap into separate logs")
     q = cols[:, :7]
     qdot = cols[:, 7 : 7 + n_qdot] if n_qdot else None
-    wrench = cols[:, 7 + n_qdot :]
+    wrench = cols[:, 7 + n_qdot : 13 + n_qdot]
+    extra_cols = {name: np.ascontiguousarray(cols[:, 13 + n_qdot + k], dtype=np.float64) for k, name in enumerate(extra)}
     if angle_unit == "deg":
         q = np.deg2rad(q)
         qdot = None if qdot is None else np.deg2rad(qdot)
     return UserLog(t_s=t, q_rad=np.ascontiguousarray(q, dtype=np.float64),
                    qdot_rad_s=None if qdot is None else np.ascontiguousarray(qdot, dtype=np.float64),
-                   wrench_log=np.ascontiguousarray(wrench, dtype=np.float64), source=str(path))
+                   wrench_log=np.ascontiguousarray(wrench, dtype=np.float64), source=str(path),
+                   extra=extra_cols or None)
 
 
 # --------------------------------------------------------------------------------------------- dispatch
@@ -187,6 +191,9 @@ def read_log(path: str | Path, setup: SetupCfg) -> UserLog:
         return _read_parquet(path, setup.log)
     if kind == "bag":
         return _read_bag(path, setup.log)
+    if setup.log.extra:
+        raise KinadaptError(f"log '{path}' is a kinadapt trace, which has no extra columns; remove [log] extra "
+                            f"({', '.join(setup.log.extra)}) from the setup")
     return _read_trace(path)
 
 
@@ -243,7 +250,7 @@ def _from_table(path: Path, table: pa.Table, log: LogCfg, label: Label, unit: st
     """Pick the setup's columns out of a table (CSV or Parquet) and validate them."""
     header = [str(c).strip() for c in table.column_names]
     fields = [("time", log.time)] + [("q", c) for c in log.q] + [("qdot", c) for c in log.qdot] + \
-             [("wrench", c) for c in log.wrench]
+             [("wrench", c) for c in log.wrench] + [("extra", c) for c in log.extra]
     for field, c in fields:
         if c not in header:
             hint = ""
@@ -255,11 +262,12 @@ def _from_table(path: Path, table: pa.Table, log: LogCfg, label: Label, unit: st
     _check_count(path, table.num_rows, unit)
     col = {c: table.column(header.index(c)) for _, c in fields}
     time, per_s = _numbers(path, col[log.time], log.time, label, time=True, log=log)
-    names = [*log.q, *log.qdot, *log.wrench]
+    names = [*log.q, *log.qdot, *log.wrench, *log.extra]
     cols = np.empty((table.num_rows, len(names)))
     for j, c in enumerate(names):
         cols[:, j] = _numbers(path, col[c], c, label)[0]
-    return _build(path, time, per_s * log.time_scale_s, cols, names, len(log.qdot), log.angle_unit, label, log.time)
+    return _build(path, time, per_s * log.time_scale_s, cols, names, len(log.qdot), log.angle_unit, label, log.time,
+                  log.extra)
 
 
 def _open_text(path: Path):
@@ -398,6 +406,15 @@ def _read_bag(path: Path, log: LogCfg) -> UserLog:
 
     want = [(log.joint_state_topic, _JOINT_STATE, "log.joint_state_topic"),
             (log.wrench_topic, _WRENCH, "log.wrench_topic")]
+    extra_topics = {}
+    for name in log.extra:  # "TOPIC:FIELD" (a dotted field of the topic's messages)
+        topic, _, fld = name.rpartition(":")
+        if not topic or not fld:
+            raise KinadaptError(f"[log] extra '{name}': in a ROS 2 bag an extra column is 'TOPIC:FIELD' "
+                                "(e.g. '/sensor/temperature:temperature'); fix the setup")
+        extra_topics.setdefault(topic, []).append((name, fld.split(".")))
+    ex_t: dict[str, list[int]] = {n: [] for n in log.extra}
+    ex_v: dict[str, list[float]] = {n: [] for n in log.extra}
     js_head, js_rec, js_names, js_pos, js_vel = [], [], [], [], []
     w_head, w_rec, w_val = [], [], []
     try:
@@ -406,6 +423,10 @@ def _read_bag(path: Path, log: LogCfg) -> UserLog:
             for c in reader.connections:
                 have.setdefault(c.topic, c.msgtype)
             listing = ", ".join(f"{_clean(t, 60)} [{_clean(m, 60)}]" for t, m in sorted(have.items())) or "none"
+            for topic in extra_topics:
+                if topic not in have:
+                    raise KinadaptError(f"ROS 2 bag '{path}' has no topic '{topic}' ([log] extra in the setup); its "
+                                        f"topics: {listing}; fix [log] extra")
             for topic, msgtype, key in want:
                 if topic not in have:
                     raise KinadaptError(f"ROS 2 bag '{path}' has no topic '{topic}' ({key} in the setup); its topics: "
@@ -414,9 +435,28 @@ def _read_bag(path: Path, log: LogCfg) -> UserLog:
                     raise KinadaptError(f"ROS 2 bag '{path}': topic '{topic}' ({key}) carries "
                                         f"{_clean(have[topic], 60)}, not {msgtype}; set {key} to a {msgtype} "
                                         f"topic (its topics: {listing})")
-            conns = [c for c in reader.connections if (c.topic, c.msgtype) in {w[:2] for w in want}]
+            conns = [c for c in reader.connections if (c.topic, c.msgtype) in {w[:2] for w in want}
+                     or c.topic in extra_topics]
             for conn, rec_ns, raw in reader.messages(connections=conns):
                 msg = reader.deserialize(raw, conn.msgtype)
+                if conn.topic in extra_topics:
+                    hdr = getattr(msg, "header", None)
+                    st = (int(hdr.stamp.sec) * 1_000_000_000 + int(hdr.stamp.nanosec)) if hdr is not None else 0
+                    for name, parts in extra_topics[conn.topic]:
+                        v = msg
+                        for a in parts:
+                            if not hasattr(v, a):
+                                raise KinadaptError(f"ROS 2 bag '{path}': messages on '{conn.topic}' have no field "
+                                                    f"'{'.'.join(parts)}' ([log] extra '{name}'); fix [log] extra")
+                            v = getattr(v, a)
+                        try:
+                            ex_v[name].append(float(v))
+                        except (TypeError, ValueError):
+                            raise KinadaptError(f"ROS 2 bag '{path}': field '{'.'.join(parts)}' on '{conn.topic}' is "
+                                                f"not a number ([log] extra '{name}')") from None
+                        ex_t[name].append(st or int(rec_ns))
+                    if (conn.topic, conn.msgtype) not in {w[:2] for w in want}:
+                        continue
                 stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
                 if conn.msgtype == _JOINT_STATE:
                     js_head.append(stamp)
@@ -494,12 +534,20 @@ def _read_bag(path: Path, log: LogCfg) -> UserLog:
     tw_s = (t_w - origin).astype(np.float64)
     tj_s = (t_j[inside] - origin).astype(np.float64)
     w_at = np.stack([np.interp(tj_s, tw_s, w[:, k]) for k in range(6)], axis=1)
-    parts = [q[inside], *([] if qdot is None else [qdot[inside]]), w_at]
-    names = [*log.q, *([f"{j} velocity" for j in log.q] if qdot is not None else []), *_WRENCH_NAMES]
+    ex_at = []
+    for name in log.extra:  # interpolated onto the joint-state stamps, like the wrench
+        te, ve = np.asarray(ex_t[name], dtype=np.int64), np.asarray(ex_v[name], dtype=np.float64)
+        if len(te) < 2:
+            raise KinadaptError(f"ROS 2 bag '{path}' has {len(te)} message(s) for [log] extra '{name}'; "
+                                "record it during the whole log")
+        order = np.argsort(te, kind="stable")
+        ex_at.append(np.interp(tj_s, (te[order] - origin).astype(np.float64), ve[order])[:, None])
+    parts = [q[inside], *([] if qdot is None else [qdot[inside]]), w_at, *ex_at]
+    names = [*log.q, *([f"{j} velocity" for j in log.q] if qdot is not None else []), *_WRENCH_NAMES, *log.extra]
     src = [keep[i] for i in inside]
     label: Label = lambda i: f"joint-state sample {src[i]}"  # noqa: E731
     return _build(path, t_j[inside], 1e-9, np.hstack(parts), names, 0 if qdot is None else 7, log.angle_unit,
-                  label, "header stamp")
+                  label, "header stamp", log.extra)
 
 
 # --------------------------------------------------------------------------------------------- writer

@@ -21,10 +21,13 @@ Verdicts (``verdict`` of each effect):
 * ``present``: selected, its jointly re-estimated parameters physically possible, no near-tie;
 * ``cannot_decide``: a near-tie (another candidate explains nearly as much and nothing more once
   either is in the model: ``indistinguishable_from``), an impossible estimate, a failed sign
-  check, or not selected while some direction of it is too weakly excited to rule it out
-  (``unexcited`` + the motion that would excite it);
-* ``absent``: not selected, and a relevant-size effect in its weakest direction would have
-  explained at least ``min_excitation`` of the remaining residual.
+  check, or not selected while the confidence interval of some parameter crosses its relevant
+  size (``undecided_parameters`` + the motion that would shrink it);
+* ``absent``: not selected, and an equivalence test holds: every parameter's confidence interval
+  (``ci_level``, given the final model) lies inside +- its relevant size. The interval's sd is the
+  larger of the block-jackknife sd and the sd the data's information allows (the Schur
+  complement of the effect's columns given the final model, at the held-out residual level), so
+  a direction the log does not excite never looks "absent".
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ class SelCfg(NamedTuple):
     tie_ratio: float = 0.8  #: [-] a runner-up with this share of the best gain may be a near-tie
     tie_p: float = 0.01  #: one-sided paired block test: best beats the runner-up below this p
     ridge: float = 1e-9  #: [-] relative Tikhonov term on the scaled Gram
+    ci_level: float = 0.95  #: two-sided level of the equivalence test's intervals
 
 
 class Design(NamedTuple):
@@ -214,6 +218,9 @@ class Selection(NamedTuple):
     sse_total: float  #: SSE of the residual after the nuisance fit
     sse_after: float  #: held-out SSE of the final model
     nuisance: np.ndarray  #: (z,) nuisance estimate (physical column units)
+    heldout: np.ndarray | None = None  #: (R,) held-out residual rows of the final model (each block predicted
+    #: by the fit on the other blocks)
+    final_idx: np.ndarray | None = None  #: the final model's columns in ``Stats`` order (nuisance first)
 
 
 def select(des: Design, rc: SelCfg = SelCfg(), plausible: Callable[[str, np.ndarray], str | None] | None = None,
@@ -316,18 +323,19 @@ def select(des: Design, rc: SelCfg = SelCfg(), plausible: Callable[[str, np.ndar
         p_full, sd_full = np.zeros(k), np.zeros(k)
         p_full[c], sd_full[c] = pv, sd
         e["params"], e["sd"], e["columns_used"] = p_full, sd_full, list(c)
-        # excitation: a relevant-size effect in each column/direction, given the final model minus itself
+        # excitation and the equivalence test: each parameter given the final model minus itself
         others = np.concatenate([base, *[st.idx[s][cc] for s, cc in selected if s != n]])
+        eq = equivalence(st, des, n, others, sse_fin, rc) if not sel else None
         if des.one_of[n]:
             lam = np.array([float(st.schur(st.idx[n][[j]], others)[0, 0]) for j in range(k)])
-            weak = [j for j in range(k) if lam[j] / sse_ref < rc.min_excitation]
             ratio = float(lam.min() / sse_ref)
         else:
-            S = st.schur(st.idx[n], others)
-            ev, V = np.linalg.eigh(S)
-            ratio = float(ev[0] / sse_ref)
-            weak = sorted({int(np.argmax(np.abs(V[:, a]))) for a in range(k) if ev[a] / sse_ref < rc.min_excitation})
-        e["excitation"] = {"ratio": ratio, "enough": not weak, "weak_parameters": weak}
+            ratio = float(np.linalg.eigvalsh(st.schur(st.idx[n], others))[0] / sse_ref)
+        undecided = [] if eq is None else [j for j in range(k) if not eq["inside"][j]]
+        e["excitation"] = {"ratio": ratio, "enough": not undecided, "weak_parameters": undecided}
+        if eq is not None:
+            e["equivalence"] = {"ci_low": eq["lo"] * scale, "ci_high": eq["hi"] * scale, "relevant": scale,
+                                "level": rc.ci_level}
         reason = None
         if block_all:
             verdict, reason = "cannot_decide", block_all
@@ -342,9 +350,9 @@ def select(des: Design, rc: SelCfg = SelCfg(), plausible: Callable[[str, np.ndar
                 verdict = "present"
         elif n in ties:
             verdict, reason = "cannot_decide", "a near-tie: another explanation fits the data as well"
-        elif weak:
+        elif undecided:
             verdict = "cannot_decide"
-            reason = "not excited enough to rule out"
+            reason = "its confidence interval crosses the relevant size: not excited enough to rule out"
         else:
             verdict = "absent"
         e["verdict"], e["reason"] = verdict, reason
@@ -353,7 +361,7 @@ def select(des: Design, rc: SelCfg = SelCfg(), plausible: Callable[[str, np.ndar
         if n in ties or n in tie_labels:
             e["indistinguishable_from"] = sorted(ties.get(n, set())) + tie_labels.get(n, [])
             e["to_separate"] = " / ".join(hints.get(x.split(":")[0], "") for x in [n, *sorted(ties.get(n, set()))])
-        if verdict == "cannot_decide" and weak and not sel:
+        if verdict == "cannot_decide" and undecided and not sel:
             e["to_excite"] = hints.get(n, "")
         if verdict == "present":
             present[n] = joint[n]
@@ -361,7 +369,46 @@ def select(des: Design, rc: SelCfg = SelCfg(), plausible: Callable[[str, np.ndar
     order = {"present": 0, "cannot_decide": 1, "absent": 2}
     entries.sort(key=lambda e: (e["selected_round"] is None, e["selected_round"] or 0, order[e["verdict"]],
                                 -e["explained_fraction"]))
-    return Selection(entries, present, sse_total, float(sse_fin.sum()), nuis)
+    return Selection(entries, present, sse_total, float(sse_fin.sum()), nuis, heldout_residual(st, des, sel_idx, rc),
+                     sel_idx)
+
+
+def equivalence(st: Stats, des: Design, name: str, others: np.ndarray, sse_fin: np.ndarray, rc: SelCfg) -> dict:
+    """Confidence intervals (scaled units: 1 = the relevant size) of ``name``'s parameters given
+    the ``others`` columns (module docstring). A one-of effect: each column on its own.
+    -> {"lo" (k,), "hi" (k,), "inside" (k,) bool}."""
+    from scipy.stats import t as t_dist
+
+    k = des.X[name].shape[1]
+    n_rows = max(len(des.y), 1)
+    s2 = max(float(sse_fin.sum()), 1e-300) / n_rows  # held-out residual variance per row (scaled rows)
+    groups = [[j] for j in range(k)] if des.one_of[name] else [list(range(k))]
+    lo, hi = np.zeros(k), np.zeros(k)
+    for cols in groups:
+        idx = np.concatenate([others, st.idx[name][cols]])
+        _, reps, p = st.cv(idx, rc.ridge)
+        p = p[len(others):]
+        cov_j = jackknife_cov(reps[:, len(others):])
+        S = st.schur(st.idx[name][cols], others)
+        ev, V = np.linalg.eigh(S)
+        inv = (V / np.maximum(ev, 1e-300)) @ V.T  # information-limited covariance (per unit s2)
+        var = np.maximum(np.diag(cov_j), s2 * np.diag(inv))
+        q = float(t_dist.ppf(0.5 + rc.ci_level / 2, max(len(reps) - 1, 1)))
+        lo[cols], hi[cols] = p - q * np.sqrt(var), p + q * np.sqrt(var)
+    return {"lo": lo, "hi": hi, "inside": (lo > -1.0) & (hi < 1.0)}
+
+
+def heldout_residual(st: Stats, des: Design, idx: np.ndarray, rc: SelCfg) -> np.ndarray:
+    """(R,) residual rows of the columns ``idx``, each block predicted by the fit on the others."""
+    out = des.y.copy()
+    G, h = st.Gt[np.ix_(idx, idx)], st.ht[idx]
+    for b in range(len(st.yy)):
+        m = des.block == b
+        if not m.any() or len(idx) == 0:
+            continue
+        p = st.solve(G - st.G[b][np.ix_(idx, idx)], h - st.h[b][idx], rc.ridge)
+        out[m] = des.y[m] - st.A[m][:, idx] @ p
+    return out
 
 
 def des_param(des: Design, name: str, col: int, hints: dict) -> str:
@@ -372,7 +419,8 @@ def des_param(des: Design, name: str, col: int, hints: dict) -> str:
 
 def refit(des: Design, names: list[str], rc: SelCfg = SelCfg()) -> tuple[np.ndarray, np.ndarray, dict]:
     """Fit the nuisance alone and with ``names`` (a one-of effect keeps its best column) on all
-    rows. -> (residual rows before (R,), after (R,), {effect: (cols, params physical (k,))})."""
+    rows. -> (residual rows before (R,), after (R,), {effect: (cols, params physical (k,), sd
+    physical (k,))}); the sd is the larger of the block-jackknife and the least-squares one (finite)."""
     st = Stats(des)
     base = st.z_idx
     p0 = st.fit(base, rc.ridge)
@@ -394,11 +442,20 @@ def refit(des: Design, names: list[str], rc: SelCfg = SelCfg()) -> tuple[np.ndar
     ii = np.concatenate(idx)
     p = st.fit(ii, rc.ridge)
     after = des.y - st.A[:, ii] @ p
+    _, reps, _ = st.cv(ii, rc.ridge)
+    var_j = np.diag(jackknife_cov(reps)) if len(reps) > 1 else np.zeros(len(ii))
+    G = st.Gt[np.ix_(ii, ii)]
+    s2 = float(after @ after) / max(len(after) - len(ii), 1)
+    lam = rc.ridge * (np.trace(G) / max(len(G), 1)) + st.ridge_abs
+    var_ls = s2 * np.diag(np.linalg.pinv(G + lam * np.eye(len(G)))) if len(G) else np.zeros(0)
+    sd_all = np.sqrt(np.maximum(var_j, var_ls))
     out, i = {}, len(base)
     for n in names:
         c = chosen[n]
-        full = np.zeros(des.X[n].shape[1])
-        full[c] = p[i:i + len(c)] * np.asarray(des.scale[n])[c]
-        out[n] = (c, full)
+        sc = np.asarray(des.scale[n])[c]
+        full, sd = np.zeros(des.X[n].shape[1]), np.zeros(des.X[n].shape[1])
+        full[c] = p[i:i + len(c)] * sc
+        sd[c] = sd_all[i:i + len(c)] * sc
+        out[n] = (c, full, sd)
         i += len(c)
     return before, after, out

@@ -22,6 +22,7 @@ default; ``examples/setups/`` has complete ones)::
     wrench = ["fx", "fy", "fz", "tx", "ty", "tz"]   # N, N m, sensor frame, about its origin
     wrench_acts = "tool_on_sensor"                  # or "sensor_on_tool"
     tared = false              # true: zeroed at an unknown pose (offset estimated jointly)
+    extra = []                 # extra columns your effects or the hints may use (e.g. ["temp_C"]; bag: "TOPIC:FIELD")
     joint_state_topic = "/joint_states"             # ROS 2 bags: sensor_msgs/JointState
     wrench_topic = "/ft_sensor/wrench"              # ROS 2 bags: geometry_msgs/WrenchStamped
     [sensor]
@@ -43,6 +44,9 @@ default; ``examples/setups/`` has complete ones)::
     exclude_s = []             # [[t0, t1], ...] windows left out [s from the first sample]
     effects = []               # only these effects (empty: all that apply)
     exclude_effects = []       # leave these out
+    effects_files = []         # your own effect files (Python, see docs/missing_physics.md), like --effects
+    relevant_force_N = 0.2     # a systematic force residual this large is "something the model does not contain"
+    relevant_moment_Nm = 0.02  # the same for moments
 """
 
 from __future__ import annotations
@@ -58,8 +62,6 @@ from kinadapt_nn.config import Vec3, Vec6, _Cfg, load_toml_model
 from kinadapt_nn.errors import ConfigError
 
 SETUP_EXAMPLE = "examples/setups/panda_flat_contact.toml"
-#: the effects judged on a user's log (``kinadapt_nn.diagnostics.physical``)
-PHYSICAL_EFFECTS = ("tool_gravity", "ft_bias_drift", "ft_frame_rotation", "encoder_offset", "tool_tilt", "ft_offset")
 
 
 def rpy_matrix(rpy_rad: np.ndarray) -> np.ndarray:
@@ -96,6 +98,7 @@ class LogCfg(_Cfg):
     wrench: tuple[str, str, str, str, str, str] = ("fx", "fy", "fz", "tx", "ty", "tz")  # [N, N m] sensor frame
     wrench_acts: Literal["tool_on_sensor", "sensor_on_tool"] = "tool_on_sensor"  # which body's wrench on which
     tared: bool = False  # true: zeroed at an unknown pose before/while logging
+    extra: tuple[str, ...] = ()  # extra columns (temperature, a voltage ...) for effects and hints; bag: "TOPIC:FIELD"
     joint_state_topic: str = "/joint_states"  # ROS 2 bag: sensor_msgs/msg/JointState topic
     wrench_topic: str = "/ft_sensor/wrench"  # ROS 2 bag: geometry_msgs/msg/WrenchStamped topic
 
@@ -114,7 +117,8 @@ class LogCfg(_Cfg):
     @model_validator(mode="after")
     def _distinct(self):
         # a ROS 2 bag names joints, not columns: there qdot may repeat q (velocities of the same joints)
-        names = [self.time, *self.q, *(self.qdot if tuple(self.qdot) != tuple(self.q) else ()), *self.wrench]
+        names = [self.time, *self.q, *(self.qdot if tuple(self.qdot) != tuple(self.q) else ()), *self.wrench,
+                 *self.extra]
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
             raise ValueError(f"column '{dup[0]}' is named twice; every quantity needs its own column")
@@ -196,6 +200,9 @@ class AnalysisCfg(_Cfg):
     exclude_s: tuple[tuple[float, float], ...] = ()  # [s] windows [t0, t1] (from the first sample) left out
     effects: tuple[str, ...] = ()  # only these effects (empty: every one that applies)
     exclude_effects: tuple[str, ...] = ()  # leave these effects out
+    effects_files: tuple[str, ...] = ()  # the user's effect files (Python), as --effects
+    relevant_force_N: float = Field(0.2, gt=0.0)  # [N] a systematic force residual worth reporting
+    relevant_moment_Nm: float = Field(0.02, gt=0.0)  # [N m] the same for moments
 
     @field_validator("exclude_s")
     @classmethod
@@ -207,11 +214,16 @@ class AnalysisCfg(_Cfg):
 
     @field_validator("effects", "exclude_effects")
     @classmethod
-    def _known(cls, v):
+    def _names(cls, v):  # checked against the built-ins and the user's effects when the diagnosis starts
         for n in v:
-            if n not in PHYSICAL_EFFECTS:
-                raise ValueError(f"unknown effect '{n}' (choose from {', '.join(PHYSICAL_EFFECTS)})")
+            if not n.isidentifier():
+                raise ValueError(f"'{n}' is not an effect name (a Python identifier, e.g. tool_gravity)")
         return v
+
+    @field_validator("relevant_force_N", "relevant_moment_Nm")
+    @classmethod
+    def _fin(cls, v):
+        return _finite(v, "the value")
 
 
 class SetupCfg(_Cfg):

@@ -1,10 +1,14 @@
 """``kinadapt diagnose LOG --setup SETUP.toml``: a user's own robot log against the physical
 nominal model of their set-up (``physical``), effects ranked with verdicts (``selection``).
 
-Pipeline: read (``readers``) -> sensor kinematics from the encoders -> the declared tool's
-wrench -> contact detection -> rows (free space: the six wrench channels; contact: the moment
-about the declared tip) -> forward selection with verdicts -> joint re-estimate of the present
-effects -> (once) contact re-detected with the present effects in the model -> report.
+Pipeline: read (``readers``) -> signals (``signals.LogSignals``: sensor kinematics from the
+encoders, the declared tool's wrench) -> contact detection -> the effect library (the built-ins of
+``builtin`` and the user's effect files, one registry) -> rows (free space: the six wrench
+channels; contact: the moment about the declared tip) -> forward selection with verdicts
+(``selection``) -> joint re-estimate of the present effects -> (once) contact re-detected with
+the present effects in the model -> completeness of the final model and hints at the shape of
+what it misses (``completeness``) -> one report. ``diagnose`` is the one library call; the CLI
+only writes and prints its report.
 """
 
 from __future__ import annotations
@@ -13,11 +17,13 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from kinadapt_nn.diagnostics import physical as ph
 from kinadapt_nn.diagnostics import selection as sel
-from kinadapt_nn.features.effect_library import moving_average
+from kinadapt_nn.diagnostics import signals as sg
+from kinadapt_nn.diagnostics.builtin import BUILTINS, CONTACT_MODEL_EFFECTS
+from kinadapt_nn.diagnostics.contract import Effect, load_effect_files
 from kinadapt_nn.diagnostics.setup import SetupCfg
 from kinadapt_nn.errors import KinadaptError
+from kinadapt_nn.features.effect_library import moving_average
 
 FREE_CHANNELS = ("F_x", "F_y", "F_z", "M_x", "M_y", "M_z")  # sensor frame
 TIP_CHANNELS = ("Mtip_x", "Mtip_y", "Mtip_z")  # moment about the declared tip, sensor frame
@@ -70,105 +76,101 @@ def detect_contact(e: np.ndarray, t_s: np.ndarray, setup: SetupCfg, rc: RowCfg) 
     return raw, off
 
 
-class Prep(NamedTuple):
-    """Everything that depends on the log and the setup but not on the contact mask."""
-
-    t_s: np.ndarray
-    q: np.ndarray
-    qdot: np.ndarray
-    r: np.ndarray  #: (N, 6) tool on sensor, s
-    w_nom: np.ndarray  #: (N, 6)
-    kin: ph.KinSeries
-    arm: ph.ArmModel
-    sigma: np.ndarray  #: (6,) per-sample noise
-    enc_cols: np.ndarray | None  #: (N, 6, 7) encoder-offset columns (cached)
+def library(setup: SetupCfg, effects_files=()) -> dict[str, Effect]:
+    """The effect library of this diagnosis: the built-ins and the effects of the user's files
+    (``[analysis] effects_files`` and ``effects_files``), one registry, by name."""
+    files = [*setup.analysis.effects_files, *effects_files]
+    return {**BUILTINS, **load_effect_files(files, BUILTINS)}
 
 
-def prepare(log, setup: SetupCfg, rc: RowCfg, progress: Callable[[str], None]) -> Prep:
-    """Kinematics and the nominal tool wrench of every sample."""
-    arm = ph.ArmModel(setup)
-    t = np.asarray(log.t_s, dtype=float)
-    q = np.asarray(log.q_rad, dtype=float)
-    qdot = np.asarray(log.qdot_rad_s, dtype=float) if log.qdot_rad_s is not None else ph.derivative(q, t)
-    progress(f"kinematics of {len(t)} samples")
-    kin = arm.series(q, qdot, t)
-    m, mc, I_O = ph.nominal_inertials(setup)
-    r = setup.log.sign * np.asarray(log.wrench_log, dtype=float)
-    return Prep(t, q, qdot, r, ph.tool_wrench(kin, m, mc, I_O), kin, arm, noise_sigma(r, rc), None)
+def judged(lib: dict[str, Effect], setup: SetupCfg) -> list[str]:
+    """The effects judged for this set-up: those that apply, after ``[analysis] effects`` /
+    ``exclude_effects`` (an unknown name there is a one-line error)."""
+    for key in ("effects", "exclude_effects"):
+        for n in getattr(setup.analysis, key):
+            if n not in lib:
+                raise KinadaptError(f"[analysis] {key}: unknown effect '{n}' (choose from {', '.join(lib)}; your "
+                                    "own effects come with --effects FILE or [analysis] effects_files)")
+    names = [n for n, e in lib.items() if e.applies is None or e.applies(setup)]
+    if setup.analysis.effects:
+        names = [n for n in names if n in setup.analysis.effects]
+    return [n for n in names if n not in setup.analysis.exclude_effects]
 
 
-def prepared(prep: Prep, setup: SetupCfg, contact: np.ndarray, offset: np.ndarray) -> ph.Prepared:
-    e = prep.r - prep.w_nom - offset
-    f_c = np.where(contact[:, None], e[:, :3], 0.0)
-    return ph.Prepared(prep.t_s, prep.q, prep.qdot, prep.r, prep.w_nom, prep.kin, contact, f_c,
-                       ph.tip_moment_map(setup.tool.tip_sensor_m), setup, prep.arm)
+class RowMap(NamedTuple):
+    """Which samples become regression rows, and how (free space: the six wrench channels weighted
+    by 1/noise; contact: the moment about the declared tip). ``apply`` maps any (n, 6, k) sample
+    columns to (R, k) rows: effects, the residual and the hint shapes go through the same map."""
+
+    rows: np.ndarray  #: (r,) sample index of each row time
+    contact: np.ndarray  #: (r,) bool: contact rows
+    k_smooth: int  #: moving-average length [samples]
+    w_free: np.ndarray  #: (6,) weights of the free-space channels [1/N, 1/(N m)]
+    w_tip: np.ndarray  #: (3,) weights of the tip-moment channels
+    tip_map: np.ndarray  #: (3, 6)
+
+    def apply(self, x: np.ndarray) -> np.ndarray:
+        xs = moving_average(x, self.k_smooth)[self.rows]  # (r, 6, k)
+        con = self.contact
+        free = xs[~con] * self.w_free[None, :, None]
+        tipm = np.einsum("ij,njk->nik", self.tip_map, xs[con]) * self.w_tip[None, :, None]
+        return np.concatenate([free.reshape(-1, x.shape[2]), tipm.reshape(-1, x.shape[2])], axis=0)
 
 
-def build_design(pp: ph.Prepared, prep: Prep, names: list[str], rc: RowCfg,
-                 cols_cache: dict) -> sel.Design:
-    """Rows of the regression (module docstring) with per-channel weights 1/noise. ``cols_cache``
-    receives every effect's sample columns (N, 6, k) of this design (the encoder columns, which do
-    not depend on the contact mask, are reused from it)."""
-    setup = pp.setup
-    t = pp.t_s
-    n = len(t)
+def row_map(s: sg.LogSignals, sigma: np.ndarray, rc: RowCfg) -> RowMap:
+    """The rows of a log (module docstring of ``RowMap``); one-line error when too few are left."""
+    setup, t = s.setup, s.t
     dt = float(np.median(np.diff(t)))
-    k_s = max(1, int(round(rc.smooth_s / dt)))
     stride = max(1, int(round(rc.stride_s / dt)))
     ok = (t >= t[0] + rc.edge_s) & (t <= t[-1] - rc.edge_s)
     for a, b in setup.analysis.exclude_s:
         ok &= ~((t - t[0] >= a) & (t - t[0] <= b))
     if setup.contact.mode == "exclude":
-        ok &= ~pp.contact
+        ok &= ~s.contact
     rows = np.flatnonzero(ok)[::stride]
     if len(rows) < 20:
         raise KinadaptError(f"the log leaves {len(rows)} rows after [analysis] exclude_s and the ends; "
                             "give a longer log or exclude less")
-    L = pp.L
-    sig = prep.sigma
-    w_free = 1.0 / sig
     tip = np.asarray(setup.tool.tip_sensor_m, dtype=float)
-    sig_tip = np.sqrt(sig[3:] ** 2 + float(tip @ tip) * np.mean(sig[:3] ** 2))
-    w_tip = 1.0 / sig_tip
-    con = pp.contact[rows]
+    sig_tip = np.sqrt(sigma[3:] ** 2 + float(tip @ tip) * np.mean(sigma[:3] ** 2))
+    return RowMap(rows, s.contact[rows], max(1, int(round(rc.smooth_s / dt))), 1.0 / sigma, 1.0 / sig_tip, s.tip_map)
 
-    def to_rows(x: np.ndarray) -> np.ndarray:
-        """(N, 6, k) sample wrenches -> (R, k) weighted rows (free: 6 channels; contact: 3)."""
-        xs = moving_average(x, k_s)[rows]  # (r, 6, k)
-        free = xs[~con] * w_free[None, :, None]
-        tipm = np.einsum("ij,njk->nik", L, xs[con]) * w_tip[None, :, None]
-        return np.concatenate([free.reshape(-1, x.shape[2]), tipm.reshape(-1, x.shape[2])], axis=0)
 
-    e = (pp.r - pp.w_nom)[:, :, None]
-    y = to_rows(e)[:, 0]
+def build_design(s: sg.LogSignals, lib: dict[str, Effect], names: list[str], sigma: np.ndarray, rc: RowCfg,
+                 cols_cache: dict) -> tuple[sel.Design, RowMap]:
+    """Rows of the regression with per-channel weights 1/noise. ``cols_cache`` keeps every
+    effect's sample columns (n, 6, k); those that do not depend on the contact mask are reused."""
+    rm = row_map(s, sigma, rc)
+    y = rm.apply((s.wrench - s.w_nom)[:, :, None])[:, 0]
     X = {}
     for name in names:
-        C = cols_cache.get(name)
-        if C is None or name != "encoder_offset":  # the encoder columns do not depend on the contact mask
-            C = cols_cache[name] = ph.SPECS[name].columns(pp)
-        X[name] = to_rows(C)
-    Z = to_rows(np.broadcast_to(np.eye(6)[None], (n, 6, 6)).copy()) if setup.log.tared else np.zeros((len(y), 0))
+        eff = lib[name]
+        if name not in cols_cache or eff.uses_contact:
+            cols_cache[name] = eff.evaluate(s)
+        X[name] = rm.apply(cols_cache[name])
+    Z = rm.apply(np.broadcast_to(np.eye(6)[None], (s.n, 6, 6)).copy()) if s.setup.log.tared else np.zeros((len(y), 0))
+    con = rm.contact
     nf, nc = int((~con).sum()), int(con.sum())
     channel = np.concatenate([np.tile(np.arange(6), nf), np.tile(np.arange(6, 9), nc)])
-    W = np.concatenate([np.tile(w_free, nf), np.tile(w_tip, nc)])
-    tr = np.concatenate([np.repeat(t[rows][~con], 6), np.repeat(t[rows][con], 3)]) - t[0]
+    W = np.concatenate([np.tile(rm.w_free, nf), np.tile(rm.w_tip, nc)])
+    t = s.t
+    tr = np.concatenate([np.repeat(t[rm.rows][~con], 6), np.repeat(t[rm.rows][con], 3)]) - t[0]
     dur = float(t[-1] - t[0])
     blen = max(rc.block_s, dur / rc.max_blocks)
     nb = max(2, int(np.ceil(dur / blen)))
     block = np.minimum((tr / blen).astype(int), nb - 1)
-    return sel.Design(y, X, Z, block, nb, {nm: ph.SPECS[nm].relevant for nm in names},
-                      {nm: ph.SPECS[nm].one_of for nm in names}, W, channel, CHANNELS, tr)
+    return sel.Design(y, X, Z, block, nb, {nm: lib[nm].relevant for nm in names},
+                      {nm: lib[nm].one_of for nm in names}, W, channel, CHANNELS, tr), rm
 
 
-def sign_check(pp: ph.Prepared, setup: SetupCfg) -> dict:
+def sign_check(s: sg.LogSignals, setup: SetupCfg) -> dict:
     """Fit the tool's total mass from the force (with a constant offset: it does not turn with
     gravity) on every sample, then again on the 60 % that fit best (contact and effects are the
     outliers; a flipped convention flips every sample, so it cannot hide there). A negative mass
     means the wrench convention is flipped. Independent of the contact detection."""
-    kin = pp.kin
-    ga = kin.g_s - kin.a_s  # (N, 3)
+    ga = s.g_s - s.a_s  # (N, 3)
     n = len(ga)
-    y = pp.r[:, :3].reshape(-1)
+    y = s.wrench[:, :3].reshape(-1)
     A = np.zeros((3 * n, 4))
     A[:, 0] = ga.reshape(-1)
     for j in range(3):
@@ -198,8 +200,10 @@ class Result(NamedTuple):
     design: sel.Design
     before: np.ndarray | None  #: (R,) rows before --add (nuisance fitted), or None
     after: np.ndarray | None  #: (R,) rows after --add
-    prep: Prep
+    signals: sg.LogSignals
     contact: np.ndarray
+    heldout: np.ndarray | None = None  #: (R,) held-out residual rows of the final model
+    lib: dict | None = None  #: the effect library used (name -> Effect)
 
 
 NOT_JUDGED = ("contact-model effect: not judged without a declared contact geometry (a tip contact obeys the same "
@@ -223,49 +227,66 @@ def _rms_by_channel(des: sel.Design, e: np.ndarray) -> dict:
     return out
 
 
-def _entry_report(e: dict, setup: SetupCfg) -> dict:
+def _entry_report(e: dict, eff: Effect, setup: SetupCfg) -> dict:
     n = e["effect"]
-    spec = ph.SPECS[n]
-    out = {k: v for k, v in e.items() if k not in ("params", "sd", "columns_used")}
+    out = {k: v for k, v in e.items() if k not in ("params", "sd", "columns_used", "equivalence")}
     out["judged"] = True
+    out["source"] = eff.source
+    out["doc"] = eff.doc
     cols = e["columns_used"]
     p, sd = e["params"], e["sd"]
-    if spec.one_of:
-        full = ph.to_user(n, p, sd, setup)
-        out["estimate"] = {spec.params[c]: full[spec.params[c]] for c in cols}
-    else:
-        out["estimate"] = ph.to_user(n, p, sd, setup)
-    if e["excitation"]["weak_parameters"]:
-        out["excitation"] = {**e["excitation"], "weak_parameters": [spec.params[j] for j in e["excitation"]["weak_parameters"]]}
-    out["estimate_params"] = {"names": list(spec.params), "units": list(spec.units),
+    full = eff.user_report(p, sd, setup)
+    out["estimate"] = {eff.params[c]: full[eff.params[c]] for c in cols if eff.params[c] in full} if eff.one_of \
+        else full
+    und = e["excitation"]["weak_parameters"]
+    if und:
+        out["excitation"] = {**e["excitation"], "weak_parameters": [eff.params[j] for j in und]}
+        out["undecided_parameters"] = [eff.params[j] for j in und]
+        out["to_shrink"] = eff.excite
+    if "equivalence" in e:
+        q = e["equivalence"]
+        out["equivalence"] = {"level": q["level"], "parameters": {
+            eff.params[j]: {"ci": [float(q["ci_low"][j]), float(q["ci_high"][j])], "relevant": float(q["relevant"][j]),
+                            "unit": eff.units[j]} for j in range(eff.k)}}
+    out["estimate_params"] = {"names": list(eff.params), "units": list(eff.units),
                               "value": [float(v) for v in p], "sd": [float(v) for v in sd]}
     return out
 
 
 def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = RowCfg(),
-             sc: sel.SelCfg = sel.SelCfg(), progress: Callable[[str], None] | None = None) -> Result:
+             sc: sel.SelCfg = sel.SelCfg(), progress: Callable[[str], None] | None = None,
+             effects_files=(), hints: bool = True) -> Result:
     """The whole diagnosis of a user's log (module docstring). ``add``: effects to refit with
-    (``--add``). -> ``Result``."""
+    (``--add``); ``effects_files``: the user's effect files (``--effects``). -> ``Result``."""
+    from kinadapt_nn.diagnostics import completeness as cp
+
     progress = progress or (lambda msg: None)
-    names = ph.applicable_effects(setup)
-    add = list(add or [])
+    lib = library(setup, effects_files)
+    names = judged(lib, setup)
+    add = list(dict.fromkeys(add or []))
     for a in add:
-        if a not in ph.PHYSICAL_EFFECTS:
-            raise KinadaptError(f"--add {a}: unknown effect for a user's log (choose from {', '.join(ph.PHYSICAL_EFFECTS)})")
+        if a not in lib:
+            raise KinadaptError(f"--add {a}: unknown effect for a user's log (choose from {', '.join(lib)}; your own "
+                                "effects come with --effects FILE)")
         if a not in names:
             raise KinadaptError(f"--add {a}: this effect is left out for this set-up (see [analysis] and "
                                 f"[log] tared; judged: {', '.join(names)})")
     if not names:
         raise KinadaptError("no effect left to judge ([analysis] effects / exclude_effects leave none)")
-    prep = prepare(log, setup, rc, progress)
-    contact, off = detect_contact(prep.r - prep.w_nom, prep.t_s, setup, rc)
-    pp = prepared(prep, setup, contact, off)
-    check = sign_check(pp, setup)
-    hints = {n: ph.SPECS[n].excite_hint for n in names}
-    hints["_params"] = {n: ph.SPECS[n].params for n in names}
+    for name in setup.log.extra:
+        if name not in (getattr(log, "extra", None) or {}):
+            raise KinadaptError(f"[log] extra '{name}' was not read from the log (use a CSV, Parquet or ROS 2 bag log "
+                                "that has it)")
+    s = sg.from_log(log, setup, progress)
+    sigma = noise_sigma(s.wrench, rc)
+    contact, off = detect_contact(s.wrench - s.w_nom, s.t, setup, rc)
+    s = s.with_contact(contact, off)
+    check = sign_check(s, setup)
+    excite = {n: lib[n].excite for n in names}
+    excite["_params"] = {n: lib[n].params for n in names}
     cache: dict = {}
     block = None if check["ok"] else "the sign check failed: " + check["message"]
-    des, result, contact, pp = _rank(prep, pp, setup, names, contact, rc, sc, hints, block, cache, progress)
+    des, rm, result, s = _rank(s, lib, names, sigma, rc, sc, excite, block, cache, progress)
     fit_check = tip_consistency(des, list(result.present), sc)
     contact_rows = "used (moment about the declared tip)" if setup.contact.mode == "tip" else setup.contact.mode
     if not fit_check["ok"] and setup.contact.mode == "tip":
@@ -273,67 +294,78 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
         # rather than let an effect absorb a contact the model cannot describe
         progress("contact does not act through the declared tip: ranking again without the contact rows")
         setup_x = setup.model_copy(update={"contact": setup.contact.model_copy(update={"mode": "exclude"})})
-        names_x = [n for n in names if n in ph.applicable_effects(setup_x)]
-        des, result, contact, pp = _rank(prep, pp._replace(setup=setup_x), setup_x, names_x,
-                                         contact, rc, sc, hints, block, cache, progress)
+        names = [n for n in names if lib[n].applies is None or lib[n].applies(setup_x)]
+        s = sg.LogSignals(**{**s.__dict__, "setup": setup_x})
+        des, rm, result, s = _rank(s, lib, names, sigma, rc, sc, excite, block, cache, progress)
         fit_check["action"] = "contact rows left out; verdicts from free space alone"
         contact_rows = "left out (tip check failed)"
-    entries = [_entry_report(e, setup) for e in result.entries]
-    dt = float(np.median(np.diff(prep.t_s)))
+    entries = [_entry_report(e, lib[e["effect"]], setup) for e in result.entries]
+    dt = float(np.median(np.diff(s.t)))
     report = {
         "setup_summary": {"tared": setup.log.tared, "wrench_acts": setup.log.wrench_acts,
                           "tool_mass_kg": setup.tool.mass_kg, "contact_mode": setup.contact.mode},
-        "log": {"samples": int(len(prep.t_s)), "duration_s": float(prep.t_s[-1] - prep.t_s[0]),
-                "rate_Hz": float(1.0 / dt), "qdot": "logged" if log.qdot_rad_s is not None else "differentiated from q"},
-        "contact": {"fraction": float(contact.mean()), "windows_s": _windows(contact, prep.t_s), "rows": contact_rows},
-        "noise_sigma": dict(zip(FREE_CHANNELS, (float(v) for v in prep.sigma))),
+        "log": {"samples": int(s.n), "duration_s": float(s.t[-1] - s.t[0]),
+                "rate_Hz": float(1.0 / dt), "qdot": "logged" if log.qdot_rad_s is not None else "differentiated from q",
+                "extra_columns": list(s.extra)},
+        "library": {n: {"source": lib[n].source, "doc": lib[n].doc, "params": dict(zip(lib[n].params, lib[n].units)),
+                        "judged": n in names} for n in lib},
+        "contact": {"fraction": float(s.contact.mean()), "windows_s": _windows(s.contact, s.t), "rows": contact_rows},
+        "noise_sigma": dict(zip(FREE_CHANNELS, (float(v) for v in sigma))),
         "sign_check": check,
         "tip_contact_check": fit_check,
         "warnings": [m for m in (check.get("message"), fit_check.get("message")) if m],
-        "ranking": entries + [_not_judged(n) for n in ph.CONTACT_MODEL_EFFECTS],
-        "not_judged": [{"effect": n, "reason": NOT_JUDGED} for n in ph.CONTACT_MODEL_EFFECTS],
+        "ranking": entries + [_not_judged(n) for n in CONTACT_MODEL_EFFECTS],
+        "not_judged": [{"effect": n, "reason": NOT_JUDGED} for n in CONTACT_MODEL_EFFECTS],
         "residual_rms_by_channel": _rms_by_channel(des, des.y),
         "explained_by_present": float(1.0 - result.sse_after / max(result.sse_total, 1e-300)),
         "method": {"rows": rc._asdict(), "selection": sc._asdict(), "blocks": des.n_blocks,
-                   "nuisance": "constant offset (tared log)" if setup.log.tared else "none"},
+                   "nuisance": "constant offset (tared log)" if s.setup.log.tared else "none"},
     }
+    progress("completeness of the final model" + (" and hints" if hints else ""))
+    report.update(cp.assess(s, des, rm, result, cache, sc, rc, hints=hints and check["ok"]))
+    cp.caveat_present(report)
     before = after = None
     if add:
         before, after, fitted_add = sel.refit(des, add, sc)
         report["residual_rms_before"] = _rms_by_channel(des, before)
         report["residual_rms_after"] = _rms_by_channel(des, after)
         report["added"] = {}
-        for n, (c, full) in fitted_add.items():
-            spec = ph.SPECS[n]
-            est = ph.to_user(n, full, np.full(len(full), np.nan), setup)
-            if spec.one_of:
-                est = {spec.params[j]: est[spec.params[j]] for j in c}
-            report["added"][n] = {"estimate": est}
+        for n, (c, full, sd) in fitted_add.items():
+            eff = lib[n]
+            est = eff.user_report(full, sd, setup)
+            if eff.one_of:
+                est = {eff.params[j]: est[eff.params[j]] for j in c}
+            entry = {"estimate": est}
+            why = eff.why_impossible(full, setup)
+            if why:
+                entry["warning"] = f"physically impossible estimate: {why}; not a finding"
+                report["warnings"].append(f"--add {n}: {entry['warning']}")
+            report["added"][n] = entry
     report["summary"] = summary_text(report)
-    return Result(report, des, before, after, prep, contact)
+    return Result(report, des, before, after, s, s.contact, result.heldout, lib)
 
 
-def _rank(prep: Prep, pp: ph.Prepared, setup: SetupCfg, names: list[str], contact: np.ndarray, rc: RowCfg,
-          sc: sel.SelCfg, hints: dict, block: str | None, cache: dict, progress: Callable[[str], None]):
+def _rank(s: sg.LogSignals, lib: dict, names: list[str], sigma: np.ndarray, rc: RowCfg, sc: sel.SelCfg,
+          excite: dict, block: str | None, cache: dict, progress: Callable[[str], None]):
     """Design + selection; once more with contact re-detected when the present effects change it.
-    -> (Design, Selection, contact mask, Prepared)."""
-    result = des = None
+    -> (Design, RowMap, Selection, LogSignals)."""
+    result = des = rm = None
+    setup = s.setup
     for it in range(2):
         progress("effect columns" if it == 0 else "contact re-detected with the present effects; ranking again")
-        des = build_design(pp, prep, names, rc, cache)
+        des, rm = build_design(s, lib, names, sigma, rc, cache)
         progress(f"ranking {len(names)} effects on {len(des.y)} rows, {des.n_blocks} blocks")
-        result = sel.select(des, sc, lambda n, p: ph.implausible(n, p, setup), hints, block)
+        result = sel.select(des, sc, lambda n, p: lib[n].why_impossible(p, setup), excite, block)
         if it == 1 or not result.present or setup.contact.mode == "none":
             break
-        fitted = np.zeros_like(prep.r)
+        fitted = np.zeros_like(s.wrench)
         for n, (c, p_phys, _) in result.present.items():
             fitted += cache[n][:, :, c] @ p_phys  # the columns this design was built from
-        new_contact, new_off = detect_contact(prep.r - prep.w_nom - fitted, prep.t_s, setup, rc)
-        if np.mean(new_contact != contact) < 0.005:
+        new_contact, new_off = detect_contact(s.wrench - s.w_nom - fitted, s.t, setup, rc)
+        if np.mean(new_contact != s.contact) < 0.005:
             break
-        contact = new_contact
-        pp = prepared(prep, setup, contact, new_off)
-    return des, result, contact, pp
+        s = s.with_contact(new_contact, new_off)
+    return des, rm, result, s
 
 
 def tip_consistency(des: sel.Design, present: list[str], sc: sel.SelCfg, factor: float = 4.0) -> dict:
@@ -360,13 +392,37 @@ def _windows(mask: np.ndarray, t: np.ndarray) -> list[list[float]]:
     return [[float(t[a] - t[0]), float(t[min(b, len(t)) - 1] - t[0])] for a, b in zip(edges[::2], edges[1::2])]
 
 
+def completeness_text(rep: dict) -> str:
+    """The verdict on the model itself, in words (the summary's first sentence)."""
+    un = rep.get("unexplained", {})
+    if rep.get("model_complete", True):
+        return "The model explains the log: no systematic residual of a relevant size is left."
+    ch = un.get("channels", {})
+    parts = [f"{c} ({ch[c]['structured_rms']:.3g} {ch[c]['unit']}, {ch[c]['ratio_to_noise']:.1f}x the noise floor)"
+             for c in un.get("carried_by", [])]
+    txt = ("Something the model does not contain is left: a structured residual in " + ", ".join(parts)
+           + f" ({', '.join(un.get('phases', []))}).")
+    hs = un.get("hints", [])
+    if hs:
+        txt += " It looks like " + "; ".join(f"{h['shape']} ({h['words'].split(':')[0]}; explains "
+                                             f"{100 * h['explains']:.0f}% of it held-out, see hint_"
+                                             f"{hint_file_stem(h['shape'])}.py)" for h in hs[:3]) + "."
+    else:
+        txt += " No shape of the hint dictionary explains it."
+    return txt
+
+
+def hint_file_stem(shape: str) -> str:
+    return "".join(ch if ch.isalnum() or ch == "_" else "_" for ch in shape)
+
+
 def summary_text(rep: dict) -> str:
-    """A paragraph a person reads first."""
-    parts = []
+    """A paragraph a person reads first: the verdict on the model, then the effects."""
     chk = rep["sign_check"]
     if not chk["ok"]:
         return ("WARNING: " + chk["message"] + ". Every effect is 'cannot_decide' until the wrench convention "
                 "is right (nothing can be judged against a tool that weighs less than nothing).")
+    parts = [completeness_text(rep)]
     if not rep["tip_contact_check"]["ok"]:
         parts.append("WARNING: " + rep["tip_contact_check"]["message"] + ".")
     pres = [e for e in rep["ranking"] if e["verdict"] == "present"]
@@ -380,18 +436,20 @@ def summary_text(rep: dict) -> str:
                                                      for k in keys) + ")")
         parts.append("Present: " + "; ".join(txt) + f" — together {100 * rep['explained_by_present']:.0f}% of the "
                      "residual of the declared model, held-out.")
+        if not rep.get("model_complete", True):
+            parts.append("Caution: the model stays incomplete, so these may stand in for part of what is unexplained.")
     else:
-        parts.append("No effect is present: the declared set-up explains the log as well as any library effect.")
+        parts.append("No library effect is present.")
     if und:
         parts.append("Cannot decide: " + "; ".join(
             f"{e['effect']} ({e.get('reason') or ''}"
             + (f"; indistinguishable from {', '.join(e['indistinguishable_from'])}" if e.get("indistinguishable_from") else "")
-            + (f"; unexcited: {', '.join(e['excitation']['weak_parameters'])}" if e["excitation"].get("weak_parameters")
-               and e["verdict"] == "cannot_decide" and not e.get("indistinguishable_from") else "")
+            + (f"; undecided: {', '.join(e['undecided_parameters'])}" if e.get("undecided_parameters")
+               and not e.get("indistinguishable_from") else "")
             + ")" for e in und) + ".")
     absent = [e["effect"] for e in rep["ranking"] if e["verdict"] == "absent"]
     if absent:
-        parts.append("Absent: " + ", ".join(absent) + ".")
+        parts.append("Absent (intervals inside their relevant sizes): " + ", ".join(absent) + ".")
     nj = [e["effect"] for e in rep["ranking"] if not e.get("judged", True)]
     if nj:
         parts.append("Not judged (no contact geometry declared): " + ", ".join(nj) + ".")

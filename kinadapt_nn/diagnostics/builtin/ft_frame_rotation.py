@@ -1,0 +1,42 @@
+"""The sensor's axes are rotated from their declared mounting (first order in the rotation).
+
+``r_meas = R(delta)^T r = r + r x delta``: the measured wrench stands for the true one, whatever
+loads the sensor (the tool, an undeclared mass, a contact). A tared log's missing
+``w(q_tare) x delta`` is constant and goes into the offset nuisance.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kinadapt_nn.diagnostics.contract import effect
+
+MAX_FIRST_ORDER_DEG = 15.0  #: beyond this a first-order rotation model is not a finding
+
+
+def report_deg(names):
+    """A ``report`` that gives radian parameters in degrees."""
+    def rep(p, sd, setup) -> dict:
+        return {n: {"value": float(np.rad2deg(v)), "sd": float(np.rad2deg(s_)), "unit": "deg"}
+                for n, v, s_ in zip(names, p, sd)}
+    return rep
+
+
+def plausible_small_angle(p, setup) -> str | None:
+    if np.max(np.abs(p)) > np.deg2rad(MAX_FIRST_ORDER_DEG):
+        return f"{np.rad2deg(np.max(np.abs(p))):.3g} deg is beyond a mounting/zero error (the model is first order)"
+    return None
+
+
+@effect(params={"rot_x": "rad", "rot_y": "rad", "rot_z": "rad"}, relevant=[np.deg2rad(1.0)] * 3,
+        doc="the sensor's axes are rotated from their declared mounting",
+        excite="reorient in free space (gravity along several sensor axes) and push in contact in two directions",
+        report=report_deg(("rot_x", "rot_y", "rot_z")), plausible=plausible_small_angle, uses_contact=False)
+def ft_frame_rotation(s):
+    C = np.zeros((s.n, 6, 3))
+    for j in range(3):
+        e = np.zeros(3)
+        e[j] = 1.0
+        C[:, :3, j] = np.cross(s.wrench[:, :3], e)
+        C[:, 3:, j] = np.cross(s.wrench[:, 3:], e)
+    return C

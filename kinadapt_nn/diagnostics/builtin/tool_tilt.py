@@ -1,0 +1,34 @@
+"""The tool sits rotated in the grasp about the sensor's x and y axes (first order).
+
+The COM moves by ``delta x c`` (gravity and inertia, through ``tool_gravity``'s first-moment
+columns), the tip by ``delta x p`` (the contact force's moment about the sensor changes by
+``(delta x p) x F_c``). Judged only where contacts act through the tip (``[contact] mode = "tip"``):
+without it a tilt is only a COM shift, which ``tool_gravity`` already holds.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kinadapt_nn.diagnostics.builtin.ft_frame_rotation import plausible_small_angle, report_deg
+from kinadapt_nn.diagnostics.builtin.tool_gravity import first_moment_columns
+from kinadapt_nn.diagnostics.contract import effect
+
+
+@effect(params={"tilt_x": "rad", "tilt_y": "rad"}, relevant=[np.deg2rad(1.0)] * 2,
+        doc="the tool sits rotated in the grasp (its COM and tip move)",
+        excite="push the tip in contact in two lateral directions (the tip lever shows in the moment)",
+        report=report_deg(("tilt_x", "tilt_y")), plausible=plausible_small_angle,
+        applies=lambda setup: setup.contact.mode == "tip")
+def tool_tilt(s):
+    m = float(s.setup.tool.mass_kg)
+    mc = m * np.asarray(s.setup.tool.com_sensor_m, dtype=float)
+    tip = np.asarray(s.setup.tool.tip_sensor_m, dtype=float)
+    grav = first_moment_columns(s)  # (n, 6, 3) per unit first moment
+    C = np.zeros((s.n, 6, 2))
+    for j in range(2):
+        e = np.zeros(3)
+        e[j] = 1.0
+        C[:, :, j] = grav @ np.cross(e, mc)
+        C[:, 3:, j] += np.cross(np.cross(e, tip), s.contact_force_s)
+    return C

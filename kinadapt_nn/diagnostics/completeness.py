@@ -1,0 +1,373 @@
+"""Is the final model complete? What it leaves unexplained, and the shape of what is missing.
+
+Verdict. The held-out residual of the final model (nuisance + selected effects; each CV block
+predicted by the fit on the other blocks, ``selection.heldout_residual``) is compared, channel by
+channel, with the sensor's own noise floor: a row averages ``k`` samples of per-sample noise
+``sigma`` (``userlog.noise_sigma``), so white noise alone gives a row RMS of ``sigma/sqrt(k)``.
+Its *structured* part is what survives a longer moving average (``struct_window_s``) beyond what
+white noise leaves there: ``sqrt(max(rms_long^2 - sigma^2/n_long, 0))``. A channel carries an
+unexplained effect when that structured part is clearly above the white-noise level
+(``struct_factor``) AND at least the relevant size (``[analysis] relevant_force_N`` /
+``relevant_moment_Nm``). ``model_complete`` is true when no channel does.
+
+Hints. When the model is incomplete, the held-out residual is tested against a generic dictionary
+of shapes (``SHAPES``), each with its physical readings, with the selection's own statistics:
+block cross-validation given the final model, a Hotelling-type test with the block-jackknife
+covariance, Benjamini-Hochberg over the shapes, ``min_explained`` of what the final model leaves
+held-out, and a relevant size (a parameter is scaled so that 1 changes some channel's RMS by its
+relevant size). A shape is listed only where it passes, ranked by its held-out gain; each comes
+with a ready effect file (``hint_files``) in the public contract.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, NamedTuple
+
+import numpy as np
+
+from kinadapt_nn.diagnostics import selection as sel
+from kinadapt_nn.features.effect_library import moving_average
+
+FORCE_UNIT, MOMENT_UNIT = "N", "N m"
+WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
+WRENCH_LABEL = ("F_x", "F_y", "F_z", "M_x", "M_y", "M_z")
+#: [rad/s] smoothing of sign(qdot) in the joint_velocity shape
+SIGN_EPS_RAD_S = 0.02
+#: the words of each shape (its physical readings)
+WORDS = {
+    "sensor_constant": "a constant wrench in the sensor frame: an offset, a bias step",
+    "world_force": "a constant force in the world frame at a fixed point on the tool: a cable or hose, a spring or "
+                   "counterweight, a fixture pulling",
+    "time": "a slow change in time per channel: drift, warm-up",
+    "wrench_linear": "a linear map of the measured wrench: a calibration-matrix error, crosstalk, a gain error",
+    "joint_velocity": "per-joint velocity (and its sign) into the wrench: cable drag, a dragging hose, friction in a "
+                      "tool joint",
+    "joint_position": "per-joint position into the wrench: a cable whose pull depends on the pose",
+    "extra": "a declared extra log column into the wrench: temperature, supply voltage, a second sensor",
+}
+
+
+class CompCfg(NamedTuple):
+    struct_window_s: float = 0.25  #: [s] the long moving average that keeps the structured part
+    struct_factor: float = 3.0  #: structured part / its white-noise level above which it is "structured"
+    time_order: int = 3  #: Legendre order of the ``time`` shape
+    max_dense: int = 12  #: a shape with more parameters has its entries selected sparsely
+    max_entries: int = 8  #: at most this many entries of a sparse shape
+    min_entry_gain: float = 0.01  #: [-] an entry must explain this share of what the final model leaves
+
+
+class Shape(NamedTuple):
+    """A generic shape: sample columns (n, 6, k) over ``LogSignals`` and its parameters."""
+
+    name: str
+    columns: Callable  #: LogSignals -> (n, 6, k)
+    params: Callable  #: LogSignals -> (names (k,), units (k,))
+    words: str
+
+
+# ------------------------------------------------------------------------------------------ shapes
+def _unit(i: int) -> str:
+    return FORCE_UNIT if i < 3 else MOMENT_UNIT
+
+
+def _sensor_constant(s) -> np.ndarray:
+    return np.broadcast_to(np.eye(6)[None], (s.n, 6, 6)).copy()
+
+
+def _world_force(s) -> np.ndarray:
+    """Force ``F_w`` (3) and ``M = p F^T`` (9, p the point of action in s): force rows ``R^T F``,
+    moment rows ``p x R^T F`` = sum_il M_il (e_i x R^T e_l) (linear in F and M)."""
+    C = np.zeros((s.n, 6, 12))
+    for l_ in range(3):
+        u = s.R_ws[:, l_, :]  # (n, 3): R_ws^T e_l, the world axis l in s
+        C[:, :3, l_] = u
+        for i in range(3):
+            e = np.zeros(3)
+            e[i] = 1.0
+            C[:, 3:, 3 + 3 * i + l_] = np.cross(e, u)
+    return C
+
+
+def _legendre(s, order: int) -> np.ndarray:
+    u = 2.0 * s.t / max(float(s.t[-1]), 1e-9) - 1.0
+    return np.stack([np.polynomial.legendre.Legendre.basis(d)(u) for d in range(1, order + 1)], axis=1)
+
+
+def _per_channel(x: np.ndarray) -> np.ndarray:
+    """(n, m) signals -> (n, 6, 6 m): each signal into each channel (channel-major)."""
+    n, m = x.shape
+    C = np.zeros((n, 6, 6 * m))
+    for i in range(6):
+        C[:, i, i * m:(i + 1) * m] = x
+    return C
+
+
+def _wrench_linear(s) -> np.ndarray:
+    return _per_channel(s.wrench)
+
+
+def _joint_velocity(s) -> np.ndarray:
+    return _per_channel(np.hstack([s.qdot, np.tanh(s.qdot / SIGN_EPS_RAD_S)]))
+
+
+def _joint_position(s) -> np.ndarray:
+    return _per_channel(s.q - s.q.mean(axis=0))
+
+
+def _names_per_channel(labels: list[str], units: list[str]) -> tuple[list[str], list[str]]:
+    names, out_units = [], []
+    for i in range(6):
+        for lab, u in zip(labels, units):
+            names.append(f"{WRENCH[i]}_from_{lab}")
+            out_units.append(f"{_unit(i)}/{u}" if u != "-" else _unit(i))
+    return names, out_units
+
+
+def _params_world_force(s):
+    names = ["fx_w", "fy_w", "fz_w"] + [f"p{'xyz'[i]}*f{'xyz'[l_]}_w" for i in range(3) for l_ in range(3)]
+    return names, [FORCE_UNIT] * 3 + ["N m"] * 9
+
+
+def _params_wrench_linear(s):
+    units = ["N"] * 3 + ["N m"] * 3
+    names, out = [], []
+    for i in range(6):
+        for j in range(6):
+            names.append(f"{WRENCH[i]}_from_{WRENCH[j]}")
+            out.append("-" if (i < 3) == (j < 3) else ("m" if i >= 3 else "1/m"))
+    return names, out
+
+
+def _params_joint_velocity(s):
+    dof = s.q.shape[1]
+    return _names_per_channel([f"qdot{j + 1}" for j in range(dof)] + [f"sign_qdot{j + 1}" for j in range(dof)],
+                              ["rad/s"] * dof + ["-"] * dof)
+
+
+def _params_joint_position(s):
+    dof = s.q.shape[1]
+    return _names_per_channel([f"q{j + 1}" for j in range(dof)], ["rad"] * dof)
+
+
+def shapes(s, cc: CompCfg = CompCfg()) -> list[Shape]:
+    """The dictionary for this log (the ``extra:<column>`` shapes from its declared columns)."""
+    out = [
+        Shape("sensor_constant", _sensor_constant, lambda s_: (list(WRENCH), [_unit(i) for i in range(6)]),
+              WORDS["sensor_constant"]),
+        Shape("world_force", _world_force, _params_world_force, WORDS["world_force"]),
+        Shape("time", lambda s_: _per_channel(_legendre(s_, cc.time_order)),
+              lambda s_: _names_per_channel([f"P{d}(t)" for d in range(1, cc.time_order + 1)], ["-"] * cc.time_order),
+              WORDS["time"]),
+        Shape("wrench_linear", _wrench_linear, _params_wrench_linear, WORDS["wrench_linear"]),
+        Shape("joint_velocity", _joint_velocity, _params_joint_velocity, WORDS["joint_velocity"]),
+        Shape("joint_position", _joint_position, _params_joint_position, WORDS["joint_position"]),
+    ]
+    for col in s.extra:
+        out.append(Shape(f"extra:{col}", (lambda c: lambda s_: _per_channel((s_.extra[c] - s_.extra[c].mean())[:, None]))(col),
+                         lambda s_: _names_per_channel(["x"], ["unit"]), WORDS["extra"]))
+    return out
+
+
+# ------------------------------------------------------------------------------------------ verdict
+def _runs(t: np.ndarray, gap: float) -> list[np.ndarray]:
+    """Index runs of rows (sorted times) with no gap longer than ``gap``."""
+    if len(t) == 0:
+        return []
+    cut = np.flatnonzero(np.diff(t) > gap) + 1
+    return np.split(np.arange(len(t)), cut)
+
+
+def _spans(t: np.ndarray, mask: np.ndarray, gap: float) -> list[list[float]]:
+    out = []
+    for r in _runs(t[mask], gap):
+        if len(r):
+            out.append([float(t[mask][r[0]]), float(t[mask][r[-1]])])
+    return out
+
+
+def unexplained(des: sel.Design, e_ho: np.ndarray, rm, sigma: np.ndarray, setup, dt: float, stride_s: float,
+                cc: CompCfg = CompCfg()) -> dict:
+    """Per channel: the held-out residual against the noise floor and its structured part
+    (module docstring). -> {"complete": bool, "channels": {...}, "carried_by": [...], ...}."""
+    sig_tip = 1.0 / rm.w_tip
+    sig_ch = np.concatenate([sigma, sig_tip])
+    rel_ch = np.array([setup.analysis.relevant_force_N] * 3 + [setup.analysis.relevant_moment_Nm] * 6)
+    names = des.channel_names
+    chans, carried, phases, spans = {}, [], set(), []
+    n_long = max(1, int(round(cc.struct_window_s / stride_s)))
+    for c, name in enumerate(names):
+        m = des.channel == c
+        if not m.any():
+            continue
+        t = des.t_s[m]
+        x = e_ho[m] / des.W[m]  # physical units
+        floor = sig_ch[c] / np.sqrt(rm.k_smooth)
+        long = np.empty_like(x)
+        for r in _runs(t, 2.5 * stride_s):
+            long[r] = moving_average(x[r], n_long)
+        rms, rms_long = float(np.sqrt(np.mean(x**2))), float(np.sqrt(np.mean(long**2)))
+        white_long = sig_ch[c] / np.sqrt(max(n_long * stride_s / dt, rm.k_smooth))
+        struct = float(np.sqrt(max(rms_long**2 - white_long**2, 0.0)))
+        structured = rms_long > cc.struct_factor * white_long
+        relevant = bool(structured and struct >= rel_ch[c])
+        unit = FORCE_UNIT if c < 3 else MOMENT_UNIT
+        entry = {"phase": "free space" if c < 6 else "contact (moment about the tip)", "unit": unit,
+                 "rms": rms, "noise_floor_rms": float(floor), "ratio_to_noise": float(rms / max(floor, 1e-300)),
+                 "structured_rms": struct, "structured": bool(structured), "relevant_size": float(rel_ch[c]),
+                 "unexplained": relevant}
+        if relevant:
+            sp = _spans(t, np.abs(long) >= rel_ch[c], 2.5 * stride_s)
+            sp = [w for w in sp if w[1] - w[0] >= 0.5 * cc.struct_window_s]
+            entry["spans_s"] = sp[:8]
+            spans += [(w, name) for w in sp]
+            carried.append(name)
+            phases.add(entry["phase"])
+        chans[name] = entry
+    return {"complete": not carried, "carried_by": carried, "phases": sorted(phases), "channels": chans,
+            "spans_s": [{"t_s": w, "channel": ch} for w, ch in sorted(spans, key=lambda z: -(z[0][1] - z[0][0]))[:10]],
+            "method": {**cc._asdict(), "white_floor": "per-sample noise / sqrt(samples a row averages)"}}
+
+
+# ------------------------------------------------------------------------------------------ hints
+def _relevant_of(C: np.ndarray, rel6: np.ndarray) -> np.ndarray:
+    """Per parameter: the size that changes some channel's RMS by that channel's relevant size."""
+    rms = np.sqrt(np.mean(C**2, axis=0))  # (6, k)
+    worst = np.max(rms / rel6[:, None], axis=0)
+    return np.where(worst > 0, 1.0 / np.maximum(worst, 1e-300), 1.0)
+
+
+def hints(s, des: sel.Design, rm, result, cache: dict, sc: sel.SelCfg, cc: CompCfg = CompCfg()) -> list[dict]:
+    """Test every shape against the held-out residual given the final model (module docstring)."""
+    from scipy.stats import false_discovery_control
+
+    rel6 = np.array([s.setup.analysis.relevant_force_N] * 3 + [s.setup.analysis.relevant_moment_Nm] * 3)
+    base = [des.Z] if des.Z.shape[1] else []
+    for n, (c, _, _) in result.present.items():
+        base.append(des.X[n][:, c])
+    Z = np.concatenate(base, axis=1) if base else np.zeros((len(des.y), 0))
+    sh = [x for x in shapes(s, cc) if not (x.name == "sensor_constant" and s.setup.log.tared)]
+    X, scale, info = {}, {}, {}
+    for x in sh:
+        C = x.columns(s)
+        X[x.name] = rm.apply(C)
+        scale[x.name] = _relevant_of(C, rel6)
+        info[x.name] = (x, C)
+    hd = sel.Design(des.y, X, Z, des.block, des.n_blocks, scale, {n: False for n in X}, des.W, des.channel,
+                    des.channel_names, des.t_s)
+    st = sel.Stats(hd)
+    b = st.z_idx
+    sse0, _, _ = st.cv(b, sc.ridge)
+    rest = float(sse0.sum()) or 1e-300
+    tests = {n: (sel._test(st, hd, n, b, sse0, sc) if hd.X[n].shape[1] <= cc.max_dense
+                 else _sparse_test(st, hd, n, b, sse0, sc, cc)) for n in X}
+    padj = false_discovery_control([tests[n].p_value for n in X], method="bh")
+    out = []
+    for n, pa in zip(X, padj):
+        t = tests[n]
+        share = float(t.gain.sum() / rest)
+        big = bool(np.max(np.abs(t.p)) >= 1.0) if len(t.p) else False
+        if not (pa < sc.alpha and share >= sc.min_explained and big):
+            continue
+        x, C = info[n]
+        k = hd.X[n].shape[1]
+        p, sd = np.zeros(k), np.zeros(k)
+        p[t.cols] = t.p * scale[n][t.cols]
+        sd[t.cols] = np.sqrt(np.clip(np.diag(t.cov), 0, None)) * scale[n][t.cols]
+        names, units = x.params(s)
+        if n.startswith("extra:"):
+            col = n.split(":", 1)[1]
+            names = [f"{WRENCH[i]}_per_{col}" for i in range(6)]
+            units = [f"{_unit(i)} per unit of {col}" for i in range(6)]
+        out.append({"shape": n, "explains": share, "p_adjusted": float(pa), "words": x.words,
+                    "convention": "change of the wrench the tool exerts on the sensor (sensor frame, about its origin)",
+                    "fitted": _fitted(n, names, units, p, sd, scale[n], t.cols, cc), "_p": p, "_sd": sd,
+                    "_names": names, "_units": units, "_rel": scale[n], "_cols": list(t.cols)})
+    out.sort(key=lambda h: -h["explains"])
+    return out
+
+
+def _sparse_test(st: sel.Stats, hd: sel.Design, name: str, base: np.ndarray, sse0: np.ndarray, sc: sel.SelCfg,
+                 cc: CompCfg) -> sel.Candidate:
+    """A many-parameter shape, entries selected sparsely: forward selection of single columns by
+    held-out gain (each added entry must beat the model without it block by block, one-sided
+    paired t, Bonferroni over the candidates), at most ``max_entries``. The shape's test is then
+    the paired block test of its held-out gain over the final model."""
+    idx_all = st.idx[name]
+    chosen: list[int] = []
+    sse_cur = sse0
+    rest = float(sse0.sum()) or 1e-300
+    while len(chosen) < cc.max_entries:
+        cur = np.concatenate([base, idx_all[chosen]])
+        best = None
+        for j in range(len(idx_all)):
+            if j in chosen:
+                continue
+            sse, reps, p = st.cv(np.concatenate([cur, idx_all[[j]]]), sc.ridge)
+            g = float((sse_cur - sse).sum())
+            if best is None or g > best[1]:
+                best = (j, g, sse, reps[:, -1:], p[-1:])
+        if best is None:
+            break
+        j, g, sse, reps, p = best
+        n_cand = len(idx_all) - len(chosen)
+        if g / rest < cc.min_entry_gain or \
+                sel.wald_pvalue(p, sel.jackknife_cov(reps), len(reps)) * n_cand >= sc.alpha:
+            break
+        chosen.append(j)
+        sse_cur = sse
+    if not chosen:
+        return sel.Candidate(name, [], np.zeros_like(sse0), sse0, np.zeros(0), np.zeros((0, 0)), 1.0)
+    idx = np.concatenate([base, idx_all[chosen]])
+    sse, reps, p = st.cv(idx, sc.ridge)
+    cov = sel.jackknife_cov(reps[:, len(base):])
+    pval = min(1.0, sel.wald_pvalue(p[len(base):], cov, len(reps)) if len(chosen) < len(reps) - 1 else 1.0)
+    return sel.Candidate(name, chosen, sse0 - sse, sse, p[len(base):], cov, min(pval, sel.paired_p(sse, sse0)))
+
+
+def _fitted(shape: str, names, units, p, sd, rel, cols, cc: CompCfg) -> dict:
+    """The fitted numbers a person reads: every parameter of a small shape; the largest
+    significant entries of a large one; the world force's point of action."""
+    def q(i):
+        return {"value": float(p[i]), "sd": float(sd[i]), "unit": units[i]}
+
+    if shape == "world_force":
+        F = p[:3]
+        M = p[3:].reshape(3, 3)
+        point = M @ F / max(float(F @ F), 1e-300)
+        return {"force_w": {"value": [float(v) for v in F], "sd": [float(v) for v in sd[:3]], "unit": "N"},
+                "point_s": {"value": [float(v) for v in point], "unit": "m",
+                            "note": "least-squares point of action (from M = p F^T)"}}
+    if len(p) <= cc.max_dense:
+        return {names[i]: q(i) for i in range(len(p))}
+    order = sorted(cols, key=lambda i: -abs(p[i] / rel[i]))
+    return {names[i]: q(i) for i in order}
+
+
+def assess(s, des: sel.Design, rm, result, cache: dict, sc: sel.SelCfg, rc, hints: bool = True,
+           cc: CompCfg = CompCfg()) -> dict:
+    """``model_complete`` and the ``unexplained`` section (with ``hints`` when incomplete)."""
+    dt = float(np.median(np.diff(s.t)))
+    from kinadapt_nn.diagnostics.userlog import noise_sigma
+
+    un = unexplained(des, result.heldout, rm, noise_sigma(s.wrench, rc), s.setup, dt, rc.stride_s, cc)
+    complete = un.pop("complete")
+    un["hints"] = []
+    if not complete and hints:
+        un["hints"] = globals()["hints"](s, des, rm, result, cache, sc, cc)
+    return {"model_complete": bool(complete), "unexplained": un}
+
+
+def caveat_present(report: dict) -> None:
+    """When the model stays incomplete, every ``present`` verdict carries its share and a warning."""
+    if report.get("model_complete", True):
+        return
+    for e in report["ranking"]:
+        if e.get("verdict") == "present":
+            e["explains_share"] = e.get("explained_fraction")
+            e["warning"] = ("the model stays incomplete: this effect explains "
+                            f"{100 * (e.get('explained_fraction') or 0):.0f}% of the residual and may stand in for "
+                            "part of what is unexplained")
+
+
+__all__ = ["CompCfg", "SHAPES", "assess", "caveat_present", "hints", "shapes", "unexplained", "WORDS"]
+SHAPES = tuple(WORDS)

@@ -1,0 +1,205 @@
+"""The public effect contract: one physical effect = one function over a log's signals.
+
+A user's effect and a built-in one are written the same way (``kinadapt_nn/diagnostics/builtin/``
+holds the built-ins, one module each)::
+
+    import numpy as np
+    from kinadapt_nn.diagnostics import effect
+
+    @effect(params={"fx_w": "N", "fy_w": "N", "fz_w": "N"}, relevant=[0.2, 0.2, 0.2],
+            doc="a hose pulling with a constant world-frame force, clamped 35 mm off the tool axis")
+    def cable_pull(s):
+        '''(n, 6, 3): the change of s.wrench per unit of each parameter.'''
+        ...
+
+* The effect's name is the function's name; ``params`` maps each parameter to its unit (in order),
+  ``relevant`` gives the smallest size worth reporting per parameter (in those units), ``doc`` one
+  line; ``excite`` says which motion shows it; ``one_of=True``: the parameters are alternatives
+  and one of them at a time is fitted (as the built-in joint encoder offset).
+* ``s`` is a ``kinadapt_nn.diagnostics.signals.LogSignals`` (full rate, before any filtering).
+* The function returns (n, 6, k) columns: the change of the measured wrench the tool exerts on the
+  sensor (sensor frame, about its origin; [N, N m]) per unit of each parameter. The change is
+  linear in the parameters. The diagnosis filters, weights, ranks, re-estimates and ``--add``s the
+  effect exactly like a built-in one.
+* Built-ins may also give ``report`` (the estimate in the user's units), ``plausible`` (why an
+  estimate is physically impossible) and ``applies`` (whether it is judged for a set-up); a user's
+  effect may too.
+
+An effects file is Python code that runs (like a test file): ``load_effect_files`` executes it.
+Every ``Effect`` defined at the module level of the file is taken.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from kinadapt_nn.errors import KinadaptError
+
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+@dataclass(frozen=True)
+class Effect:
+    """One effect of the library: its columns and what the report needs (module docstring)."""
+
+    name: str
+    params: tuple[str, ...]  #: parameter names, in column order
+    units: tuple[str, ...]  #: their units
+    relevant: tuple[float, ...]  #: (k,) smallest size worth reporting per parameter (> 0)
+    doc: str  #: one line: the physical reading
+    columns: Callable  #: LogSignals -> (n, 6, k)
+    excite: str = ""  #: the motion that shows it
+    one_of: bool = False  #: one column at a time
+    source: str = "built-in"  #: where it was defined (a file path for a user's effect)
+    report: Callable | None = None  #: (p (k,), sd (k,), setup) -> {param: {value, sd, unit, ...}}
+    plausible: Callable | None = None  #: (p (k,), setup) -> why it is impossible, or None
+    applies: Callable | None = None  #: setup -> bool: judged for this set-up
+    uses_contact: bool = True  #: the columns depend on the contact mask (recomputed when it changes)
+
+    @property
+    def k(self) -> int:
+        return len(self.params)
+
+    def __call__(self, s) -> np.ndarray:
+        return self.columns(s)
+
+    def evaluate(self, s) -> np.ndarray:
+        """The columns, checked: (n, 6, k) finite floats, or a one-line ``KinadaptError`` naming
+        the effect, its file and the problem."""
+        where = f"effect '{self.name}' ({self.source})"
+        try:
+            C = self.columns(s)
+        except KinadaptError:
+            raise
+        except Exception as exc:  # a user's code: any exception is their bug, reported in one line
+            msg = str(exc).splitlines()[0] if str(exc) else ""
+            raise KinadaptError(f"{where} raised {type(exc).__name__}: {msg}"[:300]) from None
+        try:
+            C = np.asarray(C, dtype=float)
+        except (TypeError, ValueError):
+            raise KinadaptError(f"{where} returned {type(C).__name__}, not an array of numbers "
+                                f"(return the (n, 6, {self.k}) columns)") from None
+        n = len(s.t)
+        if C.ndim == 2 and self.k == 1 and C.shape == (n, 6):
+            C = C[:, :, None]
+        if C.shape != (n, 6, self.k):
+            raise KinadaptError(f"{where} returned shape {C.shape}; expected (n, 6, k) = ({n}, 6, {self.k}) "
+                                f"for its {self.k} parameter(s) {', '.join(self.params)}")
+        bad = ~np.isfinite(C)
+        if bad.any():
+            i, _, j = np.argwhere(bad)[0]
+            raise KinadaptError(f"{where} returned non-finite columns (first at sample {i}, parameter "
+                                f"'{self.params[j]}'); return finite numbers")
+        return C
+
+    def user_report(self, p: np.ndarray, sd: np.ndarray, setup) -> dict:
+        """The estimate ``{param: {value, sd, unit}}`` in the effect's declared units (or its own
+        ``report``)."""
+        if self.report is not None:
+            return self.report(np.asarray(p, float), np.asarray(sd, float), setup)
+        return {pn: {"value": float(v), "sd": float(s), "unit": u}
+                for pn, v, s, u in zip(self.params, p, sd, self.units)}
+
+    def why_impossible(self, p: np.ndarray, setup) -> str | None:
+        if not np.all(np.isfinite(p)):
+            return "the estimate is not finite"
+        return self.plausible(np.asarray(p, float), setup) if self.plausible is not None else None
+
+
+def effect(params: dict[str, str], relevant, doc: str, excite: str = "", one_of: bool = False, *,
+           report: Callable | None = None, plausible: Callable | None = None, applies: Callable | None = None,
+           uses_contact: bool = True) -> Callable[[Callable], Effect]:
+    """Decorator: a function ``f(s) -> (n, 6, k)`` becomes an ``Effect`` named ``f.__name__``
+    (module docstring). Bad arguments raise a one-line ``KinadaptError``."""
+    def wrap(fn: Callable) -> Effect:
+        name = getattr(fn, "__name__", "")
+        src = _source_of(fn)
+        where = f"effect '{name}' ({src})"
+        if not callable(fn) or not _NAME.match(name or ""):
+            raise KinadaptError(f"@effect must decorate a named function ({src})")
+        if not isinstance(params, dict) or not params or not all(isinstance(k, str) and isinstance(v, str)
+                                                                  for k, v in params.items()):
+            raise KinadaptError(f"{where}: params must be a non-empty dict of parameter name -> unit (strings)")
+        try:
+            rel = tuple(float(x) for x in np.atleast_1d(np.asarray(relevant, dtype=float)))
+        except (TypeError, ValueError):
+            raise KinadaptError(f"{where}: relevant must be numbers, one per parameter") from None
+        if len(rel) != len(params):
+            raise KinadaptError(f"{where}: {len(rel)} relevant size(s) for {len(params)} parameter(s) "
+                                f"({', '.join(params)}); give one per parameter")
+        if not all(np.isfinite(r) and r > 0 for r in rel):
+            raise KinadaptError(f"{where}: every relevant size must be finite and > 0 (got {list(rel)})")
+        if not isinstance(doc, str) or not doc.strip():
+            raise KinadaptError(f"{where}: doc must be a one-line description")
+        return Effect(name, tuple(params), tuple(params.values()), rel, doc.strip().splitlines()[0], fn,
+                      str(excite), bool(one_of), src, report, plausible, applies, bool(uses_contact))
+    return wrap
+
+
+def _source_of(fn) -> str:
+    mod = sys.modules.get(getattr(fn, "__module__", "") or "")
+    f = getattr(mod, "__file__", None) if mod is not None else None
+    if f and Path(f).resolve().is_relative_to(Path(__file__).resolve().parent / "builtin"):
+        return "built-in"
+    return str(f) if f else "built-in"
+
+
+def effects_of_module(mod) -> dict[str, Effect]:
+    """Every ``Effect`` at the module level of ``mod``, by name (definition order)."""
+    return {v.name: v for v in vars(mod).values() if isinstance(v, Effect)}
+
+
+def load_effect_file(path: str | Path) -> dict[str, Effect]:
+    """Execute one effects file and return its effects; one-line ``KinadaptError`` otherwise."""
+    p = Path(path)
+    if not p.is_file():
+        raise KinadaptError(f"effects file '{p}' not found (give the path of a .py file)")
+    if p.suffix != ".py":
+        raise KinadaptError(f"effects file '{p}' is not a .py file (an effects file is Python code)")
+    mod_name = f"kinadapt_user_effects_{abs(hash(str(p.resolve())))}"
+    spec = importlib.util.spec_from_file_location(mod_name, p)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[mod_name] = mod
+    try:
+        spec.loader.exec_module(mod)
+    except KinadaptError as exc:
+        sys.modules.pop(mod_name, None)
+        raise KinadaptError(str(exc)) from None
+    except SyntaxError as exc:
+        sys.modules.pop(mod_name, None)
+        raise KinadaptError(f"effects file '{p}' line {exc.lineno}: syntax error: {exc.msg}") from None
+    except Exception as exc:
+        sys.modules.pop(mod_name, None)
+        msg = str(exc).splitlines()[0] if str(exc) else ""
+        raise KinadaptError(f"effects file '{p}' raised {type(exc).__name__} while loading: {msg}"[:300]) from None
+    found = effects_of_module(mod)
+    if not found:
+        raise KinadaptError(f"effects file '{p}' defines no effect (decorate a function with "
+                            "@effect(params=..., relevant=..., doc=...) from kinadapt_nn.diagnostics)")
+    return found
+
+
+def load_effect_files(paths, builtins: dict[str, Effect]) -> dict[str, Effect]:
+    """The user's effects of every file, by name; a name that clashes with a built-in or with
+    another file's effect is a one-line error."""
+    out: dict[str, Effect] = {}
+    for path in paths:
+        for name, eff in load_effect_file(path).items():
+            if name in builtins:
+                raise KinadaptError(f"effects file '{path}': effect '{name}' has the name of a built-in effect "
+                                    f"(rename the function; built-ins: {', '.join(builtins)})")
+            if name in out:
+                raise KinadaptError(f"effects file '{path}': effect '{name}' is also defined in {out[name].source} "
+                                    "(rename one of them)")
+            out[name] = eff
+    return out
+
+
+__all__ = ["Effect", "effect", "load_effect_file", "load_effect_files", "effects_of_module"]
