@@ -1,8 +1,8 @@
 """A kinadapt effect file (Python code that runs, like a test file): a temperature-driven F/T offset.
 
 Needs the logged sensor temperature declared in the setup (``[log] extra = ["temp_C"]``). Matches the
-``temperature`` case of examples/foreign_rig_outside.py (its constant part, K (mean T - T0), is a
-plain offset: the library's ft_offset takes it).
+``temperature`` case of examples/foreign_rig_outside.py: the offset is zero at power-up (the first
+sample) and follows the temperature's change since then.
 """
 import numpy as np
 
@@ -16,4 +16,4 @@ from kinadapt_nn.diagnostics import effect
 def temperature_bias(s):
     """(n, 6, 6): the change of s.wrench per unit of each parameter."""
     temp = np.asarray(s.extra["temp_C"], dtype=float)
-    return (temp - temp.mean())[:, None, None] * np.eye(6)[None, :, :]
+    return (temp - temp[0])[:, None, None] * np.eye(6)[None, :, :]  # zero at the first sample (power-up)

@@ -323,9 +323,12 @@ def cmd_diagnose_setup(args: argparse.Namespace) -> int:
 
     progress(f"reading {args.log}")
     log = read_log(Path(args.log), setup)
-    res = diagnose(log, setup, list(args.add or []), progress=progress)
+    res = diagnose(log, setup, list(args.add or []), progress=progress, effects_files=list(args.effects or []))
     progress("writing figures")
+    files = res.hint_files or {}
     with staged_output(out, args.overwrite) as stage:
+        for name, text in files.items():
+            (stage / name).write_text(text)
         (stage / "setup.toml").write_text(setup_to_toml(setup))
         write_json(stage / "diagnosis.json", {"format": "kinadapt-diagnosis", "version": 3, "kind": "user_log",
                                                "source": log.source, "setup_file": str(args.setup),
@@ -338,7 +341,7 @@ def cmd_diagnose_setup(args: argparse.Namespace) -> int:
         for w in res.report["warnings"]:
             print(f"kinadapt: warning: {w}", file=sys.stderr)
         print(res.report["summary"])
-        print(f"wrote {out}/ (diagnosis.json, setup.toml, residual.png, effects.png)")
+        print(f"wrote {out}/ (diagnosis.json, setup.toml, residual.png, effects.png{''.join(', ' + f for f in files)})")
     return 0
 
 
@@ -359,11 +362,26 @@ def cmd_setup_template(args: argparse.Namespace) -> int:
     return 0
 
 
+def _builtin_names() -> list[str]:
+    from kinadapt_nn.diagnostics.builtin import BUILTINS
+
+    return list(BUILTINS)
+
+
+def _flat(v) -> list[str]:
+    """``--add A B --add C`` -> [A, B, C]."""
+    return [x for grp in (v or []) for x in (grp if isinstance(grp, list) else [grp])]
+
+
 def cmd_diagnose(args: argparse.Namespace) -> int:
     import numpy as np
 
+    args.add = _flat(args.add)
     if args.setup:
         return cmd_diagnose_setup(args)
+    if args.effects:
+        raise KinadaptError("--effects is for a user's log (with --setup); this package's own runs use the built-in "
+                            "library")
 
     from kinadapt_nn.config import config_to_toml, load_config
     from kinadapt_nn.diagnostics.report import residual_figure, write_tb
@@ -525,10 +543,14 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--config", help="the known model (default: the run's config.toml, else built-in defaults)")
     dg.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a model key")
     dg.add_argument("--theta", help="offset estimate x,y,z [m] to evaluate (default: the run's final estimate)")
-    dg.add_argument("--add", action="append", metavar="EFFECT",
-                    help="refit with this library effect added and report the residual before/after (repeatable); "
-                    "with --setup: tool_gravity, ft_bias_drift, ft_frame_rotation, encoder_offset, tool_tilt, "
-                    "ft_offset; own runs also contact_stiffness, contact_friction_couple, grasp_compliance")
+    dg.add_argument("--add", action="append", nargs="+", metavar="EFFECT",
+                    help="refit with these effects added and report the residual before/after (--add A B, or "
+                    "repeated); with --setup: the built-ins (" + ", ".join(_builtin_names()) + ") and your own "
+                    "(--effects); own runs also contact_stiffness, contact_friction_couple, grasp_compliance")
+    dg.add_argument("--effects", action="append", metavar="FILE.py",
+                    help="with --setup: a Python file of your own effects (@effect from kinadapt_nn.diagnostics; "
+                    "docs/missing_physics.md); judged and --add-able like the built-ins (repeatable). An effects "
+                    "file is code that runs, like a test file")
     dg.add_argument("--rerun", action="store_true",
                     help="simulated runs: repeat the online run with the --add effects in the model (model.effects), "
                          "written to OUT/rerun/ with the same TensorBoard tags")

@@ -344,17 +344,24 @@ def _fitted(shape: str, names, units, p, sd, rel, cols, cc: CompCfg) -> dict:
 
 
 def assess(s, des: sel.Design, rm, result, cache: dict, sc: sel.SelCfg, rc, hints: bool = True,
-           cc: CompCfg = CompCfg()) -> dict:
-    """``model_complete`` and the ``unexplained`` section (with ``hints`` when incomplete)."""
+           cc: CompCfg = CompCfg(), source: str = "the log") -> tuple[dict, dict[str, str]]:
+    """``model_complete`` and the ``unexplained`` section (with ``hints`` when incomplete), and
+    the hints' effect files ``{file name: Python source}``."""
+    from kinadapt_nn.diagnostics.hintfiles import effect_file, public
+
     dt = float(np.median(np.diff(s.t)))
     from kinadapt_nn.diagnostics.userlog import noise_sigma
 
     un = unexplained(des, result.heldout, rm, noise_sigma(s.wrench, rc), s.setup, dt, rc.stride_s, cc)
     complete = un.pop("complete")
     un["hints"] = []
+    files: dict[str, str] = {}
     if not complete and hints:
-        un["hints"] = globals()["hints"](s, des, rm, result, cache, sc, cc)
-    return {"model_complete": bool(complete), "unexplained": un}
+        for h in globals()["hints"](s, des, rm, result, cache, sc, cc):
+            name, text = effect_file(h, source)
+            files[name] = text
+            un["hints"].append({**public(h), "effect_file": name})
+    return {"model_complete": bool(complete), "unexplained": un}, files
 
 
 def caveat_present(report: dict) -> None:

@@ -221,6 +221,7 @@ class Selection(NamedTuple):
     heldout: np.ndarray | None = None  #: (R,) held-out residual rows of the final model (each block predicted
     #: by the fit on the other blocks)
     final_idx: np.ndarray | None = None  #: the final model's columns in ``Stats`` order (nuisance first)
+    below_relevant: list | None = None  #: effects significant but below their relevant size (in ``heldout``'s model)
 
 
 def select(des: Design, rc: SelCfg = SelCfg(), plausible: Callable[[str, np.ndarray], str | None] | None = None,
@@ -291,6 +292,7 @@ def select(des: Design, rc: SelCfg = SelCfg(), plausible: Callable[[str, np.ndar
         selected.append((best, t.cols))
         sse_sel = t.sse
         rounds += 1
+    small = _below_relevant(st, des, names, selected, sse_sel, base, rc)
     # joint re-estimate of everything selected
     sel_idx = np.concatenate([base, *[st.idx[s][c] for s, c in selected]]) if selected else base
     sse_fin, reps, p_all = st.cv(sel_idx, rc.ridge)
@@ -355,6 +357,10 @@ def select(des: Design, rc: SelCfg = SelCfg(), plausible: Callable[[str, np.ndar
             reason = "its confidence interval crosses the relevant size: not excited enough to rule out"
         else:
             verdict = "absent"
+        if n in small and verdict != "present":
+            e["below_relevant"] = True
+            reason = ("significant, but its estimate stays below the relevant size" if verdict == "cannot_decide"
+                      else reason)
         e["verdict"], e["reason"] = verdict, reason
         e["significant"] = verdict == "present"
         e["selected_round"] = next((r for r, (s, _) in enumerate(selected) if s == n), None)
@@ -369,8 +375,36 @@ def select(des: Design, rc: SelCfg = SelCfg(), plausible: Callable[[str, np.ndar
     order = {"present": 0, "cannot_decide": 1, "absent": 2}
     entries.sort(key=lambda e: (e["selected_round"] is None, e["selected_round"] or 0, order[e["verdict"]],
                                 -e["explained_fraction"]))
-    return Selection(entries, present, sse_total, float(sse_fin.sum()), nuis, heldout_residual(st, des, sel_idx, rc),
-                     sel_idx)
+    small_idx = np.concatenate([sel_idx, *[st.idx[s][c] for s, c in small.items()]]) if small else sel_idx
+    return Selection(entries, present, sse_total, float(sse_fin.sum()), nuis, heldout_residual(st, des, small_idx, rc),
+                     sel_idx, list(small))
+
+
+def _below_relevant(st: Stats, des: Design, names: list[str], selected: list, sse_sel: np.ndarray, base: np.ndarray,
+                    rc: SelCfg) -> dict[str, list[int]]:
+    """Forward selection continued past the final model with the relevant-size requirement
+    dropped: library effects that are significant and explain ``min_explained`` but whose
+    estimate stays below the relevant size. They are not findings, but the library explains
+    them, so the completeness verdict judges the residual with them in the model."""
+    from scipy.stats import false_discovery_control
+
+    chosen = {s_: c for s_, c in selected}
+    small: dict[str, list[int]] = {}
+    while True:
+        cand = [n for n in names if n not in chosen and n not in small]
+        if not cand:
+            break
+        cur = np.concatenate([base, *[st.idx[s_][c] for s_, c in {**chosen, **small}.items()]])
+        tests = {n: _test(st, des, n, cur, sse_sel, rc) for n in cand}
+        padj = false_discovery_control([tests[n].p_value for n in cand], method="bh")
+        rest = float(sse_sel.sum()) or 1e-300
+        ok = [n for n, pa in zip(cand, padj) if pa < rc.alpha and tests[n].gain.sum() / rest >= rc.min_explained]
+        if not ok:
+            break
+        best = max(ok, key=lambda n: tests[n].gain.sum())
+        small[best] = tests[best].cols
+        sse_sel = tests[best].sse
+    return small
 
 
 def equivalence(st: Stats, des: Design, name: str, others: np.ndarray, sse_fin: np.ndarray, rc: SelCfg) -> dict:

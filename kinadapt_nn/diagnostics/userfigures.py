@@ -40,16 +40,16 @@ def _mvm_fig(res, setup):
     from kinadapt_nn.figures import set_robust_ylim
 
     plt = _plt()
-    prep = res.prep
-    t = prep.t_s - prep.t_s[0]
+    sig = res.signals
+    t = sig.t - sig.t[0]
     fig, ax = plt.subplots(2, 3, figsize=(15, 7.5), sharex=True, constrained_layout=True)
     names = ("F_x", "F_y", "F_z", "M_x", "M_y", "M_z")
     for i, a in enumerate(ax.ravel()):
         unit = "N" if i < 3 else "N m"
         _shade(a, t, res.contact)
-        a.plot(t, prep.r[:, i], lw=0.6, color="0.3", label="measured")
-        a.plot(t, prep.w_nom[:, i], lw=1.0, color="C0", label="declared tool (model)")
-        set_robust_ylim(a, t, [prep.r[:, i], prep.w_nom[:, i]], unit=unit)
+        a.plot(t, sig.wrench[:, i], lw=0.6, color="0.3", label="measured")
+        a.plot(t, sig.w_nom[:, i], lw=1.0, color="C0", label="declared tool (model)")
+        set_robust_ylim(a, t, [sig.wrench[:, i], sig.w_nom[:, i]], unit=unit)
         a.set_ylabel(f"{names[i]} [{unit}]")
         a.set_title(names[i], fontsize=10)
         a.tick_params(labelbottom=True)

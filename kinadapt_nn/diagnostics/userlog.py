@@ -204,6 +204,7 @@ class Result(NamedTuple):
     contact: np.ndarray
     heldout: np.ndarray | None = None  #: (R,) held-out residual rows of the final model
     lib: dict | None = None  #: the effect library used (name -> Effect)
+    hint_files: dict | None = None  #: {file name: Python source} of the hints' effect files
 
 
 NOT_JUDGED = ("contact-model effect: not judged without a declared contact geometry (a tip contact obeys the same "
@@ -322,7 +323,9 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
                    "nuisance": "constant offset (tared log)" if s.setup.log.tared else "none"},
     }
     progress("completeness of the final model" + (" and hints" if hints else ""))
-    report.update(cp.assess(s, des, rm, result, cache, sc, rc, hints=hints and check["ok"]))
+    comp, files = cp.assess(s, des, rm, result, cache, sc, rc, hints=hints and check["ok"],
+                            source=str(getattr(log, "source", "the log")))
+    report.update(comp)
     cp.caveat_present(report)
     before = after = None
     if add:
@@ -342,7 +345,7 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
                 report["warnings"].append(f"--add {n}: {entry['warning']}")
             report["added"][n] = entry
     report["summary"] = summary_text(report)
-    return Result(report, des, before, after, s, s.contact, result.heldout, lib)
+    return Result(report, des, before, after, s, s.contact, result.heldout, lib, files)
 
 
 def _rank(s: sg.LogSignals, lib: dict, names: list[str], sigma: np.ndarray, rc: RowCfg, sc: sel.SelCfg,
@@ -405,15 +408,10 @@ def completeness_text(rep: dict) -> str:
     hs = un.get("hints", [])
     if hs:
         txt += " It looks like " + "; ".join(f"{h['shape']} ({h['words'].split(':')[0]}; explains "
-                                             f"{100 * h['explains']:.0f}% of it held-out, see hint_"
-                                             f"{hint_file_stem(h['shape'])}.py)" for h in hs[:3]) + "."
+                                             f"{100 * h['explains']:.0f}% of it held-out, see {h['effect_file']})" for h in hs[:3]) + "."
     else:
         txt += " No shape of the hint dictionary explains it."
     return txt
-
-
-def hint_file_stem(shape: str) -> str:
-    return "".join(ch if ch.isalnum() or ch == "_" else "_" for ch in shape)
 
 
 def summary_text(rep: dict) -> str:

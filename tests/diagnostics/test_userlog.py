@@ -121,20 +121,18 @@ def test_nominal_model_agrees_with_mujoco_inverse_dynamics(rig, cases):
 def test_encoder_columns_identities(cases):
     """Joint 1 is invisible to a gravity/inertia model (rotation about the vertical); every other
     column is the central difference of the whole model (checked against a one-sided one)."""
-    from kinadapt_nn.diagnostics.userlog import RowCfg, detect_contact, prepare, prepared
+    from kinadapt_nn.diagnostics.builtin import BUILTINS
+    from kinadapt_nn.diagnostics.signals import from_log
 
     d, _, _ = cases["none"]
     setup = load_setup(d / "setup_csv.toml")
-    log = read_log(d / "log.csv.gz", setup)
-    prep = prepare(log, setup, RowCfg(), lambda m: None)
-    contact, off = detect_contact(prep.r - prep.w_nom, prep.t_s, setup, RowCfg())
-    pp = prepared(prep, setup, contact, off)
-    C = ph.SPECS["encoder_offset"].columns(pp)
+    s = from_log(read_log(d / "log.csv.gz", setup), setup)
+    C = BUILTINS["encoder_offset"].evaluate(s)
     assert np.abs(C[:, :, 0]).max() < 1e-6 * np.abs(C[:, :, 3]).max()
     m, mc, I_O = ph.nominal_inertials(setup)
     dq = np.zeros(7)
     dq[3] = 1e-4
-    fd = (ph.tool_wrench(pp.arm.series(pp.q_rad + dq, pp.qdot_rad_s, pp.t_s), m, mc, I_O) - pp.w_nom) / 1e-4
+    fd = (ph.tool_wrench(s.arm.series(s.q + dq, s.qdot, s.t), m, mc, I_O) - s.w_nom) / 1e-4
     np.testing.assert_allclose(C[:, :, 3], fd, atol=1e-3 * np.abs(fd).max())
 
 
