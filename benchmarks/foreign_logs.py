@@ -92,19 +92,21 @@ def run(rigs: list[str], out: Path) -> dict:
                                     "ties": {e["effect"]: e["indistinguishable_from"] for e in rep["ranking"]
                                              if e.get("indistinguishable_from")},
                                     "param_error": _errors(tr, rep) if truth.get("detectable", True) else {},
-                                    "wall_s": wall,
+                                    "wall_s": wall, "model_complete": rep.get("model_complete"),
                                     "warnings": rep.get("warnings", [])})
                     print(f"{rig_name} {case:24s} {fmt:8s} present {results[-1]['present']} "
                           f"errors {results[-1]['param_error']} {wall:.1f} s", flush=True)
     ok = [r for r in results if "error" not in r]
     right = [r for r in ok if r["present"] == (sorted(r["truth"]) if r["detectable"] else [])]
+    complete = [r for r in ok if r.get("model_complete")]
     summary = {"logs": len(results), "right_present_set": len(right), "failed_runs": len(results) - len(ok),
+               "model_complete": len(complete),
                "wall_s_max": max((r["wall_s"] for r in ok), default=None),
                "wall_s_median": float(np.median([r["wall_s"] for r in ok])) if ok else None}
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps({"summary": summary, "results": results}, indent=1))
-    lines = ["| rig | case | format | " + " | ".join(EFFECTS) + " | worst param error | wall [s] |",
-             "|---|---|---|" + "---|" * len(EFFECTS) + "---|---|"]
+    lines = ["| rig | case | format | " + " | ".join(EFFECTS) + " | model complete | worst param error | wall [s] |",
+             "|---|---|---|" + "---|" * len(EFFECTS) + "---|---|---|"]
     for r in results:
         if "error" in r:
             lines.append(f"| {r['rig']} | {r['case']} | {r['format']} | error: {r['error']} |")
@@ -112,9 +114,11 @@ def run(rigs: list[str], out: Path) -> dict:
         errs = ", ".join(f"{k} {v:.2g}{' deg' if k == 'ft_frame_rotation' else ''}" for k, v in r["param_error"].items()
                          if v is not None)
         lines.append(f"| {r['rig']} | {r['case']} | {r['format']} | "
-                     + " | ".join(SHORT[r["verdicts"].get(e)] for e in EFFECTS) + f" | {errs or '-'} | {r['wall_s']:.1f} |")
+                     + " | ".join(SHORT[r["verdicts"].get(e)] for e in EFFECTS)
+                     + f" | {'yes' if r.get('model_complete') else 'NO'} | {errs or '-'} | {r['wall_s']:.1f} |")
     lines += ["", "P present, ? cannot_decide, . absent, - not judged for this set-up.",
-              f"Right set of present effects: {summary['right_present_set']}/{summary['logs']}; "
+              f"Right set of present effects: {summary['right_present_set']}/{summary['logs']}; model complete (no "
+              f"false alarm): {summary['model_complete']}/{summary['logs']}; "
               f"wall time per log (fresh process) median {summary['wall_s_median']:.1f} s, max {summary['wall_s_max']:.1f} s."]
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

@@ -222,164 +222,126 @@ def calibrated_residual(des: Design, calib: dict[str, list[float]] | None) -> np
     return y
 
 
-def _cv(X: np.ndarray, scale: np.ndarray, des: Design, y: np.ndarray, rc: RankCfg):
-    """Leave-one-block-out fits of ``X`` (R, k) (k may be 0): (held-out SSE per block, the
-    leave-one-block-out estimates (B, k), the full-data estimate (k,))."""
-    sse, reps = [], []
-    for b in range(des.n_blocks):
-        m = des.block == b
-        if not m.any():
-            continue
-        if X.shape[1]:
-            p_b = _solve(X[~m], y[~m], scale, rc.ridge)
-            e = y[m] - X[m] @ p_b
-        else:
-            p_b, e = np.zeros(0), y[m]
-        reps.append(p_b)
-        sse.append(float(e @ e))
-    p = _solve(X, y, scale, rc.ridge) if X.shape[1] else np.zeros(0)
-    return np.array(sse), np.array(reps).reshape(len(reps), X.shape[1]), p
+#: [-] relative Tikhonov term of the calibration's joint fit of the whole library (default-magnitude
+#: scaled columns): the library's columns overlap (e.g. contact stiffness and grasp compliance), and
+#: the calibration only has to reproduce the prediction, not to separate them
+CALIBRATION_RIDGE = 1e-4
+
+#: Relevant size of each parameter (``selection``: the smallest change from the calibration worth
+#: reporting, in the parameter's units; an estimate must reach it to be selected, and "absent"
+#: means every parameter's confidence interval lies inside +- it). Where an effect is also built
+#: in for a user's log (``kinadapt_nn.diagnostics.builtin``) the size is the same; the injected
+#: default magnitudes (``effects`` config, ``LIBRARY[n].default``) are 1.5-50 times these.
+RELEVANT: dict[str, tuple[float, ...]] = {
+    # 30 g of payload; 30 g at 50 mm of first moment (builtin.tool_gravity)
+    "tool_gravity": (0.03, 0.0015, 0.0015, 0.0015),
+    # 0.03 N/s, 0.003 N m/s: ~1 N / 0.1 N m over a 30 s run (builtin.ft_bias_drift)
+    "ft_bias_drift": (0.03, 0.03, 0.03, 0.003, 0.003, 0.003),
+    # 1 deg of sensor mounting rotation: 1.7 % of a force leaks into the other axes (builtin.ft_frame_rotation)
+    "ft_frame_rotation": (np.deg2rad(1.0),) * 3,
+    # 1 deg of tool tilt in the grasp: 2 mm of tip at a 0.1 m tool (builtin.tool_tilt)
+    "tool_tilt": (np.deg2rad(1.0),) * 2,
+    # 10 % of the nominal contact stiffness
+    "contact_stiffness": (0.1,),
+    # 1 mm of torsional friction radius: 0.01 N m of couple per 10 N of normal force, the size of
+    # the moment noise (the default couple is 5 mm)
+    "contact_friction_couple": (1e-3,),
+    # 1 mrad/(N m): a grasp softer than 1000 N m/rad (the default is 200 N m/rad)
+    "grasp_compliance": (1e-3,),
+    # 0.25 deg of joint zero: ~2 mm at the tip of a 0.5 m arm, more than a peg-hole clearance. Half of
+    # the user path's 0.5 deg (builtin.encoder_offset): there the log is a robot's, here the
+    # injected default offset is 0.5 deg and the estimate must reach the relevant size to be selected
+    "encoder_offset": (np.deg2rad(0.25),) * 6,
+}
 
 
-def _choices(name: str, k: int) -> list[list[int]]:
-    return [[j] for j in range(k)] if LIBRARY[name].one_of else [list(range(k))]
+def relevant_size(name: str) -> np.ndarray:
+    """(k,) relevant size of each parameter of library effect ``name`` (``RELEVANT``; an effect not
+    listed there: 20 % of its default magnitude, a zero default entry taking the effect's largest)."""
+    k = LIBRARY[name].k
+    if name in RELEVANT:
+        r = np.asarray(RELEVANT[name], dtype=float)
+        if r.shape != (k,) or not np.all(r > 0):
+            raise KinadaptError(f"ranking.RELEVANT['{name}'] must be {k} positive sizes")
+        return r
+    d = 0.2 * np.abs(LIBRARY[name].default(EffectsCfg()))
+    if not d.any():
+        raise KinadaptError(f"library effect '{name}' has no relevant size (add it to ranking.RELEVANT)")
+    return np.where(d > 0, d, d.max())
 
 
-@dataclass
-class EffectTest:
-    """One effect tested given a selected set (``_test_given``); R rows, B blocks, k columns used."""
-
-    cols: list[int]  #: the effect's columns used (all, or the best one for a "one of" effect)
-    gain: np.ndarray  #: (B,) held-out SSE reduction over the selected model, per block
-    sse: np.ndarray  #: (B,) held-out SSE of the selected model plus this effect
-    reps: np.ndarray  #: (B, k) leave-one-block-out estimates of this effect's parameters
-    p: np.ndarray  #: (k,) full-data estimate (joint with the selected effects)
-    cov: np.ndarray  #: (k, k) block-jackknife covariance of ``p``
-    p_value: float  #: Wald test of p = 0 (Bonferroni over a "one of" choice)
-    p_adjusted: float = 1.0  #: Benjamini-Hochberg across the round
-    selected_round: int | None = None  #: the forward-selection round that selected it
+def selection_design(des: Design, y: np.ndarray) -> sel.Design:
+    """The rows of ``des`` for ``selection``: ``y`` (the calibrated residual) against the effect
+    columns (use a ``calibrated_design``), no nuisance columns (anchoring already removed the
+    level at the start of each window), each parameter scaled by its ``relevant_size``."""
+    names = list(des.X)
+    return sel.Design(y=y, X=des.X, Z=np.zeros((len(y), 0)), block=des.block, n_blocks=des.n_blocks,
+                      scale={n: relevant_size(n) for n in names}, one_of={n: LIBRARY[n].one_of for n in names},
+                      W=des.W, channel=des.channel, channel_names=tuple(LEVEL_CHANNELS), t_s=des.t_s)
 
 
-def _test_given(name: str, sel: list[tuple[str, list[int]]], des: Design, y: np.ndarray, rc: RankCfg,
-                sse_sel: np.ndarray) -> EffectTest:
-    """Effect ``name`` given the already selected effects ``sel``: held-out SSE reduction over
-    the selected model, Wald test of its parameters in the joint fit, its estimate."""
-    X_sel = [des.X[n][:, c] for n, c in sel]
-    sc_sel = [_scale(n, des.X[n])[c] for n, c in sel]
-    k_sel = sum(len(c) for _, c in sel)
-    best = None
-    choices = _choices(name, des.X[name].shape[1])
-    for cols in choices:
-        X = np.concatenate([*X_sel, des.X[name][:, cols]], axis=1)  # (R, k_sel + k)
-        sc = np.concatenate([*sc_sel, _scale(name, des.X[name])[cols]])
-        sse, reps, p = _cv(X, sc, des, y, rc)
-        gain = sse_sel - sse
-        if best is None or gain.sum() > best[1].sum():
-            best = (cols, gain, sse, reps[:, k_sel:], p[k_sel:])
-    cols, gain, sse, reps, p = best
-    cov = jackknife_cov(reps)
-    pval = min(1.0, wald_pvalue(p, cov, len(reps)) * len(choices))  # Bonferroni for the choice
-    return EffectTest(cols, gain, sse, reps, p, cov, pval)
+def _hints(names: list[str]) -> dict:
+    return {**{n: LIBRARY[n].excite_hint for n in names}, "_params": {n: LIBRARY[n].params for n in names}}
+
+
+def _floats(a) -> list[float]:
+    return [float(v) for v in np.asarray(a, dtype=float).ravel()]
 
 
 def rank(des: Design, y: np.ndarray, rc: RankCfg, calib: dict | None = None) -> list[dict]:
-    """Forward selection over the library (module docstring), then every effect's entry.
+    """Forward selection over the library with verdicts: ``selection.select`` on
+    ``selection_design(calibrated_design(des, calib), y)`` (``y`` = ``calibrated_residual``),
+    ``plausible`` = ``implausible_own`` of the total (calibration + change).
 
-    Round r tests every unselected effect *given* the selected ones (held-out SSE reduction over
-    the selected model; Wald test of its parameters in the joint fit), corrects the round's
-    p-values together (Benjamini-Hochberg), and selects the best one if it is significant
-    (adjusted p < alpha) and explains >= min_explained of what the selected model leaves
-    held-out; else it stops.
-    Entries: ``explained_fraction`` (held-out, given the effects selected before it),
+    Entries (one per effect): ``effect``, ``verdict`` (present / cannot_decide / absent) and
+    ``reason``, ``explained_fraction`` (held-out, given the effects selected before it),
     ``explained_fraction_alone``, ``p_value``/``p_adjusted`` (its last test), ``significant``
-    (selected), ``estimate`` (physical, +- block-jackknife sd, from its last test: deviations from
-    the calibration), ``excitation``. Selected effects come first, in selection order, then the
-    rest by explained fraction."""
-    from scipy.stats import false_discovery_control
-
+    (verdict present), ``selected``/``selected_round``, ``estimate`` (physical, +- sd: the change
+    from the calibration; jointly re-estimated for a selected effect), ``columns_used`` (parameter
+    names), ``estimate_params`` (names, units, value, sd, calibration), ``excitation`` (ratio,
+    enough, weak_parameters, and ``to_excite`` when not enough), ``equivalence`` (an unselected
+    effect's intervals and relevant sizes), ``indistinguishable_from``/``to_separate`` on a
+    near-tie, ``below_relevant`` when significant but small. Selected effects come first, in
+    selection order, then the rest by explained fraction."""
     des = calibrated_design(des, calib)  # idempotent: the encoder columns of the calibrated model
     names = list(des.X)
-    sse_tot = float(y @ y) or 1e-300
-    sse0, _, _ = _cv(np.zeros((len(y), 0)), np.zeros(0), des, y, rc)
-    alone = {n: _test_given(n, [], des, y, rc, sse0) for n in names}
-    last = dict(alone)
-    selected: list[tuple[str, list[int]]] = []
-    ties: dict[str, set[str]] = {}
-    sse_sel = sse0
-    while len(selected) < len(names):
-        cand = [n for n in names if n not in {s for s, _ in selected}]
-        tests = alone if not selected else {n: _test_given(n, selected, des, y, rc, sse_sel) for n in cand}
-        tests = {n: tests[n] for n in cand}
-        padj = false_discovery_control([tests[n].p_value for n in cand], method="bh")
-        for n, pa in zip(cand, padj):
-            tests[n].p_adjusted = float(pa)
-            last[n] = tests[n]
-        best = max(cand, key=lambda n: tests[n].gain.sum())
-        t = tests[best]
-        if not (t.p_adjusted < rc.alpha and t.gain.sum() / float(sse_sel.sum() or 1e-300) >= rc.min_explained):
-            break
-        t.selected_round = len(selected)
-        # near-ties: a rival that explains nearly as much alone and nothing more once the best is in
-        # the model, and is not beaten block by block (one-sided paired t over the blocks)
-        for n in cand:
-            if n == best or tests[n].gain.sum() < TIE_RATIO * t.gain.sum() or tests[n].gain.sum() <= 0:
-                continue
-            given = _test_given(n, [*selected, (best, t.cols)], des, y, rc, t.sse)
-            if given.gain.sum() / (float(t.sse.sum()) or 1e-300) < rc.min_explained and paired_p(t.sse, tests[n].sse) > 0.01:
-                ties.setdefault(best, set()).add(n)
-                ties.setdefault(n, set()).add(best)
-        selected.append((best, t.cols))
-        sse_sel = t.sse
-    sse_ref = float(sse_sel.sum()) or 1e-300  # what the selected model leaves held-out
+    cal = {n: np.asarray((calib or {}).get(n, [0.0] * LIBRARY[n].k), dtype=float) for n in names}
+    result = sel.select(selection_design(des, y), rc.selection,
+                        plausible=lambda n, p: implausible_own(n, p, cal[n]), hints=_hints(names))
     res = []
-    for n in names:
-        t = last[n]
-        k = des.X[n].shape[1]
-        cols = t.cols
-        p_full, sd = np.zeros(k), np.zeros(k)
-        p_full[cols] = t.p
-        sd[cols] = np.sqrt(np.clip(np.diag(t.cov), 0.0, None))
-        d = np.abs(LIBRARY[n].default(EffectsCfg()))
-        dc = np.full(len(cols), d.max()) if LIBRARY[n].one_of else d[cols]
-        Xd = des.X[n][:, cols] * np.where(dc != 0, dc, _scale(n, des.X[n])[cols])
-        lam = np.linalg.eigvalsh(Xd.T @ Xd)
-        exc = float(lam[0] / sse_ref)
-        impossible = implausible_own(n, p_full, np.asarray((calib or {}).get(n, [0.0] * k), dtype=float))
-        if t.selected_round is not None:
-            verdict = "cannot_decide" if (impossible or n in ties) else "present"
-        else:
-            verdict = "cannot_decide" if (n in ties or exc < rc.min_excitation) else "absent"
-        res.append({
+    for e in result.entries:
+        n = e["effect"]
+        lib = LIBRARY[n]
+        p, sd = np.asarray(e["params"], dtype=float), np.asarray(e["sd"], dtype=float)
+        exc = e["excitation"]
+        out = {
             "effect": n,
-            "verdict": verdict,
-            **({"reason": f"physically impossible estimate: {impossible}"} if impossible and t.selected_round is not None
-               else {"reason": "a near-tie: another explanation fits the data as well",
-                     "indistinguishable_from": sorted(ties[n]),
-                     "to_separate": " / ".join(LIBRARY[x].excite_hint for x in [n, *sorted(ties[n])])} if n in ties
-               else {"reason": "not excited enough to rule out"} if verdict == "cannot_decide" else {}),
-            "explained_fraction": float(t.gain.sum() / sse_tot),
-            "explained_fraction_alone": float(alone[n].gain.sum() / sse_tot),
-            "explained_fraction_of_remaining": float(t.gain.sum() / (float(t.sse.sum() + t.gain.sum()) or 1e-300)),
-            "p_value": t.p_value,
-            "p_adjusted": t.p_adjusted,
-            "significant": verdict == "present",
-            "selected": t.selected_round is not None,
-            "selected_round": t.selected_round,
-            "estimate": physical_report(n, p_full, sd),
-            "columns_used": [LIBRARY[n].params[c] for c in cols],
-            "estimate_params": {"names": list(LIBRARY[n].params), "units": list(LIBRARY[n].units),
-                                "value": [float(v) for v in p_full], "sd": [float(v) for v in sd],
-                                "calibration": list((calib or {}).get(n, [0.0] * k))},
-            "excitation": {"ratio": exc, "enough": bool(exc >= rc.min_excitation),
-                           "gram_eigenvalues_rel": [float(v / sse_ref) for v in lam],
-                           **({} if exc >= rc.min_excitation else {"to_excite": LIBRARY[n].excite_hint})},
-        })
+            "verdict": e["verdict"],
+            **({"reason": e["reason"]} if e.get("reason") else {}),
+            **({k: e[k] for k in ("indistinguishable_from", "to_separate") if k in e}),
+            "explained_fraction": e["explained_fraction"],
+            "explained_fraction_alone": e["explained_fraction_alone"],
+            "p_value": e["p_value"],
+            "p_adjusted": e["p_adjusted"],
+            "significant": e["significant"],
+            "selected": e["selected_round"] is not None,
+            "selected_round": e["selected_round"],
+            **({"below_relevant": True} if e.get("below_relevant") else {}),
+            "estimate": physical_report(n, p, sd),
+            "columns_used": [lib.params[c] for c in e["columns_used"]],
+            "estimate_params": {"names": list(lib.params), "units": list(lib.units), "value": _floats(p),
+                                "sd": _floats(sd), "calibration": _floats(cal[n])},
+            "excitation": {"ratio": float(exc["ratio"]), "enough": bool(exc["enough"]),
+                           "weak_parameters": [lib.params[j] for j in exc["weak_parameters"]],
+                           **({} if exc["enough"] else {"to_excite": lib.excite_hint})},
+        }
+        if "equivalence" in e:
+            q = e["equivalence"]
+            out["equivalence"] = {"ci_low": _floats(q["ci_low"]), "ci_high": _floats(q["ci_high"]),
+                                  "relevant": _floats(q["relevant"]), "level": float(q["level"])}
+        res.append(out)
     res.sort(key=lambda r: (r["selected_round"] is None, r["selected_round"] or 0, -r["explained_fraction"]))
     return res
-
-
-#: a rival with this share of the best effect's held-out gain is checked for a near-tie
-TIE_RATIO = 0.8
 
 
 def implausible_own(name: str, p: np.ndarray, calib: np.ndarray) -> str | None:
@@ -401,17 +363,11 @@ def implausible_own(name: str, p: np.ndarray, calib: np.ndarray) -> str | None:
 
 
 def refit(des: Design, y: np.ndarray, names: list[str], rc: RankCfg) -> tuple[np.ndarray, dict]:
-    """Fit the named effects jointly on all rows (``--add``). -> (residual after, params per effect)."""
-    cols = {}
-    for n in names:  # a "one of" effect keeps its best single column
-        X = des.X[n]
-        if LIBRARY[n].one_of:
-            sc = _scale(n, X)
-            sse = [float(np.sum((y - X[:, [j]] @ _solve(X[:, [j]], y, sc[[j]], rc.ridge)) ** 2)) for j in range(X.shape[1])]
-            cols[n] = [int(np.argmin(sse))]
-        else:
-            cols[n] = list(range(X.shape[1]))
-    return _joint_fit(des, y, cols, rc.ridge)
+    """Fit the named effects jointly on all rows (``--add``; ``selection.refit``: a "one of" effect
+    keeps its best single column). ``des``: a ``calibrated_design``; ``y``: the calibrated residual.
+    -> (residual after (R,), {effect: full parameter vector (k,), the change from the calibration})."""
+    _, after, fitted = sel.refit(selection_design(des, y), list(names), rc.selection)
+    return after, {n: p for n, (_, p, _) in fitted.items()}
 
 
 def rms_by_channel(des: Design, e: np.ndarray) -> dict:

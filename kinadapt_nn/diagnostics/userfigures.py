@@ -28,7 +28,10 @@ def _shade(ax, t, mask) -> None:
 def model_vs_measurement(res, setup, path: Path) -> None:
     """Six panels (F x/y/z, M x/y/z, sensor frame, tool on sensor): the measured reading and the
     declared tool's prediction, contact shaded; robust y-limits (spikes beyond the 0.5-99.5 %
-    range clipped and marked)."""
+    range clipped and marked). Below them, what is unexplained, per phase (free-space force,
+    free-space moment, contact moment about the tip): the residual of the declared model (faint),
+    of the final model held-out or, with ``--add``, after the refit (solid), the relevant size
+    (dashed) and the spans the completeness verdict marks as unexplained (red)."""
     plt = _plt()
     fig = _mvm_fig(res, setup)
     fig.savefig(path, dpi=110)
@@ -42,8 +45,10 @@ def _mvm_fig(res, setup):
     plt = _plt()
     sig = res.signals
     t = sig.t - sig.t[0]
-    fig, ax = plt.subplots(2, 3, figsize=(15, 7.5), sharex=True, constrained_layout=True)
+    fig, ax_all = plt.subplots(3, 3, figsize=(15, 11), sharex=True, constrained_layout=True)
+    ax = ax_all[:2]
     names = ("F_x", "F_y", "F_z", "M_x", "M_y", "M_z")
+    _unexplained_row(ax_all[2], res, setup)
     for i, a in enumerate(ax.ravel()):
         unit = "N" if i < 3 else "N m"
         _shade(a, t, res.contact)
@@ -62,9 +67,53 @@ def _mvm_fig(res, setup):
         if clipped:  # the panel's own note: what lies beyond its axis
             a.legend(*zip(*clipped), fontsize=7, loc="upper left")
     fig.legend(list(shared.values()), list(shared), loc="outside lower center", ncol=len(shared), fontsize=9)
+    verdict = "the model explains the log" if res.report.get("model_complete", True) else \
+        "something the model does not contain is left (red spans)"
     fig.suptitle(f"wrench the tool exerts on the sensor (sensor frame) vs the declared tool "
-                 f"({setup.tool.mass_kg:g} kg); the log's convention: {setup.log.wrench_acts}")
+                 f"({setup.tool.mass_kg:g} kg); the log's convention: {setup.log.wrench_acts}\nbottom row: {verdict}")
     return fig
+
+
+def _unexplained_row(axes, res, setup) -> None:
+    """The bottom row of ``model_vs_measurement`` (its docstring)."""
+    from kinadapt_nn.figures import set_robust_ylim
+
+    des = res.design
+    before = des.y if res.before is None else res.before
+    if res.after is not None:
+        after, what = res.after, f"after adding {', '.join(res.report['added'])}"
+    else:
+        after, what = (res.heldout if res.heldout is not None else des.y), "final model (held-out)"
+    un = res.report.get("unexplained", {})
+    groups = (((0, 1, 2), "free space: force", "N", setup.analysis.relevant_force_N),
+              ((3, 4, 5), "free space: moment", "N m", setup.analysis.relevant_moment_Nm),
+              ((6, 7, 8), "contact: moment about the tip", "N m", setup.analysis.relevant_moment_Nm))
+    for a, (chans, title, unit, rel) in zip(axes, groups):
+        pooled = []
+        for c in chans:
+            m = des.channel == c
+            if not m.any():
+                continue
+            o = np.argsort(des.t_s[m])
+            t = des.t_s[m][o]
+            yb, ya = before[m][o] / des.W[m][o], after[m][o] / des.W[m][o]
+            line, = a.plot(t, yb, ".", ms=1.2, alpha=0.25)
+            a.plot(t, ya, ".", ms=1.5, color=line.get_color(), label=des.channel_names[c])
+            pooled += [yb, ya]
+            for w in un.get("channels", {}).get(des.channel_names[c], {}).get("spans_s", []):
+                a.axvspan(w[0], w[1], color="red", alpha=0.12, lw=0)
+        for sgn in (-1, 1):
+            a.axhline(sgn * rel, color="k", ls="--", lw=0.7)
+        if pooled:
+            set_robust_ylim(a, des.t_s, [np.concatenate(pooled)], unit=unit, headroom=0.3)
+        bad = [c for c in un.get("carried_by", []) if des.channel_names.index(c) in chans]
+        a.set_title(f"{title}: " + (f"UNEXPLAINED in {', '.join(bad)}" if bad else "explained"), fontsize=9,
+                    color="C3" if bad else "k")
+        a.set_ylabel(f"residual [{unit}]")
+        a.set_xlabel("time [s]")
+        if pooled:
+            a.legend(fontsize=7, ncol=3, loc="upper left", markerscale=5,
+                     title=f"faint: declared model; solid: {what}; dashed: relevant size", title_fontsize=6)
 
 
 def effects_figure(res, path: Path) -> None:
