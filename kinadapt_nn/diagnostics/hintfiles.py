@@ -22,6 +22,18 @@ from kinadapt_nn.diagnostics import effect
 '''
 
 
+def _fmt(v) -> str:
+    """A fitted entry for a person: numbers to 4 significant digits, ``value ± sd unit``."""
+    if isinstance(v, dict) and "value" in v:
+        val, sd = v["value"], v.get("sd")
+        num = (lambda x: f"{x:.4g}")
+        vs = "[" + ", ".join(num(x) for x in val) + "]" if isinstance(val, list) else num(val)
+        if sd is not None:
+            vs += " ± " + ("[" + ", ".join(num(x) for x in sd) + "]" if isinstance(sd, list) else num(sd))
+        return f"{vs} {v.get('unit', '')}".rstrip()
+    return str(v)
+
+
 def stem(shape: str) -> str:
     """A shape name as a file/function name part (``extra:temp_C`` -> ``extra_temp_C``)."""
     return "".join(ch if ch.isalnum() or ch == "_" else "_" for ch in shape)
@@ -54,7 +66,7 @@ def effect_file(h: dict, source: str) -> tuple[str, str]:
     shape = h["shape"]
     func = f"hint_{stem(shape)}"
     fname = f"{func}.py"
-    fitted = "\n".join(f"    {k}: {v}" for k, v in h["fitted"].items())
+    fitted = "\n".join(f"    {k}: {_fmt(v)}" for k, v in h["fitted"].items())
     head = _HEAD.format(shape=shape, words=h["words"], source=source, explains=100 * h["explains"], fitted=fitted,
                         fname=fname, func=func)
     k = len(h["_names"])

@@ -117,7 +117,7 @@ def analyse_effects(des: rk.Design, calib: dict | None, add: list[str], rc: rk.R
     ranking = rk.rank(des, y, rc, calib)
     out = {"ranking": ranking, "confusion": rk.confusion(des),
            "residual_level_rms": rk.rms_by_channel(des, y),
-           "method": {**rc._asdict(), "calibrated": calib is not None}}
+           "method": {**rc.as_dict(), "calibrated": calib is not None}}
     if add:
         e_after, params = rk.refit(des, y, add, rc)
         out["residual_rms_before"] = rk.rms_by_channel(des, y)

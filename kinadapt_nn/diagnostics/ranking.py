@@ -19,28 +19,19 @@ offset moves the model's q everywhere, the calibrated part included, so against 
 model the encoder-offset columns are ``C_enc_j + sum_e (dC_e/dq_j) p_e^base`` (``Design.dX_dq``,
 ``calibrated_design``; ``rank`` applies it).
 
-Criterion: block cross-validation over ``n_blocks`` contiguous time blocks (whole anchor
-windows, so a block's correlated residual stays together): fit on the other blocks, predict the
-held-out one. ``explained_fraction`` = sum of held-out SSE reductions / SSE of ``r'`` (negative
-when the columns only fit noise: extra columns are not free). Effects are selected forward
-(``rank``): each round tests the remaining effects given the selected ones, so an effect that
-only looks like the one already found is not reported as a second discovery, while two
-separable effects are both found. The
-estimate's change from the calibration is tested with its block-jackknife covariance (a
-Hotelling-type F test over the blocks, so the residual's correlation within a block is
-honoured), and the p-values of the whole library are corrected together (Benjamini-Hochberg,
-``scipy.stats.false_discovery_control``).
-``significant`` = adjusted p < ``alpha`` and explained_fraction >= ``min_explained``.
-Uncertainty: block jackknife over the leave-one-block-out fits. Excitation: the smallest
-eigenvalue of the effect's W-scaled Gram, with the parameters at their default magnitude,
-relative to the held-out SSE the selected model leaves (``excitation.ratio``): below ``min_excitation`` the data cannot
-decide about the effect's weakest direction, and the hint says which motion would excite it.
+Selection: the rows ``y'`` and the (calibrated) columns are handed to ``selection.select``, the
+forward selection a user's log gets too (block cross-validation over ``n_blocks`` contiguous
+blocks of whole anchor windows, Hotelling-type tests with the block-jackknife covariance,
+Benjamini-Hochberg, near-ties, verdicts present / cannot_decide / absent with the equivalence
+test). Each parameter is scaled by its relevant size (``RELEVANT``): the smallest change from the
+calibration worth reporting; "absent" means every parameter's interval lies inside +- it. An
+estimate is physically impossible (``implausible_own``) on the total, calibration + change.
+``rank`` returns the entries in this package's format (``library.analyse_effects``).
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
 
@@ -51,7 +42,7 @@ from kinadapt_nn.diagnostics.effects import headline_errors
 from kinadapt_nn.features.effect_library import (AXIAL, LEVEL_CHANNELS, LIBRARY, Signals, calibration_derivative,
                                              cumulative, encoder_derivatives, moving_average,
                                              nominal_parts, physical_report)
-from kinadapt_nn.diagnostics.selection import jackknife_cov, paired_p, wald_pvalue
+from kinadapt_nn.diagnostics import selection as sel
 from kinadapt_nn.errors import KinadaptError
 
 ENCODER = "encoder_offset"
@@ -59,15 +50,19 @@ DEFAULT_CALIBRATION = Path(__file__).resolve().parents[2] / "models" / "nominal_
 
 
 class RankCfg(NamedTuple):
+    """The rows of the regression (``build_design``) and the selection's settings (``selection.SelCfg``,
+    the same forward selection as a user's log)."""
+
     anchor_s: float = 1.0  #: [s] anchor window of the increments
     stride_s: float = 0.005  #: [s] row spacing
     n_blocks: int = 40  #: CV blocks at most (contiguous, whole anchor windows)
-    alpha: float = 0.01  #: false-discovery level of the library test
-    min_explained: float = 0.05  #: [-] smallest held-out explained fraction called an effect
-    min_excitation: float = 0.05  #: [-] excitation_ratio below which the data cannot decide
-    ridge: float = 1e-8  #: [-] relative Tikhonov term (default-magnitude scaled columns)
     guard_s: float = 0.3  #: [s] rows this close to a contact-gate change are left out
     smooth_s: float = 0.02  #: [s] centred moving average applied to the levels AND the columns (same linear operator)
+    selection: sel.SelCfg = sel.SelCfg()  #: alpha, min_explained, near-tie and equivalence settings, ridge
+
+    def as_dict(self) -> dict:
+        """JSON-ready: the row settings and ``selection`` as a dict."""
+        return {**self._asdict(), "selection": self.selection._asdict()}
 
 
 class Design(NamedTuple):
@@ -151,39 +146,35 @@ def build_design(sig: Signals, W6: np.ndarray, rc: RankCfg, names: list[str] | N
                   np.repeat(sig.t_s[rows], nc)[use], dX)
 
 
-def _solve(X: np.ndarray, y: np.ndarray, scale: np.ndarray, ridge: float) -> np.ndarray:
-    Xs = X * scale
-    G = Xs.T @ Xs
-    lam = ridge * (np.trace(G) / max(len(G), 1) + 1e-300)
-    return scale * np.linalg.solve(G + lam * np.eye(len(G)), Xs.T @ y)
-
-
-def _scale(name: str, X: np.ndarray) -> np.ndarray:
-    """Column scaling for conditioning: the default magnitude of each parameter (or 1/column norm)."""
-    d = np.abs(LIBRARY[name].default(EffectsCfg()))
-    norm = np.linalg.norm(X, axis=0)
-    fallback = 1.0 / np.where(norm > 0, norm, 1.0)
-    return np.where(d > 0, d, fallback * (np.linalg.norm(X @ d) if d.any() else 1.0))
-
-
-def _joint_fit(des: Design, y: np.ndarray, cols: dict[str, list[int]], ridge: float) -> tuple[np.ndarray, dict]:
-    """One least-squares fit of the named effects' chosen columns together.
-    -> (residual (R,), {effect: full parameter vector (k,), zero outside its chosen columns})."""
-    X = np.concatenate([des.X[n][:, c] for n, c in cols.items()], axis=1)
-    scale = np.concatenate([_scale(n, des.X[n])[c] for n, c in cols.items()])
-    p = _solve(X, y, scale, ridge)
-    out, i = {}, 0
-    for n, c in cols.items():
-        out[n] = np.zeros(LIBRARY[n].k)
-        out[n][c] = p[i:i + len(c)]
-        i += len(c)
-    return y - X @ p, out
+#: [-] relative Tikhonov term of the calibration's joint fit of the whole library (default-magnitude
+#: scaled columns): the library's columns overlap (e.g. contact stiffness and grasp compliance), and
+#: the calibration only has to reproduce the prediction, not to separate them
+CALIBRATION_RIDGE = 1e-4
 
 
 def calibrate(des: Design, rc: RankCfg) -> dict[str, list[float]]:
-    """Joint fit of the whole library on a run without hidden effects (the calibrated nominal)."""
-    _, p = _joint_fit(des, des.y, {n: list(range(X.shape[1])) for n, X in des.X.items()}, max(rc.ridge, 1e-4))
-    return {n: [float(v) for v in pn] for n, pn in p.items()}
+    """Joint fit of the whole library on a run without hidden effects (the calibrated nominal):
+    every column of every effect, each scaled by its parameter's default magnitude (a zero default:
+    the column's norm, taken to the size of the effect's default signature), ``CALIBRATION_RIDGE``."""
+    names = list(des.X)
+    X = np.concatenate([des.X[n] for n in names], axis=1)
+    scale = []
+    for n in names:
+        d = np.abs(LIBRARY[n].default(EffectsCfg()))
+        norm = np.linalg.norm(des.X[n], axis=0)
+        fallback = 1.0 / np.where(norm > 0, norm, 1.0)
+        scale.append(np.where(d > 0, d, fallback * (np.linalg.norm(des.X[n] @ d) if d.any() else 1.0)))
+    scale = np.concatenate(scale)
+    Xs = X * scale
+    G = Xs.T @ Xs
+    lam = CALIBRATION_RIDGE * (np.trace(G) / max(len(G), 1) + 1e-300)
+    p = scale * np.linalg.solve(G + lam * np.eye(len(G)), Xs.T @ des.y)
+    out, i = {}, 0
+    for n in names:
+        k = des.X[n].shape[1]
+        out[n] = [float(v) for v in p[i:i + k]]
+        i += k
+    return out
 
 
 def _encoder_shift(des: Design, calib: dict[str, list[float]]) -> np.ndarray:
@@ -222,16 +213,11 @@ def calibrated_residual(des: Design, calib: dict[str, list[float]] | None) -> np
     return y
 
 
-#: [-] relative Tikhonov term of the calibration's joint fit of the whole library (default-magnitude
-#: scaled columns): the library's columns overlap (e.g. contact stiffness and grasp compliance), and
-#: the calibration only has to reproduce the prediction, not to separate them
-CALIBRATION_RIDGE = 1e-4
-
 #: Relevant size of each parameter (``selection``: the smallest change from the calibration worth
 #: reporting, in the parameter's units; an estimate must reach it to be selected, and "absent"
 #: means every parameter's confidence interval lies inside +- it). Where an effect is also built
-#: in for a user's log (``kinadapt_nn.diagnostics.builtin``) the size is the same; the injected
-#: default magnitudes (``effects`` config, ``LIBRARY[n].default``) are 1.5-50 times these.
+#: in for a user's log (``kinadapt_nn.diagnostics.builtin``) the size is that one's (encoder
+#: offset: half of it, see there); the injected default magnitudes (``effects`` config, ``LIBRARY[n].default``) are 1.4-17 times these.
 RELEVANT: dict[str, tuple[float, ...]] = {
     # 30 g of payload; 30 g at 50 mm of first moment (builtin.tool_gravity)
     "tool_gravity": (0.03, 0.0015, 0.0015, 0.0015),
