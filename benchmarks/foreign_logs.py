@@ -22,7 +22,9 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-EFFECTS = ("tool_gravity", "ft_frame_rotation", "ft_bias_drift", "encoder_offset", "tool_tilt", "ft_offset")
+from kinadapt_nn.diagnostics.builtin import BUILTINS  # noqa: E402  (the one registry of effect names)
+
+EFFECTS = tuple(BUILTINS)
 SHORT = {"present": "P", "absent": ".", "cannot_decide": "?", None: "-"}
 
 

@@ -330,7 +330,7 @@ def cmd_diagnose_setup(args: argparse.Namespace) -> int:
         for name, text in files.items():
             (stage / name).write_text(text)
         (stage / "setup.toml").write_text(setup_to_toml(setup))
-        write_json(stage / "diagnosis.json", {"format": "kinadapt-diagnosis", "version": 3, "kind": "user_log",
+        write_json(stage / "diagnosis.json", {"format": "kinadapt-diagnosis", "version": 4, "kind": "user_log",
                                                "source": log.source, "setup_file": str(args.setup),
                                                "summary": res.report["summary"],
                                                **{k: v for k, v in res.report.items() if k != "summary"},

@@ -38,8 +38,6 @@ from kinadapt_nn.diagnostics.setup import SetupCfg
 from kinadapt_nn.errors import KinadaptError, ModelFileError
 
 G_W = np.array([0.0, 0.0, -9.81])  #: [m/s^2] gravity in the world frame
-#: library effects that are judged only on this package's own bore/socket runs (``kinadapt diagnose RUN``)
-CONTACT_MODEL_EFFECTS = ("contact_stiffness", "contact_friction_couple", "grasp_compliance")
 N_JOINTS = 7
 #: [s] Savitzky-Golay window of the velocity derivative (accelerations)
 ACC_WINDOW_S = 0.1

@@ -103,6 +103,29 @@ def test_extra_columns_are_ignored_and_the_delimiter_is_sniffed(tmp_path):
     np.testing.assert_array_equal(log.wrench_log, w)
 
 
+def test_declared_extra_columns_are_read_and_checked(tmp_path):
+    """``[log] extra``: the named columns reach ``UserLog.extra`` in SI rows; a missing one or a
+    non-finite value is the readers' one-line error naming the column."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    t, q, _, w = synth()
+    temp = 24.0 + np.sin(t)
+    cols = {"t": t, **{f"q{i + 1}": q[:, i] for i in range(7)}, **{n: w[:, k] for k, n in enumerate(DEFAULT.log.wrench)},
+            "temp_C": temp}
+    path = tmp_path / "extra.parquet"
+    pq.write_table(pa.table({k: pa.array(v) for k, v in cols.items()}), path)
+    log = read_log(path, setup_of(extra=["temp_C"]))
+    np.testing.assert_array_equal(log.extra["temp_C"], temp)
+    assert read_log(path, DEFAULT).extra is None
+    msg = err(path, setup_of(extra=["temp_K"]))
+    assert "temp_K" in msg and "temp_C" in msg
+    temp[17] = np.nan
+    pq.write_table(pa.table({k: pa.array(v) for k, v in {**cols, "temp_C": temp}.items()}), path)
+    msg = err(path, setup_of(extra=["temp_C"]))
+    assert "temp_C" in msg and "not finite" in msg and "17" in msg
+
+
 def test_a_15_s_500_hz_csv_reads_in_well_under_a_second(tmp_path):
     t, q, qdot, w = synth(7500)
     for suffix in (".csv", ".csv.gz"):

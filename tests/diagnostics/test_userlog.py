@@ -82,6 +82,15 @@ def test_one_effect_alone_first_and_within_tolerance(cases, case):
             assert abs(est[k]["value"] - v) <= 0.2 * abs(v), (k, est[k], v)
 
 
+def test_library_cases_leave_a_complete_model(cases):
+    """No false alarm: with the hidden library effect selected (or none hidden), the final model
+    explains the log and no hint is offered."""
+    for name, (_, _, rep) in cases.items():
+        assert rep["model_complete"] is True, (name, rep["unexplained"]["carried_by"])
+        assert rep["unexplained"]["hints"] == []
+        assert rep["summary"].startswith("The model explains the log")
+
+
 def test_undetectable_effect_is_cannot_decide_not_a_wrong_answer(cases):
     _, truth, rep = cases["encoder_offset_joint1"]
     assert truth["detectable"] is False

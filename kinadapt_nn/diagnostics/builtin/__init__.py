@@ -13,7 +13,14 @@ _MODULES = (tool_gravity, ft_bias_drift, ft_frame_rotation, encoder_offset, tool
 #: name -> Effect, in the order the report lists them
 BUILTINS: dict[str, Effect] = {n: e for mod in _MODULES for n, e in effects_of_module(mod).items()}
 
-#: library effects judged only on this package's own bore/socket runs (``kinadapt diagnose RUN``)
-CONTACT_MODEL_EFFECTS = ("contact_stiffness", "contact_friction_couple", "grasp_compliance")
+def _contact_model_effects() -> tuple[str, ...]:
+    from kinadapt_nn.features.effect_library import LIBRARY
+
+    return tuple(n for n in LIBRARY if n not in BUILTINS)
+
+
+#: the package-run library's effects that a user's log cannot judge (contact-model effects: they
+#: need a declared contact geometry; judged on this package's own runs, ``kinadapt diagnose RUN``)
+CONTACT_MODEL_EFFECTS = _contact_model_effects()
 
 __all__ = ["BUILTINS", "CONTACT_MODEL_EFFECTS"]
