@@ -451,9 +451,10 @@ def des_param(des: Design, name: str, col: int, hints: dict) -> str:
     return params[col] if params else f"col{col}"
 
 
-def refit(des: Design, names: list[str], rc: SelCfg = SelCfg()) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Fit the nuisance alone and with ``names`` (a one-of effect keeps its best column) on all
-    rows. -> (residual rows before (R,), after (R,), {effect: (cols, params physical (k,), sd
+def refit(des: Design, names: list[str], rc: SelCfg = SelCfg(), cols: dict | None = None
+          ) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Fit the nuisance alone and with ``names`` (a one-of effect keeps the column ``cols[name]``
+    when given -- the one the selection named -- else its best column on all rows) on all rows. -> (residual rows before (R,), after (R,), {effect: (cols, params physical (k,), sd
     physical (k,))}); the sd is the larger of the block-jackknife and the least-squares one (finite)."""
     st = Stats(des)
     base = st.z_idx
@@ -463,7 +464,9 @@ def refit(des: Design, names: list[str], rc: SelCfg = SelCfg()) -> tuple[np.ndar
     chosen = {}
     for n in names:
         k = des.X[n].shape[1]
-        if des.one_of[n]:
+        if des.one_of[n] and cols and cols.get(n):
+            chosen[n] = list(cols[n])
+        elif des.one_of[n]:
             sse = []
             for j in range(k):
                 ii = np.concatenate([base, st.idx[n][[j]]])

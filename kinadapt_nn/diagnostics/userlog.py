@@ -329,7 +329,8 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
     cp.caveat_present(report)
     before = after = None
     if add:
-        before, after, fitted_add = sel.refit(des, add, sc)
+        named = {e["effect"]: e["columns_used"] for e in result.entries}  # a one-of effect: the column the ranking named
+        before, after, fitted_add = sel.refit(des, add, sc, named)
         report["residual_rms_before"] = _rms_by_channel(des, before)
         report["residual_rms_after"] = _rms_by_channel(des, after)
         report["added"] = {}
