@@ -343,16 +343,15 @@ def _fitted(shape: str, names, units, p, sd, rel, cols, cc: CompCfg) -> dict:
     return {names[i]: q(i) for i in order}
 
 
-def assess(s, des: sel.Design, rm, result, cache: dict, sc: sel.SelCfg, rc, hints: bool = True,
-           cc: CompCfg = CompCfg(), source: str = "the log") -> tuple[dict, dict[str, str]]:
+def assess(s, des: sel.Design, rm, result, cache: dict, sc: sel.SelCfg, sigma: np.ndarray, stride_s: float,
+           hints: bool = True, cc: CompCfg = CompCfg(), source: str = "the log") -> tuple[dict, dict[str, str]]:
     """``model_complete`` and the ``unexplained`` section (with ``hints`` when incomplete), and
-    the hints' effect files ``{file name: Python source}``."""
+    the hints' effect files ``{file name: Python source}``. ``sigma`` (6,): the per-sample noise
+    of the wrench channels; ``stride_s``: the row spacing."""
     from kinadapt_nn.diagnostics.hintfiles import effect_file, public
 
     dt = float(np.median(np.diff(s.t)))
-    from kinadapt_nn.diagnostics.userlog import noise_sigma
-
-    un = unexplained(des, result.heldout, rm, noise_sigma(s.wrench, rc), s.setup, dt, rc.stride_s, cc)
+    un = unexplained(des, result.heldout, rm, sigma, s.setup, dt, stride_s, cc)
     complete = un.pop("complete")
     un["hints"] = []
     files: dict[str, str] = {}

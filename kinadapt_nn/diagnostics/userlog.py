@@ -323,7 +323,7 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
                    "nuisance": "constant offset (tared log)" if s.setup.log.tared else "none"},
     }
     progress("completeness of the final model" + (" and hints" if hints else ""))
-    comp, files = cp.assess(s, des, rm, result, cache, sc, rc, hints=hints and check["ok"],
+    comp, files = cp.assess(s, des, rm, result, cache, sc, sigma, rc.stride_s, hints=hints and check["ok"],
                             source=str(getattr(log, "source", "the log")))
     report.update(comp)
     cp.caveat_present(report)
