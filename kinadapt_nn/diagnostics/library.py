@@ -119,7 +119,8 @@ def analyse_effects(des: rk.Design, calib: dict | None, add: list[str], rc: rk.R
            "residual_level_rms": rk.rms_by_channel(des, y),
            "method": {**rc.as_dict(), "calibrated": calib is not None}}
     if add:
-        e_after, params = rk.refit(des, y, add, rc)
+        named = {r["effect"]: r["columns_used"] for r in ranking}  # a one-of effect: the column the ranking named
+        e_after, params = rk.refit(des, y, add, rc, named)
         out["residual_rms_before"] = rk.rms_by_channel(des, y)
         out["residual_rms_after"] = rk.rms_by_channel(des, e_after)
         out["added"] = {n: {"params": dict(zip(LIBRARY[n].params, (float(v) for v in p))),

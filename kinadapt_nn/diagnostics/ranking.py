@@ -217,7 +217,8 @@ def calibrated_residual(des: Design, calib: dict[str, list[float]] | None) -> np
 #: reporting, in the parameter's units; an estimate must reach it to be selected, and "absent"
 #: means every parameter's confidence interval lies inside +- it). Where an effect is also built
 #: in for a user's log (``kinadapt_nn.diagnostics.builtin``) the size is that one's (encoder
-#: offset: half of it, see there); the injected default magnitudes (``effects`` config, ``LIBRARY[n].default``) are 1.4-17 times these.
+#: offset: half of it, see there); the injected default magnitudes (``effects`` config,
+#: ``LIBRARY[n].default``) are 1.4-17 times these.
 RELEVANT: dict[str, tuple[float, ...]] = {
     # 30 g of payload; 30 g at 50 mm of first moment (builtin.tool_gravity)
     "tool_gravity": (0.03, 0.0015, 0.0015, 0.0015),
@@ -229,10 +230,11 @@ RELEVANT: dict[str, tuple[float, ...]] = {
     "tool_tilt": (np.deg2rad(1.0),) * 2,
     # 10 % of the nominal contact stiffness
     "contact_stiffness": (0.1,),
-    # 1 mm of torsional friction radius: 0.01 N m of couple per 10 N of normal force, the size of
-    # the moment noise (the default couple is 5 mm)
+    # 1 mm of torsional friction radius: 0.01 N m of couple per 10 N of contact force, the size of
+    # the moment noise (the injected default is 5 mm)
     "contact_friction_couple": (1e-3,),
-    # 1 mrad/(N m): a grasp softer than 1000 N m/rad (the default is 200 N m/rad)
+    # 1 mrad/(N m): a grasp of 1000 N m/rad, tilting 1 mrad per N m of contact moment (0.1 mm at the
+    # tip of a 0.1 m tool); the injected default is 5 mrad/(N m) (200 N m/rad)
     "grasp_compliance": (1e-3,),
     # 0.25 deg of joint zero: ~2 mm at the tip of a 0.5 m arm, more than a peg-hole clearance. Half of
     # the user path's 0.5 deg (builtin.encoder_offset): there the log is a robot's, here the
@@ -348,11 +350,15 @@ def implausible_own(name: str, p: np.ndarray, calib: np.ndarray) -> str | None:
     return None
 
 
-def refit(des: Design, y: np.ndarray, names: list[str], rc: RankCfg) -> tuple[np.ndarray, dict]:
-    """Fit the named effects jointly on all rows (``--add``; ``selection.refit``: a "one of" effect
-    keeps its best single column). ``des``: a ``calibrated_design``; ``y``: the calibrated residual.
-    -> (residual after (R,), {effect: full parameter vector (k,), the change from the calibration})."""
-    _, after, fitted = sel.refit(selection_design(des, y), list(names), rc.selection)
+def refit(des: Design, y: np.ndarray, names: list[str], rc: RankCfg,
+          cols: dict[str, list[str]] | None = None) -> tuple[np.ndarray, dict]:
+    """Fit the named effects jointly on all rows (``--add``; ``selection.refit``). A "one of"
+    effect keeps the column ``cols[name]`` names (parameter names: the ranking's ``columns_used``)
+    when given, else its best single column. ``des``: a ``calibrated_design``; ``y``: the
+    calibrated residual. -> (residual after (R,), {effect: full parameter vector (k,), the change
+    from the calibration})."""
+    named = {n: [LIBRARY[n].params.index(c) for c in cs] for n, cs in (cols or {}).items() if n in names and cs}
+    _, after, fitted = sel.refit(selection_design(des, y), list(names), rc.selection, named)
     return after, {n: p for n, (_, p, _) in fitted.items()}
 
 
@@ -402,4 +408,5 @@ def load_calibration(path: Path, program: str) -> dict[str, list[float]]:
 
 
 __all__ = ["RankCfg", "build_design", "calibrate", "calibrated_design", "calibrated_residual", "rank", "refit",
-           "rms_by_channel", "confusion", "load_calibration", "headline_errors", "DEFAULT_CALIBRATION"]
+           "rms_by_channel", "confusion", "load_calibration", "headline_errors", "DEFAULT_CALIBRATION", "RELEVANT",
+           "relevant_size", "selection_design"]

@@ -41,7 +41,6 @@ import numpy as np
 class SelCfg(NamedTuple):
     alpha: float = 0.01  #: false-discovery level of each round's tests
     min_explained: float = 0.05  #: [-] smallest held-out share of the remaining residual called an effect
-    min_excitation: float = 0.1  #: [-] a relevant-size effect must explain this share to call it absent
     tie_ratio: float = 0.8  #: [-] a runner-up with this share of the best gain may be a near-tie
     tie_p: float = 0.01  #: one-sided paired block test: best beats the runner-up below this p
     ridge: float = 1e-9  #: [-] relative Tikhonov term on the scaled Gram
