@@ -385,9 +385,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
     from kinadapt_nn.config import config_to_toml, load_config
     from kinadapt_nn.diagnostics.report import residual_figure, write_tb
-    from kinadapt_nn.diagnostics.residual import analyse, load_log, plain_summary, replay
     from kinadapt_nn.runio import check_output_dir, staged_output, write_json
-    from kinadapt_nn.sensing import channel_metric
 
     src = Path(args.log)
     cfg_path = Path(args.config) if args.config else (src / "config.toml" if (src / "config.toml").is_file() else None)
@@ -402,43 +400,25 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             raise KinadaptError(f"--theta {args.theta!r}: give three finite numbers in metres, e.g. 0.003,-0.002,0.1")
     from kinadapt_nn.diagnostics import library as lib
     from kinadapt_nn.diagnostics import ranking as rk
-    from kinadapt_nn.diagnostics.effects import build_signals
 
     out = args.run_dir = Path(args.out) if args.out else _default_out("diagnose")
     check_output_dir(out, args.overwrite)
-    lib.check_effect_names(args.add or [])
-    if args.rerun:
-        lib.check_rerun(src, args.add or [])
-    log = load_log(src)
-    rep = replay(log, cfg, theta)
-    a = analyse(rep, channel_metric(cfg.sensing))
-    rc = rk.RankCfg()
-    # the effect library works on the nominal model (the CAD offset; the channels it takes from the
-    # replay -- s, the tared wrench, the drive flag -- do not depend on theta)
-    sig = build_signals(rep, log, cfg)
-    calib, calib_src = lib.choose_calibration(src, cfg, rc, Path(args.baseline) if args.baseline else None,
-                                              Path(args.calibration) if args.calibration else None, args.no_calibration)
-    des = lib.design_of(sig, cfg, rc)
-    fx = lib.analyse_effects(des, calib, list(args.add or []), rc)
-    series = fx.pop("_series", None)
-    rerun_cfg = rerun = None
-    if args.rerun:
-        rerun_cfg, rerun, fx["rerun"] = lib.rerun_with_effects(src, list(args.add or []))
-    summary = plain_summary(a) + " " + lib.summary_sentence(fx)
-    if calib is None:
-        summary += " (Effects judged against the bare nominal model, not a calibrated one.)"
+    res = lib.diagnose_run(src, cfg, theta, list(args.add or []), args.rerun,
+                           Path(args.baseline) if args.baseline else None,
+                           Path(args.calibration) if args.calibration else None, args.no_calibration)
+    summary = res.report["summary"]
     with staged_output(out, args.overwrite) as stage:
         (stage / "config.toml").write_text(config_to_toml(cfg))
-        write_json(stage / "diagnosis.json", {"summary": summary, "source": log.source, "format": "kinadapt-diagnosis",
-                                               "version": 2, "calibration": calib_src, **fx, **a})
-        residual_figure(rep, stage / "residual.png")
-        lib.effects_figure({**fx, **({"_series": series} if series else {})}, stage / "effects.png")
-        write_tb(stage / "tb", rep)
-        if rerun is not None:
+        write_json(stage / "diagnosis.json", res.report)
+        residual_figure(res.replay, stage / "residual.png")
+        lib.effects_figure(res.effects, stage / "effects.png")
+        write_tb(stage / "tb", res.replay)
+        if res.rerun is not None:
             (stage / "rerun").mkdir()
-            _write_online(stage / "rerun", rerun_cfg, rerun)
+            _write_online(stage / "rerun", *res.rerun)
     if args.save_calibration:
-        lib.save_calibration(Path(args.save_calibration), cfg.control.program, rk.calibrate(des, rc), log.source)
+        lib.save_calibration(Path(args.save_calibration), cfg.control.program, rk.calibrate(res.design, rk.RankCfg()),
+                             res.report["source"])
     if not args.quiet:
         print(summary)
         print(f"wrote {out}/ (diagnosis.json, residual.png, effects.png, tb/)")

@@ -129,7 +129,6 @@ def _params_world_force(s):
 
 
 def _params_wrench_linear(s):
-    units = ["N"] * 3 + ["N m"] * 3
     names, out = [], []
     for i in range(6):
         for j in range(6):

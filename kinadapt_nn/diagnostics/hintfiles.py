@@ -94,7 +94,7 @@ def effect_file(h: dict, source: str) -> tuple[str, str]:
         body = _entries_body(func, h, 6, "s.wrench", "source: the measured wrench component 0..5")
     elif shape == "joint_velocity":
         dof = k // 12
-        body = (f"SIGN_EPS_RAD_S = 0.02  # smoothing of sign(qdot)\n"
+        body = ("SIGN_EPS_RAD_S = 0.02  # smoothing of sign(qdot)\n"
                 + _entries_body(func, h, 2 * dof, "np.hstack([s.qdot, np.tanh(s.qdot / SIGN_EPS_RAD_S)])",
                                 f"source: qdot of joint 1..{dof}, then sign(qdot) of joint 1..{dof}"))
     elif shape == "joint_position":

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -127,6 +128,53 @@ def analyse_effects(des: rk.Design, calib: dict | None, add: list[str], rc: rk.R
                             "units": list(LIBRARY[n].units)} for n, p in params.items()}
         out["_series"] = (des, y, e_after)
     return out
+
+
+class RunDiagnosis(NamedTuple):
+    """``diagnose_run``'s result: the report ``diagnosis.json`` is written from, and what the
+    figures, TensorBoard and ``--rerun`` outputs need."""
+
+    report: dict  #: diagnosis.json content (summary first)
+    config: ExperimentCfg  #: the known model the log was judged against
+    replay: object  #: ``residual.Replay`` of the log
+    effects: dict  #: ``analyse_effects``' result with its private ``_series`` (for effects.png)
+    design: rk.Design  #: the regression rows (``--save-calibration``)
+    rerun: tuple | None  #: (config, EpisodeResult) of ``--rerun``, or None
+
+
+def diagnose_run(src: Path, cfg: ExperimentCfg, theta=None, add: list[str] | None = None, rerun: bool = False,
+                 baseline: Path | None = None, calibration: Path | None = None, no_calibration: bool = False
+                 ) -> RunDiagnosis:
+    """The whole diagnosis of this package's run (a run folder, trace or CSV log) against the
+    known model ``cfg``: replay, residual analysis, the effect ranking against the calibrated
+    nominal model, ``--add`` and ``--rerun``. One call; the CLI only writes and prints."""
+    from kinadapt_nn.diagnostics.residual import analyse, plain_summary
+
+    add = list(add or [])
+    check_effect_names(add)
+    if rerun:
+        check_rerun(src, add)
+    log = load_log(Path(src))
+    rep = replay(log, cfg, theta)
+    a = analyse(rep, channel_metric(cfg.sensing))
+    rc = rk.RankCfg()
+    # the effect library works on the nominal model (the CAD offset; the channels it takes from the
+    # replay -- s, the tared wrench, the drive flag -- do not depend on theta)
+    sig = build_signals(rep, log, cfg)
+    calib, calib_src = choose_calibration(Path(src), cfg, rc, baseline, calibration, no_calibration)
+    des = design_of(sig, cfg, rc)
+    fx = analyse_effects(des, calib, add, rc)
+    series = fx.pop("_series", None)
+    rr = None
+    if rerun:
+        rerun_cfg, rerun_res, fx["rerun"] = rerun_with_effects(Path(src), add)
+        rr = (rerun_cfg, rerun_res)
+    summary = plain_summary(a) + " " + summary_sentence(fx)
+    if calib is None:
+        summary += " (Effects judged against the bare nominal model, not a calibrated one.)"
+    report = {"summary": summary, "source": log.source, "format": "kinadapt-diagnosis", "version": 2,
+              "calibration": calib_src, **fx, **a}
+    return RunDiagnosis(report, cfg, rep, {**fx, **({"_series": series} if series else {})}, des, rr)
 
 
 def summary_sentence(res: dict) -> str:

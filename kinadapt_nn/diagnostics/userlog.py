@@ -229,7 +229,6 @@ def _rms_by_channel(des: sel.Design, e: np.ndarray) -> dict:
 
 
 def _entry_report(e: dict, eff: Effect, setup: SetupCfg) -> dict:
-    n = e["effect"]
     out = {k: v for k, v in e.items() if k not in ("params", "sd", "columns_used", "equivalence")}
     out["judged"] = True
     out["source"] = eff.source
