@@ -161,15 +161,21 @@ def headline_foreign(tmp: Path, jobs: int) -> list[str]:
         rep = json.loads((out / "diagnosis.json").read_text())
         present = sorted(e["effect"] for e in rep["ranking"] if e["verdict"] == "present")
         want = sorted(truth["effects"]) if truth.get("detectable", True) else []
-        return rig_name, case, fmt, present, present == want, wall
+        return rig_name, case, fmt, present, present == want and rep.get("model_complete") is True, wall
 
     with ThreadPoolExecutor(max_workers=jobs) as ex:
         res = list(ex.map(one, jobs_list))
     right = sum(r[4] for r in res)
     lines = ["[2] kinadapt diagnose LOG --setup SETUP  (examples/foreign_rig.py: rig A csv.gz + Parquet, rig B csv)",
-             f"    right set of present effects: {right}/{len(res)} logs "
+             f"    right set of present effects and model_complete: {right}/{len(res)} logs "
              f"(wall per log median {np.median([r[5] for r in res]):.1f} s with {jobs} in parallel)"]
     lines += [f"    WRONG: rig {r[0]} {r[1]} {r[2]}: present {r[3]}" for r in res if not r[4]]
+    out = _load("outside_logs", ROOT / "benchmarks" / "outside_logs.py").run(tmp / "outside_logs", seed=0)
+    lines += ["[2b] physics outside the library (benchmarks/outside_logs.py, one log at a time)",
+              f"    incomplete {out['outside_incomplete']}/{out['outside']}, right top hint "
+              f"{out['outside_top_hint_right']}/{out['outside']}, no clean library finding "
+              f"{out['outside_no_clean_finding']}/{out['outside']}, effect-free complete {out['effect_free_complete']}; "
+              f"wall per 15 s 500 Hz log max {out['wall_s_max']:.1f} s"]
     return lines
 
 
