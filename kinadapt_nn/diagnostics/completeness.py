@@ -45,6 +45,8 @@ WORDS = {
     "joint_position": "per-joint position into the wrench: a cable whose pull depends on the pose",
     "extra": "a declared extra log column into the wrench: temperature, supply voltage, a second sensor",
 }
+#: the shape vocabulary (``unexplained.hints[i].shape``; ``extra`` stands for ``extra:<column>``)
+SHAPES = tuple(WORDS)
 
 
 class CompCfg(NamedTuple):
@@ -235,7 +237,7 @@ def _relevant_of(C: np.ndarray, rel6: np.ndarray) -> np.ndarray:
     return np.where(worst > 0, 1.0 / np.maximum(worst, 1e-300), 1.0)
 
 
-def hints(s, des: sel.Design, rm, result, cache: dict, sc: sel.SelCfg, cc: CompCfg = CompCfg()) -> list[dict]:
+def hints(s, des: sel.Design, rm, result, sc: sel.SelCfg, cc: CompCfg = CompCfg()) -> list[dict]:
     """Test every shape against the held-out residual given the final model (module docstring)."""
     from scipy.stats import false_discovery_control
 
@@ -342,8 +344,8 @@ def _fitted(shape: str, names, units, p, sd, rel, cols, cc: CompCfg) -> dict:
     return {names[i]: q(i) for i in order}
 
 
-def assess(s, des: sel.Design, rm, result, cache: dict, sc: sel.SelCfg, sigma: np.ndarray, stride_s: float,
-           hints: bool = True, cc: CompCfg = CompCfg(), source: str = "the log") -> tuple[dict, dict[str, str]]:
+def assess(s, des: sel.Design, rm, result, sc: sel.SelCfg, sigma: np.ndarray, stride_s: float,
+           with_hints: bool = True, cc: CompCfg = CompCfg(), source: str = "the log") -> tuple[dict, dict[str, str]]:
     """``model_complete`` and the ``unexplained`` section (with ``hints`` when incomplete), and
     the hints' effect files ``{file name: Python source}``. ``sigma`` (6,): the per-sample noise
     of the wrench channels; ``stride_s``: the row spacing."""
@@ -354,8 +356,8 @@ def assess(s, des: sel.Design, rm, result, cache: dict, sc: sel.SelCfg, sigma: n
     complete = un.pop("complete")
     un["hints"] = []
     files: dict[str, str] = {}
-    if not complete and hints:
-        for h in globals()["hints"](s, des, rm, result, cache, sc, cc):
+    if not complete and with_hints:
+        for h in hints(s, des, rm, result, sc, cc):
             name, text = effect_file(h, source)
             files[name] = text
             un["hints"].append({**public(h), "effect_file": name})
@@ -375,4 +377,3 @@ def caveat_present(report: dict) -> None:
 
 
 __all__ = ["CompCfg", "SHAPES", "assess", "caveat_present", "hints", "shapes", "unexplained", "WORDS"]
-SHAPES = tuple(WORDS)

@@ -13,6 +13,7 @@ only writes and prints its report.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Callable, NamedTuple
 
 import numpy as np
@@ -295,7 +296,7 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
         progress("contact does not act through the declared tip: ranking again without the contact rows")
         setup_x = setup.model_copy(update={"contact": setup.contact.model_copy(update={"mode": "exclude"})})
         names = [n for n in names if lib[n].applies is None or lib[n].applies(setup_x)]
-        s = sg.LogSignals(**{**s.__dict__, "setup": setup_x})
+        s = dataclasses.replace(s, setup=setup_x)
         des, rm, result, s = _rank(s, lib, names, sigma, rc, sc, excite, block, cache, progress)
         fit_check["action"] = "contact rows left out; verdicts from free space alone"
         contact_rows = "left out (tip check failed)"
@@ -322,7 +323,7 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
                    "nuisance": "constant offset (tared log)" if s.setup.log.tared else "none"},
     }
     progress("completeness of the final model" + (" and hints" if hints else ""))
-    comp, files = cp.assess(s, des, rm, result, cache, sc, sigma, rc.stride_s, hints=hints and check["ok"],
+    comp, files = cp.assess(s, des, rm, result, sc, sigma, rc.stride_s, with_hints=hints and check["ok"],
                             source=str(getattr(log, "source", "the log")))
     report.update(comp)
     cp.caveat_present(report)
