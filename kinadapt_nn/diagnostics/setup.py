@@ -14,12 +14,15 @@ tool is everything distal of the sensor, described in ``s``. Template (every key
 default; ``examples/setups/`` has complete ones)::
 
     [log]
-    time = "t"                 # column names in the user's file (ROS 2 bag: see the topics)
+    time = "t"                 # column names in the user's file (ROS 2 bag: see the topics); "" = none (static logs only)
     time_scale_s = 1.0         # seconds per unit of the time column (1e-9 for nanosecond stamps)
-    q = ["q1", "q2", "q3", "q4", "q5", "q6", "q7"]
-    qdot = []                  # optional: 7 names; empty = differentiate q
+    static = false             # true: each row is a pose at rest (F/T calibration); time and qdot optional
+    q = ["q1", "q2", "q3", "q4", "q5", "q6", "q7"]   # one name per arm joint (any number)
+    qdot = []                  # optional: one name per joint; empty = differentiate q (zero for a static log)
     angle_unit = "rad"         # or "deg" (q and qdot)
-    wrench = ["fx", "fy", "fz", "tx", "ty", "tz"]   # N, N m, sensor frame, about its origin
+    wrench = ["fx", "fy", "fz", "tx", "ty", "tz"]   # sensor frame, about its origin
+    force_unit = "N"           # or "kN", "lbf"
+    torque_unit = "N m"        # or "N mm", "N cm", "lbf in", "lbf ft"
     wrench_acts = "tool_on_sensor"                  # or "sensor_on_tool"
     tared = false              # true: zeroed at an unknown pose (offset estimated jointly)
     extra = []                 # extra columns your effects or the hints may use (e.g. ["temp_C"]; bag: "TOPIC:FIELD")
@@ -28,14 +31,25 @@ default; ``examples/setups/`` has complete ones)::
     [sensor]
     position_flange_m = [0.0, 0.0, 0.0]
     rpy_flange_deg = [0.0, 0.0, 0.0]
+    mount_known = true         # false: the mount's rotation is estimated (any angle); rpy_flange_deg is a first guess
+    range_force_N = 0.0        # the sensor's rated force range (0 = not declared)
+    range_torque_Nm = 0.0      # the sensor's rated torque range (0 = not declared)
     [tool]
     mass_kg = 0.0
     com_sensor_m = [0.0, 0.0, 0.0]
     inertia_com_kg_m2 = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]   # ixx, iyy, izz, ixy, ixz, iyz about the COM, s axes
     tip_sensor_m = [0.0, 0.0, 0.0]
-    [arm]
-    mjcf = ""                  # "" = the shipped Panda
-    flange_site = "flange"
+    [arm]                      # one of mjcf / urdf / dh ("" and no dh = the shipped Panda)
+    mjcf = ""                  # a MuJoCo MJCF file
+    flange_site = "flange"     # MJCF: the site whose frame is the flange
+    urdf = ""                  # a URDF file (meshes are not needed)
+    flange_link = ""           # URDF: the link whose frame is the flange ("" = the last link of the chain)
+    flange_xyz_m = [0.0, 0.0, 0.0]     # URDF: flange origin in that link's frame
+    flange_rpy_deg = [0.0, 0.0, 0.0]   # URDF: flange axes in that link's frame, Rz(yaw) Ry(pitch) Rx(roll)
+    # dh = { convention = "modified", a_m = [...], d_m = [...], alpha_rad = [...], theta_offset_rad = [...],
+    #        base_xyz_m = [0, 0, 0], base_rpy_deg = [0, 0, 0], flange_xyz_m = [0, 0, 0], flange_rpy_deg = [0, 0, 0] }
+    [world]
+    gravity_mps2 = 9.81        # magnitude; gravity points along -z of the arm's base/world frame
     [contact]
     mode = "tip"               # "tip": contacts act through the declared tip; "exclude": contact left out; "none": free-space log
     detect_force_N = 4.0       # a sample is in contact when the force beyond the tool model exceeds this
@@ -87,26 +101,35 @@ def _finite(v, name: str):
     return v
 
 
+#: SI value of one unit of the log's force / torque columns
+FORCE_UNITS = {"N": 1.0, "kN": 1000.0, "lbf": 4.4482216152605}
+TORQUE_UNITS = {"N m": 1.0, "N mm": 1e-3, "N cm": 1e-2, "lbf in": 0.1129848290276167, "lbf ft": 1.3558179483314004}
+MAX_JOINTS = 12
+
+
 class LogCfg(_Cfg):
     """Where each quantity is in the user's file, and its conventions."""
 
-    time: str = "t"  # column name of the time stamps
+    time: str = "t"  # column name of the time stamps ("" = none: static logs only)
     time_scale_s: float = Field(1.0, gt=0.0)  # [s per unit] of the time column
-    q: tuple[str, str, str, str, str, str, str] = ("q1", "q2", "q3", "q4", "q5", "q6", "q7")  # joint positions
-    qdot: tuple[str, ...] = ()  # joint velocities (7 names) or empty: differentiate q
+    static: bool = False  # each row is a pose at rest (no derivatives taken; time optional)
+    q: tuple[str, ...] = ("q1", "q2", "q3", "q4", "q5", "q6", "q7")  # joint positions, one per arm joint
+    qdot: tuple[str, ...] = ()  # joint velocities (one per joint) or empty: differentiate q
     angle_unit: Literal["rad", "deg"] = "rad"  # unit of q and qdot (per s)
-    wrench: tuple[str, str, str, str, str, str] = ("fx", "fy", "fz", "tx", "ty", "tz")  # [N, N m] sensor frame
+    wrench: tuple[str, str, str, str, str, str] = ("fx", "fy", "fz", "tx", "ty", "tz")  # sensor frame
+    force_unit: Literal["N", "kN", "lbf"] = "N"  # unit of the three force columns
+    torque_unit: Literal["N m", "N mm", "N cm", "lbf in", "lbf ft"] = "N m"  # unit of the three torque columns
     wrench_acts: Literal["tool_on_sensor", "sensor_on_tool"] = "tool_on_sensor"  # which body's wrench on which
     tared: bool = False  # true: zeroed at an unknown pose before/while logging
     extra: tuple[str, ...] = ()  # extra columns (temperature, a voltage ...) for effects and hints; bag: "TOPIC:FIELD"
     joint_state_topic: str = "/joint_states"  # ROS 2 bag: sensor_msgs/msg/JointState topic
     wrench_topic: str = "/ft_sensor/wrench"  # ROS 2 bag: geometry_msgs/msg/WrenchStamped topic
 
-    @field_validator("qdot")
+    @field_validator("q")
     @classmethod
-    def _qdot_len(cls, v):
-        if len(v) not in (0, 7):
-            raise ValueError(f"give 7 joint-velocity column names or none (got {len(v)})")
+    def _q_len(cls, v):
+        if not 1 <= len(v) <= MAX_JOINTS:
+            raise ValueError(f"give one joint-position column name per arm joint (1 to {MAX_JOINTS}; got {len(v)})")
         return v
 
     @field_validator("time_scale_s")
@@ -116,9 +139,14 @@ class LogCfg(_Cfg):
 
     @model_validator(mode="after")
     def _distinct(self):
+        if len(self.qdot) not in (0, len(self.q)):
+            raise ValueError(f"give {len(self.q)} joint-velocity column names (one per q) or none (got {len(self.qdot)})")
+        if not self.time and not self.static:
+            raise ValueError("time = \"\" (no time column) needs static = true (a log of poses at rest); "
+                             "a moving log needs its time column")
         # a ROS 2 bag names joints, not columns: there qdot may repeat q (velocities of the same joints)
-        names = [self.time, *self.q, *(self.qdot if tuple(self.qdot) != tuple(self.q) else ()), *self.wrench,
-                 *self.extra]
+        names = [*((self.time,) if self.time else ()), *self.q,
+                 *(self.qdot if tuple(self.qdot) != tuple(self.q) else ()), *self.wrench, *self.extra]
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
             raise ValueError(f"column '{dup[0]}' is named twice; every quantity needs its own column")
@@ -129,14 +157,21 @@ class LogCfg(_Cfg):
         """+1 when the log holds the wrench the tool exerts on the sensor, -1 for the reverse."""
         return 1.0 if self.wrench_acts == "tool_on_sensor" else -1.0
 
+    def wrench_scale(self) -> np.ndarray:
+        """(6,) SI value of one unit of each wrench column (log units -> N, N m)."""
+        return np.array([FORCE_UNITS[self.force_unit]] * 3 + [TORQUE_UNITS[self.torque_unit]] * 3)
+
 
 class SensorCfg(_Cfg):
     """The F/T sensor frame s in the flange frame f."""
 
     position_flange_m: Vec3 = (0.0, 0.0, 0.0)  # [m] origin of s in f
     rpy_flange_deg: Vec3 = (0.0, 0.0, 0.0)  # [deg] R_fs = Rz(yaw) Ry(pitch) Rx(roll) (fixed flange axes)
+    mount_known: bool = True  # false: the rotation is estimated at any angle (rpy_flange_deg: the first guess)
+    range_force_N: float = Field(0.0, ge=0.0)  # [N] rated force range (0 = not declared)
+    range_torque_Nm: float = Field(0.0, ge=0.0)  # [N m] rated torque range (0 = not declared)
 
-    @field_validator("position_flange_m", "rpy_flange_deg")
+    @field_validator("position_flange_m", "rpy_flange_deg", "range_force_N", "range_torque_Nm")
     @classmethod
     def _fin(cls, v):
         return _finite(v, "the value")
@@ -172,14 +207,96 @@ class ToolDeclCfg(_Cfg):
         return inertia_matrix(self.inertia_com_kg_m2)
 
 
+class DHCfg(_Cfg):
+    """An arm from Denavit-Hartenberg parameters, one entry per joint (all revolute).
+
+    ``classic``: ``T_{i-1,i} = Rz(theta_i) Tz(d_i) Tx(a_i) Rx(alpha_i)``; ``modified`` (Craig):
+    ``T_{i-1,i} = Rx(alpha_{i-1}) Tx(a_{i-1}) Rz(theta_i) Tz(d_i)`` with row i holding ``a_{i-1}``,
+    ``alpha_{i-1}``, ``d_i``. ``theta_i = q_i + theta_offset_i``. The base frame sits at
+    ``base_xyz_m``/``base_rpy_deg`` in the world (z up); the flange is ``flange_xyz_m``/``flange_rpy_deg``
+    in the last joint's frame."""
+
+    convention: Literal["modified", "classic"]
+    a_m: tuple[float, ...]
+    d_m: tuple[float, ...]
+    alpha_rad: tuple[float, ...]
+    theta_offset_rad: tuple[float, ...] = ()  # empty: all zero
+    base_xyz_m: Vec3 = (0.0, 0.0, 0.0)
+    base_rpy_deg: Vec3 = (0.0, 0.0, 0.0)
+    flange_xyz_m: Vec3 = (0.0, 0.0, 0.0)
+    flange_rpy_deg: Vec3 = (0.0, 0.0, 0.0)
+
+    @model_validator(mode="after")
+    def _lengths(self):
+        n = len(self.a_m)
+        if not 1 <= n <= MAX_JOINTS:
+            raise ValueError(f"dh: give one a_m entry per joint (1 to {MAX_JOINTS}; got {n})")
+        for key in ("d_m", "alpha_rad", "theta_offset_rad"):
+            v = getattr(self, key)
+            if key == "theta_offset_rad" and not v:
+                continue
+            if len(v) != n:
+                raise ValueError(f"dh: {key} has {len(v)} entries, a_m has {n}; give one per joint")
+        for key in ("a_m", "d_m", "alpha_rad", "theta_offset_rad", "base_xyz_m", "base_rpy_deg", "flange_xyz_m",
+                    "flange_rpy_deg"):
+            _finite(getattr(self, key) or (0.0,), f"dh: {key}")
+        return self
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.a_m)
+
+    def offsets(self) -> tuple[float, ...]:
+        return tuple(self.theta_offset_rad) or (0.0,) * self.n_joints
+
+
 class ArmDeclCfg(_Cfg):
-    mjcf: str = ""  # arm model file; "" = the shipped Panda (models/panda.xml)
+    """The arm: one of an MJCF file, a URDF file or DH parameters (none: the shipped Panda)."""
+
+    mjcf: str = ""  # arm model file; "" = the shipped Panda (models/panda.xml) unless urdf or dh is given
     flange_site: str = "flange"  # the MJCF site whose frame is the flange f
+    urdf: str = ""  # a URDF file (MuJoCo reads it; meshes are not needed)
+    flange_link: str = ""  # URDF: the link whose frame is the flange ("" = the last link of the joint chain)
+    flange_xyz_m: Vec3 = (0.0, 0.0, 0.0)  # [m] URDF: flange origin in that link's frame
+    flange_rpy_deg: Vec3 = (0.0, 0.0, 0.0)  # [deg] URDF: flange axes in that link's frame
+    dh: DHCfg | None = None  # DH parameters (``DHCfg``)
+
+    @field_validator("flange_xyz_m", "flange_rpy_deg")
+    @classmethod
+    def _fin(cls, v):
+        return _finite(v, "the value")
+
+    @model_validator(mode="after")
+    def _one(self):
+        given = [k for k in ("mjcf", "urdf") if getattr(self, k)] + (["dh"] if self.dh is not None else [])
+        if len(given) > 1:
+            raise ValueError(f"give one arm model, not {' and '.join(given)} (mjcf, urdf or dh)")
+        return self
+
+    @property
+    def kind(self) -> str:
+        """"mjcf", "urdf" or "dh"."""
+        return "urdf" if self.urdf else "dh" if self.dh is not None else "mjcf"
 
     def path(self) -> Path:
         from kinadapt_nn.robot import PANDA_MJCF
 
+        if self.urdf:
+            return Path(self.urdf)
         return Path(self.mjcf) if self.mjcf else PANDA_MJCF
+
+
+class WorldCfg(_Cfg):
+    gravity_mps2: float = Field(9.81, gt=0.0, le=30.0)  # [m/s^2] magnitude, along -z of the world (arm base)
+
+    @field_validator("gravity_mps2")
+    @classmethod
+    def _fin(cls, v):
+        return _finite(v, "gravity_mps2")
+
+    def g_w(self) -> np.ndarray:
+        """(3,) gravity in the world frame [m/s^2]."""
+        return np.array([0.0, 0.0, -float(self.gravity_mps2)])
 
 
 class ContactDeclCfg(_Cfg):
@@ -233,6 +350,7 @@ class SetupCfg(_Cfg):
     sensor: SensorCfg = SensorCfg()
     tool: ToolDeclCfg = ToolDeclCfg()
     arm: ArmDeclCfg = ArmDeclCfg()
+    world: WorldCfg = WorldCfg()
     contact: ContactDeclCfg = ContactDeclCfg()
     analysis: AnalysisCfg = AnalysisCfg()
 
@@ -260,5 +378,5 @@ def setup_to_toml(cfg: SetupCfg) -> str:
     return config_to_toml(cfg)
 
 
-__all__ = ["SetupCfg", "LogCfg", "SensorCfg", "ToolDeclCfg", "ArmDeclCfg", "ContactDeclCfg", "AnalysisCfg",
+__all__ = ["SetupCfg", "LogCfg", "SensorCfg", "ToolDeclCfg", "ArmDeclCfg", "DHCfg", "WorldCfg", "ContactDeclCfg", "AnalysisCfg",
            "load_setup", "setup_to_toml", "rpy_matrix", "inertia_matrix", "ConfigError"]
