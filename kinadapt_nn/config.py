@@ -523,5 +523,6 @@ def load_config(path: Path | None, overrides: list[str] | tuple[str, ...] = ()) 
 
 
 def config_to_toml(cfg: BaseModel) -> str:
-    """The fully resolved config as TOML text (tuples become arrays)."""
-    return tomli_w.dumps(cfg.model_dump(mode="json"))
+    """The fully resolved config as TOML text (tuples become arrays; an unset optional section,
+    ``None``, is left out: TOML has no null)."""
+    return tomli_w.dumps(cfg.model_dump(mode="json", exclude_none=True))
