@@ -51,6 +51,7 @@ SHAPES = tuple(WORDS)
 
 class CompCfg(NamedTuple):
     struct_window_s: float = 0.25  #: [s] the long moving average that keeps the structured part
+    static_window_poses: int = 8  #: static logs: the long average over this many neighbouring poses
     struct_factor: float = 3.0  #: structured part / its white-noise level above which it is "structured"
     time_order: int = 3  #: Legendre order of the ``time`` shape
     max_dense: int = 12  #: a shape with more parameters has its entries selected sparsely
@@ -91,7 +92,8 @@ def _world_force(s) -> np.ndarray:
 
 
 def _legendre(s, order: int) -> np.ndarray:
-    u = 2.0 * s.t / max(float(s.t[-1]), 1e-9) - 1.0
+    t0, t1 = float(np.min(s.t)), float(np.max(s.t))
+    u = 2.0 * (s.t - t0) / max(t1 - t0, 1e-9) - 1.0
     return np.stack([np.polynomial.legendre.Legendre.basis(d)(u) for d in range(1, order + 1)], axis=1)
 
 
@@ -163,6 +165,10 @@ def shapes(s, cc: CompCfg = CompCfg()) -> list[Shape]:
         Shape("joint_velocity", _joint_velocity, _params_joint_velocity, WORDS["joint_velocity"]),
         Shape("joint_position", _joint_position, _params_joint_position, WORDS["joint_position"]),
     ]
+    if not getattr(s, "has_time", True):  # a static log without time: no time axis to judge on
+        out = [x for x in out if x.name != "time"]
+    if getattr(s, "static", False):  # poses at rest: no velocities
+        out = [x for x in out if x.name != "joint_velocity"]
     for col in s.extra:
         out.append(Shape(f"extra:{col}", (lambda c: lambda s_: _per_channel((s_.extra[c] - s_.extra[c].mean())[:, None]))(col),
                          lambda s_: _names_per_channel(["x"], ["unit"]), WORDS["extra"]))
@@ -187,9 +193,14 @@ def _spans(t: np.ndarray, mask: np.ndarray, gap: float) -> list[list[float]]:
 
 
 def unexplained(des: sel.Design, e_ho: np.ndarray, rm, sigma: np.ndarray, setup, dt: float, stride_s: float,
-                cc: CompCfg = CompCfg()) -> dict:
+                cc: CompCfg = CompCfg(), static: bool = False) -> dict:
     """Per channel: the held-out residual against the noise floor and its structured part
-    (module docstring). -> {"complete": bool, "channels": {...}, "carried_by": [...], ...}."""
+    (module docstring). -> {"complete": bool, "channels": {...}, "carried_by": [...], ...}.
+    ``static``: rows are poses (ordered by group of similar poses, ``des.t_s`` their index): the
+    long average runs over ``cc.static_window_poses`` neighbouring poses and no time spans are given."""
+    if static:
+        dt, stride_s = 1.0, 1.0
+        cc = cc._replace(struct_window_s=float(cc.static_window_poses))
     sig_tip = 1.0 / rm.w_tip
     sig_ch = np.concatenate([sigma, sig_tip])
     rel_ch = np.array([setup.analysis.relevant_force_N] * 3 + [setup.analysis.relevant_moment_Nm] * 6)
@@ -216,7 +227,10 @@ def unexplained(des: sel.Design, e_ho: np.ndarray, rm, sigma: np.ndarray, setup,
                  "rms": rms, "noise_floor_rms": float(floor), "ratio_to_noise": float(rms / max(floor, 1e-300)),
                  "structured_rms": struct, "structured": bool(structured), "relevant_size": float(rel_ch[c]),
                  "unexplained": relevant}
-        if relevant:
+        if relevant and static:
+            carried.append(name)
+            phases.add(entry["phase"])
+        elif relevant:
             sp = _spans(t, np.abs(long) >= rel_ch[c], 2.5 * stride_s)
             sp = [w for w in sp if w[1] - w[0] >= 0.5 * cc.struct_window_s]
             entry["spans_s"] = sp[:8]
@@ -351,8 +365,9 @@ def assess(s, des: sel.Design, rm, result, sc: sel.SelCfg, sigma: np.ndarray, st
     of the wrench channels; ``stride_s``: the row spacing."""
     from kinadapt_nn.diagnostics.hintfiles import effect_file, public
 
-    dt = float(np.median(np.diff(s.t)))
-    un = unexplained(des, result.heldout, rm, sigma, s.setup, dt, stride_s, cc)
+    static = bool(getattr(s, "static", False))
+    dt = 1.0 if static else float(np.median(np.diff(s.t)))
+    un = unexplained(des, result.heldout, rm, sigma, s.setup, dt, stride_s, cc, static)
     complete = un.pop("complete")
     un["hints"] = []
     files: dict[str, str] = {}

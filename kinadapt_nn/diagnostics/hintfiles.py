@@ -86,7 +86,7 @@ def effect_file(h: dict, source: str) -> tuple[str, str]:
         order = k // 6
         body = (f"ORDER = {order}  # Legendre polynomials of the log's time, per channel\n\n\n"
                 + _deco(h, range(k), doc)
-                + f"def {func}(s):\n    u = 2.0 * s.t / s.t[-1] - 1.0\n"
+                + f"def {func}(s):\n    u = 2.0 * (s.t - s.t.min()) / (s.t.max() - s.t.min()) - 1.0\n"
                 "    P = np.stack([np.polynomial.legendre.Legendre.basis(d)(u) for d in range(1, ORDER + 1)], axis=1)\n"
                 "    C = np.zeros((s.n, 6, 6 * ORDER))\n    for i in range(6):\n"
                 "        C[:, i, i * ORDER:(i + 1) * ORDER] = P\n    return C\n")

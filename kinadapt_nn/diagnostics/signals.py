@@ -38,16 +38,24 @@ class LogSignals:
     contact_force_s: np.ndarray  #: (n, 3) [N] force beyond the tool model in contact (s), 0 in free space
     tip_map: np.ndarray  #: (3, 6) a wrench -> its moment about the declared tip
     arm: ph.ArmModel = field(repr=False, default=None)  #: the arm model (forward kinematics)
+    static: bool = False  #: a static-pose log ([log] static): rows are poses at rest, in canonical order
+    has_time: bool = True  #: the log has a time column (False: ``t`` is the pose index, not a clock)
+    pose_block: np.ndarray | None = None  #: (n,) static logs: the group of similar poses of each row (CV blocks)
 
     @property
     def n(self) -> int:
         return len(self.t)
 
+    @property
+    def clock(self) -> np.ndarray:
+        """(n,) the time axis derivatives are taken on: ``t``, or the pose index of a static log."""
+        return np.arange(self.n, dtype=float) if self.static else self.t
+
     def nominal_wrench(self, q: np.ndarray) -> np.ndarray:
         """The declared tool's wrench (n, 6) had the encoders read ``q`` (n, dof) instead (same
         velocities and times): for effects that move the model's joint angles."""
         m, mc, I_O = ph.nominal_inertials(self.setup)
-        return ph.tool_wrench(self.arm.series(q, self.qdot, self.t), m, mc, I_O)
+        return ph.tool_wrench(self.arm.series(q, self.qdot, self.clock), m, mc, I_O)
 
     def with_contact(self, contact: np.ndarray, offset: np.ndarray) -> "LogSignals":
         """The same log with another contact mask; ``offset`` (6,) is the free-space offset taken
@@ -56,18 +64,76 @@ class LogSignals:
         return replace(self, contact=contact, contact_force_s=np.where(contact[:, None], e[:, :3], 0.0))
 
 
+#: static logs: poses per cross-validation block (groups of similar gravity directions)
+POSES_PER_BLOCK = 8
+MAX_STATIC_BLOCKS = 30
+
+
 def from_log(log, setup, progress=lambda msg: None) -> LogSignals:
-    """A reader's ``UserLog`` + setup -> ``LogSignals`` (contact: none yet; ``with_contact``)."""
+    """A reader's ``UserLog`` + setup -> ``LogSignals`` (contact: none yet; ``with_contact``).
+
+    A static-pose log (``[log] static``): no derivatives are taken (velocities and accelerations
+    are zero), and the rows are put in a canonical order that does not depend on the file's row
+    order (sorted by the poses' values, then grouped by the direction of gravity in the sensor:
+    ``pose_block``), so that no verdict depends on the order the poses were logged in."""
     arm = ph.ArmModel(setup)
-    t = np.asarray(log.t_s, dtype=float)
+    static = bool(setup.log.static)
     q = np.asarray(log.q_rad, dtype=float)
-    qdot = np.asarray(log.qdot_rad_s, dtype=float) if log.qdot_rad_s is not None else ph.derivative(q, t)
-    progress(f"kinematics of {len(t)} samples")
-    kin = arm.series(q, qdot, t)
-    m, mc, I_O = ph.nominal_inertials(setup)
+    n = len(q)
+    has_time = log.t_s is not None
+    t = np.asarray(log.t_s, dtype=float) if has_time else np.arange(n, dtype=float)
     r = setup.log.sign * np.asarray(log.wrench_log, dtype=float)
-    n = len(t)
-    return LogSignals(t - t[0], q, qdot, ph.derivative(qdot, t), kin.R_ws, kin.p_ws, kin.g_s, kin.a_s, kin.omega_s,
-                      kin.alpha_s, r, np.zeros(n, bool), dict(getattr(log, "extra", None) or {}), setup,
+    extra = {k: np.asarray(v, dtype=float) for k, v in (getattr(log, "extra", None) or {}).items()}
+    if static:
+        order = np.lexsort(np.concatenate([q, r], axis=1).T[::-1])  # canonical: by the values, not the file
+        q, r, t = q[order], r[order], t[order]
+        extra = {k: v[order] for k, v in extra.items()}
+        qdot = np.zeros_like(q)
+        clock = np.arange(n, dtype=float)
+    else:
+        qdot = np.asarray(log.qdot_rad_s, dtype=float) if log.qdot_rad_s is not None else ph.derivative(q, t)
+        clock = t
+    progress(f"kinematics of {n} {'poses' if static else 'samples'}")
+    kin = arm.series(q, qdot, clock)
+    block = None
+    if static:
+        block = gravity_groups(kin.g_s, max(2, min(MAX_STATIC_BLOCKS, n // POSES_PER_BLOCK)))
+        order = np.argsort(block, kind="stable")
+        q, r, t, qdot, block = q[order], r[order], t[order], qdot[order], block[order]
+        extra = {k: v[order] for k, v in extra.items()}
+        kin = ph.KinSeries(*(None if x is None else x[order] for x in kin))
+    m, mc, I_O = ph.nominal_inertials(setup)
+    t0 = t[0] if (has_time and not static) else 0.0
+    qddot = np.zeros_like(q) if static else ph.derivative(qdot, t)
+    return LogSignals(t - t0, q, qdot, qddot, kin.R_ws, kin.p_ws, kin.g_s, kin.a_s, kin.omega_s,
+                      kin.alpha_s, r, np.zeros(n, bool), extra, setup,
                       ph.tool_wrench(kin, m, mc, I_O), np.zeros((n, 3)), ph.tip_moment_map(setup.tool.tip_sensor_m),
-                      arm)
+                      arm, static, has_time, block)
+
+
+def gravity_groups(g_s: np.ndarray, k: int, iters: int = 30) -> np.ndarray:
+    """(n,) group of each pose: k-means on the direction of gravity in the sensor (n, 3), started
+    from the farthest-point sequence of the rows' canonical order (deterministic). Groups are
+    numbered by their smallest row."""
+    u = g_s / np.maximum(np.linalg.norm(g_s, axis=1, keepdims=True), 1e-12)
+    n = len(u)
+    k = min(k, n)
+    centres = [0]
+    dmin = np.linalg.norm(u - u[0], axis=1)
+    for _ in range(1, k):
+        j = int(np.argmax(dmin))
+        centres.append(j)
+        dmin = np.minimum(dmin, np.linalg.norm(u - u[j], axis=1))
+    C = u[centres].copy()
+    lab = np.zeros(n, int)
+    for _ in range(iters):
+        lab_new = np.argmin(((u[:, None, :] - C[None]) ** 2).sum(-1), axis=1)
+        if np.array_equal(lab_new, lab) and _ > 0:
+            break
+        lab = lab_new
+        for j in range(k):
+            if np.any(lab == j):
+                C[j] = u[lab == j].mean(0)
+    first = {j: int(np.flatnonzero(lab == j)[0]) for j in np.unique(lab)}
+    rank = {j: i for i, j in enumerate(sorted(first, key=first.get))}
+    return np.array([rank[j] for j in lab])

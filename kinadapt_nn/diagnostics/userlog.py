@@ -51,6 +51,27 @@ def noise_sigma(r: np.ndarray, rc: RowCfg) -> np.ndarray:
     return np.maximum(s, [rc.force_floor_N] * 3 + [rc.moment_floor_Nm] * 3)
 
 
+def static_sigma(s: sg.LogSignals, residual: np.ndarray, rc: RowCfg) -> tuple[np.ndarray, str]:
+    """Per-channel noise (6,) of a static-pose log: the pooled scatter of repeated samples of the
+    same pose when at least a fifth of the rows repeat a pose, else the robust scale (MAD) of the
+    calibration fit's residual (then model errors count as noise: a conservative floor).
+    -> (sigma, how)."""
+    floor = np.array([rc.force_floor_N] * 3 + [rc.moment_floor_Nm] * 3)
+    key = np.round(s.q, 9)
+    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    rep = counts[inv] > 1
+    if rep.mean() >= 0.2:
+        means = np.zeros((len(counts), 6))
+        np.add.at(means, inv, s.wrench)
+        means /= counts[:, None]
+        dev = (s.wrench - means[inv])[rep]
+        dof = float(np.sum(counts[counts > 1] - 1))
+        return np.maximum(np.sqrt(np.sum(dev**2, axis=0) / max(dof, 1.0)), floor), "scatter of repeated poses"
+    mad = 1.4826 * np.median(np.abs(residual - np.median(residual, axis=0)), axis=0)
+    return np.maximum(mad, floor), "robust scale of the calibration fit's residual (no repeated poses)"
+
+
 def detect_contact(e: np.ndarray, t_s: np.ndarray, setup: SetupCfg, rc: RowCfg) -> tuple[np.ndarray, np.ndarray]:
     """Contact samples from the force the tool model does not explain (N, 6) -> (contact (N,)
     bool, the offset taken out (6,)). The offset is the median of the residual (the free-space
@@ -59,6 +80,9 @@ def detect_contact(e: np.ndarray, t_s: np.ndarray, setup: SetupCfg, rc: RowCfg) 
     n = len(t_s)
     if setup.contact.mode == "none":
         return np.zeros(n, bool), np.zeros(6)
+    if setup.log.static:  # poses at rest: each row on its own
+        off = np.median(e, axis=0)
+        return np.linalg.norm(e[:, :3] - off[:3], axis=1) > setup.contact.detect_force_N, off
     dt = float(np.median(np.diff(t_s)))
     es = moving_average(e, max(1, int(round(rc.smooth_s / dt))))
     off = np.median(es, axis=0)
@@ -81,7 +105,7 @@ def library(setup: SetupCfg, effects_files=()) -> dict[str, Effect]:
     """The effect library of this diagnosis: the built-ins and the effects of the user's files
     (``[analysis] effects_files`` and ``effects_files``), one registry, by name."""
     files = [*setup.analysis.effects_files, *effects_files]
-    return {**BUILTINS, **load_effect_files(files, BUILTINS)}
+    return {n: e.for_setup(setup) for n, e in {**BUILTINS, **load_effect_files(files, BUILTINS)}.items()}
 
 
 def judged(lib: dict[str, Effect], setup: SetupCfg) -> list[str]:
@@ -121,20 +145,28 @@ class RowMap(NamedTuple):
 def row_map(s: sg.LogSignals, sigma: np.ndarray, rc: RowCfg) -> RowMap:
     """The rows of a log (module docstring of ``RowMap``); one-line error when too few are left."""
     setup, t = s.setup, s.t
-    dt = float(np.median(np.diff(t)))
-    stride = max(1, int(round(rc.stride_s / dt)))
-    ok = (t >= t[0] + rc.edge_s) & (t <= t[-1] - rc.edge_s)
-    for a, b in setup.analysis.exclude_s:
-        ok &= ~((t - t[0] >= a) & (t - t[0] <= b))
+    if s.static:  # every pose is a row; no smoothing, no stride, no ends
+        dt, stride = 1.0, 1
+        ok = np.ones(s.n, bool)
+        if s.has_time:
+            for a, b in setup.analysis.exclude_s:
+                ok &= ~((t >= a) & (t <= b))
+    else:
+        dt = float(np.median(np.diff(t)))
+        stride = max(1, int(round(rc.stride_s / dt)))
+        ok = (t >= t[0] + rc.edge_s) & (t <= t[-1] - rc.edge_s)
+        for a, b in setup.analysis.exclude_s:
+            ok &= ~((t - t[0] >= a) & (t - t[0] <= b))
     if setup.contact.mode == "exclude":
         ok &= ~s.contact
     rows = np.flatnonzero(ok)[::stride]
-    if len(rows) < 20:
-        raise KinadaptError(f"the log leaves {len(rows)} rows after [analysis] exclude_s and the ends; "
-                            "give a longer log or exclude less")
+    if len(rows) < (12 if s.static else 20):
+        raise KinadaptError(f"the log leaves {len(rows)} {'poses' if s.static else 'rows'} after [analysis] exclude_s"
+                            f"{', contact' if s.static else ' and the ends'}; give a longer log or exclude less")
     tip = np.asarray(setup.tool.tip_sensor_m, dtype=float)
     sig_tip = np.sqrt(sigma[3:] ** 2 + float(tip @ tip) * np.mean(sigma[:3] ** 2))
-    return RowMap(rows, s.contact[rows], max(1, int(round(rc.smooth_s / dt))), 1.0 / sigma, 1.0 / sig_tip, s.tip_map)
+    k_smooth = 1 if s.static else max(1, int(round(rc.smooth_s / dt)))
+    return RowMap(rows, s.contact[rows], k_smooth, 1.0 / sigma, 1.0 / sig_tip, s.tip_map)
 
 
 def build_design(s: sg.LogSignals, lib: dict[str, Effect], names: list[str], sigma: np.ndarray, rc: RowCfg,
@@ -154,46 +186,83 @@ def build_design(s: sg.LogSignals, lib: dict[str, Effect], names: list[str], sig
     nf, nc = int((~con).sum()), int(con.sum())
     channel = np.concatenate([np.tile(np.arange(6), nf), np.tile(np.arange(6, 9), nc)])
     W = np.concatenate([np.tile(rm.w_free, nf), np.tile(rm.w_tip, nc)])
-    t = s.t
+    t = s.clock  # a static log: the pose index (rows are in groups of similar poses)
     tr = np.concatenate([np.repeat(t[rm.rows][~con], 6), np.repeat(t[rm.rows][con], 3)]) - t[0]
-    dur = float(t[-1] - t[0])
-    blen = max(rc.block_s, dur / rc.max_blocks)
-    nb = max(2, int(np.ceil(dur / blen)))
-    block = np.minimum((tr / blen).astype(int), nb - 1)
+    if s.static:  # blocks are groups of poses
+        pb = s.pose_block[rm.rows]
+        block = np.concatenate([np.repeat(pb[~con], 6), np.repeat(pb[con], 3)])
+        _, block = np.unique(block, return_inverse=True)
+        block = block.reshape(-1)
+        nb = int(block.max()) + 1
+    else:
+        dur = float(t[-1] - t[0])
+        blen = max(rc.block_s, dur / rc.max_blocks)
+        nb = max(2, int(np.ceil(dur / blen)))
+        block = np.minimum((tr / blen).astype(int), nb - 1)
     return sel.Design(y, X, Z, block, nb, {nm: lib[nm].relevant for nm in names},
                       {nm: lib[nm].one_of for nm in names}, W, channel, CHANNELS, tr), rm
 
 
-def sign_check(s: sg.LogSignals, setup: SetupCfg) -> dict:
-    """Fit the tool's total mass from the force (with a constant offset: it does not turn with
-    gravity) on every sample, then again on the 60 % that fit best (contact and effects are the
-    outliers; a flipped convention flips every sample, so it cannot hide there). A negative mass
-    means the wrench convention is flipped. Independent of the contact detection."""
-    ga = s.g_s - s.a_s  # (N, 3)
-    n = len(ga)
-    y = s.wrench[:, :3].reshape(-1)
-    A = np.zeros((3 * n, 4))
-    A[:, 0] = ga.reshape(-1)
-    for j in range(3):
-        A[j::3, 1 + j] = 1.0
-    keep = np.ones(n, bool)
-    coef = np.zeros(4)
-    for _ in range(2):
-        rows = np.repeat(keep, 3)
-        coef, *_ = np.linalg.lstsq(A[rows], y[rows], rcond=None)
-        res = np.linalg.norm((y - A @ coef).reshape(n, 3), axis=1)
-        keep = res <= np.quantile(res, 0.6)
-    m_fit = float(coef[0])
-    spread = float(np.linalg.norm(ga[keep] - ga[keep].mean(0), axis=1).max()) if keep.any() else 0.0
-    out = {"fitted_total_mass_kg": m_fit, "declared_mass_kg": setup.tool.mass_kg, "ok": True}
+def sign_check(fitm, s: sg.LogSignals, setup: SetupCfg) -> dict:
+    """Is the wrench convention right? The tool's mass from the sensor-mount fit (``mount``: the
+    rotation free, so a wrong mount cannot fake it): a flipped convention negates the whole wrench,
+    which no rotation can undo, so the fitted mass comes out negative. A mass below zero by more
+    than 3 sd fails the check; one that is not positive within its uncertainty is not measurable."""
+    m, sd = float(fitm.x[3]), float(fitm.sd[3])
+    ga = s.g_s - s.a_s
+    free = ~s.contact
+    spread = float(np.linalg.norm(ga[free] - ga[free].mean(0), axis=1).max()) if free.any() else 0.0
+    out = {"fitted_total_mass_kg": m, "sd_kg": sd, "declared_mass_kg": setup.tool.mass_kg, "ok": True,
+           "method": "tool mass of the sensor-mount fit (rotation, mass, centre of mass and offset jointly)"}
     if spread < 1.0:
         out["note"] = "the tool hardly turns in the log: the mass (and sign) cannot be checked"
         return out
-    if m_fit < -0.05 and (setup.tool.mass_kg == 0 or m_fit < -0.3 * setup.tool.mass_kg):
+    if m + 3.0 * sd < 0.0:
         out["ok"] = False
-        out["message"] = (f"the tool weighs {m_fit:.3g} kg by the measured force (declared {setup.tool.mass_kg:g} kg): "
-                          f"is [log] wrench_acts = \"{setup.log.wrench_acts}\" right? (try the other one)")
+        out["message"] = (f"the tool weighs {m:.3g} ± {sd:.2g} kg by the measured force (declared "
+                          f"{setup.tool.mass_kg:g} kg): is [log] wrench_acts = \"{setup.log.wrench_acts}\" right? "
+                          "(try the other one)")
+    elif m <= 0.0:
+        out["note"] = f"the tool's weight is not measurable in this log (fitted {m:.3g} ± {sd:.2g} kg)"
     return out
+
+
+def sample_blocks(s: sg.LogSignals, rc: RowCfg) -> np.ndarray:
+    """(n,) the cross-validation block of every sample: time blocks, or groups of poses."""
+    if s.static:
+        return np.asarray(s.pose_block)
+    t = s.t - s.t[0]
+    dur = float(t[-1])
+    blen = max(rc.block_s, dur / rc.max_blocks)
+    return np.minimum((t / blen).astype(int), max(2, int(np.ceil(dur / blen))) - 1)
+
+
+def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray, rc: RowCfg,
+              progress: Callable[[str], None]) -> tuple:
+    """The sensor-mount fit (``mount``) and what follows from it, before any effect is judged:
+    fit on every sample (robust loss), contact detected against the calibrated model, fit again on
+    free space; a static log's noise from that fit; with ``[sensor] mount_known = false`` the
+    signals in the estimated mount. -> (fit, signals with contact, setup used, sigma, how sigma
+    was estimated)."""
+    from kinadapt_nn.diagnostics import mount
+
+    progress("sensor mount: rotation, mass, centre of mass and offset fitted jointly")
+    blocks = sample_blocks(s, rc)
+    fit0 = mount.fit(s, np.ones(s.n, bool), blocks, sigma)
+    how = "second differences of the reading"
+    if s.static:
+        sigma, how = static_sigma(s, fit0.residual, rc)
+        fit0 = mount.fit(s, np.ones(s.n, bool), blocks, sigma)
+    e_cal = s.wrench - mount.predict(fit0.x, s)
+    contact, _ = detect_contact(e_cal, s.t, setup, rc)
+    fitm = mount.fit(s, ~contact, blocks, sigma) if contact.any() and (~contact).sum() > 20 else fit0
+    if not setup.sensor.mount_known:
+        setup = setup.model_copy(update={"sensor": setup.sensor.model_copy(
+            update={"rpy_flange_deg": tuple(float(v) for v in fitm.rpy_deg)})})
+        progress("kinematics again in the estimated sensor mount")
+        s = sg.from_log(log, setup)
+    off = np.median((s.wrench - s.w_nom)[~contact], axis=0) if (~contact).any() else np.zeros(6)
+    return fitm, s.with_contact(contact, off), setup, sigma, how
 
 
 class Result(NamedTuple):
@@ -229,6 +298,25 @@ def _rms_by_channel(des: sel.Design, e: np.ndarray) -> dict:
     return out
 
 
+def to_log_units(est: dict, setup: SetupCfg) -> dict:
+    """An estimate ``{param: {value, sd, unit}}`` with its force and moment quantities (N, N m and
+    their rates) given in the log's own units ([log] force_unit, torque_unit)."""
+    from kinadapt_nn.diagnostics.setup import FORCE_UNITS, TORQUE_UNITS
+
+    fu, tu = setup.log.force_unit, setup.log.torque_unit
+    if fu == "N" and tu == "N m":
+        return est
+    conv = {"N": (FORCE_UNITS[fu], fu), "N m": (TORQUE_UNITS[tu], tu), "N/s": (FORCE_UNITS[fu], fu + "/s"),
+            "N m/s": (TORQUE_UNITS[tu], tu + "/s")}
+    out = {}
+    for k, v in est.items():
+        if isinstance(v, dict) and v.get("unit") in conv and v.get("value") is not None:
+            f, u = conv[v["unit"]]
+            v = {**v, "value": v["value"] / f, "sd": None if v.get("sd") is None else v["sd"] / f, "unit": u}
+        out[k] = v
+    return out
+
+
 def _entry_report(e: dict, eff: Effect, setup: SetupCfg) -> dict:
     out = {k: v for k, v in e.items() if k not in ("params", "sd", "columns_used", "equivalence")}
     out["judged"] = True
@@ -236,7 +324,7 @@ def _entry_report(e: dict, eff: Effect, setup: SetupCfg) -> dict:
     out["doc"] = eff.doc
     cols = e["columns_used"]
     p, sd = e["params"], e["sd"]
-    full = eff.user_report(p, sd, setup)
+    full = to_log_units(eff.user_report(p, sd, setup), setup)
     out["estimate"] = {eff.params[c]: full[eff.params[c]] for c in cols if eff.params[c] in full} if eff.one_of \
         else full
     und = e["excitation"]["weak_parameters"]
@@ -278,15 +366,41 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
         if name not in (getattr(log, "extra", None) or {}):
             raise KinadaptError(f"[log] extra '{name}' was not read from the log (use a CSV, Parquet or ROS 2 bag log "
                                 "that has it)")
+    from kinadapt_nn.diagnostics import mount
+
+    declared = setup
     s = sg.from_log(log, setup, progress)
-    sigma = noise_sigma(s.wrench, rc)
-    contact, off = detect_contact(s.wrench - s.w_nom, s.t, setup, rc)
-    s = s.with_contact(contact, off)
-    check = sign_check(s, setup)
+    sigma = noise_sigma(s.wrench, rc) if not s.static else np.array([1.0] * 3 + [0.1] * 3)
+    fitm, s, setup, sigma, sigma_how = calibrate(log, s, setup, sigma, rc, progress)
+    check = sign_check(fitm, s, setup)
+    sensor_mount = dict(fitm.report)
+    why_not = mount.plausibility(fitm, setup)
+    unit_msg = mount.unit_warning(fitm, setup)
+    if why_not:
+        sensor_mount["plausible"] = False
+        sensor_mount["warning"] = "physically impossible calibration, not a finding: " + "; ".join(why_not)
+    else:
+        sensor_mount["plausible"] = True
+    mount_msg = None
+    if declared.sensor.mount_known and not sensor_mount["declared_consistent"] and not why_not:
+        mount_msg = (f"the declared sensor mount is off by {fitm.angle_deg:.1f} ± {fitm.angle_sd_deg:.1g} deg, more than "
+                     f"a first-order rotation can represent: the data say {sensor_mount['paste']} (± "
+                     + ", ".join(f"{v:.2g}" for v in fitm.rpy_sd_deg) + " deg); paste it into the setup or set "
+                     "[sensor] mount_known = false")
+    elif not declared.sensor.mount_known:
+        sensor_mount["used"] = "the estimated rotation replaces [sensor] rpy_flange_deg for the whole diagnosis"
     excite = {n: lib[n].excite for n in names}
     excite["_params"] = {n: lib[n].params for n in names}
     cache: dict = {}
-    block = None if check["ok"] else "the sign check failed: " + check["message"]
+    block = None
+    if not check["ok"]:
+        block = "the sign check failed: " + check["message"]
+    elif unit_msg:
+        block = "the wrench units look wrong: " + unit_msg
+    elif why_not:
+        block = sensor_mount["warning"]
+    elif mount_msg:
+        block = mount_msg
     des, rm, result, s = _rank(s, lib, names, sigma, rc, sc, excite, block, cache, progress)
     fit_check = tip_consistency(des, list(result.present), sc)
     contact_rows = "used (moment about the declared tip)" if setup.contact.mode == "tip" else setup.contact.mode
@@ -301,20 +415,28 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
         fit_check["action"] = "contact rows left out; verdicts from free space alone"
         contact_rows = "left out (tip check failed)"
     entries = [_entry_report(e, lib[e["effect"]], setup) for e in result.entries]
-    dt = float(np.median(np.diff(s.t)))
+    dt = None if s.static else float(np.median(np.diff(s.t)))
     report = {
         "setup_summary": {"tared": setup.log.tared, "wrench_acts": setup.log.wrench_acts,
                           "tool_mass_kg": setup.tool.mass_kg, "contact_mode": setup.contact.mode},
-        "log": {"samples": int(s.n), "duration_s": float(s.t[-1] - s.t[0]),
-                "rate_Hz": float(1.0 / dt), "qdot": "logged" if log.qdot_rad_s is not None else "differentiated from q",
+        "log": {"samples": int(s.n), "static": bool(s.static), "time_column": bool(s.has_time),
+                "duration_s": float(np.ptp(s.t)) if s.has_time else None,
+                "rate_Hz": None if dt is None else float(1.0 / dt),
+                "qdot": ("zero (poses at rest)" if s.static else "logged" if log.qdot_rad_s is not None
+                         else "differentiated from q"),
+                "joints": int(s.q.shape[1]), "force_unit": setup.log.force_unit, "torque_unit": setup.log.torque_unit,
                 "extra_columns": list(s.extra)},
         "library": {n: {"source": lib[n].source, "doc": lib[n].doc, "params": dict(zip(lib[n].params, lib[n].units)),
                         "judged": n in names} for n in lib},
         "contact": {"fraction": float(s.contact.mean()), "windows_s": _windows(s.contact, s.t), "rows": contact_rows},
         "noise_sigma": dict(zip(FREE_CHANNELS, (float(v) for v in sigma))),
+        "noise_sigma_method": sigma_how,
+        "sensor_mount": sensor_mount,
         "sign_check": check,
         "tip_contact_check": fit_check,
-        "warnings": [m for m in (check.get("message"), fit_check.get("message")) if m],
+        "warnings": [m for m in (check.get("message"), unit_msg, sensor_mount.get("warning"), mount_msg,
+                                 fit_check.get("message")) if m],
+        "blocked": block,
         "ranking": entries + [_not_judged(n) for n in CONTACT_MODEL_EFFECTS],
         "not_judged": [{"effect": n, "reason": NOT_JUDGED} for n in CONTACT_MODEL_EFFECTS],
         "residual_rms_by_channel": _rms_by_channel(des, des.y),
@@ -336,7 +458,7 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
         report["added"] = {}
         for n, (c, full, sd) in fitted_add.items():
             eff = lib[n]
-            est = eff.user_report(full, sd, setup)
+            est = to_log_units(eff.user_report(full, sd, setup), setup)
             if eff.one_of:
                 est = {eff.params[j]: est[eff.params[j]] for j in c}
             entry = {"estimate": est}
@@ -421,7 +543,19 @@ def summary_text(rep: dict) -> str:
     if not chk["ok"]:
         return ("WARNING: " + chk["message"] + ". Every effect is 'cannot_decide' until the wrench convention "
                 "is right (nothing can be judged against a tool that weighs less than nothing).")
-    parts = [completeness_text(rep)]
+    if rep.get("blocked"):
+        return ("WARNING: " + rep["blocked"] + ". Every effect is 'cannot_decide' until the set-up is right "
+                "(no effect can be judged against a model the data contradict at first sight).")
+    parts = []
+    sm = rep.get("sensor_mount")
+    if sm and not sm.get("mount_known", True):
+        com = sm["tool_com_sensor_m"]
+        parts.append("Sensor mount estimated: " + sm["paste"] + " (± " + ", ".join(f"{v:.2g}" for v in sm["sd_deg"])
+                     + f" deg; {sm['rotation_from_declared_deg']:.1f} deg from the guess); tool "
+                     f"{sm['tool_mass_kg']:.4g} ± {sm['tool_mass_sd_kg']:.2g} kg"
+                     + (", centre of mass [" + ", ".join(f"{1000 * v:.1f}" for v in com) + "] mm in the sensor frame"
+                        if com[0] is not None else "") + ".")
+    parts.append(completeness_text(rep))
     if not rep["tip_contact_check"]["ok"]:
         parts.append("WARNING: " + rep["tip_contact_check"]["message"] + ".")
     pres = [e for e in rep["ranking"] if e["verdict"] == "present"]

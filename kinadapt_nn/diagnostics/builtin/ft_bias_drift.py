@@ -19,11 +19,16 @@ def _plausible(p, setup) -> str | None:
     return None
 
 
+def _has_time(setup) -> bool:
+    """Time effects are judged only on a time axis that exists (not on a static log's pose index)."""
+    return not (setup.log.static and not setup.log.time)
+
+
 @effect(params={"rate_fx": "N/s", "rate_fy": "N/s", "rate_fz": "N/s", "rate_tx": "N m/s", "rate_ty": "N m/s",
                 "rate_tz": "N m/s"},
         relevant=[0.03, 0.03, 0.03, 0.003, 0.003, 0.003], doc="the F/T offset drifts linearly in time",
         excite="a longer log, returning to the same free-space poses at its start and end",
-        report=_report, plausible=_plausible, uses_contact=False)
+        report=_report, plausible=_plausible, uses_contact=False, applies=_has_time)
 def ft_bias_drift(s):
     C = np.zeros((s.n, 6, 6))
     for j in range(6):

@@ -31,7 +31,8 @@ def plausible_small_angle(p, setup) -> str | None:
 @effect(params={"rot_x": "rad", "rot_y": "rad", "rot_z": "rad"}, relevant=[np.deg2rad(1.0)] * 3,
         doc="the sensor's axes are rotated from their declared mounting",
         excite="reorient in free space (gravity along several sensor axes) and push in contact in two directions",
-        report=report_deg(("rot_x", "rot_y", "rot_z")), plausible=plausible_small_angle, uses_contact=False)
+        report=report_deg(("rot_x", "rot_y", "rot_z")), plausible=plausible_small_angle, uses_contact=False,
+        applies=lambda setup: setup.sensor.mount_known)  # an unknown mount is estimated whole (diagnostics.mount)
 def ft_frame_rotation(s):
     C = np.zeros((s.n, 6, 3))
     for j in range(3):
