@@ -1,10 +1,12 @@
 """Log readers for ``kinadapt diagnose LOG --setup SETUP.toml``: a user's log, whatever its format.
 
 ``read_log(path, setup)`` returns a ``UserLog``: time [s] from the first sample, joint positions
-[rad] (and velocities [rad/s] when the log has them) and the raw F/T reading *as logged* (the
-log's own sign convention and sensor frame; ``setup.log.wrench_acts`` says which it is, and
-``kinadapt_nn.diagnostics.physical`` converts). The setup's ``[log]`` section names the columns
-(``kinadapt_nn.diagnostics.setup.LogCfg``). Formats, chosen by the path:
+[rad] of the ``dof = len(setup.log.q)`` declared joints (and velocities [rad/s] when the log has
+them) and the F/T reading in SI units (N, N m: ``log.force_unit``/``log.torque_unit`` converted)
+but otherwise *as logged* (the log's own sign convention and sensor frame;
+``setup.log.wrench_acts`` says which it is, and ``kinadapt_nn.diagnostics.physical`` converts).
+The setup's ``[log]`` section names the columns (``kinadapt_nn.diagnostics.setup.LogCfg``).
+Formats, chosen by the path:
 
 * ``*.csv``, ``*.csv.gz``: a header row with the column names, one row per sample; extra columns
   are ignored; the delimiter (``,``, ``;`` or tab) is taken from the header line.
@@ -14,20 +16,28 @@ log's own sign convention and sensor frame; ``setup.log.wrench_acts`` says which
   ``sensor_msgs/msg/JointState`` on ``log.joint_state_topic`` (``log.q`` are joint names; the
   ``velocity`` field is used when ``log.qdot`` is non-empty and every message has it, else
   ``qdot_rad_s`` is None) and ``geometry_msgs/msg/WrenchStamped`` on ``log.wrench_topic``. Time is
-  the header stamp (the bag's record time when a stream's stamps are all zero). Messages that do
-  not name all seven joints (e.g. a gripper's) are skipped. ``log.angle_unit`` applies as declared
-  (JointState is in rad by REP 103). The wrench stream must itself be finite, strictly increasing
-  and free of gaps. The wrench is linearly interpolated
-  onto the joint-state stamps; joint states outside the wrench stream's time span are dropped.
-* This package's run log: ``trace.npz`` or its run folder (channels ``t_s``, ``q_rad``,
-  ``qdot_rad_s`` and ``wrench_raw_f``, the wrench the flange exerts on the tool, i.e.
-  ``wrench_acts = "sensor_on_tool"``); the setup's column names and units are not used.
+  the header stamp (the bag's record time when a stream's stamps are all zero). Joint-state
+  messages that do not name all the declared joints (e.g. a gripper's) are skipped. The units
+  apply as declared (REP 103 says rad, N and N m). The two streams run on their own clocks; each
+  must be finite, strictly increasing and free of gaps. The wrench stream is the master clock:
+  its samples are kept as recorded (interpolating them would average neighbouring noisy samples
+  and understate the sensor noise), the joint states (positions and velocities, smooth signals)
+  and the ``[log] extra`` ``TOPIC:FIELD`` values are linearly interpolated onto the wrench stamps,
+  and wrench samples outside the joint-state stream's time span are dropped.
+* This package's run log: ``trace.npz`` or its run folder (channels ``t_s``, ``q_rad`` and
+  ``qdot_rad_s`` of the seven Panda joints, and ``wrench_raw_f``, the wrench the flange exerts on
+  the tool, i.e. ``wrench_acts = "sensor_on_tool"``); the setup's column names and units are not used.
+
+A static log (``log.static = true``, F/T calibration: each row is a pose at rest) needs no time
+column (``log.time = ""``: ``UserLog.t_s`` is None); a time column it has is read (finite, [s] from
+the earliest row) but need not increase and may have gaps, as the rows' order carries no meaning.
+It needs ``MIN_POSES`` rows. A ROS 2 bag's streams are checked as above even when static.
 
 Every format is validated alike; each problem is a one-line ``KinadaptError`` naming the file, the
 row (CSV: the file's line number, header = line 1; otherwise "sample i", 0-based) and the column:
 a missing column, a value that is not a number or not finite, a time that does not increase, a
-gap (a step over ``GAP_FACTOR`` times the median step), fewer than ``MIN_SAMPLES`` samples, an
-empty or unreadable file.
+gap (a step over ``GAP_FACTOR`` times the median step), fewer than ``MIN_SAMPLES`` samples
+(``MIN_POSES`` for a static log), an empty or unreadable file.
 
 ``write_log`` writes a CSV / gzip CSV / Parquet log in a ``LogCfg``'s column names (tests, examples).
 """
@@ -38,6 +48,8 @@ import csv
 import gzip
 import io
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from dataclasses import field as dc_field
 from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
 
@@ -53,6 +65,7 @@ if TYPE_CHECKING:
 SUPPORTED = ("CSV (.csv, .csv.gz), Parquet (.parquet, .pq), a ROS 2 bag (a folder with metadata.yaml, "
              ".mcap, .db3) or a kinadapt run (trace.npz or its run folder)")
 MIN_SAMPLES = 50  # fewer samples cannot be diagnosed
+MIN_POSES = 12  # fewer rows of a static log (poses at rest) cannot be diagnosed
 GAP_FACTOR = 5.0  # a time step over this many median steps is a gap
 _LIST_MAX = 25  # names listed in a "missing column" message
 
@@ -60,14 +73,31 @@ Label = Callable[[int], str]  # 0-based sample index -> "line 12" / "sample 10"
 
 
 class UserLog(NamedTuple):
-    """A user's log in SI units, one row per sample (N samples)."""
+    """A user's log in SI units, one row per sample (N samples, dof joints)."""
 
-    t_s: np.ndarray  # (N,) [s] from the first sample, strictly increasing
-    q_rad: np.ndarray  # (N, 7) [rad] joint positions
-    qdot_rad_s: np.ndarray | None  # (N, 7) [rad/s] joint velocities, or None (differentiate q)
-    wrench_log: np.ndarray  # (N, 6) [N, N m] the F/T reading as logged (its own sign convention and frame)
+    t_s: np.ndarray | None  # (N,) [s] from the first sample, strictly increasing; static: from the earliest row, any order, or None (no time column)
+    q_rad: np.ndarray  # (N, dof) [rad] joint positions
+    qdot_rad_s: np.ndarray | None  # (N, dof) [rad/s] joint velocities, or None (differentiate q)
+    wrench_log: np.ndarray  # (N, 6) [N, N m] the F/T reading in SI, in the log's own sign convention and frame
     source: str  # the path read
     extra: dict | None = None  # declared extra columns ([log] extra): name -> (N,) values, or None
+    static: bool = False  # each row is a pose at rest ([log] static): no derivatives, no time order
+
+
+class _Layout(NamedTuple):
+    """The columns handed to ``_build``: q (dof), qdot (0 or dof), wrench (6), extra, in this order."""
+
+    names: Sequence[str]  # one per column (for messages)
+    dof: int  # joints
+    n_qdot: int  # 0 (no velocities) or dof
+    extra: Sequence[str] = ()  # the declared extra columns' names
+    angle_unit: str = "rad"  # of q and qdot
+    wrench_scale: np.ndarray | None = None  # (6,) SI per log unit of the wrench; None = already SI
+    static: bool = False  # poses at rest: any time order, gaps allowed, MIN_POSES rows
+
+
+def _layout(log: LogCfg, names: Sequence[str], n_qdot: int) -> _Layout:
+    return _Layout(names, len(log.q), n_qdot, log.extra, log.angle_unit, log.wrench_scale(), log.static)
 
 
 # --------------------------------------------------------------------------------------------- helpers
@@ -94,27 +124,27 @@ def _unreadable(path: Path, what: str, why: str) -> KinadaptError:
     return KinadaptError(f"log '{path}' is not a readable {what} ({why}); supported formats: {SUPPORTED}")
 
 
-def _check_count(path: Path, n: int, unit: str = "samples") -> None:
+def _check_count(path: Path, n: int, unit: str = "samples", static: bool = False) -> None:
+    need = MIN_POSES if static else MIN_SAMPLES
     if n == 0:
-        raise KinadaptError(f"log '{path}' is empty (no {unit}); record a log of at least {MIN_SAMPLES} samples")
-    if n < MIN_SAMPLES:
-        raise KinadaptError(f"log '{path}' has only {n} {unit}; at least {MIN_SAMPLES} are needed "
-                            "(record a longer log)")
+        raise KinadaptError(f"log '{path}' is empty (no {unit}); record a log of at least {need} "
+                            f"{'poses' if static else 'samples'}")
+    if n < need:
+        why = (f"a static log needs at least {need} poses (record more poses)" if static
+               else f"at least {need} are needed (record a longer log)")
+        raise KinadaptError(f"log '{path}' has only {n} {unit}; {why}")
 
 
 def _sample_label(i: int) -> str:
     return f"sample {i}"
 
 
-def _build(path: Path, time: np.ndarray, scale: float, cols: np.ndarray, names: Sequence[str], n_qdot: int,
-           angle_unit: str, label: Label, time_name: str, extra: Sequence[str] = ()) -> UserLog:
-    """Validate and assemble. ``time`` (N,) raw (integer or float) times, ``scale`` [s per unit];
-    ``cols`` (N, 13 + n_qdot + len(extra)) float: q (7), qdot (``n_qdot`` = 0 or 7), wrench (6),
-    the declared extra columns, named ``names``."""
-    n = int(time.shape[0])
-    _check_count(path, n)
+def _check_finite(path: Path, time: np.ndarray | None, cols: np.ndarray, names: Sequence[str], label: Label,
+                  time_name: str) -> None:
+    """The first non-finite time or value, as a one-line error naming its row and column."""
+    n = cols.shape[0]
     bad = ~np.isfinite(cols)
-    bad_t = ~np.isfinite(time) if time.dtype.kind == "f" else np.zeros(n, dtype=bool)
+    bad_t = ~np.isfinite(time) if time is not None and time.dtype.kind == "f" else np.zeros(n, dtype=bool)
     rows = np.flatnonzero(bad_t | bad.any(axis=1))
     if rows.size:
         r = int(rows[0])
@@ -125,10 +155,18 @@ def _build(path: Path, time: np.ndarray, scale: float, cols: np.ndarray, names: 
             name, value = names[j], cols[r, j]
         raise KinadaptError(f"log '{path}', {label(r)}: column '{name}' is {value} (not finite); "
                             "fix or remove that row")
-    if time.dtype.kind in "iu":
-        t = (time.astype(np.int64) - np.int64(time[0])).astype(np.float64) * scale
+
+
+def _seconds(path: Path, time: np.ndarray, scale: float, label: Label, time_name: str, static: bool) -> np.ndarray:
+    """Raw (integer or float) times -> (N,) [s] from the first sample, strictly increasing and free
+    of gaps; static: from the earliest row, in any order."""
+    ref = time.min() if static else time[0]
+    if time.dtype.kind in "iu":  # integer stamps are differenced exactly before scaling
+        t = (time.astype(np.int64) - np.int64(ref)).astype(np.float64) * scale
     else:
-        t = (time.astype(np.float64) - float(time[0])) * scale
+        t = (time.astype(np.float64) - float(ref)) * scale
+    if static:  # rows are poses: their order carries no meaning
+        return t
     dt = np.diff(t)
     nonpos = np.flatnonzero(dt <= 0.0)
     if nonpos.size:
@@ -142,17 +180,32 @@ def _build(path: Path, time: np.ndarray, scale: float, cols: np.ndarray, names: 
         k = int(gaps[0]) + 1
         raise KinadaptError(f"log '{path}', {label(k)}: a gap of {dt[k - 1]:.4g} s in the time ('{time_name}'; "
                             f"the median step is {med:.4g} s); split the log at the gap into separate logs")
-    q = cols[:, :7]
-    qdot = cols[:, 7 : 7 + n_qdot] if n_qdot else None
-    wrench = cols[:, 7 + n_qdot : 13 + n_qdot]
-    extra_cols = {name: np.ascontiguousarray(cols[:, 13 + n_qdot + k], dtype=np.float64) for k, name in enumerate(extra)}
-    if angle_unit == "deg":
+    return t
+
+
+def _build(path: Path, time: np.ndarray | None, scale: float, cols: np.ndarray, lay: _Layout, label: Label,
+           time_name: str) -> UserLog:
+    """Validate and assemble. ``time`` (N,) raw (integer or float) times or None (a static log
+    without time), ``scale`` [s per unit]; ``cols`` (N, dof + n_qdot + 6 + len(extra)) float laid
+    out as ``lay`` says, in the log's units."""
+    _check_count(path, cols.shape[0], static=lay.static)
+    _check_finite(path, time, cols, lay.names, label, time_name)
+    t = None if time is None else _seconds(path, time, scale, label, time_name, lay.static)
+    d, k = lay.dof, lay.n_qdot
+    q = cols[:, :d]
+    qdot = cols[:, d : d + k] if k else None
+    wrench = cols[:, d + k : d + k + 6]
+    if lay.wrench_scale is not None:
+        wrench = wrench * lay.wrench_scale  # (N, 6) log units -> N, N m
+    extra_cols = {name: np.ascontiguousarray(cols[:, d + k + 6 + j], dtype=np.float64)
+                  for j, name in enumerate(lay.extra)}
+    if lay.angle_unit == "deg":
         q = np.deg2rad(q)
         qdot = None if qdot is None else np.deg2rad(qdot)
     return UserLog(t_s=t, q_rad=np.ascontiguousarray(q, dtype=np.float64),
                    qdot_rad_s=None if qdot is None else np.ascontiguousarray(qdot, dtype=np.float64),
                    wrench_log=np.ascontiguousarray(wrench, dtype=np.float64), source=str(path),
-                   extra=extra_cols or None)
+                   extra=extra_cols or None, static=lay.static)
 
 
 # --------------------------------------------------------------------------------------------- dispatch
@@ -249,8 +302,8 @@ def _numbers(path: Path, col: pa.ChunkedArray, name: str, label: Label, time: bo
 def _from_table(path: Path, table: pa.Table, log: LogCfg, label: Label, unit: str) -> UserLog:
     """Pick the setup's columns out of a table (CSV or Parquet) and validate them."""
     header = [str(c).strip() for c in table.column_names]
-    fields = [("time", log.time)] + [("q", c) for c in log.q] + [("qdot", c) for c in log.qdot] + \
-             [("wrench", c) for c in log.wrench] + [("extra", c) for c in log.extra]
+    fields = ([("time", log.time)] if log.time else []) + [("q", c) for c in log.q] + \
+        [("qdot", c) for c in log.qdot] + [("wrench", c) for c in log.wrench] + [("extra", c) for c in log.extra]
     for field, c in fields:
         if c not in header:
             hint = ""
@@ -259,15 +312,15 @@ def _from_table(path: Path, table: pa.Table, log: LogCfg, label: Label, unit: st
                         f"supported formats: {SUPPORTED})")
             raise KinadaptError(f"log '{path}' has no column '{c}' (log.{field} in the setup); its columns: "
                                 f"{_list_names(header)}; fix the name in the setup's [log] section{hint}")
-    _check_count(path, table.num_rows, unit)
+    _check_count(path, table.num_rows, unit, log.static)
     col = {c: table.column(header.index(c)) for _, c in fields}
-    time, per_s = _numbers(path, col[log.time], log.time, label, time=True, log=log)
+    time, per_s = (_numbers(path, col[log.time], log.time, label, time=True, log=log) if log.time
+                   else (None, 1.0))  # a static log without time
     names = [*log.q, *log.qdot, *log.wrench, *log.extra]
-    cols = np.empty((table.num_rows, len(names)))
+    cols = np.empty((table.num_rows, len(names)))  # (N, dof + n_qdot + 6 + n_extra) in the log's units
     for j, c in enumerate(names):
         cols[:, j] = _numbers(path, col[c], c, label)[0]
-    return _build(path, time, per_s * log.time_scale_s, cols, names, len(log.qdot), log.angle_unit, label, log.time,
-                  log.extra)
+    return _build(path, time, per_s * log.time_scale_s, cols, _layout(log, names, len(log.qdot)), label, log.time)
 
 
 def _open_text(path: Path):
@@ -371,7 +424,8 @@ def _read_trace(path: Path) -> UserLog:
 
 def check_trace(tr, file: Path) -> UserLog:
     """A loaded ``Trace``'s raw channels under the readers' rules (finite, strictly increasing time,
-    no gaps, enough samples; one-line ``KinadaptError`` naming ``file``). -> ``UserLog``."""
+    no gaps, enough samples; one-line ``KinadaptError`` naming ``file``). -> ``UserLog`` (the
+    Panda's seven joints, SI as recorded)."""
     t = np.asarray(tr["t_s"])
     n = t.shape[0] if t.ndim == 1 else -1
     parts = []
@@ -382,7 +436,7 @@ def check_trace(tr, file: Path) -> UserLog:
                                 f"{t.shape}; expected (N, {width}) numbers for (N,) times (a damaged trace?)")
         parts.append(a.astype(np.float64))
     names = [f"{c}[{j}]" for c, w in (("q_rad", 7), ("qdot_rad_s", 7), ("wrench_raw_f", 6)) for j in range(w)]
-    return _build(file, t.astype(np.float64), 1.0, np.hstack(parts), names, 7, "rad", _sample_label, "t_s")
+    return _build(file, t.astype(np.float64), 1.0, np.hstack(parts), _Layout(names, 7, 7), _sample_label, "t_s")
 
 
 # --------------------------------------------------------------------------------------------- ROS 2 bag
@@ -392,12 +446,80 @@ _WRENCH = "geometry_msgs/msg/WrenchStamped"
 _WRENCH_NAMES = ("force.x", "force.y", "force.z", "torque.x", "torque.y", "torque.z")
 
 
+@dataclass
+class _BagMessages:
+    """What a bag holds on the setup's topics, message by message, in record order."""
+
+    js_head: list[int] = dc_field(default_factory=list)  # joint states: header stamp [ns]
+    js_rec: list[int] = dc_field(default_factory=list)  # record time [ns]
+    js_names: list[tuple[str, ...]] = dc_field(default_factory=list)
+    js_pos: list[np.ndarray] = dc_field(default_factory=list)
+    js_vel: list[np.ndarray] = dc_field(default_factory=list)
+    w_head: list[int] = dc_field(default_factory=list)  # wrench: header stamp [ns]
+    w_rec: list[int] = dc_field(default_factory=list)  # record time [ns]
+    w_val: list[tuple[float, ...]] = dc_field(default_factory=list)  # (fx, fy, fz, tx, ty, tz)
+    ex_t: dict[str, list[int]] = dc_field(default_factory=dict)  # [log] extra name -> stamps [ns]
+    ex_v: dict[str, list[float]] = dc_field(default_factory=dict)  # [log] extra name -> values
+
+
 def _stamps(header_ns: list[int], record_ns: list[int]) -> np.ndarray:
     """Header stamps [ns] (int64); the bag's record times when a stream never fills its stamps."""
     return np.asarray(record_ns if header_ns and not any(header_ns) else header_ns, dtype=np.int64)
 
 
-def _read_bag(path: Path, log: LogCfg) -> UserLog:
+def _ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def _extra_topics(log: LogCfg) -> dict[str, list[tuple[str, list[str]]]]:
+    """``[log] extra`` in a bag: topic -> [(the column's name, its dotted field's parts)]."""
+    topics: dict[str, list[tuple[str, list[str]]]] = {}
+    for name in log.extra:  # "TOPIC:FIELD" (a dotted field of the topic's messages)
+        topic, _, fld = name.rpartition(":")
+        if not topic or not fld:
+            raise KinadaptError(f"[log] extra '{name}': in a ROS 2 bag an extra column is 'TOPIC:FIELD' "
+                                "(e.g. '/sensor/temperature:temperature'); fix the setup")
+        topics.setdefault(topic, []).append((name, fld.split(".")))
+    return topics
+
+
+def _check_topics(path: Path, have: dict[str, str], want: list[tuple[str, str, str]], extra_topics) -> None:
+    listing = ", ".join(f"{_clean(t, 60)} [{_clean(m, 60)}]" for t, m in sorted(have.items())) or "none"
+    for topic in extra_topics:
+        if topic not in have:
+            raise KinadaptError(f"ROS 2 bag '{path}' has no topic '{topic}' ([log] extra in the setup); its "
+                                f"topics: {listing}; fix [log] extra")
+    for topic, msgtype, key in want:
+        if topic not in have:
+            raise KinadaptError(f"ROS 2 bag '{path}' has no topic '{topic}' ({key} in the setup); its topics: "
+                                f"{listing}; set {key}")
+        if have[topic] != msgtype:
+            raise KinadaptError(f"ROS 2 bag '{path}': topic '{topic}' ({key}) carries "
+                                f"{_clean(have[topic], 60)}, not {msgtype}; set {key} to a {msgtype} "
+                                f"topic (its topics: {listing})")
+
+
+def _add_extra(path: Path, m: _BagMessages, msg, topic: str, rec_ns: int, columns) -> None:
+    """The ``[log] extra`` values of one message on ``topic``."""
+    hdr = getattr(msg, "header", None)
+    st = _ns(hdr.stamp) if hdr is not None else 0
+    for name, parts in columns:
+        v = msg
+        for a in parts:
+            if not hasattr(v, a):
+                raise KinadaptError(f"ROS 2 bag '{path}': messages on '{topic}' have no field "
+                                    f"'{'.'.join(parts)}' ([log] extra '{name}'); fix [log] extra")
+            v = getattr(v, a)
+        try:
+            m.ex_v[name].append(float(v))
+        except (TypeError, ValueError):
+            raise KinadaptError(f"ROS 2 bag '{path}': field '{'.'.join(parts)}' on '{topic}' is "
+                                f"not a number ([log] extra '{name}')") from None
+        m.ex_t[name].append(st or int(rec_ns))
+
+
+def _bag_messages(path: Path, log: LogCfg) -> _BagMessages:
+    """Every message on the setup's topics (one-line errors for a missing topic or a damaged bag)."""
     try:
         from rosbags.highlevel import AnyReader
         from rosbags.typesys import Stores, get_typestore
@@ -406,175 +528,178 @@ def _read_bag(path: Path, log: LogCfg) -> UserLog:
 
     want = [(log.joint_state_topic, _JOINT_STATE, "log.joint_state_topic"),
             (log.wrench_topic, _WRENCH, "log.wrench_topic")]
-    extra_topics = {}
-    for name in log.extra:  # "TOPIC:FIELD" (a dotted field of the topic's messages)
-        topic, _, fld = name.rpartition(":")
-        if not topic or not fld:
-            raise KinadaptError(f"[log] extra '{name}': in a ROS 2 bag an extra column is 'TOPIC:FIELD' "
-                                "(e.g. '/sensor/temperature:temperature'); fix the setup")
-        extra_topics.setdefault(topic, []).append((name, fld.split(".")))
-    ex_t: dict[str, list[int]] = {n: [] for n in log.extra}
-    ex_v: dict[str, list[float]] = {n: [] for n in log.extra}
-    js_head, js_rec, js_names, js_pos, js_vel = [], [], [], [], []
-    w_head, w_rec, w_val = [], [], []
+    streams = {w[:2] for w in want}
+    extra_topics = _extra_topics(log)
+    m = _BagMessages(ex_t={n: [] for n in log.extra}, ex_v={n: [] for n in log.extra})
     try:
         with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
             have: dict[str, str] = {}
             for c in reader.connections:
                 have.setdefault(c.topic, c.msgtype)
-            listing = ", ".join(f"{_clean(t, 60)} [{_clean(m, 60)}]" for t, m in sorted(have.items())) or "none"
-            for topic in extra_topics:
-                if topic not in have:
-                    raise KinadaptError(f"ROS 2 bag '{path}' has no topic '{topic}' ([log] extra in the setup); its "
-                                        f"topics: {listing}; fix [log] extra")
-            for topic, msgtype, key in want:
-                if topic not in have:
-                    raise KinadaptError(f"ROS 2 bag '{path}' has no topic '{topic}' ({key} in the setup); its topics: "
-                                        f"{listing}; set {key}")
-                if have[topic] != msgtype:
-                    raise KinadaptError(f"ROS 2 bag '{path}': topic '{topic}' ({key}) carries "
-                                        f"{_clean(have[topic], 60)}, not {msgtype}; set {key} to a {msgtype} "
-                                        f"topic (its topics: {listing})")
-            conns = [c for c in reader.connections if (c.topic, c.msgtype) in {w[:2] for w in want}
-                     or c.topic in extra_topics]
+            _check_topics(path, have, want, extra_topics)
+            conns = [c for c in reader.connections if (c.topic, c.msgtype) in streams or c.topic in extra_topics]
             for conn, rec_ns, raw in reader.messages(connections=conns):
                 msg = reader.deserialize(raw, conn.msgtype)
                 if conn.topic in extra_topics:
-                    hdr = getattr(msg, "header", None)
-                    st = (int(hdr.stamp.sec) * 1_000_000_000 + int(hdr.stamp.nanosec)) if hdr is not None else 0
-                    for name, parts in extra_topics[conn.topic]:
-                        v = msg
-                        for a in parts:
-                            if not hasattr(v, a):
-                                raise KinadaptError(f"ROS 2 bag '{path}': messages on '{conn.topic}' have no field "
-                                                    f"'{'.'.join(parts)}' ([log] extra '{name}'); fix [log] extra")
-                            v = getattr(v, a)
-                        try:
-                            ex_v[name].append(float(v))
-                        except (TypeError, ValueError):
-                            raise KinadaptError(f"ROS 2 bag '{path}': field '{'.'.join(parts)}' on '{conn.topic}' is "
-                                                f"not a number ([log] extra '{name}')") from None
-                        ex_t[name].append(st or int(rec_ns))
-                    if (conn.topic, conn.msgtype) not in {w[:2] for w in want}:
-                        continue
-                stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+                    _add_extra(path, m, msg, conn.topic, rec_ns, extra_topics[conn.topic])
+                if (conn.topic, conn.msgtype) not in streams:
+                    continue
                 if conn.msgtype == _JOINT_STATE:
-                    js_head.append(stamp)
-                    js_rec.append(int(rec_ns))
-                    js_names.append(tuple(msg.name))
-                    js_pos.append(np.asarray(msg.position, dtype=np.float64))
-                    js_vel.append(np.asarray(msg.velocity, dtype=np.float64))
+                    m.js_head.append(_ns(msg.header.stamp))
+                    m.js_rec.append(int(rec_ns))
+                    m.js_names.append(tuple(msg.name))
+                    m.js_pos.append(np.asarray(msg.position, dtype=np.float64))
+                    m.js_vel.append(np.asarray(msg.velocity, dtype=np.float64))
                 else:
-                    f, m = msg.wrench.force, msg.wrench.torque
-                    w_head.append(stamp)
-                    w_rec.append(int(rec_ns))
-                    w_val.append((f.x, f.y, f.z, m.x, m.y, m.z))
+                    f, t = msg.wrench.force, msg.wrench.torque
+                    m.w_head.append(_ns(msg.header.stamp))
+                    m.w_rec.append(int(rec_ns))
+                    m.w_val.append((f.x, f.y, f.z, t.x, t.y, t.z))
     except KinadaptError:
         raise
     except Exception as exc:  # noqa: BLE001 -- any failure of the bag library on a damaged file is bad input
         raise _unreadable(path, "ROS 2 bag", _first_line(exc)) from None
-
-    # joint states: the messages that name all seven joints
-    for topic, n_msgs in ((log.joint_state_topic, len(js_head)), (log.wrench_topic, len(w_head))):
+    for topic, n_msgs in ((log.joint_state_topic, len(m.js_head)), (log.wrench_topic, len(m.w_head))):
         if n_msgs == 0:
             raise KinadaptError(f"ROS 2 bag '{path}' has no messages on '{topic}'; record that topic")
+    return m
+
+
+class _Stream(NamedTuple):
+    """One topic's samples on its own clock."""
+
+    t_ns: np.ndarray  # (M,) int64 [ns] stamps
+    values: np.ndarray  # (M, k) float
+    src: list[int]  # (M,) the message index on the topic of each sample (for messages)
+
+
+def _joint_stream(path: Path, log: LogCfg, m: _BagMessages) -> tuple[_Stream, int]:
+    """The joint-state messages that name every declared joint -> (stream of q (dof) and, when asked
+    for and present in every such message, qdot (dof); n_qdot = 0 or dof)."""
     index: dict[tuple[str, ...], list[int] | None] = {}
-    keep, q_rows, v_rows = [], [], []
-    for i, names in enumerate(js_names):
+    keep, rows, vels = [], [], []
+    for i, names in enumerate(m.js_names):
         if names not in index:
             index[names] = [names.index(j) for j in log.q] if all(j in names for j in log.q) else None
         idx = index[names]
-        if idx is None or len(js_pos[i]) != len(names):
+        if idx is None or len(m.js_pos[i]) != len(names):
             continue
         keep.append(i)
-        q_rows.append(js_pos[i][idx])
-        v_rows.append(js_vel[i][idx] if len(js_vel[i]) == len(names) else None)
+        rows.append(m.js_pos[i][idx])
+        vels.append(m.js_vel[i][idx] if len(m.js_vel[i]) == len(names) else None)
     if not keep:
         seen = list(dict.fromkeys(j for names in index for j in names))
         missing = next((j for j in log.q if j not in seen), log.q[0])
         raise KinadaptError(f"ROS 2 bag '{path}': no message on '{log.joint_state_topic}' has positions for joint "
                             f"'{missing}' (log.q in the setup); its joint names: {_list_names(seen)}; set log.q to "
-                            "the seven arm joints")
-    t_j = _stamps([js_head[i] for i in keep], [js_rec[i] for i in keep])
-    q = np.array(q_rows)
-    qdot = np.array(v_rows) if log.qdot and all(v is not None for v in v_rows) else None
+                            "the arm's joints")
+    t = _stamps([m.js_head[i] for i in keep], [m.js_rec[i] for i in keep])
+    q = np.array(rows)  # (M, dof)
+    if log.qdot and all(v is not None for v in vels):
+        return _Stream(t, np.hstack([q, np.array(vels)]), keep), q.shape[1]
+    return _Stream(t, q, keep), 0
 
-    # wrench: validated as its own stream, then interpolated onto the joint-state stamps
-    t_w = _stamps(w_head, w_rec)
-    w = np.array(w_val, dtype=np.float64)
-    wlabel: Label = lambda i: f"wrench sample {i}"  # noqa: E731
-    if len(t_w) < 2:
-        raise KinadaptError(f"ROS 2 bag '{path}' has only {len(t_w)} message on '{log.wrench_topic}'; "
-                            "record the F/T sensor during the whole log")
-    bad = np.flatnonzero(~np.isfinite(w).all(axis=1))
+
+def _check_stream(path: Path, s: _Stream, names: Sequence[str], topic: str, what: str) -> None:
+    """A bag stream on its own clock: at least two samples, finite, strictly increasing, no gaps."""
+    at = lambda k: f"ROS 2 bag '{path}', {what} sample {s.src[k]} on '{topic}'"  # noqa: E731
+    if len(s.t_ns) < 2:
+        raise KinadaptError(f"ROS 2 bag '{path}' has only {len(s.t_ns)} {what} message on '{topic}'; "
+                            "record it during the whole log")
+    bad = np.flatnonzero(~np.isfinite(s.values).all(axis=1))
     if bad.size:
         r = int(bad[0])
-        j = int(np.flatnonzero(~np.isfinite(w[r]))[0])
-        raise KinadaptError(f"ROS 2 bag '{path}', {wlabel(r)} on '{log.wrench_topic}': {_WRENCH_NAMES[j]} is "
-                            f"{w[r, j]} (not finite); filter the bag")
-    dtw = np.diff(t_w)
-    if np.any(dtw <= 0):
-        k = int(np.flatnonzero(dtw <= 0)[0]) + 1
-        raise KinadaptError(f"ROS 2 bag '{path}', {wlabel(k)} on '{log.wrench_topic}': the header stamp does not "
-                            "increase; the wrench stamps must be strictly increasing")
-    med = float(np.median(dtw))
-    if np.any(dtw > GAP_FACTOR * med):
-        k = int(np.flatnonzero(dtw > GAP_FACTOR * med)[0]) + 1
-        raise KinadaptError(f"ROS 2 bag '{path}', {wlabel(k)} on '{log.wrench_topic}': a gap of "
-                            f"{dtw[k - 1] * 1e-9:.4g} s (the median step is {med * 1e-9:.4g} s); "
+        j = int(np.flatnonzero(~np.isfinite(s.values[r]))[0])
+        raise KinadaptError(f"{at(r)}: {names[j]} is {s.values[r, j]} (not finite); filter the bag")
+    dt = np.diff(s.t_ns)
+    if np.any(dt <= 0):
+        k = int(np.flatnonzero(dt <= 0)[0]) + 1
+        raise KinadaptError(f"{at(k)}: the header stamp does not increase; the {what} stamps must be strictly "
+                            "increasing")
+    med = float(np.median(dt))
+    if np.any(dt > GAP_FACTOR * med):
+        k = int(np.flatnonzero(dt > GAP_FACTOR * med)[0]) + 1
+        raise KinadaptError(f"{at(k)}: a gap of {dt[k - 1] * 1e-9:.4g} s (the median step is {med * 1e-9:.4g} s); "
                             "split the log at the gap")
-    inside = np.flatnonzero((t_j >= t_w[0]) & (t_j <= t_w[-1]))
+
+
+def _onto(t_new: np.ndarray, t: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Linear interpolation of (M, k) ``values`` at (M,) times ``t`` onto (N,) ``t_new`` -> (N, k)."""
+    return np.stack([np.interp(t_new, t, values[:, k]) for k in range(values.shape[1])], axis=1)
+
+
+def _extra_onto(path: Path, log: LogCfg, m: _BagMessages, origin: int, tw_ns: np.ndarray) -> list[np.ndarray]:
+    """Each ``[log] extra`` value interpolated onto the wrench stamps -> [(N, 1)]."""
+    out = []
+    for name in log.extra:
+        te, ve = np.asarray(m.ex_t[name], dtype=np.int64), np.asarray(m.ex_v[name], dtype=np.float64)
+        if len(te) < 2:
+            raise KinadaptError(f"ROS 2 bag '{path}' has {len(te)} message(s) for [log] extra '{name}'; "
+                                "record it during the whole log")
+        order = np.argsort(te, kind="stable")
+        out.append(np.interp(tw_ns, (te[order] - origin).astype(np.float64), ve[order])[:, None])
+    return out
+
+
+def _read_bag(path: Path, log: LogCfg) -> UserLog:
+    """Both streams validated on their own clocks; the wrench stamps are the master clock."""
+    m = _bag_messages(path, log)
+    joints, n_qdot = _joint_stream(path, log, m)
+    j_names = [*log.q, *(f"{j} velocity" for j in log.q[: n_qdot])]
+    _check_stream(path, joints, j_names, log.joint_state_topic, "joint-state")
+    wrench = _Stream(_stamps(m.w_head, m.w_rec), np.array(m.w_val, dtype=np.float64), list(range(len(m.w_head))))
+    _check_stream(path, wrench, _WRENCH_NAMES, log.wrench_topic, "wrench")
+    t_j, t_w = joints.t_ns, wrench.t_ns
+    inside = np.flatnonzero((t_w >= t_j[0]) & (t_w <= t_j[-1]))  # wrench samples the joint states span
     if inside.size == 0:
         o = min(int(t_j[0]), int(t_w[0]))
         raise KinadaptError(
             f"ROS 2 bag '{path}': the joint states ({(t_j[0] - o) * 1e-9:.3f} to {(t_j[-1] - o) * 1e-9:.3f} s) and "
             f"the wrench ({(t_w[0] - o) * 1e-9:.3f} to {(t_w[-1] - o) * 1e-9:.3f} s) do not overlap in time; "
             "check both topics' header stamps")
-    origin = int(t_w[0])
-    tw_s = (t_w - origin).astype(np.float64)
-    tj_s = (t_j[inside] - origin).astype(np.float64)
-    w_at = np.stack([np.interp(tj_s, tw_s, w[:, k]) for k in range(6)], axis=1)
-    ex_at = []
-    for name in log.extra:  # interpolated onto the joint-state stamps, like the wrench
-        te, ve = np.asarray(ex_t[name], dtype=np.int64), np.asarray(ex_v[name], dtype=np.float64)
-        if len(te) < 2:
-            raise KinadaptError(f"ROS 2 bag '{path}' has {len(te)} message(s) for [log] extra '{name}'; "
-                                "record it during the whole log")
-        order = np.argsort(te, kind="stable")
-        ex_at.append(np.interp(tj_s, (te[order] - origin).astype(np.float64), ve[order])[:, None])
-    parts = [q[inside], *([] if qdot is None else [qdot[inside]]), w_at, *ex_at]
-    names = [*log.q, *([f"{j} velocity" for j in log.q] if qdot is not None else []), *_WRENCH_NAMES, *log.extra]
-    src = [keep[i] for i in inside]
-    label: Label = lambda i: f"joint-state sample {src[i]}"  # noqa: E731
-    return _build(path, t_j[inside], 1e-9, np.hstack(parts), names, 0 if qdot is None else 7, log.angle_unit,
-                  label, "header stamp", log.extra)
+    origin = int(t_w[inside[0]])
+    tw_ns = (t_w[inside] - origin).astype(np.float64)  # (N,) [ns] the master clock
+    joints_at = _onto(tw_ns, (t_j - origin).astype(np.float64), joints.values)  # (N, dof + n_qdot)
+    cols = np.hstack([joints_at, wrench.values[inside], *_extra_onto(path, log, m, origin, tw_ns)])
+    names = [*j_names, *_WRENCH_NAMES, *log.extra]
+    label: Label = lambda i: f"wrench sample {inside[i]}"  # noqa: E731
+    return _build(path, t_w[inside], 1e-9, cols, _layout(log, names, n_qdot), label, "header stamp")
 
 
 # --------------------------------------------------------------------------------------------- writer
 
 
-def write_log(path: str | Path, t_s: np.ndarray, q: np.ndarray, qdot: np.ndarray | None, wrench: np.ndarray,
+def write_log(path: str | Path, t_s: np.ndarray | None, q: np.ndarray, qdot: np.ndarray | None, wrench: np.ndarray,
               columns: LogCfg) -> None:
     """Write a log in ``columns``' names (``.csv``, ``.csv.gz`` or ``.parquet``/``.pq`` by suffix),
     atomically. Raw column values: ``t_s`` (N,) in the time column's unit (an integer array stays
-    integer), ``q`` (N, 7) and ``qdot`` (N, 7) in ``columns.angle_unit`` (``qdot`` is written only
-    when ``columns.qdot`` names columns, and then required), ``wrench`` (N, 6) [N, N m]."""
+    integer), or None for a static log without time (``columns.time = ""``: no time column);
+    ``q`` (N, dof) and ``qdot`` (N, dof) with ``dof = len(columns.q)`` in ``columns.angle_unit``
+    (``qdot`` is written only when ``columns.qdot`` names columns, and then required); ``wrench``
+    (N, 6) in ``columns.force_unit`` / ``columns.torque_unit``."""
     pa = _import_pyarrow()
     from kinadapt_nn.runio import atomic_write
 
     path = Path(path)
-    t = np.asarray(t_s)
-    n = t.shape[0] if t.ndim == 1 else -1
-    arrays = {"q": (q, 7), "wrench": (wrench, 6)}
+    if (t_s is None) != (not columns.time):
+        raise KinadaptError(f"write_log('{path}'): give times exactly when the columns name a time column "
+                            f"(time = '{columns.time}', t_s {'None' if t_s is None else 'given'})")
+    t = None if t_s is None else np.asarray(t_s)
+    if t is not None:
+        n = t.shape[0] if t.ndim == 1 else -1
+    else:  # a static log without time: the rows of q
+        n = np.shape(q)[0] if np.ndim(q) == 2 else -1
+    dof = len(columns.q)
+    arrays = {"q": (q, dof), "wrench": (wrench, 6)}
     if columns.qdot:
         if qdot is None:
             raise KinadaptError(f"write_log('{path}'): the columns name joint velocities (qdot) but none were given")
-        arrays["qdot"] = (qdot, 7)
+        arrays["qdot"] = (qdot, dof)
     for name, (a, width) in arrays.items():
         if n < 0 or np.shape(a) != (n, width):
             raise KinadaptError(f"write_log('{path}'): {name} has shape {np.shape(a)}; expected ({n}, {width}) "
-                                f"for {n} times")
-    data = {columns.time: pa.array(t if t.dtype.kind in "iu" else t.astype(np.float64))}
+                                f"for {n} rows")
+    data = {} if t is None else {columns.time: pa.array(t if t.dtype.kind in "iu" else t.astype(np.float64))}
     for names, key in ((columns.q, "q"), (columns.qdot, "qdot"), (columns.wrench, "wrench")):
         if names:
             a = np.asarray(arrays[key][0], dtype=np.float64)
@@ -601,4 +726,4 @@ def write_log(path: str | Path, t_s: np.ndarray, q: np.ndarray, qdot: np.ndarray
         raise KinadaptError(f"write_log('{path}'): unknown suffix; use .csv, .csv.gz, .parquet or .pq")
 
 
-__all__ = ["UserLog", "read_log", "write_log", "SUPPORTED", "MIN_SAMPLES", "GAP_FACTOR"]
+__all__ = ["UserLog", "read_log", "write_log", "SUPPORTED", "MIN_SAMPLES", "MIN_POSES", "GAP_FACTOR"]

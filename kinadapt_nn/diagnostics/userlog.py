@@ -445,7 +445,7 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
                    "nuisance": "constant offset (tared log)" if s.setup.log.tared else "none"},
     }
     progress("completeness of the final model" + (" and hints" if hints else ""))
-    comp, files = cp.assess(s, des, rm, result, sc, sigma, rc.stride_s, with_hints=hints and check["ok"],
+    comp, files = cp.assess(s, des, rm, result, sc, sigma, rc.stride_s, with_hints=hints and block is None,
                             source=str(getattr(log, "source", "the log")))
     report.update(comp)
     cp.caveat_present(report)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import gzip
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -18,14 +19,18 @@ N, RATE = 1000, 500.0  # samples, [Hz]
 ARM = tuple(f"panda_joint{i}" for i in range(1, 8))
 
 
-def synth(n: int = N, rate: float = RATE):
-    """Smooth sines: t (n,) [s], q, qdot (n, 7) [rad, rad/s], wrench (n, 6) [N, N m]."""
+def synth(n: int = N, rate: float = RATE, dof: int = 7):
+    """Smooth sines: t (n,) [s], q, qdot (n, dof) [rad, rad/s], wrench (n, 6) [N, N m]."""
     t = np.arange(n) / rate
-    k = np.arange(1, 8)
+    return (t, *joints_at(t, dof), wrench_at(t))
+
+
+def joints_at(t: np.ndarray, dof: int = 7) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) [s] -> q, qdot (n, dof) [rad, rad/s]: smooth sines."""
+    k = np.arange(1, dof + 1)
     q = 0.3 * np.sin(2 * np.pi * 0.4 * k * t[:, None] / 7 + k) + 0.1 * k
     qdot = 0.3 * (2 * np.pi * 0.4 * k / 7) * np.cos(2 * np.pi * 0.4 * k * t[:, None] / 7 + k)
-    wrench = wrench_at(t)
-    return t, q, qdot, wrench
+    return q, qdot
 
 
 def wrench_at(t: np.ndarray) -> np.ndarray:
@@ -157,16 +162,127 @@ def test_trace_file_and_run_folder(tmp_path):
     assert "sample 40" in err(tmp_path / "bad.npz")
 
 
+# --------------------------------------------------------------------------------------------- joints, units, static logs
+
+
+@pytest.mark.parametrize("dof", [1, 6, 12])
+@pytest.mark.parametrize("suffix", [".csv", ".parquet"])
+def test_any_number_of_joints(tmp_path, dof, suffix):
+    t, q, qdot, w = synth(dof=dof)
+    setup = setup_of(q=[f"j{i}" for i in range(dof)], qdot=[f"jd{i}" for i in range(dof)])
+    path = tmp_path / f"log{suffix}"
+    write_log(path, t, q, qdot, w, setup.log)
+    log = read_log(path, setup)
+    assert log.q_rad.shape == (N, dof) and log.qdot_rad_s.shape == (N, dof)
+    np.testing.assert_array_equal(log.q_rad, q)
+    np.testing.assert_array_equal(log.qdot_rad_s, qdot)
+    with pytest.raises(KinadaptError, match=rf"q has shape \({N}, 7\); expected \({N}, {dof}\)"):
+        write_log(path, t, synth()[1], qdot, w, setup.log)  # seven joints for a dof-joint log
+
+
+def test_wrench_units_come_back_in_si(tmp_path):
+    """N mm and lbf in / lbf columns are scaled by their exact SI factors; the default N, N m stays bit-exact."""
+    t, q, _, w = synth()
+    path = tmp_path / "mm.csv"
+    mm = setup_of(torque_unit="N mm")
+    raw = np.hstack([w[:, :3], 1000.0 * w[:, 3:]])  # [N, N mm]
+    write_log(path, t, q, None, raw, mm.log)
+    log = read_log(path, mm)
+    np.testing.assert_array_equal(log.wrench_log[:, :3], w[:, :3])
+    np.testing.assert_array_equal(log.wrench_log[:, 3:], raw[:, 3:] * 1e-3)
+    np.testing.assert_allclose(log.wrench_log[:, 3:], w[:, 3:], rtol=1e-15)
+    imperial = setup_of(force_unit="lbf", torque_unit="lbf in")
+    write_log(path, t, q, None, w, imperial.log)  # the same numbers, read as lbf and lbf in
+    log = read_log(path, imperial)
+    np.testing.assert_array_equal(log.wrench_log[:, :3], w[:, :3] * 4.4482216152605)  # 1 lbf [N]
+    np.testing.assert_array_equal(log.wrench_log[:, 3:], w[:, 3:] * 0.1129848290276167)  # 1 lbf in [N m]
+
+
+STATIC = setup_of(static=True, time="")
+
+
+def poses(n: int = 12, dof: int = 7):
+    """Random poses at rest: q (n, dof) [rad], wrench (n, 6) [N, N m]."""
+    rng = np.random.default_rng(n)
+    return rng.uniform(-2.0, 2.0, (n, dof)), rng.normal(0.0, 5.0, (n, 6))
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".parquet"])
+def test_static_log_without_a_time_column(tmp_path, suffix):
+    q, w = poses()
+    path = tmp_path / f"poses{suffix}"
+    write_log(path, None, q, None, w, STATIC.log)
+    log = read_log(path, STATIC)
+    assert log.t_s is None and log.static and log.qdot_rad_s is None
+    np.testing.assert_array_equal(log.q_rad, q)
+    np.testing.assert_array_equal(log.wrench_log, w)
+    if suffix == ".csv":
+        assert path.read_text().splitlines()[0].split(",")[0] == '"q1"'  # no time column written
+    write_log(path, None, q[:11], None, w[:11], STATIC.log)
+    msg = err(path, STATIC)
+    assert "only 11" in msg and "12" in msg and "static" in msg
+    with pytest.raises(KinadaptError, match="time"):
+        write_log(path, None, q, None, w, DEFAULT.log)  # the columns name a time column
+
+
+def test_static_log_time_may_be_in_any_order(tmp_path):
+    """Rows are poses: repeated, shuffled and far-apart times are read (from the earliest row),
+    where a moving log would be refused; a non-finite time is still an error."""
+    q, w = poses(60)  # enough rows for a moving log too
+    t = np.array([5.0, 3.0, 3.0, 100.0, 4.5, *np.arange(55) * 0.1 + 200.0])
+    path = tmp_path / "poses.csv"
+    static_t = setup_of(static=True)
+    write_log(path, t, q, None, w, static_t.log)
+    log = read_log(path, static_t)
+    assert log.static
+    np.testing.assert_allclose(log.t_s, t - 3.0, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(log.q_rad, q)
+    assert "line 3" in err(path, DEFAULT) and "does not increase" in err(path, DEFAULT)  # as a moving log
+    t[4] = np.nan
+    write_log(path, t, q, None, w, static_t.log)
+    msg = err(path, static_t)
+    assert "line 6" in msg and "'t'" in msg and "not finite" in msg
+
+
+def test_a_moving_log_needs_its_time_column():
+    from kinadapt_nn.diagnostics.setup import load_setup
+    from kinadapt_nn.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="static"):
+        load_setup(None, ['log.time=""'])
+    assert load_setup(None, ['log.time=""', "log.static=true"]).log.time == ""
+
+
 # --------------------------------------------------------------------------------------------- ROS 2 bags
 
 T0_NS = 1_700_000_000_000_000_000
-W_OFFSET_NS = 3_300_000  # the wrench starts 3.3 ms after the first joint state ...
-W_RATE = 1000.0  # ... at 1 kHz, and ends 0.2 s before the last joint state
+W_OFFSET_NS = 3_300_000  # the wrench stamps are 3.3 ms off the joint states' grid ...
+W_RATE = 1000.0  # ... at 1 kHz, from 50 ms before the first joint state to 50 ms after the last
 
 
-def write_bag(path: Path, plugin: str, stamps: bool = True, velocity: bool = True) -> None:
-    """Joint states at 500 Hz (and a gripper's), the wrench at 1 kHz, offset; ``stamps=False``
-    leaves the header stamps zero (only the bag's record times), ``velocity=False`` empty."""
+class BagData(NamedTuple):
+    """What a test bag holds: two streams on their own clocks."""
+
+    t_j_ns: np.ndarray  # (M,) int64 [ns] joint-state stamps
+    q: np.ndarray  # (M, dof) [rad]
+    qdot: np.ndarray  # (M, dof) [rad/s]
+    t_w_ns: np.ndarray  # (K,) int64 [ns] wrench stamps
+    wrench: np.ndarray  # (K, 6) [N, N m]
+
+
+def default_bag_data() -> BagData:
+    """Joint states at 500 Hz (``synth``), the wrench at 1 kHz offset by ``W_OFFSET_NS``, longer."""
+    t, q, qdot, _ = synth()
+    k = np.arange(-50, int(t[-1] * W_RATE) + 50, dtype=np.int64)  # wrench sample k at k ms + offset
+    return BagData(T0_NS + np.arange(N, dtype=np.int64) * 2_000_000, q, qdot, T0_NS + W_OFFSET_NS + k * 1_000_000,
+                   wrench_at(k / W_RATE + W_OFFSET_NS * 1e-9))
+
+
+def write_bag(path: Path, plugin: str, data: BagData | None = None, stamps: bool = True,
+              velocity: bool = True) -> None:
+    """``data`` (``default_bag_data()``) as a bag, with a gripper's joint states between the arm's
+    (every tenth, skipped by the reader); ``stamps=False`` leaves the header stamps zero (only the
+    bag's record times), ``velocity=False`` empty."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -179,25 +295,22 @@ def write_bag(path: Path, plugin: str, stamps: bool = True, velocity: bool = Tru
         ns = ns if stamps else 0
         return Header(stamp=Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000), frame_id="ft")
 
-    t, q, qdot, _ = synth()
-    tw = np.arange(int((t[-1] - 0.2) * W_RATE)) / W_RATE + W_OFFSET_NS * 1e-9
-    w = wrench_at(tw)
+    d = data or default_bag_data()
+    names = list(ARM[: d.q.shape[1]][::-1])
     msgs = []
-    for i in range(N):
-        ns = T0_NS + i * 2_000_000
+    for i, ns in enumerate(int(x) for x in d.t_j_ns):
         # the joints in another order than the setup's, plus a gripper message between (skipped)
-        msg = T["sensor_msgs/msg/JointState"](header=header(ns), name=list(ARM[::-1]), position=q[i, ::-1].copy(),
-                                             velocity=qdot[i, ::-1].copy() if velocity else np.zeros(0),
+        msg = T["sensor_msgs/msg/JointState"](header=header(ns), name=names, position=d.q[i, ::-1].copy(),
+                                             velocity=d.qdot[i, ::-1].copy() if velocity else np.zeros(0),
                                              effort=np.zeros(0))
         msgs.append((ns, "/joint_states", msg))
         if i % 10 == 0:
             finger = T["sensor_msgs/msg/JointState"](header=header(ns + 1000), name=["panda_finger_joint1"],
                                                     position=np.zeros(1), velocity=np.zeros(1), effort=np.zeros(0))
             msgs.append((ns + 1000, "/joint_states", finger))
-    for i, s in enumerate(tw):
-        ns = T0_NS + W_OFFSET_NS + i * 1_000_000
+    for ns, w in zip((int(x) for x in d.t_w_ns), d.wrench):
         msg = T["geometry_msgs/msg/WrenchStamped"](header=header(ns), wrench=Wrench(
-            force=Vec(x=w[i, 0], y=w[i, 1], z=w[i, 2]), torque=Vec(x=w[i, 3], y=w[i, 4], z=w[i, 5])))
+            force=Vec(x=w[0], y=w[1], z=w[2]), torque=Vec(x=w[3], y=w[4], z=w[5])))
         msgs.append((ns, "/ft_sensor/wrench", msg))
     msgs.sort(key=lambda m: m[0])
     with Writer(path, version=9, storage_plugin=getattr(StoragePlugin, plugin)) as writer:
@@ -215,30 +328,104 @@ def bag(request, tmp_path_factory) -> Path:
     return path
 
 
-def expected_from_bag():
-    """(times [s] from the first kept sample, q, qdot, wrench, times [s] of the synthetic log) the bag
-    fixture should read as."""
-    t, q, qdot, _ = synth()
-    t_w = np.arange(int((t[-1] - 0.2) * W_RATE)) / W_RATE + W_OFFSET_NS * 1e-9
-    inside = (t >= t_w[0]) & (t <= t_w[-1])  # joint states outside the wrench span are dropped
-    w = np.stack([np.interp(t[inside], t_w, wrench_at(t_w)[:, k]) for k in range(6)], axis=1)
-    return t[inside] - t[inside][0], q[inside], qdot[inside], w, t[inside]
+class Expected(NamedTuple):
+    """What a bag should read as: the wrench stream is the master clock."""
+
+    t_s: np.ndarray  # (N,) [s] from the first kept wrench sample
+    q: np.ndarray  # (N, dof) the joint states linearly interpolated onto the kept wrench stamps
+    qdot: np.ndarray  # (N, dof) the same for the velocities
+    wrench: np.ndarray  # (N, 6) the wrench samples inside the joint states' span, as recorded
+    t_abs_s: np.ndarray  # (N,) [s] the kept wrench stamps from T0_NS
+    inside: np.ndarray  # (K,) bool: the wrench samples kept
 
 
-def test_bag_reads_joint_states_and_the_interpolated_wrench(bag):
-    t, q, qdot, w, t_synth = expected_from_bag()
-    assert 0 < len(t) < N
+def expected_from_bag(d: BagData | None = None) -> Expected:
+    d = d or default_bag_data()
+    tj, tw = (d.t_j_ns - T0_NS) * 1e-9, (d.t_w_ns - T0_NS) * 1e-9
+    inside = (d.t_w_ns >= d.t_j_ns[0]) & (d.t_w_ns <= d.t_j_ns[-1])  # wrench outside the joint span is dropped
+    at = lambda a: np.stack([np.interp(tw[inside], tj, a[:, k]) for k in range(a.shape[1])], axis=1)  # noqa: E731
+    return Expected(tw[inside] - tw[inside][0], at(d.q), at(d.qdot), d.wrench[inside], tw[inside], inside)
+
+
+def test_bag_keeps_the_wrench_samples_and_interpolates_the_joint_states(bag):
+    e = expected_from_bag()
+    assert 0 < len(e.t_s) < len(default_bag_data().t_w_ns)
     storage = next(p for p in bag.iterdir() if p.suffix in (".db3", ".mcap"))
     for path in (bag, storage):  # the bag folder, or its storage file alone
         setup = setup_of(q=ARM, qdot=[f"v{i}" for i in range(7)])  # any names: use the velocity field
         log = read_log(path, setup)
-        assert log.t_s[0] == 0.0
-        np.testing.assert_allclose(log.t_s, t, rtol=0, atol=1e-12)
-        np.testing.assert_array_equal(log.q_rad, q)
-        np.testing.assert_array_equal(log.qdot_rad_s, qdot)
-        np.testing.assert_allclose(log.wrench_log, w, rtol=0, atol=1e-9)  # the linear interpolation
-        np.testing.assert_allclose(log.wrench_log, wrench_at(t_synth), rtol=0, atol=1e-3)  # the true wrench
+        assert log.t_s[0] == 0.0 and not log.static
+        np.testing.assert_allclose(log.t_s, e.t_s, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(log.wrench_log, e.wrench)  # the samples as recorded
+        np.testing.assert_allclose(log.q_rad, e.q, rtol=0, atol=1e-12)  # the linear interpolation
+        np.testing.assert_allclose(log.qdot_rad_s, e.qdot, rtol=0, atol=1e-12)
+        q_true, qdot_true = joints_at(e.t_abs_s)
+        np.testing.assert_allclose(log.q_rad, q_true, rtol=0, atol=1e-5)  # the true joint angles
+        np.testing.assert_allclose(log.qdot_rad_s, qdot_true, rtol=0, atol=1e-4)
     assert read_log(bag, setup_of(q=ARM)).qdot_rad_s is None  # no velocities asked for
+
+
+def test_bag_reads_any_subset_of_joints_and_the_declared_units(bag):
+    """Six of the seven joints, in another order: (N, 6); messages naming all of them are kept. The
+    wrench units apply as declared."""
+    e = expected_from_bag()
+    log = read_log(bag, setup_of(q=ARM[5::-1], force_unit="kN", torque_unit="N mm"))
+    assert log.q_rad.shape == (len(e.t_s), 6)
+    np.testing.assert_allclose(log.q_rad, e.q[:, 5::-1], rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(log.wrench_log[:, :3], e.wrench[:, :3] * 1000.0)
+    np.testing.assert_array_equal(log.wrench_log[:, 3:], e.wrench[:, 3:] * 1e-3)
+    static = read_log(bag, setup_of(q=ARM, static=True))  # stamps as usual
+    assert static.static
+    np.testing.assert_array_equal(static.t_s, read_log(bag, setup_of(q=ARM)).t_s)
+
+
+def test_bag_joint_states_are_validated_on_their_own_clock(tmp_path):
+    """A non-finite joint state or a gap in the joint states (the wrench running on) is a one-line
+    error naming the message on its topic (the gripper's messages count)."""
+    d = default_bag_data()
+    q = d.q.copy()
+    q[100, 2] = np.nan  # arm message 100 is the 111th on /joint_states (11 gripper messages before)
+    write_bag(tmp_path / "nan", "MCAP", d._replace(q=q))
+    msg = err(tmp_path / "nan", setup_of(q=ARM))
+    assert "joint-state sample 110" in msg and "panda_joint3" in msg and "not finite" in msg
+    keep = np.r_[0:400, 421:N]  # 44 ms from the 400th arm message to the next (40 gripper messages before)
+    write_bag(tmp_path / "gap", "MCAP", d._replace(t_j_ns=d.t_j_ns[keep], q=d.q[keep], qdot=d.qdot[keep]))
+    msg = err(tmp_path / "gap", setup_of(q=ARM))
+    assert "joint-state sample 440" in msg and "/joint_states" in msg and "gap of 0.044 s" in msg
+
+
+def test_bag_and_csv_of_one_noisy_log_give_the_same_wrench_samples_and_noise(tmp_path):
+    """A 1 kHz noisy wrench and 250 Hz joint states offset by half a wrench period: the bag reads
+    the wrench samples the CSV of the same log holds, so the noise estimate is the same. The old
+    reading (the wrench interpolated onto the joint stamps) averaged neighbouring samples and would
+    have understated the noise by about 1/sqrt(2)."""
+    from kinadapt_nn.diagnostics.userlog import RowCfg, noise_sigma
+
+    rng = np.random.default_rng(7)
+    sigma = np.array([0.2, 0.2, 0.2, 0.01, 0.01, 0.01])  # [N, N m]
+    tw = np.arange(8000) / 1000.0  # [s] 8 s of wrench at 1 kHz
+    w = wrench_at(tw) + sigma * rng.standard_normal((len(tw), 6))
+    tj = 0.0005 + np.arange(2000) / 250.0  # [s] joint states at 250 Hz, half a wrench period late
+    q_j, qdot_j = joints_at(tj)
+    d = BagData(T0_NS + np.round(tj * 1e9).astype(np.int64), q_j, qdot_j,
+                T0_NS + np.round(tw * 1e9).astype(np.int64), w)
+    write_bag(tmp_path / "bag", "MCAP", d)
+    q_w, qdot_w = joints_at(tw)  # the CSV: one row per wrench sample, the joints at its stamp
+    write_log(tmp_path / "log.csv", tw, q_w, qdot_w, w, WITH_QDOT.log)
+    from_bag = read_log(tmp_path / "bag", setup_of(q=ARM, qdot=ARM))
+    from_csv = read_log(tmp_path / "log.csv", WITH_QDOT)
+    inside = expected_from_bag(d).inside
+    assert 7990 <= inside.sum() < 8000
+    np.testing.assert_array_equal(from_bag.wrench_log, from_csv.wrench_log[inside])
+    np.testing.assert_allclose(from_bag.t_s, from_csv.t_s[inside] - from_csv.t_s[inside][0], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(from_bag.q_rad, from_csv.q_rad[inside], rtol=0, atol=1e-5)
+    np.testing.assert_allclose(from_bag.qdot_rad_s, from_csv.qdot_rad_s[inside], rtol=0, atol=1e-4)
+    s_bag, s_csv = noise_sigma(from_bag.wrench_log, RowCfg()), noise_sigma(from_csv.wrench_log, RowCfg())
+    np.testing.assert_allclose(s_bag, s_csv, rtol=0.05)
+    np.testing.assert_allclose(s_csv, sigma, rtol=0.1)  # the estimate itself is right
+    old = np.stack([np.interp(tj, tw, w[:, k]) for k in range(6)], axis=1)  # the wrench at the joint stamps
+    ratio = noise_sigma(old, RowCfg()) / s_bag  # about 1/sqrt(2): two neighbours averaged
+    assert np.all(ratio < 0.85) and ratio.mean() < 0.76
 
 
 def test_bag_names_what_is_missing(bag):
@@ -367,12 +554,12 @@ def test_bag_without_stamps_or_velocities(tmp_path):
     """Zero header stamps: the record times are used; no velocity field: ``qdot_rad_s`` is None."""
     path = tmp_path / "bag"
     write_bag(path, "MCAP", stamps=False, velocity=False)
-    t, q, _, w, _ = expected_from_bag()
+    e = expected_from_bag()
     log = read_log(path, setup_of(q=ARM, qdot=[f"v{i}" for i in range(7)]))
     assert log.qdot_rad_s is None
-    np.testing.assert_allclose(log.t_s, t, rtol=0, atol=1e-12)
-    np.testing.assert_array_equal(log.q_rad, q)
-    np.testing.assert_allclose(log.wrench_log, w, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(log.t_s, e.t_s, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(log.q_rad, e.q, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(log.wrench_log, e.wrench)
 
 
 def test_timestamp_time_columns_use_their_own_unit(tmp_path):
