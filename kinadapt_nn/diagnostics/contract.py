@@ -24,6 +24,16 @@ holds the built-ins, one module each)::
 * Built-ins may also give ``report`` (the estimate in the user's units), ``plausible`` (why an
   estimate is physically impossible) and ``applies`` (whether it is judged for a set-up); a user's
   effect may too.
+* Parameters that depend on the set-up (one per arm joint, say): give
+  ``params_for=lambda setup: (params, relevant)`` instead of (or besides) ``params``/``relevant``.
+  The diagnosis calls ``Effect.for_setup(setup)``, which fixes the parameters for that set-up;
+  without ``params`` the decorator takes those of the default set-up (``SetupCfg()``)::
+
+      @effect(params_for=lambda setup: ({f"drag_joint{j + 1}": "N m s/rad" for j in range(len(setup.log.q))},
+                                        [0.1] * len(setup.log.q)),
+              doc="viscous drag of a hose, per joint")
+      def hose_drag(s):
+          ...  # (n, 6, dof) with dof = s.q.shape[1]
 
 An effects file is Python code that runs (like a test file): ``load_effect_files`` executes it.
 Every ``Effect`` defined at the module level of the file is taken.
@@ -34,7 +44,7 @@ from __future__ import annotations
 import importlib.util
 import re
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -62,10 +72,26 @@ class Effect:
     plausible: Callable | None = None  #: (p (k,), setup) -> why it is impossible, or None
     applies: Callable | None = None  #: setup -> bool: judged for this set-up
     uses_contact: bool = True  #: the columns depend on the contact mask (recomputed when it changes)
+    params_for: Callable | None = None  #: setup -> (params {name: unit}, relevant (k,)); ``for_setup``
 
     @property
     def k(self) -> int:
         return len(self.params)
+
+    def for_setup(self, setup) -> "Effect":
+        """This effect with the parameters of ``setup`` (``params_for``); itself without one."""
+        if self.params_for is None:
+            return self
+        where = f"effect '{self.name}' ({self.source})"
+        try:
+            params, relevant = self.params_for(setup)
+        except KinadaptError:
+            raise
+        except Exception as exc:  # a user's code (or not a pair): one line
+            msg = str(exc).splitlines()[0] if str(exc) else ""
+            raise KinadaptError(f"{where}: params_for raised {type(exc).__name__}: {msg}"[:300]) from None
+        names, units, rel = _checked_params(where, params, relevant)
+        return replace(self, params=names, units=units, relevant=rel)
 
     def __call__(self, s) -> np.ndarray:
         return self.columns(s)
@@ -113,34 +139,54 @@ class Effect:
         return self.plausible(np.asarray(p, float), setup) if self.plausible is not None else None
 
 
-def effect(params: dict[str, str], relevant, doc: str, excite: str = "", one_of: bool = False, *,
-           report: Callable | None = None, plausible: Callable | None = None, applies: Callable | None = None,
-           uses_contact: bool = True) -> Callable[[Callable], Effect]:
+def effect(params: dict[str, str] | None = None, relevant=None, doc: str = "", excite: str = "",
+           one_of: bool = False, *, report: Callable | None = None, plausible: Callable | None = None,
+           applies: Callable | None = None, uses_contact: bool = True,
+           params_for: Callable | None = None) -> Callable[[Callable], Effect]:
     """Decorator: a function ``f(s) -> (n, 6, k)`` becomes an ``Effect`` named ``f.__name__``
-    (module docstring). Bad arguments raise a one-line ``KinadaptError``."""
+    (module docstring). ``params_for(setup) -> (params, relevant)``: parameters that depend on the
+    set-up (``Effect.for_setup``). Bad arguments raise a one-line ``KinadaptError``."""
     def wrap(fn: Callable) -> Effect:
         name = getattr(fn, "__name__", "")
         src = _source_of(fn)
         where = f"effect '{name}' ({src})"
         if not callable(fn) or not _NAME.match(name or ""):
             raise KinadaptError(f"@effect must decorate a named function ({src})")
-        if not isinstance(params, dict) or not params or not all(isinstance(k, str) and isinstance(v, str)
-                                                                  for k, v in params.items()):
-            raise KinadaptError(f"{where}: params must be a non-empty dict of parameter name -> unit (strings)")
-        try:
-            rel = tuple(float(x) for x in np.atleast_1d(np.asarray(relevant, dtype=float)))
-        except (TypeError, ValueError):
-            raise KinadaptError(f"{where}: relevant must be numbers, one per parameter") from None
-        if len(rel) != len(params):
-            raise KinadaptError(f"{where}: {len(rel)} relevant size(s) for {len(params)} parameter(s) "
-                                f"({', '.join(params)}); give one per parameter")
-        if not all(np.isfinite(r) and r > 0 for r in rel):
-            raise KinadaptError(f"{where}: every relevant size must be finite and > 0 (got {list(rel)})")
+        if params_for is not None and not callable(params_for):
+            raise KinadaptError(f"{where}: params_for must be a function setup -> (params, relevant)")
+        proto = Effect(name, (), (), (), "", fn, source=src, params_for=params_for)
+        if params is None and relevant is None and params_for is not None:
+            from kinadapt_nn.diagnostics.setup import SetupCfg
+
+            default = proto.for_setup(SetupCfg())
+            names, units, rel = default.params, default.units, default.relevant
+        elif params is None:
+            raise KinadaptError(f"{where}: give params={{name: unit, ...}} and relevant=[...] "
+                                "(or params_for=setup -> (params, relevant))")
+        else:
+            names, units, rel = _checked_params(where, params, relevant)
         if not isinstance(doc, str) or not doc.strip():
             raise KinadaptError(f"{where}: doc must be a one-line description")
-        return Effect(name, tuple(params), tuple(params.values()), rel, doc.strip().splitlines()[0], fn,
-                      str(excite), bool(one_of), src, report, plausible, applies, bool(uses_contact))
+        return Effect(name, names, units, rel, doc.strip().splitlines()[0], fn, str(excite), bool(one_of), src,
+                      report, plausible, applies, bool(uses_contact), params_for)
     return wrap
+
+
+def _checked_params(where: str, params, relevant) -> tuple[tuple[str, ...], tuple[str, ...], tuple[float, ...]]:
+    """(names, units, relevant) of a ``params`` dict and its ``relevant`` sizes, or a one-line error."""
+    if not isinstance(params, dict) or not params or not all(isinstance(k, str) and isinstance(v, str)
+                                                              for k, v in params.items()):
+        raise KinadaptError(f"{where}: params must be a non-empty dict of parameter name -> unit (strings)")
+    try:
+        rel = tuple(float(x) for x in np.atleast_1d(np.asarray(relevant, dtype=float)))
+    except (TypeError, ValueError):
+        raise KinadaptError(f"{where}: relevant must be numbers, one per parameter") from None
+    if len(rel) != len(params):
+        raise KinadaptError(f"{where}: {len(rel)} relevant size(s) for {len(params)} parameter(s) "
+                            f"({', '.join(params)}); give one per parameter")
+    if not all(np.isfinite(r) and r > 0 for r in rel):
+        raise KinadaptError(f"{where}: every relevant size must be finite and > 0 (got {list(rel)})")
+    return tuple(params), tuple(params.values()), rel
 
 
 def _source_of(fn) -> str:

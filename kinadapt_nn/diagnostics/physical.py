@@ -6,7 +6,9 @@ this package's simulator (docs/diagnose.md).
 
 Convention inside this module: ``r`` (N, 6) is the wrench the tool exerts ON the sensor, in the
 sensor frame s, about the sensor origin [N; N m] (``setup.log.sign`` converts the log). Frames:
-``w`` world (z up, gravity ``-9.81 z``), ``f`` the arm model's flange site, ``s`` the sensor.
+``w`` world = the arm's base (z up, gravity ``-g z`` with ``g = [world] gravity_mps2``), ``f`` the arm
+model's flange (an MJCF site, a URDF link or a DH table: ``kinadapt_nn.diagnostics.arms``), ``s``
+the sensor.
 
 Nominal model (free space). The declared tool (mass m, COM c, inertia I_c, all in s) is a rigid
 body on the sensor. With ``g_s`` gravity, ``a_s`` the acceleration of the sensor origin, ``omega``
@@ -35,10 +37,8 @@ from typing import NamedTuple
 import numpy as np
 
 from kinadapt_nn.diagnostics.setup import SetupCfg
-from kinadapt_nn.errors import KinadaptError, ModelFileError
+from kinadapt_nn.errors import KinadaptError
 
-G_W = np.array([0.0, 0.0, -9.81])  #: [m/s^2] gravity in the world frame
-N_JOINTS = 7
 #: [s] Savitzky-Golay window of the velocity derivative (accelerations)
 ACC_WINDOW_S = 0.1
 
@@ -55,69 +55,75 @@ class KinSeries(NamedTuple):
 
 
 class ArmModel:
-    """The arm's MJCF for forward kinematics and site Jacobians (looked up once)."""
+    """The arm of ``[arm]`` (MJCF, URDF or DH; ``arms.load_arm``) for forward kinematics and site
+    Jacobians of its ``dof`` joints (looked up once)."""
 
     def __init__(self, setup: SetupCfg) -> None:
         import mujoco
 
-        path = setup.arm.path()
-        if not path.is_file():
-            raise ModelFileError(f"arm model '{path}' not found (fix [arm] mjcf in the setup file; \"\" = the shipped Panda)")
-        try:
-            self.model = mujoco.MjModel.from_xml_path(str(path))
-        except Exception as exc:  # mujoco raises ValueError with a multi-line message
-            raise ModelFileError(f"arm model '{path}' could not be loaded: {str(exc).splitlines()[0]}") from None
-        self.site = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, setup.arm.flange_site)
-        if self.site < 0:
-            names = [self.model.site(i).name for i in range(self.model.nsite)]
-            raise KinadaptError(f"arm model '{path}' has no site '{setup.arm.flange_site}' (fix [arm] flange_site; "
-                                f"sites: {', '.join(names) or 'none'})")
-        if self.model.nq < N_JOINTS:
-            raise KinadaptError(f"arm model '{path}' has {self.model.nq} joint coordinates; the log has 7 joints")
+        from kinadapt_nn.diagnostics.arms import load_arm
+
+        arm = load_arm(setup.arm)
+        self.model, self.site, self.dof, self.source = arm.model, arm.site, arm.dof, arm.source
+        self._qpos, self._cols = _as_slice(arm.qpos_adr), _as_slice(arm.dof_adr)  # qpos / Jacobian columns
         self.data = mujoco.MjData(self.model)
         self.R_fs = setup.sensor.R_fs()
         self.p_fs = np.asarray(setup.sensor.position_flange_m, dtype=float)
+        self.g_w = setup.world.g_w()  #: (3,) [m/s^2] gravity in the world
         self._mj = mujoco
 
+    def check_joints(self, q: np.ndarray, what: str = "the log") -> None:
+        """A one-line error unless ``q`` is (N, dof)."""
+        q = np.asarray(q)
+        if q.ndim == 2 and q.shape[1] == self.dof:
+            return
+        got = f"{q.shape[1]} joint(s) per sample" if q.ndim == 2 else f"shape {q.shape}, not (samples, joints),"
+        raise KinadaptError(f"{what} has {got} but {self.source} has {self.dof} joints between its base and the "
+                            "flange; give one [log] q column per arm joint (base to flange) or fix [arm]")
+
     def series(self, q: np.ndarray, qdot: np.ndarray, t_s: np.ndarray) -> KinSeries:
-        """Sensor kinematics for (N, 7) joint positions/velocities at times (N,) -> ``KinSeries``.
+        """Sensor kinematics for (N, dof) joint positions/velocities at times (N,) -> ``KinSeries``.
 
         Velocities from the site Jacobian, accelerations by a Savitzky-Golay derivative of the
         world-frame sensor twist (window ``ACC_WINDOW_S``)."""
+        self.check_joints(q)
+        self.check_joints(qdot, "the joint velocity")
         mj, m, d = self._mj, self.model, self.data
         n = len(q)
-        R_ws = np.empty((n, 3, 3))
-        v_w = np.empty((n, 3))
-        p_ws = np.empty((n, 3))
         xpos = d.site_xpos[self.site]
-        w_w = np.empty((n, 3))
         jacp = np.zeros((3, m.nv))
         jacr = np.zeros((3, m.nv))
-        qpos = d.qpos
+        qpos, sl, cols = d.qpos, self._qpos, self._cols
         xmat = d.site_xmat[self.site]
-        nv7 = min(m.nv, N_JOINTS)
         R_wf = np.empty((n, 3, 3))
         x_w = np.empty((n, 3))
-        Jp = np.empty((n, 3, nv7))
-        Jr = np.empty((n, 3, nv7))
+        Jp = np.empty((n, 3, self.dof))
+        Jr = np.empty((n, 3, self.dof))
         for i in range(n):  # MuJoCo per sample; everything else vectorised below
-            qpos[:N_JOINTS] = q[i]
+            qpos[sl] = q[i]
             mj.mj_kinematics(m, d)
             mj.mj_comPos(m, d)
             mj.mj_jacSite(m, d, jacp, jacr, self.site)
             R_wf[i] = xmat.reshape(3, 3)
             x_w[i] = xpos
-            Jp[i] = jacp[:, :nv7]
-            Jr[i] = jacr[:, :nv7]
-        R_ws[:] = R_wf @ self.R_fs
+            Jp[i] = jacp[:, cols]
+            Jr[i] = jacr[:, cols]
+        R_ws = R_wf @ self.R_fs
         lever_w = R_wf @ self.p_fs  # (n, 3) flange origin -> sensor origin, world
-        p_ws[:] = x_w + lever_w
-        w_w[:] = np.einsum("nij,nj->ni", Jr, qdot[:, :nv7])
-        v_w[:] = np.einsum("nij,nj->ni", Jp, qdot[:, :nv7]) + np.cross(w_w, lever_w)
+        p_ws = x_w + lever_w
+        w_w = np.einsum("nij,nj->ni", Jr, qdot)
+        v_w = np.einsum("nij,nj->ni", Jp, qdot) + np.cross(w_w, lever_w)
         dv = derivative(v_w, t_s)
         dw = derivative(w_w, t_s)
         rot = lambda x: np.einsum("nji,nj->ni", R_ws, x)  # noqa: E731  (world -> s)
-        return KinSeries(R_ws, rot(np.broadcast_to(G_W, (n, 3))), rot(dv), rot(w_w), rot(dw), p_ws)
+        return KinSeries(R_ws, rot(np.broadcast_to(self.g_w, (n, 3))), rot(dv), rot(w_w), rot(dw), p_ws)
+
+
+def _as_slice(idx: np.ndarray) -> slice | np.ndarray:
+    """Consecutive addresses as a slice (a view, no copy per sample); any others as they are."""
+    if len(idx) and np.array_equal(idx, idx[0] + np.arange(len(idx))):
+        return slice(int(idx[0]), int(idx[0]) + len(idx))
+    return idx
 
 
 def derivative(x: np.ndarray, t_s: np.ndarray, window_s: float = ACC_WINDOW_S) -> np.ndarray:
