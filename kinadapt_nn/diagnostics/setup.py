@@ -43,7 +43,7 @@ default; ``examples/setups/`` has complete ones)::
     mjcf = ""                  # a MuJoCo MJCF file
     flange_site = "flange"     # MJCF: the site whose frame is the flange
     urdf = ""                  # a URDF file (meshes are not needed)
-    flange_link = ""           # URDF: the link whose frame is the flange ("" = the last link of the chain)
+    flange_link = ""           # URDF: the link whose frame is the flange ("" = the link the last joint moves)
     flange_xyz_m = [0.0, 0.0, 0.0]     # URDF: flange origin in that link's frame
     flange_rpy_deg = [0.0, 0.0, 0.0]   # URDF: flange axes in that link's frame, Rz(yaw) Ry(pitch) Rx(roll)
     # dh = { convention = "modified", a_m = [...], d_m = [...], alpha_rad = [...], theta_offset_rad = [...],
