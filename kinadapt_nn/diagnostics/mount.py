@@ -10,10 +10,11 @@ turned into the true one (``x_s = D^T x_declared``)::
     M = (m c) x g_a - I_O alpha - omega x (I_O omega) + b_M
 
 (the declared inertia ``I_O`` in s). A linear start (``F = K g_a + b_F``: ``K = m D^T``; the
-nearest rotation by SVD; then ``m c`` and ``b_M`` linear in the moments) and the declared mount
-``D = 1`` both start a Gauss-Newton refinement of all 13 unknowns on the noise-weighted free-space
-samples (``scipy.optimize.least_squares``, robust to the few contact/outlier samples through a
-soft-L1 loss); the better end wins. Uncertainties: the larger of the information-limited sd
+nearest rotation by SVD) and the declared mount ``D = 1`` both start a Gauss-Newton refinement on
+the noise-weighted samples by variable projection (the model is linear in ``m``, ``m c`` and ``b``
+for a fixed rotation: those ten are solved in closed form at every step, the rotation is updated
+locally, ``D exp([delta])``), robust to the few contact/outlier samples through Huber weights
+(IRLS); the better end wins. Uncertainties: the larger of the information-limited sd
 (``s^2 (J^T J)^-1``, never a pseudo-inverse: an unexcited direction gets a large, finite sd) and a
 delete-one-block jackknife over the diagnosis's cross-validation blocks.
 
@@ -30,12 +31,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from kinadapt_nn.diagnostics.setup import TORQUE_UNITS, rpy_matrix
+from kinadapt_nn.diagnostics.setup import TORQUE_UNITS
 
-MAX_ROWS = 3000  #: samples used by the fit (evenly spaced subset)
+MAX_ROWS = 2000  #: samples used by the fit (evenly spaced subset)
+STEP_TOL_RAD = 1e-8  #: Gauss-Newton stops when the rotation update is this small
 MAX_FIRST_ORDER_DEG = 15.0
 COM_PLAUSIBLE_M = 0.5  #: [m] a tool's centre of mass farther from the sensor than this is not a tool
 SIGNIFICANT_SD = 3.0
+HUBER_K = 3.0  #: [noise sd] the robust loss is quadratic up to this weighted residual
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -81,66 +84,109 @@ class MountData(NamedTuple):
     block: np.ndarray  #: (n,) cross-validation block of each sample
 
 
+def _linear_part(D: np.ndarray, d: MountData) -> tuple[np.ndarray, np.ndarray]:
+    """The model is linear in ``theta = [m, m c, b]`` (10,) for a fixed rotation ``D``:
+    ``w = A theta + c`` with A (n, 6, 10) and c (n, 6) (the declared inertia's own terms)."""
+    ga, om, al = d.ga @ D, d.omega @ D, d.alpha @ D  # rows: D^T v
+    n = len(ga)
+    A = np.zeros((n, 6, 10))
+    A[:, :3, 0] = ga
+    So = _skews(om)
+    A[:, :3, 1:4] = -(_skews(al) + So @ So)  # -alpha x mc - omega x (omega x mc)
+    A[:, 3:, 1:4] = -_skews(ga)  # mc x ga
+    A[:, :, 4:] = np.eye(6)
+    c = np.zeros((n, 6))
+    c[:, 3:] = -al @ d.I_O.T - np.einsum("nij,nj->ni", So, om @ d.I_O.T)
+    return A, c
+
+
+def _skews(v: np.ndarray) -> np.ndarray:
+    """(n, 3) -> (n, 3, 3) cross-product matrices."""
+    S = np.zeros((len(v), 3, 3))
+    S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+    S[:, 1, 0], S[:, 2, 0], S[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
+    return S
+
+
 def _model(x: np.ndarray, d: MountData) -> np.ndarray:
     """(13,) [rotvec, m, mc, b] -> predicted wrench (n, 6)."""
-    D = rotvec_matrix(x[:3])
-    m, mc, b = x[3], x[4:7], x[7:13]
-    ga, om, al = d.ga @ D, d.omega @ D, d.alpha @ D  # rows: D^T v
-    F = m * ga - np.cross(al, mc) - np.cross(om, np.cross(om, mc))
-    M = np.cross(mc, ga) - al @ d.I_O.T - np.cross(om, om @ d.I_O.T)
-    return np.concatenate([F, M], axis=1) + b
+    A, c = _linear_part(rotvec_matrix(x[:3]), d)
+    return np.einsum("nik,k->ni", A, x[3:]) + c
 
 
-def _resid(x: np.ndarray, d: MountData) -> np.ndarray:
-    return ((d.r - _model(x, d)) * d.w).reshape(-1)
+def _project(D: np.ndarray, d: MountData, rw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The best ``theta`` for the rotation ``D`` (weighted least squares, robust row weights
+    ``rw`` (n, 6)) and the noise-weighted residual (n*6,)."""
+    A, c = _linear_part(D, d)
+    sw = d.w * np.sqrt(rw)  # (n, 6)
+    Aw = (A * sw[:, :, None]).reshape(-1, 10)
+    yw = ((d.r - c) * sw).reshape(-1)
+    theta = _normal_solve(Aw, yw)
+    return theta, ((d.r - c - np.einsum("nik,k->ni", A, theta)) * d.w).reshape(-1)
+
+
+def _normal_solve(A: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Least squares by the normal equations (a few columns, many rows: far cheaper than an SVD),
+    with a tiny ridge so that an unexcited column gives a finite answer."""
+    H = A.T @ A
+    H[np.diag_indices_from(H)] += 1e-12 * max(float(np.trace(H)), 1e-300) / len(H)
+    return np.linalg.solve(H, A.T @ y)
+
+
+def _huber(e: np.ndarray, k: float = HUBER_K) -> np.ndarray:
+    """IRLS weights of the Huber loss for the weighted residual (n*6,) -> (n, 6)."""
+    a = np.abs(e)
+    return np.where(a <= k, 1.0, k / np.maximum(a, 1e-300)).reshape(-1, 6)
+
+
+def _gauss_newton(d: MountData, D0: np.ndarray, iters: int = 40) -> tuple[np.ndarray, np.ndarray, float]:
+    """Variable projection: Gauss-Newton over the rotation (local updates ``D exp([delta])``),
+    ``theta`` solved in closed form at every step, Huber IRLS weights. -> (D, theta, robust cost)."""
+    D = D0
+    rw = np.ones_like(d.r)
+    h = 1e-6
+    for _ in range(iters):
+        theta, e = _project(D, d, rw)
+        rw = _huber(e)
+        e0 = e * np.sqrt(rw.reshape(-1))
+        J = np.empty((len(e0), 3))
+        for k in range(3):
+            dv = np.zeros(3)
+            dv[k] = h
+            _, ek = _project(D @ rotvec_matrix(dv), d, rw)
+            J[:, k] = (ek * np.sqrt(rw.reshape(-1)) - e0) / h
+        step = _normal_solve(J, -e0)
+        # backtracking: never accept a step that raises the cost
+        c0 = float(e0 @ e0)
+        for lam in (1.0, 0.5, 0.25, 0.1):
+            Dn = D @ rotvec_matrix(lam * step)
+            _, en = _project(Dn, d, rw)
+            en = en * np.sqrt(rw.reshape(-1))
+            if float(en @ en) <= c0:
+                D = Dn
+                break
+        else:
+            break
+        if np.linalg.norm(lam * step) < STEP_TOL_RAD or float(en @ en) > (1.0 - 1e-9) * c0:
+            break
+    theta, e = _project(D, d, _huber(_project(D, d, rw)[1]))
+    a = np.abs(e)
+    cost = float(np.sum(np.where(a <= HUBER_K, 0.5 * a**2, HUBER_K * a - 0.5 * HUBER_K**2)))
+    return D, theta, cost
 
 
 def _linear_start(d: MountData) -> np.ndarray | None:
-    """The closed-form start: F = K g_a + b_F, K = m D^T -> m, D (SVD); then m c, b_M linear."""
+    """The closed-form start: ``F = K g_a + b_F`` with ``K = m D^T`` -> D by the nearest rotation
+    (SVD). -> D (3, 3), or None when gravity does not turn through the sensor."""
     n = len(d.ga)
     A = np.concatenate([d.ga, np.ones((n, 1))], axis=1)  # (n, 4)
-    if n < 8 or np.linalg.cond(A) > 1e8:  # gravity does not turn through the sensor: no closed form
+    if n < 8 or np.linalg.cond(A) > 1e8:
         return None
-    coef, *_ = np.linalg.lstsq(A, d.r[:, :3], rcond=None)  # (4, 3): F_j = sum_i ga_i K[j, i] + b_j
-    K, bF = coef[:3].T, coef[3]
-    U, S, Vt = np.linalg.svd(K)
+    coef = np.linalg.lstsq(A, d.r[:, :3], rcond=None)[0]  # F_j = sum_i ga_i K[j, i] + b_j
+    K = coef[:3].T
+    U, _, Vt = np.linalg.svd(K)
     sign = 1.0 if np.linalg.det(U @ Vt) > 0 else -1.0  # det < 0: a negative mass (flipped convention)
-    Rk = sign * (U @ Vt)  # proper rotation ~ D^T
-    m = sign * float(np.mean(S))
-    D = Rk.T
-    ga_t = d.ga @ D
-    B = np.zeros((n, 3, 6))  # M = mc x ga_t + bM = -ga_t x mc + bM
-    for j in range(3):
-        e = np.zeros(3)
-        e[j] = 1.0
-        B[:, :, j] = np.cross(e, ga_t)
-        B[:, j, 3 + j] = 1.0
-    cm, *_ = np.linalg.lstsq(B.reshape(-1, 6), d.r[:, 3:].reshape(-1), rcond=None)
-    from scipy.spatial.transform import Rotation
-
-    return np.concatenate([Rotation.from_matrix(D).as_rotvec(), [m], cm[:3], bF, cm[3:]])
-
-
-def _solve(d: MountData, starts: list[np.ndarray], robust: bool = True) -> tuple[np.ndarray, float]:
-    from scipy.optimize import least_squares
-
-    best, cost = None, np.inf
-    for x0 in starts:
-        sol = least_squares(_resid, x0, args=(d,), method="trf", loss="soft_l1" if robust else "linear",
-                            f_scale=3.0, x_scale="jac", max_nfev=200)
-        c = float(np.sum(_resid(sol.x, d) ** 2))
-        if c < cost:
-            best, cost = sol.x, c
-    return _canonical(best), cost
-
-
-def _canonical(x: np.ndarray) -> np.ndarray:
-    """The rotation vector with angle in [0, pi] (the same rotation, a unique representation)."""
-    from scipy.spatial.transform import Rotation
-
-    x = x.copy()
-    x[:3] = Rotation.from_rotvec(x[:3]).as_rotvec()
-    return x
+    return (sign * (U @ Vt)).T
 
 
 def _rpy_deg(x: np.ndarray, R_fs_decl: np.ndarray) -> np.ndarray:
@@ -148,13 +194,13 @@ def _rpy_deg(x: np.ndarray, R_fs_decl: np.ndarray) -> np.ndarray:
 
 
 class MountFit(NamedTuple):
-    x: np.ndarray  #: (13,) [rotvec (declared s), m, mc, b]
-    sd: np.ndarray  #: (13,) finite
+    x: np.ndarray  #: (13,) [rotvec of D (declared s), m, mc, b]
+    sd: np.ndarray  #: (13,) finite; the first three: the local rotation about the sensor axes [rad]
     rpy_deg: np.ndarray  #: (3,) in the setup's convention
     rpy_sd_deg: np.ndarray  #: (3,)
     angle_deg: float  #: rotation from the declared mount
     angle_sd_deg: float
-    residual: np.ndarray  #: (n, 6) [N, N m] measured - fitted, SI
+    residual: np.ndarray  #: (n, 6) [N, N m] measured - fitted on the free samples, SI
     report: dict  #: diagnosis.json "sensor_mount"
 
 
@@ -162,80 +208,78 @@ def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: i
     """The calibration fit on the free-space samples ``free`` (n,) bool of ``LogSignals`` s.
     ``block`` (n,) the cross-validation block of every sample; ``sigma`` (6,) the per-channel
     noise. -> ``MountFit`` (module docstring)."""
+    from scipy.spatial.transform import Rotation
+
     from kinadapt_nn.diagnostics.physical import nominal_inertials
 
     setup = s.setup
     idx = np.flatnonzero(free)
     if len(idx) > MAX_ROWS:
         idx = idx[np.linspace(0, len(idx) - 1, MAX_ROWS).round().astype(int)]
-    _, mc0, I_O = nominal_inertials(setup)
+    _, _, I_O = nominal_inertials(setup)
     d = MountData(s.g_s[idx] - s.a_s[idx], s.omega_s[idx], s.alpha_s[idx], s.wrench[idx], 1.0 / sigma, I_O, block[idx])
-    m0 = float(setup.tool.mass_kg)
-    starts = [np.concatenate([np.zeros(3), [m0], mc0, np.zeros(6)])]
+    starts = [np.eye(3)]
     lin = _linear_start(d)
     if lin is not None and np.all(np.isfinite(lin)):
         starts.append(lin)
-    x, _ = _solve(d, starts)
-    # information-limited covariance (ordinary least squares at the solution)
-    J = _jac(x, d)
-    e = _resid(x, d)
-    dof = max(len(e) - len(x), 1)
-    s2 = float(e @ e) / dof
-    H = J.T @ J
-    H += np.eye(len(x)) * 1e-12 * max(np.trace(H), 1e-300) / len(x)
-    cov = s2 * np.linalg.inv(H)
-    # block jackknife (correlated residuals of a moving log make the information sd too small)
-    ub = np.unique(d.block)
-    if len(ub) > max_blocks:  # merge blocks evenly
-        groups = np.array_split(ub, max_blocks)
-        remap = {b: g for g, arr in enumerate(groups) for b in arr}
-        bl = np.array([remap[b] for b in d.block])
-    else:
-        bl = np.searchsorted(ub, d.block)
-    nb = int(bl.max()) + 1
-    reps = []
-    if nb >= 3:
-        from scipy.optimize import least_squares
-
-        for b in range(nb):
-            keep = bl != b
-            db = d._replace(ga=d.ga[keep], omega=d.omega[keep], alpha=d.alpha[keep], r=d.r[keep], block=d.block[keep])
-            sol = least_squares(_resid, x, args=(db,), method="trf", loss="soft_l1", f_scale=3.0, x_scale="jac",
-                                max_nfev=30)
-            reps.append(_canonical(sol.x))
-    reps = np.array(reps)
-    sd_info = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    # rotation and rpy: compare replicates through relative rotations (no wrap-around trouble)
-    R_decl = setup.sensor.R_fs()
-    rpy = _rpy_deg(x, R_decl)
-    Rx = rotvec_matrix(x[:3])
-    if len(reps):
-        dev = np.array([_relvec(Rx, rotvec_matrix(rp[:3])) for rp in reps])  # (nb, 3) small rotvecs
-        jk = lambda a: np.sqrt((nb - 1) / nb * np.sum((a - a.mean(0)) ** 2, axis=0))  # noqa: E731
-        sd_jk = jk(reps)
-        sd_jk[:3] = jk(dev)
-        rpy_reps = np.array([_wrap_deg(_rpy_deg(rp, R_decl) - rpy) for rp in reps])
-        rpy_sd_jk = jk(rpy_reps)
-        ang_reps = np.rad2deg([rotation_angle(rotvec_matrix(rp[:3])) for rp in reps])
-        ang_sd_jk = float(jk(ang_reps[:, None])[0])
-    else:
-        sd_jk, rpy_sd_jk, ang_sd_jk = np.zeros(13), np.zeros(3), 0.0
-    sd = np.maximum(sd_info, sd_jk)
-    # information sd of rpy and of the angle: through numerical derivatives in the local rotation
-    G = np.zeros((3, 3))
-    ga_ = np.zeros(3)
-    th = rotation_angle(Rx)
+    D, theta, best = None, None, np.inf
+    for D0 in starts:
+        Dk, thk, ck = _gauss_newton(d, D0)
+        if ck < best:
+            D, theta, best = Dk, thk, ck
+    x = np.concatenate([Rotation.from_matrix(D).as_rotvec(), theta])
+    # information-limited covariance in (local rotation, theta), theta held at the solution
+    e = _resid_at(D, theta, d)
+    J = np.empty((len(e), 13))
     for k in range(3):
         dv = np.zeros(3)
         dv[k] = 1e-6
-        xk = x.copy()
-        xk[:3] = _relvec(np.eye(3), Rx @ rotvec_matrix(dv))
-        G[:, k] = _wrap_deg(_rpy_deg(xk, R_decl) - rpy) / 1e-6
-        ga_[k] = (rotation_angle(Rx @ rotvec_matrix(dv)) - th) / 1e-6
-    # covariance of the local rotation: the rotvec block maps to the local frame by the right Jacobian;
-    # with |dv| small the information covariance of the local rotation is that of x[:3] mapped by Jr^-1
-    Jloc = _local_jac(x[:3])
-    cov_loc = Jloc @ cov[:3, :3] @ Jloc.T
+        J[:, k] = (_resid_at(D @ rotvec_matrix(dv), theta, d) - e) / 1e-6
+    A, _ = _linear_part(D, d)
+    J[:, 3:] = -(A * d.w[None, :, None]).reshape(-1, 10)
+    s2 = float(e @ e) / max(len(e) - 13, 1)
+    H = J.T @ J
+    H += np.eye(13) * 1e-12 * max(np.trace(H), 1e-300) / 13  # never a pseudo-inverse: large, finite sd
+    cov = s2 * np.linalg.inv(H)
+    sd_info = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    # delete-one-block jackknife (correlated residuals of a moving log make the information sd small)
+    ub = np.unique(d.block)
+    groups = np.array_split(ub, min(max_blocks, len(ub))) if max_blocks > 0 else []
+    R_decl = setup.sensor.R_fs()
+    rpy = _rpy_deg(x, R_decl)
+    th = rotation_angle(D)
+    reps, devs, rpys, angs = [], [], [], []
+    if len(groups) >= 3:
+        for g in groups:
+            keep = ~np.isin(d.block, g)
+            db = d._replace(ga=d.ga[keep], omega=d.omega[keep], alpha=d.alpha[keep], r=d.r[keep], block=d.block[keep])
+            Db, thb, _ = _gauss_newton(db, D, iters=4)
+            reps.append(thb)
+            devs.append(Rotation.from_matrix(D.T @ Db).as_rotvec())
+            rpys.append(_wrap_deg(np.rad2deg(matrix_rpy(R_decl @ Db)) - rpy))
+            angs.append(np.rad2deg(rotation_angle(Db)))
+    nb = len(reps)
+
+    def jk(a):
+        a = np.asarray(a, dtype=float).reshape(nb, -1)
+        return np.sqrt((nb - 1) / nb * np.sum((a - a.mean(0)) ** 2, axis=0))
+
+    if nb:
+        sd_jk = np.concatenate([jk(devs), jk(reps)])
+        rpy_sd_jk, ang_sd_jk = jk(rpys), float(jk(angs)[0])
+    else:
+        sd_jk, rpy_sd_jk, ang_sd_jk = np.zeros(13), np.zeros(3), 0.0
+    sd = np.maximum(sd_info, sd_jk)
+    # information sd of rpy and of the angle, through derivatives in the local rotation
+    G = np.zeros((3, 3))
+    ga_ = np.zeros(3)
+    for k in range(3):
+        dv = np.zeros(3)
+        dv[k] = 1e-6
+        Dk = D @ rotvec_matrix(dv)
+        G[:, k] = _wrap_deg(np.rad2deg(matrix_rpy(R_decl @ Dk)) - rpy) / 1e-6
+        ga_[k] = (rotation_angle(Dk) - th) / 1e-6
+    cov_loc = cov[:3, :3]
     rpy_sd = np.maximum(np.sqrt(np.maximum(np.diag(G @ cov_loc @ G.T), 0.0)), rpy_sd_jk)
     ang_sd = max(float(np.rad2deg(np.sqrt(max(ga_ @ cov_loc @ ga_, 0.0)))), ang_sd_jk)
     # the fitted residual on every free sample (not only the subset)
@@ -244,6 +288,11 @@ def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: i
     res = dall.r - _model(x, dall)
     rep = report(x, sd, rpy, rpy_sd, float(np.rad2deg(th)), ang_sd, res, dall, s)
     return MountFit(x, sd, rpy, rpy_sd, float(np.rad2deg(th)), ang_sd, res, rep)
+
+
+def _resid_at(D: np.ndarray, theta: np.ndarray, d: MountData) -> np.ndarray:
+    A, c = _linear_part(D, d)
+    return ((d.r - c - np.einsum("nik,k->ni", A, theta)) * d.w).reshape(-1)
 
 
 def predict(x: np.ndarray, s) -> np.ndarray:
@@ -269,36 +318,6 @@ def plausibility(fitm: "MountFit", setup) -> list[str]:
     if rt > 0 and np.max(np.abs(fitm.x[10:13])) > rt:
         out.append(f"the torque offset {np.max(np.abs(fitm.x[10:13])):.3g} N m exceeds the sensor's range ({rt:g} N m)")
     return out
-
-
-def _relvec(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
-    """Rotation vector of ``Ra^T Rb`` (the local difference)."""
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_matrix(Ra.T @ Rb).as_rotvec()
-
-
-def _local_jac(v: np.ndarray) -> np.ndarray:
-    """d(local rotation)/d(rotvec): numerical, (3, 3)."""
-    R0 = rotvec_matrix(v)
-    J = np.zeros((3, 3))
-    for k in range(3):
-        dv = np.zeros(3)
-        dv[k] = 1e-7
-        J[:, k] = _relvec(R0, rotvec_matrix(v + dv)) / 1e-7
-    return J
-
-
-def _jac(x: np.ndarray, d: MountData) -> np.ndarray:
-    """Numerical Jacobian of the weighted residual (central differences), (6n, 13)."""
-    J = np.empty((6 * len(d.ga), len(x)))
-    for k in range(len(x)):
-        h = 1e-6 * max(1.0, abs(x[k]))
-        xp, xm = x.copy(), x.copy()
-        xp[k] += h
-        xm[k] -= h
-        J[:, k] = (_resid(xp, d) - _resid(xm, d)) / (2 * h)
-    return J
 
 
 def report(x, sd, rpy, rpy_sd, angle_deg, angle_sd, res, d: MountData, s) -> dict:

@@ -248,14 +248,14 @@ def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray, rc: Row
 
     progress("sensor mount: rotation, mass, centre of mass and offset fitted jointly")
     blocks = sample_blocks(s, rc)
-    fit0 = mount.fit(s, np.ones(s.n, bool), blocks, sigma)
+    fit0 = mount.fit(s, np.ones(s.n, bool), blocks, sigma, max_blocks=0)  # the point only (no sd needed yet)
     how = "second differences of the reading"
     if s.static:
         sigma, how = static_sigma(s, fit0.residual, rc)
-        fit0 = mount.fit(s, np.ones(s.n, bool), blocks, sigma)
     e_cal = s.wrench - mount.predict(fit0.x, s)
     contact, _ = detect_contact(e_cal, s.t, setup, rc)
-    fitm = mount.fit(s, ~contact, blocks, sigma) if contact.any() and (~contact).sum() > 20 else fit0
+    free = ~contact if (~contact).sum() > 20 else np.ones(s.n, bool)
+    fitm = mount.fit(s, free, blocks, sigma)
     if not setup.sensor.mount_known:
         setup = setup.model_copy(update={"sensor": setup.sensor.model_copy(
             update={"rpy_flange_deg": tuple(float(v) for v in fitm.rpy_deg)})})
