@@ -525,7 +525,8 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--theta", help="offset estimate x,y,z [m] to evaluate (default: the run's final estimate)")
     dg.add_argument("--add", action="append", nargs="+", metavar="EFFECT",
                     help="refit with these effects added and report the residual before/after (--add A B, or "
-                    "repeated); with --setup: the built-ins (" + ", ".join(_builtin_names()) + ") and your own "
+                    "repeated; a one-of effect's parameter: encoder_offset:joint5); with --setup: the built-ins ("
+                    + ", ".join(_builtin_names()) + ") and your own "
                     "(--effects); own runs also contact_stiffness, contact_friction_couple, grasp_compliance")
     dg.add_argument("--effects", action="append", metavar="FILE.py",
                     help="with --setup: a Python file of your own effects (@effect from kinadapt_nn.diagnostics; "

@@ -352,7 +352,7 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
     progress = progress or (lambda msg: None)
     lib = library(setup, effects_files)
     names = judged(lib, setup)
-    add = list(dict.fromkeys(add or []))
+    add, forced = _parse_add(add or [], lib)
     for a in add:
         if a not in lib:
             raise KinadaptError(f"--add {a}: unknown effect for a user's log (choose from {', '.join(lib)}; your own "
@@ -452,6 +452,7 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
     before = after = None
     if add:
         named = {e["effect"]: e["columns_used"] for e in result.entries}  # a one-of effect: the column the ranking named
+        named.update(forced)  # or the one the user named (--add encoder_offset:joint5)
         before, after, fitted_add = sel.refit(des, add, sc, named)
         report["residual_rms_before"] = _rms_by_channel(des, before)
         report["residual_rms_after"] = _rms_by_channel(des, after)
@@ -469,6 +470,23 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
             report["added"][n] = entry
     report["summary"] = summary_text(report)
     return Result(report, des, before, after, s, s.contact, result.heldout, lib, files)
+
+
+def _parse_add(add: list[str], lib: dict[str, Effect]) -> tuple[list[str], dict[str, list[int]]]:
+    """``--add`` names; ``EFFECT:PARAM`` picks the parameter of a one-of effect (``encoder_offset:joint5``
+    or ``encoder_offset:offset_joint5``). -> (effect names, {effect: [column]})."""
+    names, forced = [], {}
+    for a in add:
+        name, _, which = a.partition(":")
+        if which and name in lib:
+            eff = lib[name]
+            hits = [j for j, pn in enumerate(eff.params) if pn == which or pn.endswith("_" + which)]
+            if not eff.one_of or len(hits) != 1:
+                raise KinadaptError(f"--add {a}: '{which}' is not one parameter of the one-of effect '{name}' "
+                                    f"(its parameters: {', '.join(eff.params)})")
+            forced[name] = hits
+        names.append(name)
+    return list(dict.fromkeys(names)), forced
 
 
 def _rank(s: sg.LogSignals, lib: dict, names: list[str], sigma: np.ndarray, rc: RowCfg, sc: sel.SelCfg,

@@ -171,6 +171,20 @@ def test_add_makes_the_residual_fall(cases, tmp_path):
     assert abs(rep["added"]["tool_gravity"]["estimate"]["mass"]["value"] - 0.25) < 0.05
 
 
+def test_add_names_the_joint(cases, tmp_path, capsys):
+    """``--add encoder_offset:joint4`` fits that joint; a parameter the effect lacks is one line."""
+    d, _, _ = cases["encoder_offset"]
+    out = tmp_path / "addj"
+    assert main(["diagnose", str(d / "log.csv.gz"), "--setup", str(d / "setup_csv.toml"), "--out", str(out),
+                 "--add", "encoder_offset:joint4", "--quiet"]) == 0
+    est = json.loads((out / "diagnosis.json").read_text())["added"]["encoder_offset"]["estimate"]
+    assert list(est) == ["offset_joint4"] and abs(est["offset_joint4"]["value"] - 1.0) < 0.1
+    assert main(["diagnose", str(d / "log.csv.gz"), "--setup", str(d / "setup_csv.toml"), "--out",
+                 str(tmp_path / "addx"), "--add", "encoder_offset:joint9", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "joint9" in err[0] and not (tmp_path / "addx" / "diagnosis.json").exists()
+
+
 def test_flipped_sign_is_caught_not_diagnosed(cases, tmp_path, capsys):
     d, _, _ = cases["none"]
     out = tmp_path / "flip"
