@@ -156,6 +156,15 @@ def run(arms: list[str], only: list[str] | None, seed: int, logs: Path | None, o
                "right_present_set": sum(r["ok"] for r in ok),
                "sensor_mount_reported": sum(1 for r in ok if r.get("mount") and not r["mount"].get("missing")),
                "static_logs": sum(1 for r in results if r["kind"] == "static")}
+    unknown = [r["mount"] for r in ok if r["case"].startswith("mount_unknown") and r.get("mount")
+               and not r["mount"].get("missing")]
+    if unknown:  # the done-when of the unknown-mount logs: worst case over them
+        summary["unknown_mount_worst"] = {
+            "logs": len(unknown), "rotation_deg": max(u["rotation_deg"] for u in unknown),
+            "mass_pct": max(abs(u["mass_pct"]) for u in unknown), "com_mm": max(u["com_mm"] for u in unknown),
+            "force_residual_ratio": max(u["force_residual_ratio"] for u in unknown)}
+    summary["wall_s_median"] = float(np.median([r["wall_s"] for r in results])) if results else None
+    summary["wall_s_max"] = float(max(r["wall_s"] for r in results)) if results else None
     lines = ["| arm | case | expected hidden | verdicts (not absent) | present set | mount rot vs calib [deg] | "
              "mass vs calib [%] | COM vs calib [mm] | force resid ratio | consistent (diag/truth) | wall [s] |",
              "|---|---|---|---|---|---|---|---|---|---|---|"] + [_line(r) for r in results]
@@ -165,6 +174,12 @@ def run(arms: list[str], only: list[str] | None, seed: int, logs: Path | None, o
               f"Right verdicts: {summary['right_present_set']}/{summary['logs']}; failed runs: "
               f"{summary['failed_runs']}; sensor_mount reported: {summary['sensor_mount_reported']}/"
               f"{summary['static_logs']} static logs."]
+    if "unknown_mount_worst" in summary:
+        w = summary["unknown_mount_worst"]
+        lines.append(f"Unknown mount (declared unknown, N mm declared), worst of {w['logs']} logs vs the independent "
+                     f"calibration: rotation {w['rotation_deg']:.3f} deg, mass {w['mass_pct']:.3f} %, COM "
+                     f"{w['com_mm']:.3f} mm, force residual {w['force_residual_ratio']:.3f}x.")
+    lines.append(f"Wall per log (fresh process): median {summary['wall_s_median']:.1f} s, max {summary['wall_s_max']:.1f} s.")
     print("\n".join(lines))
     if out is not None:
         out = Path(out)

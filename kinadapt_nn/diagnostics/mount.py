@@ -19,9 +19,11 @@ locally, ``D exp([delta])``), robust to the few contact/outlier samples through 
 delete-one-block jackknife over the diagnosis's cross-validation blocks.
 
 ``declared_consistent``: the declared mount agrees with the data when the fitted rotation is not
-significant (< 3 sd) or when the first-order rotation effect (``ft_frame_rotation``) can represent
-it: the neglected second-order term ``|w| theta^2 / 2`` stays below the relevant sizes on every
-sample and ``theta <= 15 deg``. Everything reported is in the setup's own convention (roll, pitch,
+significant (< 3 sd), or when the first-order rotation effect (``ft_frame_rotation``) can represent
+it (the neglected second-order term ``|w| theta^2 / 2`` stays below the relevant sizes on every
+sample and ``theta <= 15 deg``), or when the rotation removes less than ``ROTATION_EXPLAINS`` of
+the robust misfit the declared mount leaves (``rotation_explains``: then something other than the
+mount distorts the fit -- physics outside the model -- and the mount is not what the data contradict). Everything reported is in the setup's own convention (roll, pitch,
 yaw of ``R_fs = Rz(yaw) Ry(pitch) Rx(roll)``) and the offset/residual in the log's units.
 """
 
@@ -38,6 +40,7 @@ STEP_TOL_RAD = 1e-8  #: Gauss-Newton stops when the rotation update is this smal
 MAX_FIRST_ORDER_DEG = 15.0
 COM_PLAUSIBLE_M = 0.5  #: [m] a tool's centre of mass farther from the sensor than this is not a tool
 SIGNIFICANT_SD = 3.0
+ROTATION_EXPLAINS = 0.9  #: a declared mount is contradicted only when the rotation removes this share of its misfit
 HUBER_K = 3.0  #: [noise sd] the robust loss is quadratic up to this weighted residual
 
 
@@ -175,6 +178,17 @@ def _gauss_newton(d: MountData, D0: np.ndarray, iters: int = 40) -> tuple[np.nda
     return D, theta, cost
 
 
+def _cost_at(D: np.ndarray, d: MountData, iters: int = 8) -> float:
+    """The robust (Huber) cost of the best ``theta`` at a fixed rotation ``D`` (IRLS)."""
+    rw = np.ones_like(d.r)
+    for _ in range(iters):
+        _, e = _project(D, d, rw)
+        rw = _huber(e)
+    _, e = _project(D, d, rw)
+    a = np.abs(e)
+    return float(np.sum(np.where(a <= HUBER_K, 0.5 * a**2, HUBER_K * a - 0.5 * HUBER_K**2)))
+
+
 def _linear_start(d: MountData) -> np.ndarray | None:
     """The closed-form start: ``F = K g_a + b_F`` with ``K = m D^T`` -> D by the nearest rotation
     (SVD). -> D (3, 3), or None when gravity does not turn through the sensor."""
@@ -228,6 +242,8 @@ def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: i
         if ck < best:
             D, theta, best = Dk, thk, ck
     x = np.concatenate([Rotation.from_matrix(D).as_rotvec(), theta])
+    cost_declared = _cost_at(np.eye(3), d)
+    rot_explains = float(max(0.0, 1.0 - best / max(cost_declared, 1e-300)))
     # information-limited covariance in (local rotation, theta), theta held at the solution
     e = _resid_at(D, theta, d)
     J = np.empty((len(e), 13))
@@ -286,7 +302,7 @@ def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: i
     dall = d._replace(ga=s.g_s[free] - s.a_s[free], omega=s.omega_s[free], alpha=s.alpha_s[free], r=s.wrench[free],
                       block=block[free])
     res = dall.r - _model(x, dall)
-    rep = report(x, sd, rpy, rpy_sd, float(np.rad2deg(th)), ang_sd, res, dall, s)
+    rep = report(x, sd, rpy, rpy_sd, float(np.rad2deg(th)), ang_sd, res, dall, s, rot_explains)
     return MountFit(x, sd, rpy, rpy_sd, float(np.rad2deg(th)), ang_sd, res, rep)
 
 
@@ -320,7 +336,7 @@ def plausibility(fitm: "MountFit", setup) -> list[str]:
     return out
 
 
-def report(x, sd, rpy, rpy_sd, angle_deg, angle_sd, res, d: MountData, s) -> dict:
+def report(x, sd, rpy, rpy_sd, angle_deg, angle_sd, res, d: MountData, s, rot_explains: float = 1.0) -> dict:
     """The ``sensor_mount`` block of diagnosis.json (module docstring); offset/residual in the
     log's units and sign convention."""
     setup = s.setup
@@ -340,7 +356,9 @@ def report(x, sd, rpy, rpy_sd, angle_deg, angle_sd, res, d: MountData, s) -> dic
     second_order = float(np.max(wf.max(0) * th**2 / 2.0 / rel)) if len(wf) else 0.0
     significant = angle_deg > SIGNIFICANT_SD * max(angle_sd, 1e-9)
     representable = angle_deg <= MAX_FIRST_ORDER_DEG and second_order < 1.0
-    consistent = bool(not significant or representable)
+    # a mount error is what the rotation explains: when it removes only part of what the declared mount
+    # leaves, something else (not the mount) distorts the fit and the declared mount is not contradicted
+    consistent = bool(not significant or representable or rot_explains < ROTATION_EXPLAINS)
     out = {
         "rpy_flange_deg": [float(v) for v in rpy],
         "sd_deg": [float(v) for v in rpy_sd],
@@ -361,6 +379,7 @@ def report(x, sd, rpy, rpy_sd, angle_deg, angle_sd, res, d: MountData, s) -> dic
         "residual_units": [setup.log.force_unit] * 3 + [setup.log.torque_unit] * 3,
         "samples": int(len(res)),
         "second_order_to_relevant": second_order,
+        "rotation_explains": rot_explains,
         "method": "rotation, mass, first moment and offset fitted jointly (Gauss-Newton from a closed-form start "
                   "and from the declared mount); sd = max(information, block jackknife)",
     }
