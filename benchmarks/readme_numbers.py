@@ -176,6 +176,15 @@ def headline_foreign(tmp: Path, jobs: int) -> list[str]:
               f"{out['outside_top_hint_right']}/{out['outside']}, no clean library finding "
               f"{out['outside_no_clean_finding']}/{out['outside']}, effect-free complete {out['effect_free_complete']}; "
               f"wall per 15 s 500 Hz log max {out['wall_s_max']:.1f} s"]
+    cal = _load("calibration_logs", ROOT / "benchmarks" / "calibration_logs.py").run(
+        ["ur5e", "iiwa14"], None, 0, None, None)
+    w = cal["unknown_mount_worst"]
+    lines += ["[2c] real-log kinds (benchmarks/calibration_logs.py: UR5e DH/URDF, iiwa14 DH; static poses, no clock, "
+              "unknown mounts, N mm)",
+              f"    right verdicts {cal['right_present_set']}/{cal['logs']}; unknown mount vs an independent calibration "
+              f"(worst of {w['logs']}): rotation {w['rotation_deg']:.3f} deg, mass {w['mass_pct']:.3f} %, COM "
+              f"{w['com_mm']:.3f} mm, force residual {w['force_residual_ratio']:.2f}x; wall per log median "
+              f"{cal['wall_s_median']:.1f} s, max {cal['wall_s_max']:.1f} s"]
     return lines
 
 

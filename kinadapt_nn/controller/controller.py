@@ -254,8 +254,12 @@ class LawView:
     def gram_n(self) -> int:
         return int(self._st.k[self._b, core.K_GRAM_N])
 
-    def identified_directions(self) -> int:
-        """How many directions of theta the controller acts on (0 before the first kalman step)."""
+    def identified_directions(self) -> int | None:
+        """How many directions of theta the controller acts on (0 before the first kalman step);
+        None for the laws without a covariance (as ``CompositeLaw``: the summary must not read an
+        untouched kalman state as "no contact was sensed")."""
+        if self.mode != "kalman":
+            return None
         if not self._st.k[self._b, core.K_ACT_INIT]:
             return 0
         return int(round(float(np.trace(self._st.act_proj[self._b]))))

@@ -117,6 +117,8 @@ def test_rank_gate_is_checked_every_step_and_a_breach_is_a_failure():
     s = run_episode(load_config(None, ["run.features=rbf", "adaptation.mode=composite", *QUIET])).summary
     assert s["min_lambda_JJt"] < 1e-6
     assert not s["success"] and s["failure"] == "rank_gate" and s["rank_gate"]["breach_t_s"] is not None
+    # the composite law has no covariance: the summary must not claim "no contact was sensed" (it was)
+    assert s["identification"]["identified"] is None and "no contact was sensed" not in s["identification"]["text"]
 
 
 def test_repeated_insertions_carry_the_estimate():
