@@ -214,23 +214,16 @@ def test_bad_arm_declarations_are_one_line(tmp_path):
     with pytest.raises(ConfigError) as exc:
         load_setup(None, ['arm.dh={convention="classic", a_m=[0, 0.4], d_m=[0.1], alpha_rad=[0, 0]}'])
     assert "d_m" in _one_line(exc)
-    bad = tmp_path / "bad.urdf"
-    bad.write_text("<robot name='x'><link name='a'></robot>")
-    with pytest.raises(ModelFileError) as exc:
-        load_arm(_urdf(bad).arm)
-    assert "not valid XML" in _one_line(exc)
-    still = tmp_path / "still.urdf"
-    still.write_text("<robot name='x'><link name='a'/><link name='b'/>"
-                     "<joint name='j' type='fixed'><parent link='a'/><child link='b'/></joint></robot>")
-    with pytest.raises(KinadaptError) as exc:
-        load_arm(_urdf(still).arm)
-    assert "no revolute" in _one_line(exc)
-    floating = tmp_path / "floating.urdf"
-    floating.write_text("<robot name='x'><link name='a'/><link name='b'/>"
-                        "<joint name='base' type='floating'><parent link='a'/><child link='b'/></joint></robot>")
-    with pytest.raises(KinadaptError) as exc:
-        load_arm(_urdf(floating).arm)
-    assert "floating" in _one_line(exc)
+    two_links = "<robot name='x'><link name='a'/><link name='b'/><joint name='j' type='{}'><parent link='a'/>" \
+                "<child link='b'/></joint></robot>"
+    for name, text, error, words in (("bad", "<robot name='x'><link name='a'></robot>", ModelFileError, "not valid XML"),
+                                     ("still", two_links.format("fixed"), KinadaptError, "no revolute"),
+                                     ("floating", two_links.format("floating"), KinadaptError, "floating")):
+        f = tmp_path / f"{name}.urdf"
+        f.write_text(text)
+        with pytest.raises(error) as exc:
+            load_arm(_urdf(f).arm)
+        assert words in _one_line(exc)
     with pytest.raises(KinadaptError) as exc:
         load_arm(load_setup(None, ['arm.flange_site="tcp"']).arm)
     assert "tcp" in _one_line(exc)

@@ -6,33 +6,22 @@ The generator is independent of the package (no kinadapt_nn, no MuJoCo); only th
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from kinadapt_nn.diagnostics.setup import load_setup
+from tests.diagnostics.example_scripts import load_example
 
 ROOT = Path(__file__).resolve().parents[2]
 RIG_PY = ROOT / "examples" / "calibration_rig.py"
 SEED = 4
 
 
-def _load_rig():
-    name = "calibration_rig"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, RIG_PY)
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod
-        spec.loader.exec_module(mod)
-    return sys.modules[name]
-
-
-cr = _load_rig()
+cr = load_example("calibration_rig")
 STATIC = tuple(cr.static_cases("ur5e"))
 
 

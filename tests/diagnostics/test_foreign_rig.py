@@ -7,10 +7,8 @@ setup files it writes).
 from __future__ import annotations
 
 import gzip
-import importlib.util
 import json
 import math
-import sys
 from pathlib import Path
 
 import mujoco
@@ -19,6 +17,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from kinadapt_nn.diagnostics.setup import load_setup
+from tests.diagnostics.example_scripts import load_example
 
 ROOT = Path(__file__).resolve().parents[2]
 RIG_PY = ROOT / "examples" / "foreign_rig.py"
@@ -26,17 +25,7 @@ SEED = 3
 GENERATED = ("none", "encoder_offset", "tared_rotation", "ft_bias_drift")
 
 
-def _load_rig():
-    name = "foreign_rig"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, RIG_PY)
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod
-        spec.loader.exec_module(mod)
-    return sys.modules[name]
-
-
-fr = _load_rig()
+fr = load_example("foreign_rig")
 
 
 @pytest.fixture(scope="module")

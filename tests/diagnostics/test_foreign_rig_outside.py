@@ -11,10 +11,7 @@ from __future__ import annotations
 
 import builtins
 import gzip
-import importlib.util
 import json
-import math
-import sys
 import tomllib
 import types
 from pathlib import Path
@@ -22,6 +19,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
+from tests.diagnostics.example_scripts import load_example
 
 ROOT = Path(__file__).resolve().parents[2]
 RIG_PY = ROOT / "examples" / "foreign_rig.py"
@@ -32,19 +30,8 @@ CASES = ("effect_free", "world_pull", "crosstalk", "temperature", "joint_drag", 
 CSV_TOL = 2e-6  # two values printed with 6 decimals
 
 
-def _load(name: str, path: Path):
-    mod = sys.modules.get(name)
-    if mod is not None and Path(mod.__file__).resolve() == path:
-        return mod
-    spec = importlib.util.spec_from_file_location(name, path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[name] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
-
-fr = _load("foreign_rig", RIG_PY)
-fo = _load("foreign_rig_outside", OUTSIDE_PY)
+fr = load_example("foreign_rig")
+fo = load_example("foreign_rig_outside")
 
 
 def _read_csv(path: Path) -> tuple[list[str], np.ndarray, np.ndarray]:

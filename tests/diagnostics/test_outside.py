@@ -5,9 +5,7 @@ are one line."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +15,7 @@ from kinadapt_nn.app.cli import main
 from kinadapt_nn.diagnostics.readers import read_log
 from kinadapt_nn.diagnostics.setup import load_setup
 from kinadapt_nn.diagnostics.userlog import diagnose
+from tests.diagnostics.example_scripts import load_example
 
 ROOT = Path(__file__).resolve().parents[2]
 EFFECTS = ROOT / "examples" / "effects"
@@ -25,19 +24,10 @@ USER_FILE = {"world_pull": ("cable_pull.py", "cable_pull"), "crosstalk": ("cross
              "temperature": ("temperature_bias.py", "temperature_bias")}
 
 
-def _load(name: str, path: Path):
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, path)
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod
-        spec.loader.exec_module(mod)
-    return sys.modules[name]
-
-
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory) -> dict[str, Path]:
-    _load("foreign_rig", ROOT / "examples" / "foreign_rig.py")
-    outside = _load("foreign_rig_outside", ROOT / "examples" / "foreign_rig_outside.py")
+    load_example("foreign_rig")
+    outside = load_example("foreign_rig_outside")
     root = tmp_path_factory.mktemp("outside")
     return {c: outside.make_case(c, root, seed=0) for c in CASES}
 

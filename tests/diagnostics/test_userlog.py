@@ -4,9 +4,7 @@ right verdicts; the nominal model agrees with MuJoCo; bad input is one line."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -17,21 +15,14 @@ from kinadapt_nn.diagnostics import physical as ph
 from kinadapt_nn.diagnostics.readers import read_log
 from kinadapt_nn.diagnostics.setup import load_setup
 from kinadapt_nn.diagnostics.userlog import diagnose
+from tests.diagnostics.example_scripts import load_example
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _rig():
-    spec = importlib.util.spec_from_file_location("foreign_rig", ROOT / "examples" / "foreign_rig.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault("foreign_rig", mod)  # dataclasses look their module up while it loads
-    spec.loader.exec_module(sys.modules["foreign_rig"]) if sys.modules["foreign_rig"] is mod else None
-    return sys.modules["foreign_rig"]
-
-
 @pytest.fixture(scope="module")
 def rig():
-    return _rig()
+    return load_example("foreign_rig")
 
 
 @pytest.fixture(scope="module")
