@@ -192,7 +192,7 @@ class FeaturesCfg(_Cfg):
     rbf_n_centres: int = Field(6, ge=1, le=64)  # K; p = 5 * 7 * K
     rbf_width_rad: float = Field(0.0, ge=0.0)  # [rad] Gaussian width (0 = mean nearest-centre distance)
     rbf_seed: int = Field(0, ge=0, le=2**32 - 1)  # seed of the sampled centres
-    neural_checkpoint: str = ""  # pretrained body ("" = the shipped models/neural_default.pt)
+    neural_checkpoint: str = ""  # pretrained body ("" = the shipped models/neural_default.pt; a bare file name = a shipped model, e.g. "neural_cell.pt")
     neural_prior: Literal["all_arms", "calibrated_arm"] = "all_arms"  # kalman: theta's prior = the heads of every training arm | only the nominal arm's (declare a calibrated arm)
 
 
@@ -396,6 +396,51 @@ class RunCfg(_Cfg):
     progress: bool = True  # show a progress bar
 
 
+class CellCfg(_Cfg):
+    """A work cell: several bores (KNOWN entrance poses, as an integrator writes them down) visited
+    in a sequence by ``run.insertions`` with theta (and the law's covariance) carried over, and
+    the held-out configurations on which the cell Jacobian error is evaluated (truth side)."""
+
+    bores_w_m: tuple[Vec3, ...] = ()  # [m] bore entrances, world (KNOWN); () = the one bore scene.bore_entry_w_m
+    order: tuple[int, ...] = ()  # [-] bore indices visited in turn (cycled); () = 0, 1, 2, ... cycled
+    heldout_per_bore: int = Field(8, ge=1, le=200)  # [-] held-out configurations per bore (cell Jacobian error)
+    heldout_seed: int = Field(20261123, ge=0)  # [-] draws the held-out configurations (fixed: the same set every insertion)
+    heldout_tilt_deg: float = Field(3.0, ge=0.0, le=10.0)  # [deg] held-out flange tilt, uniform +- about vertical
+    heldout_lateral_m: float = Field(0.003, ge=0.0, le=0.02)  # [m] held-out tip offset from the bore axis, uniform +-
+    between: Literal["carry", "refit"] = "carry"  # between insertions: carry theta/P | refit theta on every logged insertion (measured data only)
+    refit_channels: tuple[int, ...] = (1, 2)  # [-] channels of s the refit fits (0 d, 1-2 F_lat, 3-5 M); default: the lateral forces (docs/cell.md)
+    refit_prior_weight: float = Field(1.0, gt=0.0, le=1e6)  # [-] the refit's prior information = this x P0^-1
+
+    @field_validator("bores_w_m")
+    @classmethod
+    def _bores(cls, v: tuple) -> tuple:
+        for i, b in enumerate(v):
+            try:
+                _within(b, -2.0, 2.0, "m")
+            except ValueError as exc:
+                raise ValueError(f"bore {i}: {exc}") from None
+        return v
+
+    @model_validator(mode="after")
+    def _order(self) -> CellCfg:
+        nb = max(1, len(self.bores_w_m))
+        bad = [i for i in self.order if not 0 <= i < nb]
+        if bad:
+            raise ValueError(f"cell.order names bore {bad[0]}, but the cell has {nb} bore(s) (indices 0..{nb - 1})")
+        if not self.refit_channels or any(not 0 <= c <= 5 for c in self.refit_channels):
+            raise ValueError("cell.refit_channels must name channels of s in 0..5 (0 d, 1-2 F_lat, 3-5 M)")
+        return self
+
+    def bores(self, scene: SceneCfg) -> list[tuple[float, float, float]]:
+        """The cell's known bore entrances (at least the scene's one bore). -> [(3,)] world [m]."""
+        return [tuple(b) for b in self.bores_w_m] or [tuple(scene.bore_entry_w_m)]
+
+    def bore_of(self, i: int) -> int:
+        """The bore index of insertion ``i`` (0-based)."""
+        order = self.order or tuple(range(max(1, len(self.bores_w_m))))
+        return order[i % len(order)]
+
+
 class ExperimentCfg(_Cfg):
     """One online experiment (``kinadapt online``)."""
 
@@ -413,6 +458,7 @@ class ExperimentCfg(_Cfg):
     model: ModelCfg = ModelCfg()
     excite: ExciteCfg = ExciteCfg()
     success: SuccessCfg = SuccessCfg()
+    cell: CellCfg = CellCfg()
 
 
 def true_bore_entry(scene: SceneCfg) -> tuple[float, float, float]:

@@ -392,3 +392,37 @@ def bar_values(a, y: np.ndarray, values: Sequence[float], fmt: str = "{:+.3f}") 
             txt = fmt.format(v).replace("-", "+") if float(fmt.format(abs(v))) == 0 else fmt.format(v)
             a.text(v + (off if v >= 0 else -off), yy, txt, va="center", ha="left" if v >= 0 else "right",
                    fontsize=6.5, color="0.2")
+
+
+def cell_learning_figure(results: Sequence[dict]) -> plt.Figure:
+    """A work cell's learning curve: the cell Jacobian error (median over the held-out
+    configurations) against the insertion, one panel per tool family, one colour per features
+    type; thin lines per tool, the thick line the median over tools. ``results``: compare's
+    per-episode records with a ``cell`` block (``kinadapt_nn.runs.compare``)."""
+    recs = [r for r in results if r.get("cell")]
+    fams = list(dict.fromkeys(r["tool_family"] for r in recs))
+    feats = list(dict.fromkeys(r["features"] for r in recs))
+    fig, axes = plt.subplots(1, len(fams), figsize=(5.6 * len(fams), 4.0), squeeze=False, sharey=True,
+                             constrained_layout=True)
+    for a, fam in enumerate(fams):
+        ax = axes[0, a]
+        for k, feat in enumerate(feats):
+            curves = [np.asarray(r["cell"]["jacobian_error_cell_median"]) for r in recs
+                      if (r["tool_family"], r["features"]) == (fam, feat)]
+            if not curves:
+                continue
+            n = min(len(c) for c in curves)
+            arr = np.stack([c[:n] for c in curves])
+            x = np.arange(n)
+            for c in arr:
+                ax.semilogy(x, c, color=f"C{k}", lw=0.6, alpha=0.35)
+            ax.semilogy(x, np.median(arr, axis=0), "o-", color=f"C{k}", lw=2.0, ms=3.5,
+                        label=f"{feat} (median of {len(arr)} tools)")
+        nb = len(recs[0]["cell"]["bores_w_m"])
+        how = {"refit": "theta refitted", "carry": "theta and P carried"}.get(recs[0]["cell"].get("between"), "")
+        ax.set_title(f"{fam.replace('_', ' ')} family: {nb} bores, {how} between insertions")
+        ax.set_xlabel("insertion (0 = before the first)")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=8)
+    axes[0, 0].set_ylabel("cell Jacobian error |W(J_hat - J_true)| / |W J_true|\n(median over held-out configurations)")
+    return fig

@@ -111,9 +111,24 @@ def _summary_lines(summary: dict, out: Path) -> list[str]:
         f"  lateral drift      free space {1e3 * summary['lateral_drift_free_space_m']:.3f} mm, "
         f"max {1e3 * summary['lateral_drift_max_m']:.3f} mm",
         *([f"  identification     {summary['identification']['text']}"] if summary.get("identification") else []),
+        *_cell_lines(summary),
         f"  sim {summary['sim_time_s']:.2f} s in {summary['wall_time_s']:.2f} s wall ({summary['steps']} steps)",
         f"  wrote {out}/ (config.toml, summary.json, trace.npz, rollout.png, tb/)",
     ]
+
+
+def _cell_lines(summary: dict) -> list[str]:
+    """A work cell's lines: seated count and the cell Jacobian error after each insertion."""
+    cell = summary.get("cell")
+    if not cell:
+        return []
+    rows = summary["insertions"]
+    errs = cell["jacobian_error_cell_median"]
+    return [f"  work cell          {sum(r['success'] for r in rows)}/{len(rows)} insertions seated over "
+            f"{len(cell['bores_w_m'])} bores (last summary lines: insertion {len(rows)})",
+            f"  cell J error       {100 * errs[0]:.3f} % before -> "
+            + " ".join(f"{100 * e:.3f}" for e in errs[1:]) + " % after each insertion "
+            f"(median over {cell['heldout_configurations']} held-out configurations)"]
 
 
 def _write_online(stage: Path, cfg, result, figures=None) -> None:
@@ -131,10 +146,11 @@ def _write_online(stage: Path, cfg, result, figures=None) -> None:
     write_json(stage / "summary.json", result.summary)
     result.trace.save(stage / "trace.npz")
     if cfg.run.tensorboard:
-        from kinadapt_nn.runs.tb import write_tensorboard
+        from kinadapt_nn.runs.tb import write_cell_tensorboard, write_tensorboard
 
         hp = {"features": cfg.run.features, "law": result.summary["law"], "seed": cfg.run.seed}
         write_tensorboard(stage / "tb", result.trace, result.summary, hp)
+        write_cell_tensorboard(stage / "tb", result.summary)  # a work cell: error vs insertion
     if not cfg.run.figure:
         return
     drawn = False

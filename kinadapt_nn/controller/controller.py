@@ -479,3 +479,14 @@ class Controller:
                 self._ext_J[0, :, :self.kin_n] = self.features.jacobian(kin, self.theta)
         core.act_kernel(t, self._inp, self._p_O, self._R, self._J, self._reg, self._ext_J, st.x, st.k, lay, cs.c,
                         cs.mats, cs.pv, cs.L0, cs.seg, self._fx, self.out)
+
+    def set_bore(self, bore_entry_w_m) -> None:
+        """Aim at another KNOWN bore entrance (world, (3,) [m]): the next insertion of a work cell.
+        Only the depth channel's reference changes; theta, the law's state and the filters are
+        the caller's to keep (``reset(carry_estimate=True)``)."""
+        import dataclasses
+
+        entry = tuple(float(x) for x in bore_entry_w_m)
+        self.known = dataclasses.replace(self.known, bore_entry_w_m=entry)
+        self.entry_w = np.asarray(entry, dtype=float)
+        self.consts.c[core.N_ENTRY] = float(self.n_axis @ self.entry_w)

@@ -41,7 +41,7 @@ from kinadapt_nn.known import BORE_AXIS_W
 from kinadapt_nn.learning.torch_kinematics import build_chain_from_model, flange_kinematics_pk, nominal_panda_chain
 from kinadapt_nn.sim.arm_errors import perturbed_arm_model, random_arm_errors
 from kinadapt_nn.sim.truth import TrueSensorJacobian, sensor_jacobian_rows, sensor_jacobian_rows_batch
-from kinadapt_nn.sim.workspace import insertion_path, sample_workspace
+from kinadapt_nn.sim.workspace import insertion_path, sample_cell
 
 TRAIN_STATE_FORMAT = "kinadapt-train-state"
 TRAIN_STATE_VERSION = 2  # 2: weights_only-loadable (no pickled objects)
@@ -70,6 +70,7 @@ class DataCfg(_P):
     n_support: int = Field(32, ge=4)  # configurations per instance used to fit the head
     n_query: int = Field(16, ge=2)  # configurations per instance used for the loss
     joint_sigma_rad: float = Field(0.03, gt=0.0)  # [rad] workspace spread about the insertion path
+    bores_w_m: tuple[tuple[float, float, float], ...] = ()  # [m] a work cell's bores: configurations about each one's path (() = the one default bore)
 
 
 class NetCfg(_P):
@@ -116,8 +117,9 @@ class _Instance(NamedTuple):
     q: np.ndarray  # (N, n) [rad] configurations
 
 
-def _draw_instances(cfg: PretrainCfg, path: np.ndarray, rng: np.random.Generator, n_instances: int) -> list[_Instance]:
-    """The data set's random draws, in the order of the original per-instance loop."""
+def _draw_instances(cfg: PretrainCfg, path, rng: np.random.Generator, n_instances: int) -> list[_Instance]:
+    """The data set's random draws, in the order of the original per-instance loop. ``path``: one
+    insertion path (n, 7) or a work cell's list of them (``sample_cell``)."""
     td, N = cfg.tools, cfg.data.n_support + cfg.data.n_query
     out = []
     for _ in range(n_instances):
@@ -129,7 +131,7 @@ def _draw_instances(cfg: PretrainCfg, path: np.ndarray, rng: np.random.Generator
         link, joint = random_arm_errors(rng, cfg.arms.link_sigma_m, cfg.arms.joint_sigma_rad)  # drawn either way
         if not has_err:
             link, joint = np.zeros(8), np.zeros(7)
-        qs = sample_workspace(path, N, cfg.data.joint_sigma_rad, rng)
+        qs = sample_cell(path, N, cfg.data.joint_sigma_rad, rng)
         out.append(_Instance(offset, tilt, bool(has_err), link, joint, qs))
     return out
 
@@ -187,7 +189,13 @@ def make_dataset(
     l_nom = np.asarray(exp.sensing.nominal_offset_f_m, dtype=float)
     I = cfg.data.n_train + cfg.data.n_heldout
     N = cfg.data.n_support + cfg.data.n_query
-    insts = _draw_instances(cfg, insertion_path(exp), rng, I)
+    if cfg.data.bores_w_m:  # a work cell: every instance's configurations spread over all its bores
+        from kinadapt_nn.sim.workspace import cell_paths
+
+        exp = exp.model_copy(update={"cell": exp.cell.model_copy(update={"bores_w_m": tuple(cfg.data.bores_w_m)})})
+        insts = _draw_instances(cfg, cell_paths(exp), rng, I)
+    else:
+        insts = _draw_instances(cfg, insertion_path(exp), rng, I)
     q = np.stack([inst.q for inst in insts])  # (I, N, n)
     from tqdm import tqdm
 

@@ -72,7 +72,9 @@ def _base_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
         fc = cfg.features
         nominal = cfg.model_copy(update={"tool": cfg.tool.model_copy(update={"offset_f_m": tuple(l_nom), "tilt_deg": (0.0, 0.0)}),
                                          "arm": type(cfg.arm)()})
-        if fc.rbf_centres == "path":
+        if len(cfg.cell.bores(cfg.scene)) > 1:  # a work cell: the K centres shared out over its bores
+            centres = _cell_centres(nominal, fc.rbf_n_centres, fc.rbf_centres, fc.rbf_seed)
+        elif fc.rbf_centres == "path":
             centres = insertion_path(nominal, n=fc.rbf_n_centres)
         else:
             path = insertion_path(nominal)
@@ -88,10 +90,32 @@ def _base_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
         from kinadapt_nn.robot import MODELS_DIR
 
         ckpt = Path(cfg.features.neural_checkpoint) if cfg.features.neural_checkpoint else MODELS_DIR / "neural_default.pt"
+        if not ckpt.is_absolute() and not ckpt.exists() and (MODELS_DIR / ckpt.name).is_file():
+            ckpt = MODELS_DIR / ckpt.name  # a shipped model named by its file name (e.g. "neural_cell.pt")
         feats = NeuralFeatures(adjoint, l_nom, ckpt, channel_metric(cfg.sensing))
         feats.P0 = feats.prior_cov(cfg.features.neural_prior)  # the pretraining heads' second moment about the nominal head
         return feats, np.zeros(feats.n_params)  # the head of the nominal tool (zero residual)
     raise ValueError(f"unknown features {kind!r}")  # pragma: no cover (validated by the config)
+
+
+def _cell_centres(nominal: ExperimentCfg, k: int, how: str, seed: int) -> np.ndarray:
+    """RBF centres over a work cell: ``k`` in all, shared out over the bores in turn (bore b gets
+    ``k // nb`` plus one of the remainder), on each bore's insertion path (evenly in depth) or
+    sampled about it. -> (k', 7) with k' = max(k, number of bores)."""
+    from kinadapt_nn.sim.workspace import cell_paths, sample_workspace
+
+    paths = cell_paths(nominal, n=12)
+    nb = len(paths)
+    rng = np.random.default_rng(seed)
+    out = []
+    for b, path in enumerate(paths):
+        kb = max(1, k // nb + (1 if b < k % nb else 0))
+        if how == "path":
+            idx = np.round(np.linspace(0, len(path) - 1, kb + 2)[1:-1]).astype(int)
+            out.append(path[idx])
+        else:
+            out.append(sample_workspace(path, kb, 0.03, rng))
+    return np.concatenate(out)
 
 
 def law_name(cfg: ExperimentCfg) -> str:

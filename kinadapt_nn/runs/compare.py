@@ -11,6 +11,11 @@ nominal length, so a long tool would bottom out in the 50 mm bore before ``d`` r
 Each (scenario, family, features, tool) episode writes one TensorBoard run with the same tags
 and hparams; the table ``comparison.csv`` / ``comparison.md`` has one row per (scenario,
 features, tool family), and ``jacobian_error.png`` the Jacobian error vs time per features type.
+A work-cell scenario (``cell.bores_w_m``, ``run.insertions``) adds one row per insertion
+(``insertion`` 0 = before the first; ``jacobian_error_cell_median``: the median over tools of the
+cell Jacobian error on the held-out configurations, ``kinadapt_nn.runs.cell``), the run's row
+``insertion = "all"``, the TensorBoard scalar ``cell/jacobian_error_median`` (step = insertion) and
+``cell_learning.png`` (cell error vs insertion, every features type, every family).
 """
 
 from __future__ import annotations
@@ -96,7 +101,7 @@ def draw_tools(cfg: CompareCfg) -> dict[str, list[list[str]]]:
 def _run_one(job: tuple) -> dict:
     from kinadapt_nn.config import load_config
     from kinadapt_nn.runs.episode import run_insertions
-    from kinadapt_nn.runs.tb import write_tensorboard
+    from kinadapt_nn.runs.tb import write_cell_tensorboard, write_tensorboard
 
     scenario, family, features, tool_i, overrides, tb_dir, law = job
     cfg = load_config(None, ["run.progress=false", *overrides, f"run.features={features}",
@@ -110,12 +115,15 @@ def _run_one(job: tuple) -> dict:
     hp = {"features": features, "tool_family": family, "scenario": scenario, "tool": tool_i,
           "n_params": int(s["n_params"]), "law": s["law"]}
     write_tensorboard(Path(tb_dir), res.trace, s, hp)
+    if "cell" in s:
+        write_cell_tensorboard(Path(tb_dir), s)
     t = res.trace["t_s"]
     idx = np.arange(0, len(t), 10)
     return {
         "scenario": scenario, "tool_family": family, "features": features, "tool": tool_i, "summary": s,
         "law": cfg.adaptation.mode,
         "t": t[idx].tolist(), "jac_err": res.trace["truth_jacobian_rel_error"][idx].tolist(),
+        "insertions": s.get("insertions"), "cell": s.get("cell"),
     }
 
 
@@ -171,7 +179,28 @@ def run_compare(cfg: CompareCfg, out: Path, progress: bool = True) -> list[dict]
             "min_lambda_JJt_median": _median([g["min_lambda_JJt"] for g in grp]),
             "n_params": grp[0]["n_params"],
             "wall_time_s_median": _median([g["wall_time_s"] for g in grp]),
+            "insertion": None,
+            "jacobian_error_cell_median": None,
         })
+        cells = [g["cell"] for g in grp if g.get("cell")]
+        if cells:  # a work cell: one row per insertion (0 = before the first), medians over tools
+            rows[-1]["insertion"] = "all"
+            rows[-1]["jacobian_error_cell_median"] = _median([c["jacobian_error_cell_median"][-1] for c in cells])
+            for k in range(len(cells[0]["jacobian_error_cell_median"])):
+                ins = [g["insertions"][k - 1] for g in grp] if k else []
+                rows.append({
+                    "scenario": scen, "features": feat, "tool_family": fam, "law": law, "episodes": len(grp),
+                    "success_rate": sum(r["success"] for r in ins) / len(ins) if ins else None,
+                    "seat_time_s_median": _median([r["seat_time_s"] for r in ins]) if ins else None,
+                    "jacobian_rel_error_initial_median": _median([r["jacobian_rel_error_initial"] for r in ins]) if ins else None,
+                    "jacobian_rel_error_final_median": _median([r["jacobian_rel_error_final"] for r in ins]) if ins else None,
+                    "pred_error_rms_median": None,
+                    "offset_error_lateral_final_m_median": (_median([r["offset_error_lateral_final_m"] for r in ins])
+                                                            if ins else None),
+                    "min_lambda_JJt_median": None, "n_params": grp[0]["n_params"], "wall_time_s_median": None,
+                    "insertion": k,
+                    "jacobian_error_cell_median": _median([c["jacobian_error_cell_median"][k] for c in cells]),
+                })
     cols = list(rows[0].keys()) if rows else []
     with open(out / "comparison.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=cols)
@@ -179,6 +208,10 @@ def run_compare(cfg: CompareCfg, out: Path, progress: bool = True) -> list[dict]
         w.writerows(rows)
     (out / "comparison.md").write_text(_markdown(rows, cols))
     _figure(results, cfg, out / "jacobian_error.png")
+    if any(r.get("cell") for r in results):
+        from kinadapt_nn.figures import cell_learning_figure, save_figure
+
+        save_figure(cell_learning_figure(results), out / "cell_learning.png")
     return rows
 
 

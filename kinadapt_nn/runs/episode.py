@@ -39,33 +39,80 @@ class EpisodeResult(NamedTuple):
 
 def run_insertions(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
     """``run.insertions`` consecutive insertions of the same tool on the same arm (a work cell):
-    the controller's theta and its law's covariance are carried from one to the next; insertion
-    i uses seed ``run.seed + i`` (its start jitter). -> the last insertion's result, with
-    ``summary["insertions"]`` one row per insertion. One insertion is ``run_episode``."""
+    insertion i aims at bore ``cell.bore_of(i)`` of ``cell.bores_w_m`` (the scene's one bore
+    without a cell) with seed ``run.seed + i`` (its start jitter); the controller's theta and its
+    law's covariance are carried from one insertion to the next (``cell.between = "refit"``:
+    theta is refitted on every logged insertion in between, ``kinadapt_nn.runs.refit``). Each
+    insertion seats or fails on its own. -> the last insertion's result, with
+    ``summary["insertions"]`` one row per insertion and, for a work cell, ``summary["cell"]``:
+    the cell Jacobian error on the held-out configurations before the first insertion and after
+    each (``kinadapt_nn.runs.cell``, truth side). One insertion without a cell is ``run_episode``."""
     n = cfg.run.insertions
-    if n == 1:
+    bores = cfg.cell.bores(cfg.scene)
+    is_cell = bool(cfg.cell.bores_w_m)
+    if n == 1 and not is_cell:
         return run_episode(cfg, progress)
+    from kinadapt_nn.runs.cell import CellJacobianError
+
     ctrl = make_controller(cfg)
+    cell = CellJacobianError(cfg, ctrl)
+    cell_err = [cell.median(ctrl)]  # insertion 0: before the first
+    refit = None
+    if cfg.cell.between == "refit":
+        from kinadapt_nn.runs.refit import Refit
+
+        refit = Refit(ctrl, cfg.cell.refit_channels, cfg.cell.refit_prior_weight)
     rows = []
     res = None
     for i in range(n):
-        cfg_i = cfg.model_copy(update={"run": cfg.run.model_copy(update={"seed": (cfg.run.seed + i) % 2**32})})
+        b = cfg.cell.bore_of(i)
+        scene_i = cfg.scene.model_copy(update={"bore_entry_w_m": tuple(bores[b])})
+        cfg_i = cfg.model_copy(update={"run": cfg.run.model_copy(update={"seed": (cfg.run.seed + i) % 2**32}),
+                                       "scene": scene_i})
         if i:
             ctrl.reset(carry_estimate=True)
-        res = run_episode(cfg_i, progress, ctrl=ctrl)
+        ctrl.set_bore(bores[b])
+        res = run_episode(cfg_i, progress, ctrl=ctrl, keep_regressor=refit is not None)
         s = res.summary
-        rows.append({"insertion": i + 1, "success": s["success"], "failure": s["failure"], "seat_time_s": s["seat_time_s"],
+        refit_note = None
+        if refit is not None:
+            refit_note = refit.after_insertion(res.trace)
+        errs = cell.errors(ctrl)
+        cell_err.append(float(np.median(errs)))
+        rows.append({"insertion": i + 1, "bore": b, "bore_entry_w_m": list(bores[b]), "success": s["success"],
+                     "failure": s["failure"], "seat_time_s": s["seat_time_s"],
                      "jacobian_rel_error_initial": s["jacobian_rel_error_initial"],
                      "jacobian_rel_error_final": s["jacobian_rel_error_final"],
+                     "jacobian_error_cell_median": cell_err[-1],
+                     "jacobian_error_cell_p90": float(np.percentile(errs, 90)),
                      "offset_error_lateral_final_m": s.get("offset_error_lateral_final_m"),
+                     "theta_uncertainty": _finite_or_none(ctrl.law.uncertainty_ratio()),
+                     "identified": s["identification"].get("identified"),
+                     "refit": refit_note,
                      "theta_sd_final": s.get("theta_sd_final"), "max_force_N": s["max_force_N"]})
     res.summary["insertions"] = rows
+    res.summary["cell"] = {
+        "bores_w_m": [list(x) for x in bores],
+        "order": [cfg.cell.bore_of(i) for i in range(n)],
+        "between": cfg.cell.between,
+        "heldout_configurations": int(len(cell.q)),
+        "jacobian_error_cell_median": cell_err,  # [before the first, after insertion 1, ..., n]
+        "all_seated": all(r["success"] for r in rows),
+    }
     return res
 
 
-def run_episode(cfg: ExperimentCfg, progress: bool = False, ctrl: Controller | None = None) -> EpisodeResult:
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if x is not None and math.isfinite(x) else None
+
+
+def run_episode(cfg: ExperimentCfg, progress: bool = False, ctrl: Controller | None = None,
+                keep_regressor: bool = False) -> EpisodeResult:
     """Simulate one insertion with config ``cfg``. Deterministic for a given config. ``ctrl``: a
-    controller to use as it is (``run_insertions`` carries one over), else a new one."""
+    controller to use as it is (``run_insertions`` carries one over), else a new one.
+    ``keep_regressor``: also return the law's filtered regressor rows ``Phi_f^T`` of every logged
+    step as ``trace.arrays["law_Phi_fT"]`` (N, p, m) (controller side: what a between-insertion
+    refit of theta needs)."""
     wall0 = time.perf_counter()
     sim = PegInHoleSim(cfg)
     ctrl = make_controller(cfg) if ctrl is None else ctrl
@@ -97,7 +144,7 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False, ctrl: Controller | N
     t_log = np.zeros(n_rec)
     out_log = np.zeros((n_rec, lay.nout))
     io_log = np.zeros((n_rec, 3 * n + 6))  # q, qdot, wrench (raw, as given), q_ref
-    phi_log = np.zeros((n_rec, p * m)) if theta_true is not None else None
+    phi_log = np.zeros((n_rec, p * m)) if (theta_true is not None or keep_regressor) else None
     tip_log = np.zeros((n_rec, 3))
     truth_log = np.zeros((n_rec, 4))  # depth, face, bore, normal force
     lam_log = np.full(n_rec, math.inf)
@@ -188,6 +235,8 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False, ctrl: Controller | N
     trace = _trace_from_logs(ctrl, cfg, meta, n_logged, t_log, out_log, io_log, phi_log, tip_log, truth_log,
                              theta_true, monitor)
     lam_log = lam_log[:n_logged]
+    if keep_regressor:
+        trace.arrays["law_Phi_fT"] = phi_log[:len(trace)].reshape(len(trace), p, m)
     truth_jac = TrueSensorJacobian(
         ctrl.S, ctrl.l_nom_f, np.asarray(tcfg.tool.offset_f_m), arm_mjcf_path(cfg.scene),
         tcfg.arm.link_length_error_m, tcfg.arm.joint_offset_rad,

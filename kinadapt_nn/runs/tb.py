@@ -89,3 +89,20 @@ def write_tensorboard_figure(log_dir: Path, png_path: Path, tag: str = "rollout"
     width, height = (int.from_bytes(png[16 + 4 * k:20 + 4 * k], "big") for k in range(2))  # the IHDR chunk
     with EventWriter(log_dir) as wr:
         wr.add_png(tag, png, height, width)
+
+
+def write_cell_tensorboard(log_dir: Path, summary: dict) -> None:
+    """A work cell's learning curve: ``cell/jacobian_error_median`` (and ``cell/seated``) with
+    step = insertion (0 = before the first), so runs of every features type overlay."""
+    cell = summary.get("cell")
+    if not cell:
+        return
+    with EventWriter(log_dir) as wr:
+        for k, e in enumerate(cell["jacobian_error_cell_median"]):
+            vals = {"cell/jacobian_error_median": float(e)}
+            if k:
+                row = summary["insertions"][k - 1]
+                vals["cell/seated"] = float(row["success"])
+                if row.get("jacobian_error_cell_p90") is not None:
+                    vals["cell/jacobian_error_p90"] = float(row["jacobian_error_cell_p90"])
+            wr.add_scalars_at(k, vals)

@@ -34,3 +34,54 @@ def sample_workspace(path: np.ndarray, n: int, sigma_rad: float, rng: np.random.
     u = rng.random(n)[:, None]
     base = (1 - u) * path[seg] + u * path[seg + 1]
     return base + rng.normal(0.0, sigma_rad, base.shape)
+
+
+def sample_cell(paths, n: int, sigma_rad: float, rng: np.random.Generator) -> np.ndarray:
+    """``sample_workspace`` over a work cell: ``paths`` one path (n_k, 7) -- exactly
+    ``sample_workspace`` -- or a list of them (each sample on a path drawn uniformly). -> (n, 7)."""
+    if isinstance(paths, np.ndarray):
+        return sample_workspace(paths, n, sigma_rad, rng)
+    which = rng.integers(0, len(paths), n)
+    out = np.empty((n, paths[0].shape[1]))
+    for k, path in enumerate(paths):
+        sel = np.flatnonzero(which == k)
+        if len(sel):
+            out[sel] = sample_workspace(path, len(sel), sigma_rad, rng)
+    return out
+
+
+def cell_paths(cfg: ExperimentCfg, n: int = 12) -> list[np.ndarray]:
+    """``insertion_path`` at every bore of the work cell (``cfg.cell``; one bore without a cell).
+    -> list of (n, 7), one per bore, in ``cell.bores`` order."""
+    out = []
+    for entry in cfg.cell.bores(cfg.scene):
+        c = cfg.model_copy(update={"scene": cfg.scene.model_copy(update={"bore_entry_w_m": tuple(entry)})})
+        out.append(insertion_path(c, n=n))
+    return out
+
+
+def heldout_configurations(cfg: ExperimentCfg) -> tuple[np.ndarray, np.ndarray]:
+    """The work cell's fixed held-out configurations (evaluation of the cell Jacobian error).
+
+    Per bore ``cell.heldout_per_bore`` poses of the NOMINAL tool's tip (the CAD offset, so the set
+    does not depend on the tool under test): on a line parallel to the bore axis at a lateral
+    offset uniform in +-``heldout_lateral_m``, at a depth uniform in [-10 mm, 50 mm], with the
+    flange tilted uniformly within +-``heldout_tilt_deg`` about world x and y; IK on the nominal
+    arm from the bore's own insertion path. Drawn from ``cell.heldout_seed`` alone: the same set
+    for every tool, features type and insertion. -> (q (N, 7) [rad], bore index (N,))."""
+    cc = cfg.cell
+    rng = np.random.default_rng(cc.heldout_seed)
+    tool = cfg.tool.model_copy(update={"offset_f_m": tuple(cfg.sensing.nominal_offset_f_m), "tilt_deg": (0.0, 0.0)})
+    model, ids = build_model(tool, cfg.scene.model_copy(update={"contact_model": "socket"}))
+    qs, which = [], []
+    for b, entry in enumerate(cc.bores(cfg.scene)):
+        q = Q_HOME_RAD.copy()
+        for _ in range(cc.heldout_per_bore):
+            lat = rng.uniform(-1.0, 1.0, 2) * cc.heldout_lateral_m
+            depth = rng.uniform(-0.01, 0.05)
+            tilt = rng.uniform(-1.0, 1.0, 2) * cc.heldout_tilt_deg
+            target = np.asarray(entry, dtype=float) + np.array([lat[0], lat[1], -depth])
+            q = solve_start_ik(model, ids, target, tilt_rotation(tilt) @ R_W_F_DOWN, q)
+            qs.append(q.copy())
+            which.append(b)
+    return np.array(qs), np.array(which)

@@ -1,0 +1,108 @@
+"""Between the insertions of a work cell: refit theta on every logged insertion (measured data only).
+
+The online law sees each sample once, in order, and carries its conclusions forward; between two
+insertions a robot has time to look at everything it has measured so far. ``Refit`` keeps, per
+insertion, the law's own regression data on the contact samples (``adapt_gate = 1``), decimated
+to ``decimate_s``:
+
+    H_k = W Phi_f(q_k, qdot_k)          (m, p)   the law's filtered regressor, W-scaled
+    y_k = eps_w,k + H_k theta_k         (m,)     = W (s_dot_meas - known_f): what Phi_f theta must explain
+
+(``eps_w`` and ``theta`` are the logged prediction error and the estimate the controller used),
+and solves the regularised least-squares problem of all insertions together (information form,
+the batch counterpart of the kalman law; docs/equations.md#cell-refit):
+
+    Lambda = P0^-1 + sum_j sum_k H_k^T R_j^-1 H_k / n_eff
+    theta* = theta_prior + Lambda^-1 sum_j sum_k H_k^T R_j^-1 (y_k - H_k theta_prior) / n_eff,  P* = Lambda^-1
+
+with R_j (m,) the residual variance of insertion j at the current solution (bias included, three
+passes) and n_eff = corr_s / decimate_s the samples per independent observation. As the kalman law
+does, the controller then acts on theta* only in the directions the data identified (posterior sd
+below ``act_sd_ratio`` x the prior's, in the prior's whitened coordinates); elsewhere the prior
+stays. Nothing here reads the truth: the trace's ``truth_*`` channels are never touched.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kinadapt_nn.controller.controller import Controller
+
+
+class Refit:
+    """Pooled refit of theta over a work cell's logged insertions (see the module docstring)."""
+
+    def __init__(self, ctrl: Controller, channels=(1, 2), prior_weight: float = 1.0, decimate_s: float = 0.01) -> None:
+        self.ctrl = ctrl
+        ad = ctrl.known.adaptation
+        self.P0 = np.asarray(ctrl.law_args["prior_cov"], dtype=float)
+        self.theta_prior = ctrl.theta0.copy()
+        self._P0inv = np.linalg.inv(self.P0)
+        self._L0 = np.linalg.cholesky(self.P0)
+        self._L0inv = np.linalg.inv(self._L0)
+        self.decimate_s = float(decimate_s)
+        self.n_eff = max(1.0, ad.corr_s / self.decimate_s)
+        self.act_ratio = float(ad.act_sd_ratio)
+        self.r_floor = float(ad.resid_floor_w)
+        self.channels = np.asarray(channels, dtype=int)
+        self.prior_weight = float(prior_weight)
+        self.data: list[tuple[np.ndarray, np.ndarray]] = []  # per insertion: H (N, m, p), y (N, m)
+
+    def add(self, trace) -> int:
+        """Keep one insertion's contact samples (``trace`` from ``run_episode(keep_regressor=True)``;
+        its ``law_Phi_fT`` is taken out of the trace). -> samples kept."""
+        PhiT = trace.arrays.pop("law_Phi_fT")  # (N, p, m)
+        dt = float(trace.meta["dt_s"])
+        stride = max(1, int(round(self.decimate_s / dt)))
+        on = np.flatnonzero((trace["adapt_gate"] > 0) & (trace["drive_scale"] > 0))
+        on = on[::stride]
+        W = self.ctrl.W
+        H = PhiT[on].transpose(0, 2, 1) * W[None, :, None]  # (N, m, p)
+        y = trace["eps_w"][on] + np.einsum("kmp,kp->km", H, trace["theta"][on])
+        H, y = H[:, self.channels], y[:, self.channels]
+        ok = np.all(np.isfinite(y), axis=1) & np.all(np.isfinite(H), axis=(1, 2))
+        self.data.append((H[ok], y[ok]))
+        return int(ok.sum())
+
+    def solve(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The pooled estimate. -> (theta* (p,), P* (p, p), the theta the controller acts on (p,))."""
+        p = len(self.theta_prior)
+        theta = self.theta_prior.copy()
+        for _ in range(3):  # residual levels at the current solution
+            Lam = self.prior_weight * self._P0inv
+            eta = np.zeros(p)
+            for H, y in self.data:
+                if not len(y):
+                    continue
+                r = y - np.einsum("kmp,p->km", H, theta)
+                R = np.mean(r * r, axis=0) + self.r_floor  # (m,) bias included
+                w = 1.0 / (R * self.n_eff)
+                Hw = H * w[None, :, None]
+                Lam += np.einsum("kmp,kmq->pq", Hw, H)
+                eta += np.einsum("kmp,km->p", Hw, y - np.einsum("kmp,p->km", H, self.theta_prior))
+            theta = self.theta_prior + np.linalg.solve(Lam, eta)
+        P = np.linalg.inv(Lam)
+        P = 0.5 * (P + P.T)
+        lo, hi = self.ctrl.consts.pv[0], self.ctrl.consts.pv[1]
+        theta = np.clip(theta, lo, hi)  # Proj_Omega, as the law
+        return theta, P, self.theta_prior + self._identified(P) @ (theta - self.theta_prior)
+
+    def _identified(self, P: np.ndarray) -> np.ndarray:
+        """Projector (p, p) onto the identified directions (as the kalman law's)."""
+        M = self._L0inv @ P @ self._L0inv.T
+        lam, V = np.linalg.eigh(0.5 * (M + M.T))
+        U = V[:, lam < self.act_ratio**2]
+        return self._L0 @ U @ U.T @ self._L0inv
+
+    def after_insertion(self, trace) -> dict:
+        """Add the insertion, refit, and hand the controller the result (theta, and for the kalman
+        law its covariance and filter estimate). -> a summary row fragment."""
+        n = self.add(trace)
+        theta_kf, P, theta_act = self.solve()
+        st = self.ctrl.state
+        st.theta[0] = theta_act
+        if self.ctrl.mode == "kalman":
+            st.P[0] = P
+            st.theta_kf[0] = theta_kf
+        ident = int(round(float(np.trace(self._identified(P)))))
+        return {"samples": n, "insertions_pooled": len(self.data), "identified": ident}
