@@ -38,8 +38,6 @@ class Refit:
         self.P0 = np.asarray(ctrl.law_args["prior_cov"], dtype=float)
         self.theta_prior = ctrl.theta0.copy()
         self._P0inv = np.linalg.inv(self.P0)
-        self._L0 = np.linalg.cholesky(self.P0)
-        self._L0inv = np.linalg.inv(self._L0)
         self.decimate_s = float(decimate_s)
         self.n_eff = max(1.0, ad.corr_s / self.decimate_s)
         self.act_ratio = float(ad.act_sd_ratio)
@@ -88,11 +86,13 @@ class Refit:
         return theta, P, self.theta_prior + self._identified(P) @ (theta - self.theta_prior)
 
     def _identified(self, P: np.ndarray) -> np.ndarray:
-        """Projector (p, p) onto the identified directions (as the kalman law's)."""
-        M = self._L0inv @ P @ self._L0inv.T
-        lam, V = np.linalg.eigh(0.5 * (M + M.T))
-        U = V[:, lam < self.act_ratio**2]
-        return self._L0 @ U @ U.T @ self._L0inv
+        """Projector (p, p) onto the identified directions: the kalman law's own
+        (``core._identified_projector`` on the controller's prior factor)."""
+        from kinadapt_nn.controller import core
+
+        A = np.empty_like(P)
+        core._identified_projector(np.ascontiguousarray(P), self.ctrl.consts.L0, self.act_ratio, A)
+        return A
 
     def after_insertion(self, trace) -> dict:
         """Add the insertion, refit, and hand the controller the result (theta, and for the kalman
