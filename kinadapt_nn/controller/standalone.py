@@ -14,7 +14,7 @@ import numpy as np
 
 from kinadapt_nn.controller import core
 from kinadapt_nn.controller.controller import core_consts
-from kinadapt_nn.controller.laws import AdaptStep, LawParams, LawView, law_spec
+from kinadapt_nn.controller.laws import AdaptStep, LawParams, LawSpec, LawView, law_spec
 from kinadapt_nn.controller.laws.base import law_state
 from kinadapt_nn.features.base import Features
 from kinadapt_nn.known import KnownCfg
@@ -33,36 +33,35 @@ class StandaloneLaw:
     def __init__(self, name: str, params: LawParams, W: np.ndarray, lo: np.ndarray, hi: np.ndarray, *,
                  filter_tau_s: float, contact_force_N: float, contact_moment_Nm: float,
                  track_mask: np.ndarray | None = None) -> None:
-        self.spec = law_spec(name)
-        self.name = name
+        spec = law_spec(name)
         W = np.asarray(W, dtype=float)
         lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
         m, p = W.size, lo.size
-        self.m, self.p, self.dt = m, p, float(params.dt_s)
+        dt = float(params.dt_s)
         c = np.zeros(core.N_C)
-        c[core.ALPHA] = self.dt / (filter_tau_s + self.dt)
+        c[core.ALPHA] = dt / (filter_tau_s + dt)  # the rate filter's (sensing.LowPass)
         c[core.F_GATE], c[core.M_GATE] = contact_force_N, contact_moment_Nm
         c[core.V_W:core.V_W + m] = W
         mask = np.ones(p) if track_mask is None else np.asarray(track_mask, dtype=float)
-        self.consts = core.CoreConsts(
+        consts = core.CoreConsts(
             c=c, mats=np.zeros((2, 6, 6)), pv=np.ascontiguousarray(np.stack([lo, hi, mask])),
-            lc=np.ascontiguousarray(self.spec.constants(params, m, p), dtype=float),
-            law_fn=np.array([self.spec.address()], dtype=np.int64), seg=np.zeros((0, 7)))
-        self._init(m, p)
+            lc=np.ascontiguousarray(spec.constants(params, m, p), dtype=float),
+            law_fn=np.array([spec.address()], dtype=np.int64), seg=np.zeros((0, 7)))
+        self._bind(spec, consts, m, p)
 
     @classmethod
     def of(cls, known: KnownCfg, features: Features, name: str | None = None) -> "StandaloneLaw":
         """The law a ``Controller(known, features, ...)`` runs (or the registered law ``name`` with
         the same constants): W, Omega, the filter, the gate and the law's constants as the
         controller builds them."""
-        self = cls.__new__(cls)
-        self.name = name or known.law
-        self.consts, self.spec = core_consts(known if name is None else replace(known, law=name), features)
-        self.m, self.p, self.dt = 6, features.n_params, float(known.dt_s)
-        self._init(self.m, self.p)
-        return self
+        consts, spec = core_consts(known if name is None else replace(known, law=name), features)
+        law = cls.__new__(cls)
+        law._bind(spec, consts, consts.mats.shape[1], features.n_params)  # m: the rows of S (m, 6)
+        return law
 
-    def _init(self, m: int, p: int) -> None:
+    def _bind(self, spec: LawSpec, consts: core.CoreConsts, m: int, p: int) -> None:
+        """A B = 1 state with the law's blocks, for ``spec`` with kernel constants ``consts``."""
+        self.spec, self.name, self.consts, self.m, self.p = spec, spec.name, consts, m, p
         self.layout = core.Layout(0, m, p, self.spec.sizes(m, p))
         self.state = core.ControllerState(self.layout, 1)
         st = self.state
