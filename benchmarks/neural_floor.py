@@ -26,7 +26,8 @@ import argparse
 import numpy as np
 
 from kinadapt_nn.config import arm_mjcf_path, load_config
-from kinadapt_nn.controller.law import CompositeLaw
+from kinadapt_nn.controller.laws import LawParams, kalman
+from kinadapt_nn.controller.standalone import StandaloneLaw
 from kinadapt_nn.geometry import skew
 from kinadapt_nn.known import BORE_AXIS_W
 from kinadapt_nn.robot import ArmKinematics
@@ -43,13 +44,11 @@ def _jerr(J_hat: np.ndarray, J_true: np.ndarray, W: np.ndarray) -> float:
     return float(np.linalg.norm(W[:, None] * (J_hat - J_true)) / np.linalg.norm(W[:, None] * J_true))
 
 
-def _kalman_law(cfg, p: int, P0: np.ndarray) -> CompositeLaw:
+def _kalman_law(cfg, p: int, P0: np.ndarray) -> StandaloneLaw:
     ad = cfg.adaptation
-    return CompositeLaw(type("P", (), {"n_params": p})(), "kalman", ad.gamma, ad.gamma_d, ad.eta, ad.eps_norm,
-                        channel_metric(cfg.sensing), cfg.sensing.filter_tau_s, cfg.run.dt_s, np.zeros(p),
-                        np.full(p, np.inf), ad.contact_force_N, ad.contact_moment_Nm, prior_cov=P0, corr_s=ad.corr_s,
-                        resid_tau_s=ad.resid_tau_s, resid_floor_w=ad.resid_floor_w, persist_tau_s=ad.persist_tau_s,
-                        act_sd_ratio=ad.act_sd_ratio)
+    return StandaloneLaw("kalman", LawParams.of(ad, cfg.run.dt_s, P0), channel_metric(cfg.sensing), np.full(p, -np.inf),
+                         np.full(p, np.inf), filter_tau_s=cfg.sensing.filter_tau_s, contact_force_N=ad.contact_force_N,
+                         contact_moment_Nm=ad.contact_moment_Nm)
 
 
 def one_tool(overrides: list[str]) -> dict[str, float]:
@@ -89,20 +88,19 @@ def one_tool(overrides: list[str]) -> dict[str, float]:
         flt_known(known_lever)
         flt_phi(Phi)
         for name, law in laws.items():  # the two priors' filters, and their innovations' evidence
-            law.known_f(reg.known)
-            law.Phi_f(reg.Phi)
-            P_pre, th_pre = law.P.copy(), None if law.theta_kf is None else law.theta_kf.copy()
-            th[name], _ = law.step_filtered(th[name], reg.Phi.T, tr["s_dot_meas"][k], tr["F_value"][k], w)
-            if th_pre is not None and not np.array_equal(P_pre, law.P):
-                H = W[:, None] * law.Phi_f.z
-                n_eff = np.maximum(law._n_corr, law._n_persist * law.r1**2 / (law.r2 + law._r_floor))
-                e = W * (tr["s_dot_meas"][k] - law.known_f.z - law.Phi_f.z @ th_pre)
-                Sm = H @ P_pre @ H.T + np.diag((law.r2 + law._r_floor) * n_eff)
+            kv = law.view  # the kalman law's own state (KalmanView)
+            P_pre, th_pre = kv.P.copy(), None if kv.theta_kf is None else kv.theta_kf.copy()
+            th[name], _ = law.update(reg.known, reg.Phi, th[name], tr["s_dot_meas"][k], tr["F_value"][k], w)
+            if th_pre is not None and not np.array_equal(P_pre, kv.P):
+                H = W[:, None] * law.Phi_f
+                e = W * (tr["s_dot_meas"][k] - law.known_f - law.Phi_f @ th_pre)
+                Sm = H @ P_pre @ H.T + np.diag(kv.R)  # R = diag(r2 + floor) n_eff, as the update used it
+                n_eff = kv.R / (kv.blocks["r2"] + law.consts.lc[kalman.R_FLOOR])
                 evid[name] += -0.5 * (e @ np.linalg.solve(Sm, e) + np.linalg.slogdet(Sm)[1]) / float(n_eff.mean())
         if tr["adapt_gate"][k] > 0:  # contact: the rows every law adapts on
             A.append(W[:, None] * flt_phi.z)
             y_lever.append(W * (tr["s_dot_meas"][k] - flt_known.z))
-            y_plain.append(W * (tr["s_dot_meas"][k] - laws["all_arms"].known_f.z))
+            y_plain.append(W * (tr["s_dot_meas"][k] - laws["all_arms"].known_f))
         if k % 50 == 0:  # the representation floor: the truth's rows along the recorded path
             J0 = feats.jacobian(kin, np.zeros(p))
             rep_A.append((W[1:, None, None] * feats.body(q)).reshape(-1, p))

@@ -197,9 +197,9 @@ class FeaturesCfg(_Cfg):
 
 
 class AdaptationCfg(_Cfg):
-    """The composite law (eq. ft_composite) and the initial estimate (see kinadapt_nn.controller.law)."""
+    """The adaptation law (kinadapt_nn.controller.laws; eq. ft_composite) and the initial estimate."""
 
-    mode: Literal["kalman", "composite", "prediction", "tracking", "frozen"] = "kalman"  # the law; composite = the paper's (reproduce)
+    mode: str = "kalman"  # the law: a name in kinadapt_nn.controller.laws.LAWS (composite = the paper's: reproduce)
     gamma: float = Field(100.0, gt=0.0)  # [m^2] Gamma = gamma I: V_aug = gamma_d V + |theta~|^2/(2 Gamma)
     gamma_d: float = Field(1.0e-7, gt=0.0)  # [1/J] weight of V(s) in V_aug (paper Results; undefined there)
     eta: float = Field(0.5, gt=0.0, lt=2.0)  # [-] fraction of the exact per-sample QP step
@@ -210,7 +210,7 @@ class AdaptationCfg(_Cfg):
     omega_axial_m: float = Field(0.030, gt=0.0)  # [m] Omega: |theta_z - nominal_z| bound
     contact_force_N: float = Field(1.0, ge=0.0)  # [N] free-space rule: adapt only in contact
     contact_moment_Nm: float = Field(0.05, ge=0.0)  # [N m] ... or when |M| exceeds this
-    # kalman law (kinadapt_nn.controller.law): prior, residual level, decorrelation
+    # kalman law (kinadapt_nn.controller.laws.kalman): prior, residual level, decorrelation
     prior_sd_lateral_m: float = Field(0.005, gt=0.0)  # [m] adjoint prior sd of the lateral offset components
     prior_sd_axial_m: float = Field(0.010, gt=0.0)  # [m] adjoint prior sd of the axial offset component
     rbf_prior_floor: float = Field(0.001, ge=0.0)  # [-] RBF prior: isotropic part, fraction of the adjoint push-forward

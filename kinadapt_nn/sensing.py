@@ -112,7 +112,7 @@ class LowPass:
 
     def __init__(self, tau_s: float, dt_s: float, shape: tuple[int, ...], z: np.ndarray | None = None) -> None:
         self.alpha = dt_s / (tau_s + dt_s)
-        #: filter state; may be a view into a caller's stacked buffer (see CompositeLaw)
+        #: filter state; may be a view into a caller's stacked buffer
         self.z = np.zeros(shape) if z is None else z
         if self.z.shape != tuple(shape):
             raise ValueError(f"LowPass state shape {self.z.shape} != {tuple(shape)}")

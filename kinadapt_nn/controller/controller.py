@@ -31,8 +31,9 @@ from typing import NamedTuple
 import numpy as np
 
 from kinadapt_nn.controller import core
-from kinadapt_nn.controller.law import MODES, AdaptStep
-from kinadapt_nn.errors import ConfigError, SensorError
+from kinadapt_nn.controller.laws import AdaptStep, LawParams, LawSpec, law_spec
+from kinadapt_nn.controller.laws.base import law_state
+from kinadapt_nn.errors import SensorError
 from kinadapt_nn.features.base import Features, KinState
 from kinadapt_nn.known import KnownCfg
 from kinadapt_nn.robot import ArmKinematics
@@ -119,12 +120,6 @@ def rank_margin(W: np.ndarray, J_hat: np.ndarray) -> float:
 
 
 
-def _law_code(mode: str) -> int:
-    if mode not in MODES:
-        raise ConfigError(f"adaptation mode {mode!r} not in {MODES}")
-    return core.LAW_CODES[mode]
-
-
 def feature_kind(features: Features) -> int:
     """The adjoint and the neural basis are computed in the kernel (``features.kernel``); others
     supply their rows from Python (``FEAT_JHAT``, switched to ``FEAT_TWIST`` where the features
@@ -137,8 +132,9 @@ def feature_consts(features: Features) -> np.ndarray:
     return core.neural_consts(features) if feature_kind(features) == core.FEAT_NEURAL else np.zeros(1)
 
 
-def core_consts(known: KnownCfg, features: Features) -> tuple[core.CoreConsts, dict]:
-    """The kernels' constants from the known config and the features. -> (CoreConsts, law_args)."""
+def core_consts(known: KnownCfg, features: Features) -> tuple[core.CoreConsts, LawSpec]:
+    """The kernels' constants from the known config and the features, for the law ``known.law``
+    (a registered law, ``controller.laws.LAWS``). -> (CoreConsts, the law's LawSpec)."""
     c, sc, ad, dt = known.control, known.sensing, known.adaptation, known.dt_s
     n_axis = known.n_axis
     S = nominal_sensor_map(sc, n_axis)
@@ -151,17 +147,10 @@ def core_consts(known: KnownCfg, features: Features) -> tuple[core.CoreConsts, d
     M_virt = tau / gain  # [kg | kg m^2] virtual inertia per twist channel
     D_virt = (1.0 + beta) / gain  # [N s/m | N m s/rad] damping (I + beta) / g
     theta_nominal, half = features.omega()  # Omega: the features' own box (the adjoint's about l_nom)
-    law_args = dict(
-        features=features, mode=known.law, gamma=ad.gamma, gamma_d=ad.gamma_d, eta=ad.eta, eps_norm=ad.eps_norm,
-        W=W, filter_tau_s=sc.filter_tau_s, dt_s=dt,
-        theta_nominal=theta_nominal, omega_half_width=half,
-        contact_force_N=ad.contact_force_N, contact_moment_Nm=ad.contact_moment_Nm,
-        # kalman law: the features' prior covariance (declared by make_features), else Omega/3
-        prior_cov=prior_cov_of(features),
-        corr_s=ad.corr_s, resid_tau_s=ad.resid_tau_s, resid_floor_w=ad.resid_floor_w,
-        persist_tau_s=ad.persist_tau_s, act_sd_ratio=ad.act_sd_ratio,
-    )
+    spec = law_spec(known.law)
     p = features.n_params
+    # the law's constants; theta's prior covariance: the features' (make_features), else Omega/3
+    lc = spec.constants(LawParams.of(ad, dt, prior_cov_of(features)), S.shape[0], p)
     v = np.zeros(core.N_C)
     alpha, inv_tau = dt / (sc.filter_tau_s + dt), 1.0 / (sc.filter_tau_s + dt)
     dither = np.asarray(c.dither_rad_s, dtype=float)
@@ -173,13 +162,7 @@ def core_consts(known: KnownCfg, features: Features) -> tuple[core.CoreConsts, d
         core.INV_TAU: inv_tau, core.N_ENTRY: float(n_axis @ np.asarray(known.bore_entry_w_m, dtype=float)),
         core.RIGID: float(c.loop == "rigid"), core.DITHER_ON: float(np.any(dither)),
         core.TWO_PI_F: 2.0 * math.pi * c.dither_hz, core.EXCITE: float(c.program == "excite"),
-        core.BLEND: known.excite.blend_s, core.LAW: _law_code(known.law),
-        core.C_TRACK: -dt * ad.gamma * ad.gamma_d, core.GAMMA_D: ad.gamma_d, core.ETA: ad.eta,
-        core.EPS_NORM: ad.eps_norm, core.F_GATE: ad.contact_force_N, core.M_GATE: ad.contact_moment_Nm,
-        core.N_CORR: max(1.0, ad.corr_s / dt), core.R_ALPHA: min(1.0, dt / ad.resid_tau_s),
-        core.R_FLOOR: ad.resid_floor_w, core.M_ALPHA: min(1.0, dt / ad.persist_tau_s),
-        core.N_PERSIST: 2.0 * ad.persist_tau_s / dt, core.ACT_RATIO: ad.act_sd_ratio,
-        core.ACT_EVERY: max(1, int(round((0.02 if p <= 30 else 0.1) / dt))),
+        core.BLEND: known.excite.blend_s, core.F_GATE: ad.contact_force_N, core.M_GATE: ad.contact_moment_Nm,
         core.MAX_HOLD: max(0, int(round(sc.max_dropout_s / dt))), core.FEAT: feature_kind(features),
         core.RANK_ON: 1.0, core.RANK_GATE_V: core.RANK_GATE,  # 1: lambda_min every step; 2: the gate only
     }
@@ -196,81 +179,17 @@ def core_consts(known: KnownCfg, features: Features) -> tuple[core.CoreConsts, d
     G = np.zeros((6, 6))  # s[1:] = G[1:] w_env: F_lat = -P f_env, M = -m_env
     G[1:3, 0:3] = -P
     G[3:6, 3:6] = -np.eye(3)
-    lo = np.asarray(law_args["theta_nominal"], dtype=float) - law_args["omega_half_width"]
-    hi = np.asarray(law_args["theta_nominal"], dtype=float) + law_args["omega_half_width"]
+    lo = np.asarray(theta_nominal, dtype=float) - half
+    hi = np.asarray(theta_nominal, dtype=float) + half
     track_rows = getattr(features, "track_rows", None)  # rows of Phi the tracking term uses
     mask = np.ones(p) if track_rows is None else np.asarray(track_rows, dtype=float)
-    P0 = np.asarray(law_args["prior_cov"], dtype=float)
-    L0 = np.linalg.cholesky(P0)
     segs = np.asarray(known.excite.segments, dtype=float).reshape(-1, 7)
     seg = np.column_stack([np.cumsum(segs[:, 0]), segs[:, 1:]]) if len(segs) else np.zeros((0, 7))
     return core.CoreConsts(
         c=v, mats=np.stack([S, G]), pv=np.ascontiguousarray(np.stack([lo, hi, mask])),
-        L0=np.stack([L0, np.linalg.inv(L0)]), seg=np.ascontiguousarray(seg),
-    ), law_args
-
-
-class LawView:
-    """What the law learned, read from the controller's state (episode b): the names
-    ``adaptation.CompositeLaw`` offers to the summaries (``uncertainty_ratio``, ``gram_sum``, ...)."""
-
-    def __init__(self, state: core.ControllerState, consts: core.CoreConsts, mode: str, b: int = 0) -> None:
-        self._st, self._b, self.mode = state, b, mode
-        self.lo, self.hi = consts.pv[0], consts.pv[1]
-        self._act_ratio = float(consts.c[core.ACT_RATIO])
-        P0 = consts.L0[0] @ consts.L0[0].T
-        self._trP0 = float(np.trace(P0))
-
-    class _Filtered:
-        def __init__(self, z: np.ndarray) -> None:
-            self.z = z
-
-    @property
-    def Phi_f(self) -> "_Filtered":
-        """The law's filtered regressor (``.z`` (m, p))."""
-        return self._Filtered(self._st.Phi_fT[self._b].T)
-
-    @property
-    def P(self) -> np.ndarray:
-        return self._st.P[self._b]
-
-    @property
-    def r2(self) -> np.ndarray:
-        return self._st.r2[self._b]
-
-    @property
-    def r1(self) -> np.ndarray:
-        return self._st.r1[self._b]
-
-    @property
-    def _r2_primed(self) -> bool:
-        return bool(self._st.k[self._b, core.K_R2_PRIMED])
-
-    @property
-    def gram_sum(self) -> np.ndarray:
-        return self._st.gram_sum[self._b]
-
-    @property
-    def gram_n(self) -> int:
-        return int(self._st.k[self._b, core.K_GRAM_N])
-
-    def identified_directions(self) -> int | None:
-        """How many directions of theta the controller acts on (0 before the first kalman step);
-        None for the laws without a covariance (as ``CompositeLaw``: the summary must not read an
-        untouched kalman state as "no contact was sensed")."""
-        if self.mode != "kalman":
-            return None
-        if not self._st.k[self._b, core.K_ACT_INIT]:
-            return 0
-        return int(round(float(np.trace(self._st.act_proj[self._b]))))
-
-    def uncertainty_ratio(self) -> float:
-        """``sqrt(tr P / tr P0)``: the remaining uncertainty of theta as a fraction of the prior."""
-        return math.sqrt(max(float(np.trace(self.P)), 0.0) / self._trP0)
-
-    def information_sd(self) -> np.ndarray:
-        """Posterior standard deviation of each parameter, sqrt(diag P)."""
-        return np.sqrt(np.clip(np.diag(self.P), 0.0, None))
+        lc=np.ascontiguousarray(lc, dtype=float), law_fn=np.array([spec.address()], dtype=np.int64),
+        seg=np.ascontiguousarray(seg),
+    ), spec
 
 
 class Controller:
@@ -278,7 +197,8 @@ class Controller:
 
     Built from the known constants only (``KnownCfg``: sensing, control, adaptation, the bore
     pose, the arm model); ``features`` and ``theta0`` define ``J_hat``; ``theta`` is adapted by
-    ``known.law``. All filter and law state is one ``controller/core.py: ControllerState``.
+    the registered law ``known.law`` (``controller.laws``). All filter and law state is one
+    ``controller/core.py: ControllerState``; :attr:`law` is the law's own view of its state.
     """
 
     def __init__(self, known: KnownCfg, features: Features, theta0: np.ndarray) -> None:
@@ -298,14 +218,18 @@ class Controller:
         self.P = lateral_projector(self.S, sc.stiffness_lat_N_per_m)  # (2, 3)
         self.W = channel_metric(sc)
         self.value_fn = ValueFunction(known)
-        self.consts, self.law_args = core_consts(known, features)
+        self.consts, self.law_spec = core_consts(known, features)
         self.chain = core.arm_chain(self.kin.model, self.kin.site)  # the kernels' kinematics of the bare arm
         self.M_virt = self.consts.c[core.V_M:core.V_M + 6].copy()
         self.D_virt = self.consts.c[core.V_D:core.V_D + 6].copy()
         self.theta0 = np.asarray(theta0, dtype=float).copy()
         p, m = features.n_params, self.S.shape[0]
-        self.layout = core.Layout(n, m, p)
+        self.layout = core.Layout(n, m, p, self.law_spec.sizes(m, p))
         self.state = core.ControllerState(self.layout, 1)
+        st = self.state
+        self._law_state = law_state(self.law_spec, st.law_x, st.law_k, st.unc, m, p)
+        #: what the law learned, read from its own state (the summary's view; LawView)
+        self.law = self.law_spec.view(self.law_spec, self.consts.lc, self._law_state, 0)
         self._fused = self.consts.c[core.FEAT] in (core.FEAT_ADJOINT, core.FEAT_NEURAL)  # one kernel call per step
         self._fx = feature_consts(features)
         self._observe = getattr(features, "observe", None)
@@ -356,23 +280,36 @@ class Controller:
     def F(self) -> np.ndarray:
         return self._o["F"]
 
+    @property
+    def regressor_rows(self) -> np.ndarray:
+        """(1 + p, m) this step's regressor on the realised velocity, [known; Phi^T] (before the
+        filter): what the law's tracking term and filters took (``StandaloneLaw.update`` takes it)."""
+        return self._reg[0]
+
+    @property
+    def contact_steps(self) -> int:
+        """Steps of this insertion with the contact gate open (the law adapted, or could have)."""
+        return int(self.state.k[0, core.K_GRAM_N])
+
+    @property
+    def gram_sum(self) -> np.ndarray:
+        """(p, p) sum over those steps of (W Phi_f)^T (W Phi_f): the regressor Gram (observability)."""
+        return self.state.gram_sum[0]
+
     def reset(self, carry_estimate: bool = False) -> None:
         """Back to the start of an insertion. ``carry_estimate``: keep theta and what the law
-        learned about it (covariance, residual level) -- the next insertion of the same tool."""
+        learned about it (its ``reset(carried=True)`` says what: the kalman law's covariance and
+        residual level) -- the next insertion of the same tool."""
         st = self.state
-        keep = None
-        if carry_estimate:
-            keep = (st.theta[0].copy(), st.P[0].copy(), st.r2[0].copy(), st.r1[0].copy(), st.theta_kf[0].copy(),
-                    st.theta_prior[0].copy(), int(st.k[0, core.K_R2_PRIMED]), int(st.k[0, core.K_KF_INIT]))
+        keep = (st.theta[0].copy(), st.law_x[0].copy(), st.law_k[0].copy()) if carry_estimate else None
         st.x[...] = 0.0
         st.k[...] = 0
         st.theta[0] = self.theta0
-        st.P[0] = np.asarray(self.law_args["prior_cov"], dtype=float)
         if keep is not None:
-            (st.theta[0], st.P[0], st.r2[0], st.r1[0], st.theta_kf[0], st.theta_prior[0], st.k[0, core.K_R2_PRIMED],
-             st.k[0, core.K_KF_INIT]) = keep
+            st.theta[0], st.law_x[0], st.law_k[0] = keep
+        self.law_spec.reset(self.consts.lc, self._law_state, keep is not None)
+        self.theta_start = st.theta[0].copy()  #: (p,) theta at the start of this insertion
         self.out[...] = 0.0
-        self.law = LawView(st, self.consts, self.mode)
         self._stepped = False
 
     # ------------------------------------------------------------------------------------
@@ -444,7 +381,7 @@ class Controller:
         st, cs = self.state, self.consts
         if self._fused:  # intake, kinematics, sense, regressor, drive, admittance, law: one dispatch
             core.step_kernel(t, self._inp, self.chain, self._p_O, self._R, self._J, self._reg, self._ext_J, st.x, st.k,
-                             self.layout.arr, cs.c, cs.mats, cs.pv, cs.L0, cs.seg, self._fx, self.out)
+                             self.layout.arr, cs.c, cs.mats, cs.pv, cs.lc, cs.law_fn, cs.seg, self._fx, self.out)
         else:
             core.intake_kernel(self._inp, st.x, st.k, self.layout.arr, cs.c)
             if not st.k[0, core.K_ERROR]:
@@ -478,7 +415,7 @@ class Controller:
                 cs.c[core.FEAT] = core.FEAT_JHAT
                 self._ext_J[0, :, :self.kin_n] = self.features.jacobian(kin, self.theta)
         core.act_kernel(t, self._inp, self._p_O, self._R, self._J, self._reg, self._ext_J, st.x, st.k, lay, cs.c,
-                        cs.mats, cs.pv, cs.L0, cs.seg, self._fx, self.out)
+                        cs.mats, cs.pv, cs.lc, cs.law_fn, cs.seg, self._fx, self.out)
 
     def set_bore(self, bore_entry_w_m) -> None:
         """Aim at another KNOWN bore entrance (world, (3,) [m]): the next insertion of a work cell.

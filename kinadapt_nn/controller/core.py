@@ -1,6 +1,6 @@
 """The controller's per-step maths, written once over B episodes (numba kernels).
 
-One control period of episode b (eq. names as in docs/method.md and ``kinadapt_nn.controller.law``):
+One control period of episode b (eq. names as in docs/method.md and ``kinadapt_nn.controller.laws``):
 
     intake       non-finite samples are held (at most ``max_dropout_s``), never let in
     w_env        = [R (r_f - r0_f); R (r_m - r0_m)]                    tared wrench, world, at O
@@ -10,12 +10,18 @@ One control period of episode b (eq. names as in docs/method.md and ``kinadapt_n
     drive        = J_hat_xi^T F = (S Ad(R theta))^T F (adjoint, fused) eq. cp_admittance's drive
     xi+          = (M xi + dt (rho drive - w_env)) / (M + dt D)        eq. cp_admittance
     qdot_ref     = J^+ xi + (I - J^+ J) k_ns (q_0 - q)
-    theta+       = the law (kalman | composite | prediction | tracking | frozen)  eq. ft_composite
+    theta+       = the law's step (kinadapt_nn.controller.laws: kalman | composite | ...) in contact
 
 Shapes: B episodes, n joints, m = 6 sensor channels, p parameters. All state lives in one
 ``ControllerState`` (float rows ``x`` (B, NX) and counters ``k`` (B, NK)); its named views
-(``xi``, ``q_ref``, ``filt``, ``theta``, ``P``, ...) are what the wrappers read. Constants are
+(``xi``, ``q_ref``, ``filt``, ``theta``, ``law_x``, ...) are what the wrappers read. Constants are
 bundled into few arrays (``CoreConsts``) so a kernel call costs one dispatch.
+
+Laws: the law-independent part of a law step is here (``_law``: the contact gate, eq. ft_pred,
+the Gram log, the tracking rows); the law's own step (``controller/laws/<name>.py``) is called
+through its native address (``CoreConsts.law_fn``, ``laws.base.law_step_fn``), so these kernels
+compile -- and are cached -- once for every law, registered ones included. A law's state is its
+own block of the state rows (``Layout``'s ``law`` block and counters, declared by the law).
 
 Features: the adjoint's regressor and drive are computed in the kernel (``FEAT_ADJOINT``), and so
 is the neural basis (``FEAT_NEURAL``: the frozen MLP body evaluated here, ``neural_consts``);
@@ -33,45 +39,46 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from kinadapt_nn.controller.dense import chol, chol_solve, mm, mm_nt
+from kinadapt_nn.controller.laws.base import law_step_fn
+
 #: the paper's kinematic gate on lambda_min(W J_hat J_hat^T W) (Results, "A separate kinematic gate")
 RANK_GATE = 1e-6
 # -- feature kinds ----------------------------------------------------------------------------
 FEAT_ADJOINT, FEAT_TWIST, FEAT_JHAT, FEAT_NEURAL = 0, 1, 2, 3
-# -- laws (adaptation.MODES order) -------------------------------------------------------------
-LAW_CODES = {"kalman": 0, "composite": 1, "prediction": 2, "tracking": 3, "frozen": 4}
-
 # -- scalar constants: indices into CoreConsts.c -----------------------------------------------
 (DT, T_SETTLE, T_TARE0, RAMP, D_STAR, K_D, F_MAX, C_F, C_M, V_MAX, W_MAX, K_NS, DAMP, ALPHA, INV_TAU,
- N_ENTRY, RIGID, DITHER_ON, TWO_PI_F, EXCITE, BLEND, LAW, C_TRACK, GAMMA_D, ETA, EPS_NORM, F_GATE, M_GATE,
- N_CORR, R_ALPHA, R_FLOOR, M_ALPHA, N_PERSIST, ACT_RATIO, ACT_EVERY, MAX_HOLD, FEAT, RANK_ON, RANK_GATE_V) = range(39)
+ N_ENTRY, RIGID, DITHER_ON, TWO_PI_F, EXCITE, BLEND, F_GATE, M_GATE, MAX_HOLD, FEAT, RANK_ON, RANK_GATE_V) = range(27)
 # small vectors, at these offsets of c
-V_N = 40  # bore axis n (3)
-V_LNOM = 43  # nominal offset l_nom, f (3)
-V_M = 46  # virtual inertia M (6)
-V_INVDEN = 52  # 1 / (M + dt D) (6)
-V_GRIGID = 58  # rigid loop DC gain g / (1 + beta) (6)
-V_W = 64  # channel metric W (6)
-V_D = 70  # damping D (6)
-V_DITHER = 76  # dither amplitudes (3)
-N_C = 79
+V_N = 27  # bore axis n (3)
+V_LNOM = 30  # nominal offset l_nom, f (3)
+V_M = 33  # virtual inertia M (6)
+V_INVDEN = 39  # 1 / (M + dt D) (6)
+V_GRIGID = 45  # rigid loop DC gain g / (1 + beta) (6)
+V_W = 51  # channel metric W (6)
+V_D = 57  # damping D (6)
+V_DITHER = 63  # dither amplitudes (3)
+N_C = 66
 
-# -- counters: columns of ControllerState.k ---------------------------------------------------
-(K_TARE_N, K_TARED, K_PRIMED, K_STARTED, K_HAVE_HELD, K_BAD_RUN, K_DROPOUTS, K_HOLDING, K_ERROR, K_R2_PRIMED,
- K_KF_INIT, K_ACT_K, K_ACT_INIT, K_GRAM_N, K_DONE) = range(15)
-N_K = 15
+# -- counters: columns of ControllerState.k (the law's own counters follow, from N_K) -----------
+(K_TARE_N, K_TARED, K_PRIMED, K_STARTED, K_HAVE_HELD, K_BAD_RUN, K_DROPOUTS, K_HOLDING, K_ERROR, K_GRAM_N,
+ K_DONE) = range(11)
+N_K = 11
 
 
 class Layout:
     """Offsets of the named state blocks in a ``ControllerState.x`` row and of the per-step
-    outputs in an ``out`` row (n joints, m channels, p parameters)."""
+    outputs in an ``out`` row (n joints, m channels, p parameters); ``law_sizes`` (nx, nk): the
+    law's own float block ``law`` and its counters (``LawSpec.sizes``)."""
 
-    def __init__(self, n: int, m: int, p: int) -> None:
+    def __init__(self, n: int, m: int, p: int, law_sizes: tuple[int, int] = (0, 0)) -> None:
         self.n, self.m, self.p = n, m, p
+        self.law_nx, self.law_nk = law_sizes
         o = 0
         blocks = {}
         for name, size in (("xi", 6), ("q_ref", n), ("q_post", n), ("tare_sum", 6), ("tare", 6),
-                           ("filt", (2 + p) * m), ("theta", p), ("theta_kf", p), ("theta_prior", p), ("P", p * p),
-                           ("act_proj", p * p), ("r2", m), ("r1", m), ("gram_sum", p * p), ("held", 2 * n + 6)):
+                           ("filt", (2 + p) * m), ("theta", p), ("gram_sum", p * p), ("unc", 1), ("law", self.law_nx),
+                           ("held", 2 * n + 6)):
             blocks[name] = (o, size)
             o += size
         self.x_blocks, self.nx = blocks, o
@@ -79,34 +86,38 @@ class Layout:
         outs = {}
         for name, size in (("s", m), ("s_dot_meas", m), ("s_dot_pred", m), ("F", m), ("xi_cmd", 6), ("w_env", 6),
                            ("theta_used", p), ("rho", 1), ("eps_w", m), ("d_track", p), ("d_pred", p), ("gate", 1),
-                           ("phi_norm2", 1), ("qdot_ref", n), ("lam_min", 1), ("p_trace", 1)):
+                           ("phi_norm2", 1), ("qdot_ref", n), ("lam_min", 1), ("uncertainty", 1)):
             outs[name] = (o, size)
             o += size
         self.out_blocks, self.nout = outs, o
-        # the kernels' view: [n, m, p, offsets of x blocks..., offsets of out blocks...]
-        self.arr = np.array([n, m, p] + [blocks[k][0] for k in blocks] + [outs[k][0] for k in outs], dtype=np.int64)
+        # the kernels' view: [n, m, p, law nx, law nk, offsets of x blocks..., offsets of out blocks...]
+        self.arr = np.array([n, m, p, self.law_nx, self.law_nk] + [blocks[k][0] for k in blocks]
+                            + [outs[k][0] for k in outs], dtype=np.int64)
 
 
 # offsets into Layout.arr
-(L_N, L_M, L_P, X_XI, X_QREF, X_QPOST, X_TSUM, X_TARE, X_FILT, X_TH, X_THKF, X_THPR, X_P, X_ACT, X_R2, X_R1,
- X_GRAM, X_HELD, O_S, O_SDM, O_SDP, O_F, O_XI, O_WENV, O_TH, O_RHO, O_EPS, O_DTR, O_DPR, O_GATE, O_N2, O_QDR,
- O_LAM, O_PTR) = range(34)
+(L_N, L_M, L_P, L_LNX, L_LNK, X_XI, X_QREF, X_QPOST, X_TSUM, X_TARE, X_FILT, X_TH, X_GRAM, X_UNC, X_LAW, X_HELD,
+ O_S, O_SDM, O_SDP, O_F, O_XI, O_WENV, O_TH, O_RHO, O_EPS, O_DTR, O_DPR, O_GATE, O_N2, O_QDR, O_LAM,
+ O_UNC) = range(32)
 
 
 class ControllerState:
     """All filter and law state of B controllers, one owner: ``x`` (B, NX) float rows and ``k``
-    (B, NK) counters; the named blocks are views into them (shapes with a leading B)."""
+    (B, N_K + law nk) counters; the named blocks are views into them (shapes with a leading B).
+    The law's own state: ``law_x`` (B, nx), ``law_k`` (B, nk), ``unc`` (B,) (``laws.base.law_state``
+    names its blocks)."""
 
     def __init__(self, layout: Layout, B: int) -> None:
         self.layout = layout
         self.x = np.zeros((B, layout.nx))
-        self.k = np.zeros((B, N_K), dtype=np.int64)
-        n, m, p = layout.n, layout.m, layout.p
-        shapes = {"filt": (2 + p, m), "P": (p, p), "act_proj": (p, p), "gram_sum": (p, p)}
+        self.k = np.zeros((B, N_K + layout.law_nk), dtype=np.int64)
+        m, p = layout.m, layout.p
+        shapes = {"filt": (2 + p, m), "gram_sum": (p, p)}
         for name, (o, size) in layout.x_blocks.items():
             setattr(self, name, self.x[:, o:o + size].reshape((B, *shapes.get(name, (size,)))))
         # the filter rows: y (rate filter of s), known_f, Phi_f^T
         self.y, self.known_f, self.Phi_fT = self.filt[:, 0], self.filt[:, 1], self.filt[:, 2:]
+        self.law_x, self.law_k, self.unc = self.law, self.k[:, N_K:], self.unc[:, 0]
 
 
 @dataclass(frozen=True)
@@ -116,90 +127,11 @@ class CoreConsts:
     c: np.ndarray  #: (N_C,) scalars and small vectors (indices above)
     mats: np.ndarray  #: (2, 6, 6): S; G (row 0 zero, s[1:] = G[1:] w_env)
     pv: np.ndarray  #: (3, p): Omega's lo, hi; the tracking term's row mask
-    L0: np.ndarray  #: (2, p, p): Cholesky factor of P0 and its inverse (kalman)
+    lc: np.ndarray  #: (nc,) the law's own constants (``LawSpec.constants``)
+    #: (1,) int64: the law step's native address (``LawSpec.address``), valid only in the process
+    #: that built it (and its forks): never save it or send it to another process
+    law_fn: np.ndarray
     seg: np.ndarray  #: (nseg, 7): excite program [end time s, twist (6)]
-
-
-# ================================================================================================
-# small dense helpers (no allocation beyond scratch; p, m, n are small)
-@nb.njit(cache=True)
-def _chol(A, k):
-    """In-place lower Cholesky of A[:k, :k]; False if not positive definite."""
-    for j in range(k):
-        d = A[j, j]
-        for i in range(j):
-            d -= A[j, i] * A[j, i]
-        if not d > 0.0:
-            return False
-        d = math.sqrt(d)
-        A[j, j] = d
-        for i in range(j + 1, k):
-            v = A[i, j]
-            for r in range(j):
-                v -= A[i, r] * A[j, r]
-            A[i, j] = v / d
-    return True
-
-
-@nb.njit(cache=True)
-def _chol_solve(L, k, x):
-    """Solve (L L^T) x = b in place (b given in x)."""
-    for i in range(k):
-        v = x[i]
-        for r in range(i):
-            v -= L[i, r] * x[r]
-        x[i] = v / L[i, i]
-    for i in range(k - 1, -1, -1):
-        v = x[i]
-        for r in range(i + 1, k):
-            v -= L[r, i] * x[r]
-        x[i] = v / L[i, i]
-
-
-@nb.njit(cache=True)
-def _mm(A, B):
-    """A @ B: by loops for the small products of the per-step maths (a BLAS call costs more than
-    the product), by BLAS for large ones (p in the hundreds: the RBF features)."""
-    if A.shape[0] * B.shape[1] > 400:
-        return np.ascontiguousarray(A) @ np.ascontiguousarray(B)
-    out = np.zeros((A.shape[0], B.shape[1]))
-    for i in range(A.shape[0]):
-        for r in range(A.shape[1]):
-            a = A[i, r]
-            for j in range(B.shape[1]):
-                out[i, j] += a * B[r, j]
-    return out
-
-
-@nb.njit(cache=True)
-def _mm_nt(A, B):
-    """A @ B.T (loops when small, as ``_mm``)."""
-    if A.shape[0] * B.shape[0] > 400:
-        return np.ascontiguousarray(A) @ np.ascontiguousarray(B.T)
-    out = np.empty((A.shape[0], B.shape[0]))
-    for i in range(A.shape[0]):
-        for j in range(B.shape[0]):
-            v = 0.0
-            for r in range(A.shape[1]):
-                v += A[i, r] * B[j, r]
-            out[i, j] = v
-    return out
-
-
-@nb.njit(cache=True)
-def lambda_max_sym3(G):
-    """Largest eigenvalue of a symmetric 3x3 (lower triangle), closed form (adaptation.lambda_max_sym3)."""
-    a, b, d, c, e, f = G[0, 0], G[1, 0], G[1, 1], G[2, 0], G[2, 1], G[2, 2]
-    p1 = b * b + c * c + e * e
-    q = (a + d + f) / 3.0
-    if p1 == 0.0:
-        return max(a, d, f)
-    a, d, f = a - q, d - q, f - q
-    p = math.sqrt((a * a + d * d + f * f + 2.0 * p1) / 6.0)
-    a, b, c, d, e, f = a / p, b / p, c / p, d / p, e / p, f / p
-    r = 0.5 * (a * (d * f - e * e) - b * (b * f - e * c) + c * (b * e - d * c))
-    r = -1.0 if r < -1.0 else (1.0 if r > 1.0 else r)
-    return q + 2.0 * p * math.cos(math.acos(r) / 3.0)
 
 
 # ================================================================================================
@@ -371,7 +303,7 @@ def _excite_drive(t_rel, b, R, c, seg, drive):
 
 
 @nb.njit(cache=True)
-def _act(t, b, rho, inp, p_O, R, J, ext_J, x, k, lay, c, mats, pv, L0, seg, out):
+def _act(t, b, rho, inp, p_O, R, J, ext_J, x, k, lay, c, mats, seg, out):
     """Rate filter, value force, drive, admittance and joint reference of episode b (after
     ``_sense``; the drive reads theta before this step's law update)."""
     n, m, p = lay[L_N], lay[L_M], lay[L_P]
@@ -404,7 +336,7 @@ def _act(t, b, rho, inp, p_O, R, J, ext_J, x, k, lay, c, mats, pv, L0, seg, out)
                 v += Jb[i, r] * Jb[j, r]
             Lc[i, j] = v
         Lc[i, i] += c[DAMP]
-    _chol(Lc, 6)
+    chol(Lc, 6)
     # -- the drive J_hat_xi^T F (eq. cp_admittance's drive)
     drive = np.empty(6)
     feat = int(c[FEAT])
@@ -428,7 +360,7 @@ def _act(t, b, rho, inp, p_O, R, J, ext_J, x, k, lay, c, mats, pv, L0, seg, out)
             for j in range(n):
                 v += Jb[i, j] * g[j]
             drive[i] = v
-        _chol_solve(Lc, 6, drive)
+        chol_solve(Lc, 6, drive)
     # -- eq. cp_admittance: M (xi+ - xi)/dt + D xi+ = rho drive - w_env (implicit in the damping)
     xi = xs[lay[X_XI]:lay[X_XI] + 6]
     for i in range(6):
@@ -461,7 +393,7 @@ def _act(t, b, rho, inp, p_O, R, J, ext_J, x, k, lay, c, mats, pv, L0, seg, out)
         for j in range(n):
             v += Jb[i, j] * z[j]
         y[i] = xc[i] - v
-    _chol_solve(Lc, 6, y)
+    chol_solve(Lc, 6, y)
     qdr = o[lay[O_QDR]:lay[O_QDR] + n]
     qref = xs[lay[X_QREF]:lay[X_QREF] + n]
     for j in range(n):
@@ -483,8 +415,10 @@ def _filter_regressor(b, reg, x, lay, c):
 
 
 @nb.njit(cache=True)
-def _law(b, reg, x, k, lay, c, pv, L0, out):
-    """eq. ft_composite (adaptation.CompositeLaw.step_filtered) on this step's filtered rows;
+def _law(b, reg, x, k, lay, c, pv, lc, law_fn, out):
+    """The law-independent part of a law step on this step's filtered rows -- a held sample adapts
+    nothing; eq. ft_pred; the contact gate; the Gram log; Phi_r^T F on the tracking rows -- then,
+    in contact, the law's own step (``laws.base``: the step contract) at address ``law_fn[0]``;
     theta_{k+1} is written to the state (used next step)."""
     m, p = lay[L_M], lay[L_P]
     xs, o = x[b], out[b]
@@ -519,13 +453,10 @@ def _law(b, reg, x, k, lay, c, pv, L0, out):
     for j in range(p):
         for i in range(m):
             Phi_wT[j, i] = Phi_fT[j, i] * W[i]
-    G = _mm_nt(Phi_wT, Phi_wT)  # (p, p) = (W Phi_f)^T (W Phi_f)
+    G = mm_nt(Phi_wT, Phi_wT)  # (p, p) = (W Phi_f)^T (W Phi_f)
     gs = xs[lay[X_GRAM]:lay[X_GRAM] + p * p].reshape((p, p))
     gs += G  # observability: <Phi^T Phi> over the contact phase
     k[b, K_GRAM_N] += 1
-    law = int(c[LAW])
-    if law == 4:  # frozen
-        return
     lo, hi, mask = pv[0], pv[1], pv[2]
     PhiF = np.zeros(p)  # Phi_r^T F, on the realised (unfiltered) regressor, tracking rows only
     for j in range(p):
@@ -533,142 +464,28 @@ def _law(b, reg, x, k, lay, c, pv, L0, out):
         for i in range(m):
             v += reg[b, 1 + j, i] * F[i]
         PhiF[j] = v * mask[j]
-    if law == 0:
-        _kalman(b, x, k, lay, c, L0, Phi_wT, PhiF, eps, theta, d_track, d_pred, lo, hi)
-        tr = 0.0
-        for j in range(p):
-            tr += G[j, j]
-        o[lay[O_N2]] = tr
-        return
-    th = theta.copy()
-    if law == 1 or law == 3:  # eq. ft_composite, 1st term: -dt Gamma gamma_d Phi_r^T F
-        for j in range(p):
-            d_track[j] = PhiF[j] * c[C_TRACK]
-            th[j] += d_track[j]
-    if law == 1 or law == 2:  # eq. ident_qp_solution (fractional, normalised)
-        if p <= m:
-            n2 = lambda_max_sym3(G) if p == 3 else np.linalg.eigvalsh(G)[-1]
-        else:
-            n2 = np.linalg.eigvalsh(Phi_wT.T @ Phi_wT)[-1]
-        g = c[ETA] / (n2 + c[EPS_NORM])
-        for j in range(p):
-            v = 0.0
-            for i in range(m):
-                v += Phi_wT[j, i] * eps[i]
-            d_pred[j] = v * g
-            th[j] += d_pred[j]
-        o[lay[O_N2]] = n2
-    for j in range(p):  # Proj_Omega (clip)
-        theta[j] = min(max(th[j], lo[j]), hi[j])
+    step = law_step_fn(law_fn[0])
+    lx, lk = lay[X_LAW], N_K + lay[L_LNK]
+    o[lay[O_N2]] = step(theta, Phi_wT, G, eps, PhiF, lo, hi, lc, xs[lx:lx + lay[L_LNX]], k[b, N_K:lk],
+                        xs[lay[X_UNC]:lay[X_UNC] + 1], d_track, d_pred)
 
 
 @nb.njit(cache=True)
-def _kalman(b, x, k, lay, c, L0, Ht, PhiF, eps, theta, d_track, d_pred, lo, hi):
-    """The information-weighted step (adaptation module docstring, 'kalman')."""
-    m, p = lay[L_M], lay[L_P]
-    xs = x[b]
-    r2, r1 = xs[lay[X_R2]:lay[X_R2] + m], xs[lay[X_R1]:lay[X_R1] + m]
-    if k[b, K_R2_PRIMED] == 0:
-        for i in range(m):
-            r2[i] = eps[i] * eps[i]
-            r1[i] = 0.0
-        k[b, K_R2_PRIMED] = 1
-    else:
-        for i in range(m):
-            r2[i] += c[R_ALPHA] * (eps[i] * eps[i] - r2[i])  # measured residual level (bias included)
-            r1[i] += c[M_ALPHA] * (eps[i] - r1[i])  # its slow mean: the persistent part
-    P = xs[lay[X_P]:lay[X_P] + p * p].reshape((p, p))
-    th = xs[lay[X_THKF]:lay[X_THKF] + p]
-    prior = xs[lay[X_THPR]:lay[X_THPR] + p]
-    if k[b, K_KF_INIT] == 0:
-        th[:] = theta
-        prior[:] = theta
-        k[b, K_KF_INIT] = 1
-    # R = diag(r2 + floor) n_eff; n_eff = max(corr_s/dt, (2 tau_m/dt) r1^2 / r2)
-    r = np.empty(m)
-    e_kf = np.empty(m)
-    for i in range(m):
-        n_eff = max(c[N_CORR], c[N_PERSIST] * (r1[i] * r1[i]) / (r2[i] + c[R_FLOOR]))
-        r[i] = (r2[i] + c[R_FLOOR]) * n_eff
-        v = 0.0
-        for j in range(p):
-            v += (th[j] - theta[j]) * Ht[j, i]
-        e_kf[i] = eps[i] - v  # innovation of the filter's estimate
-    PHt = _mm(P, Ht)  # (p, m)
-    S = _mm(Ht.T, PHt)  # (m, m) = H P H^T + diag r
-    for i in range(m):
-        S[i, i] += r[i]
-    if not _chol(S, m):
-        return
-    X = PHt.T.copy()  # (m, p) -> S^-1 P H^T  (K = X^T)
-    col = np.empty(m)
-    for j in range(p):
-        for i in range(m):
-            col[i] = X[i, j]
-        _chol_solve(S, m, col)
-        for i in range(m):
-            X[i, j] = col[i]
-    for j in range(p):  # K e
-        v = 0.0
-        for i in range(m):
-            v += X[i, j] * e_kf[i]
-        d_pred[j] = v
-    P -= _mm_nt(X.T, PHt)  # P = (1 - K H) P, symmetrised
-    for i in range(p):
-        for j in range(i + 1, p):
-            v = 0.5 * (P[i, j] + P[j, i])
-            P[i, j] = v
-            P[j, i] = v
-    for j in range(p):
-        th[j] += d_pred[j]
-    if c[GAMMA_D] > 0.0:  # eq. ft_composite's tracking term with Gamma = P
-        for i in range(p):
-            v = 0.0
-            for j in range(p):
-                v += P[i, j] * PhiF[j]
-            d_track[i] = v * (-c[DT] * c[GAMMA_D])
-            th[i] += d_track[i]
-    for j in range(p):  # Proj_Omega (clip)
-        th[j] = min(max(th[j], lo[j]), hi[j])
-    A = xs[lay[X_ACT]:lay[X_ACT] + p * p].reshape((p, p))
-    k[b, K_ACT_K] += 1
-    if k[b, K_ACT_K] >= c[ACT_EVERY] or k[b, K_ACT_INIT] == 0:
-        k[b, K_ACT_K] = 0
-        k[b, K_ACT_INIT] = 1
-        _identified_projector(P, L0, c[ACT_RATIO], A)
-    for i in range(p):  # act on the identified part only
-        v = 0.0
-        for j in range(p):
-            v += A[i, j] * (th[j] - prior[j])
-        theta[i] = prior[i] + v
-
-
-@nb.njit(cache=True)
-def _identified_projector(P, L0, ratio, A):
-    """Projector onto the directions the data identified (CompositeLaw._identified_projector)."""
-    p = P.shape[0]
-    if ratio >= 1.0:
-        A[:] = 0.0
-        for i in range(p):
-            A[i, i] = 1.0
-        return
-    L, Linv = L0[0], L0[1]
-    M = Linv @ P @ Linv.T
-    lam, V = np.linalg.eigh(0.5 * (M + M.T))
-    UUt = np.zeros((p, p))
-    for kk in range(p):
-        if lam[kk] < ratio * ratio:
-            for i in range(p):
-                for j in range(p):
-                    UUt[i, j] += V[i, kk] * V[j, kk]
-    A[:] = L @ UUt @ Linv
+def law_kernel(reg, x, k, lay, c, pv, lc, law_fn, out):
+    """The law alone for B episodes (``controller.standalone.StandaloneLaw``): filter the regressor
+    rows ``reg`` (B, 1+p, m) and step the law, as ``act_kernel`` does; ``out`` holds this step's
+    s_dot_meas, F and w_env."""
+    for b in range(reg.shape[0]):
+        _filter_regressor(b, reg, x, lay, c)
+        _law(b, reg, x, k, lay, c, pv, lc, law_fn, out)
+        out[b, lay[O_UNC]] = x[b, lay[X_UNC]]
 
 
 @nb.njit(cache=True)
 def _rank_margin_adjoint(b, R, J, x, lay, c, mats, out):
     """The rank gate of the next step's J_hat = S Ad(R theta) J."""
     theta = x[b, lay[X_TH]:lay[X_TH] + 3]
-    _rank_margin(b, _mm(_adjoint_twist_jacobian(b, R, theta, c, mats), J[b]), c, out, lay)
+    _rank_margin(b, mm(_adjoint_twist_jacobian(b, R, theta, c, mats), J[b]), c, out, lay)
 
 
 # ================================================================================================
@@ -738,7 +555,7 @@ def _neural_rows(b, inp, R, J, Y, lay, c, mats, fx, known, Phi_T):
 def _neural_jhat(b, R, J, Y, theta, c, mats, fx):
     """J_hat (6, n) = S Ad(R l_prior) J + [0; Y theta]."""
     Jx = _adjoint_twist_jacobian(b, R, fx[2:5], c, mats)
-    Jh = _mm(Jx, J[b])
+    Jh = mm(Jx, J[b])
     n, K = Y.shape[1], Y.shape[2]
     for i in range(5):
         for j in range(n):
@@ -776,14 +593,14 @@ def _rank_margin(b, Jh, c, out, lay):
     WJ = Jh.copy()
     for i in range(6):
         WJ[i] *= c[V_W + i]
-    G = _mm_nt(WJ, WJ)
+    G = mm_nt(WJ, WJ)
     if c[RANK_ON] == 2.0:  # gate only: lambda_min > gate  <=>  G - gate I is positive definite
         for i in range(6):
             G[i, i] -= c[RANK_GATE_V]
-        if _chol(G, 6):
+        if chol(G, 6):
             out[b, lay[O_LAM]] = np.inf
             return
-        G = _mm_nt(WJ, WJ)
+        G = mm_nt(WJ, WJ)
     out[b, lay[O_LAM]] = np.linalg.eigvalsh(G)[0]
 
 
@@ -797,10 +614,11 @@ def sense_kernel(t, inp, p_O, R, x, k, lay, c, mats, out):
 
 
 @nb.njit(cache=True)
-def act_kernel(t, inp, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, L0, seg, fx, out):
+def act_kernel(t, inp, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, lc, law_fn, seg, fx, out):
     """The rest of the step after ``sense_kernel``, with the regressor rows ``reg`` (B, 1+p, m) =
     [known; Phi^T] and ``ext_J`` (J_hat_xi or J_hat) from the features (the adjoint's and the
-    neural basis' are computed here; ``fx``: ``neural_consts``)."""
+    neural basis' are computed here; ``fx``: ``neural_consts``; ``lc``, ``law_fn``: the law's
+    constants and its step's address)."""
     n, p = lay[L_N], lay[L_P]
     feat = int(c[FEAT])
     for b in range(inp.shape[0]):
@@ -814,12 +632,9 @@ def act_kernel(t, inp, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, L0, seg, f
             ext_J[b, :, :n] = _neural_jhat(b, R, J, Y, x[b, lay[X_TH]:lay[X_TH] + p], c, mats, fx)
         _filter_regressor(b, reg, x, lay, c)
         rho = out[b, lay[O_RHO]]
-        _act(t, b, rho, inp, p_O, R, J, ext_J, x, k, lay, c, mats, pv, L0, seg, out)
-        _law(b, reg, x, k, lay, c, pv, L0, out)
-        tr = 0.0  # tr P: theta's remaining uncertainty (the trace's theta_uncertainty)
-        for j in range(p):
-            tr += x[b, lay[X_P] + j * (p + 1)]
-        out[b, lay[O_PTR]] = tr
+        _act(t, b, rho, inp, p_O, R, J, ext_J, x, k, lay, c, mats, seg, out)
+        _law(b, reg, x, k, lay, c, pv, lc, law_fn, out)
+        out[b, lay[O_UNC]] = x[b, lay[X_UNC]]  # theta's remaining uncertainty (the law's; NaN: none)
         if c[RANK_ON] > 0.0 and rho > 0.0:  # the rank gate on the next step's J_hat
             if feat == FEAT_ADJOINT:
                 _rank_margin_adjoint(b, R, J, x, lay, c, mats, out)
@@ -828,7 +643,7 @@ def act_kernel(t, inp, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, L0, seg, f
 
 
 @nb.njit(cache=True)
-def step_kernel(t, inp, chain, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, L0, seg, fx, out):
+def step_kernel(t, inp, chain, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, lc, law_fn, seg, fx, out):
     """One whole period for B episodes with in-kernel features (adjoint, neural basis; one
     dispatch): intake (dropout hold), forward kinematics of the bare arm, sense, regressor, act,
     law, rank gate."""
@@ -841,7 +656,7 @@ def step_kernel(t, inp, chain, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, L0
         if k[b, K_ERROR] == 0:
             _fk(chain[:nbody], chain[nbody], inp[b], p_O[b], R[b], J[b])
             _sense(t, b, inp, p_O, R, x, k, lay, c, mats, out)
-    act_kernel(t, inp, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, L0, seg, fx, out)
+    act_kernel(t, inp, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, lc, law_fn, seg, fx, out)
 
 
 # ================================================================================================

@@ -3,7 +3,7 @@
 Pretraining fits one closed-form head ``theta_i`` per training instance (tool x arm,
 ``nets.least_squares_heads``). Their spread is what the data set says about where a new tool's
 head lies: ``theta_mean`` (p,) and ``theta_cov`` (p, p), stored in the checkpoint's meta. Online,
-the kalman law (``kinadapt_nn.controller.law``) starts ``theta`` at the nominal tool's head (0) with
+the kalman law (``kinadapt_nn.controller.laws.kalman``) starts ``theta`` at the nominal tool's head (0) with
 covariance ``theta_cov + theta_mean theta_mean^T`` (the second moment about 0,
 ``NeuralFeatures.prior_cov``): directions the training tools never moved stay put unless the data
 insist; the directions they did move are learned quickly (the learned prior metric of

@@ -3,8 +3,9 @@
 Task: the tool-tip position ``x`` (3,) of a tool with offset ``l`` (flange frame), measured
 (this is Section 2's setting, an exteroceptive task-space measurement, not the F/T loop).
 ``x_dot = J(q) qdot`` with ``J = [I, -[R_wf l]x] J_arm``; command ``qdot = J_hat^T K e``,
-``e = x_d - x`` (eq. control_law); the law is ``kinadapt_nn.controller.law.CompositeLaw`` with
-``Gamma gamma_d = gamma`` and ``F = K e``.
+``e = x_d - x`` (eq. control_law); the law is the registered one (``mode``: composite, tracking, ...)
+run stand-alone (``kinadapt_nn.controller.standalone.StandaloneLaw``, the controller's own numba
+step) with ``Gamma gamma_d = gamma`` and ``F = K e``.
 
 Features:
 * ``per_entry`` -- Gaussian RBFs, ``J_hat_ij = theta_ij^T psi(q)`` (eq. cls_per_entry): the
@@ -20,7 +21,9 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
-from kinadapt_nn.controller.law import CompositeLaw
+from kinadapt_nn.config import AdaptationCfg
+from kinadapt_nn.controller.laws import LawParams
+from kinadapt_nn.controller.standalone import StandaloneLaw
 from kinadapt_nn.features.base import Features, KinState, Regressor
 from kinadapt_nn.geometry import skew
 from kinadapt_nn.robot import FLANGE_SITE, PANDA_MJCF
@@ -112,10 +115,11 @@ def run_rigid_demo(
         feats = _AdjointTip()
         theta = l_true + np.asarray(theta_error_m)
         lo, hi = l_true - 0.05, l_true + 0.05
-    law = CompositeLaw(features=feats, mode=mode, gamma=gamma, gamma_d=1.0, eta=0.5, eps_norm=1e-6,
-                       W=np.ones(3), filter_tau_s=1e-12, dt_s=dt_s, theta_nominal=np.zeros(feats.n_params),
-                       omega_half_width=np.full(feats.n_params, np.inf), contact_force_N=0.0, contact_moment_Nm=0.0)
-    law.lo, law.hi = lo, hi  # Omega: unbounded for the RBF weights, +-5 cm about the truth for the offset
+    params = LawParams.of(AdaptationCfg(), dt_s, np.eye(feats.n_params), gamma=gamma, gamma_d=1.0, eta=0.5,
+                          eps_norm=1e-6)
+    # Omega: unbounded for the RBF weights, +-5 cm about the truth for the offset; no gate (rigid task)
+    law = StandaloneLaw(mode, params, np.ones(3), lo, hi, filter_tau_s=1e-12, contact_force_N=0.0,
+                        contact_moment_Nm=0.0)
     n = int(round(duration_s / dt_s))
     out = {k: np.zeros(n) for k in ("t", "c", "e", "r", "j", "v")}
     on = np.ones(6)
@@ -132,7 +136,8 @@ def run_rigid_demo(
         out["j"][k] = np.linalg.norm(J_hat - Jt) / np.linalg.norm(Jt)
         out["v"][k] = (0.5 * k_gain * (e @ e) + 0.5 * np.sum((theta - l_true) ** 2) / abs(gamma)
                        if features == "adjoint" else np.nan)
-        theta, _ = law.update(kin, qdot, theta, x, x_dot, F, on)
+        reg = feats.regressor(kin, qdot)
+        theta, _ = law.update(reg.known, reg.Phi, theta, x_dot, F, on)
         q = q + dt_s * qdot
         kin, x = kin_at(q)
     return RigidDemoResult(out["t"], out["c"], out["e"], out["r"], out["j"], out["v"])

@@ -29,6 +29,7 @@ import numpy as np
 from kinadapt_nn.controller import core
 from kinadapt_nn.config import ExperimentCfg
 from kinadapt_nn.controller.controller import core_consts, feature_consts
+from kinadapt_nn.controller.laws.base import law_state
 from kinadapt_nn.controller.core import RANK_GATE
 from kinadapt_nn.runs.monitor import classify_failure, seat_step
 from kinadapt_nn.runs.build import make_features
@@ -128,12 +129,12 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
     feats, theta_c0 = make_features(c0)  # the known side is shared; theta0 is per episode (experiment design)
     per_episode = known.features_kind in ("adjoint", "oracle")
     theta0 = np.array([make_features(c)[1] if per_episode else theta_c0 for c in cfgs])
-    cs, law_args = core_consts(known, feats)
+    cs, law = core_consts(known, feats)
     n, m, p = arm_model.nq, 6, feats.n_params
-    lay = core.Layout(n, m, p)
+    lay = core.Layout(n, m, p, law.sizes(m, p))
     st = core.ControllerState(lay, B)
     st.theta[:] = theta0
-    st.P[:] = np.asarray(law_args["prior_cov"], dtype=float)
+    law.reset(cs.lc, law_state(law, st.law_x, st.law_k, st.unc, m, p), False)
     fused = cs.c[core.FEAT] in (core.FEAT_ADJOINT, core.FEAT_NEURAL)  # features computed in the kernel
     fx = feature_consts(feats)
     cs.c[core.RANK_ON] = 2.0  # the rank gate every step as a Cholesky test; lambda_min itself only on a breach
@@ -173,8 +174,8 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
     for k in range(n_steps):
         _gather(qpos, qvel, sensordata, qadr, vadr, f_adr, inp)
         if fused:
-            core.step_kernel(t, inp, chain, p_O, R, J, reg, ext_J, st.x, st.k, lay.arr, cs.c, cs.mats, cs.pv, cs.L0,
-                             cs.seg, fx, out)
+            core.step_kernel(t, inp, chain, p_O, R, J, reg, ext_J, st.x, st.k, lay.arr, cs.c, cs.mats, cs.pv, cs.lc,
+                             cs.law_fn, cs.seg, fx, out)
         else:
             core.intake_kernel(inp, st.x, st.k, lay.arr, cs.c)
             core.fk_batch(chain, inp, p_O, R, J)
@@ -190,8 +191,8 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
                 else:
                     cs.c[core.FEAT] = core.FEAT_JHAT
                     ext_J[b, :, :n] = feats.jacobian(kin, st.theta[b])
-            core.act_kernel(t, inp, p_O, R, J, reg, ext_J, st.x, st.k, lay.arr, cs.c, cs.mats, cs.pv, cs.L0, cs.seg,
-                            fx, out)
+            core.act_kernel(t, inp, p_O, R, J, reg, ext_J, st.x, st.k, lay.arr, cs.c, cs.mats, cs.pv, cs.lc,
+                            cs.law_fn, cs.seg, fx, out)
         err = st.k[:, core.K_ERROR] != 0  # a dropout longer than max_dropout_s: divergence
         if err.any():
             diverged |= err & active

@@ -62,7 +62,7 @@ def load_compare_config(path: Path | None, overrides=()) -> CompareCfg:
     for f in cfg.features:
         if f not in FEATURES:
             raise ConfigError(f"compare: unknown features {f!r} (choose from {', '.join(FEATURES)})")
-    from kinadapt_nn.controller.law import MODES
+    from kinadapt_nn.controller.laws import LAWS as MODES
 
     for law in cfg.laws:
         if law not in MODES:

@@ -284,7 +284,7 @@ def _trace_from_logs(ctrl: Controller, cfg: ExperimentCfg, meta: dict, n_rec: in
     a["phi_norm2"][:] = blk("phi_norm2")[:, 0]
     a["theta_dot_track"][:] = blk("d_track") / ctrl.dt
     a["theta_dot_pred"][:] = blk("d_pred") / ctrl.dt
-    a["theta_uncertainty"][:] = np.sqrt(np.maximum(blk("p_trace")[:, 0], 0.0) / ctrl.law._trP0)
+    a["theta_uncertainty"][:] = blk("uncertainty")[:, 0]  # the law's sqrt(tr P / tr P0); NaN without covariance
     on = rho > 0
     a["depth_ok"][:] = on & (s[:, 0] >= monitor.d_seat)
     a["force_ok"][:] = on & (np.hypot(s[:, 1], s[:, 2]) < monitor.f_max)

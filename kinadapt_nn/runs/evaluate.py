@@ -35,32 +35,47 @@ def implied_offset(ctrl: Controller, q: np.ndarray, theta: np.ndarray) -> np.nda
 
 
 def identification_words(ctrl: Controller, cfg: ExperimentCfg) -> dict:
-    """What was and was not identified, and why, in plain words (the summary's first explanation)."""
+    """What was and was not identified, and why, in plain words (the summary's first explanation).
+
+    Said from facts, the same way for every law: the steps with the contact gate open and how far
+    theta moved in this insertion, with how many components sit on Omega's bounds (the
+    controller's state), and what the law reports of its own state (``ctrl.law``, the law
+    module's view: identified directions and uncertainty where the law has a covariance)."""
     law = ctrl.law
     p = ctrl.features.n_params
-    k = law.identified_directions()
     where = "kinadapt online --config online/identify_socket.toml (a matched socket with a commanded dither)"
-    if cfg.run.features == "oracle" or law.mode == "frozen":
-        return {"identified": None, "of": p, "text": "theta held fixed (frozen / oracle): nothing to identify"}
-    if k is None:
-        return {"identified": None, "of": p,
-                "text": (f"the paper's {law.mode} law follows the data whatever their bias: in the bore the estimate "
-                         "tracks the contact bias, not the offset (docs/identification.md); where it works: " + where)}
+    theta, lo, hi = ctrl.theta, ctrl.consts.pv[0], ctrl.consts.pv[1]
+    moved = float(np.linalg.norm(theta - ctrl.theta_start))
+    n_bound = int(np.count_nonzero((theta <= lo) | (theta >= hi)))
+    unit = " m" if ctrl.features.theta_is_offset else ""
+    movement = f"theta moved by {moved:.3g}{unit} from its start; {n_bound} of {p} components at the bounds of Omega"
+    out = {"identified": None, "of": p, "contact_steps": ctrl.contact_steps, "theta_moved": moved,
+           "at_omega_bounds": n_bound}
+    if cfg.run.features == "oracle" or law.name == "frozen":
+        return {**out, "text": "theta held fixed (frozen / oracle): nothing to identify"}
+    if ctrl.contact_steps == 0:  # the gate never opened: no law adapts in free space
+        return {**out, "identified": 0 if law.has_covariance else None,
+                "text": ("nothing identified: no contact was sensed, so there was nothing to learn from (theta at its "
+                         f"prior); identification needs contact and excitation: {where}")}
+    if not law.has_covariance:
+        head = movement if moved > 0.0 else f"theta did not move in {ctrl.contact_steps} steps in contact"
+        return {**out, "text": (f"{head}; the {law.name} law has no covariance: it follows the data whatever their "
+                                "bias (in the bore the estimate tracks the contact bias, not the offset: "
+                                f"docs/identification.md); where it works: {where}")}
+    k = law.identified_directions()
     ratio = law.uncertainty_ratio()
-    r = np.sqrt(np.mean(law.r2)) if law._r2_primed else float("nan")
-    if k == 0 and not law._r2_primed:
-        txt = ("nothing identified: no contact was sensed, so there was nothing to learn from (theta at its prior); "
-               f"identification needs contact and excitation: {where}")
-    elif k == 0:
-        txt = (f"nothing identified: theta stayed at its prior (uncertainty {100 * ratio:.0f}% of the prior) - in "
-               f"contact the measured residual (RMS {r:.3g}, W-scaled, the bias b included) was not beaten by what the "
-               f"parameters can explain with this motion; identification needs excitation: {where}")
+    r = law.residual_rms()
+    if k == 0:
+        stay = "theta stayed at its prior" if moved == 0.0 else movement
+        txt = (f"nothing identified: {stay} (uncertainty {100 * ratio:.0f}% of the prior) - in contact the measured "
+               f"residual (RMS {r:.3g}, W-scaled, the bias b included) was not beaten by what the parameters can "
+               f"explain with this motion; identification needs excitation: {where}")
     elif k < p:
-        txt = (f"{k} of {p} directions of theta identified (posterior sd < {law._act_ratio:g} x prior); the others stay at "
-               f"the prior: this motion does not excite them above the measured residual (RMS {r:.3g})")
+        txt = (f"{k} of {p} directions of theta identified ({law.identified_criterion()}); the others stay at the "
+               f"prior: this motion does not excite them above the measured residual (RMS {r:.3g}); {movement}")
     else:
-        txt = f"all {p} directions of theta identified (uncertainty {100 * ratio:.0f}% of the prior)"
-    return {"identified": k, "of": p, "uncertainty_ratio": ratio, "text": txt}
+        txt = f"all {p} directions of theta identified (uncertainty {100 * ratio:.0f}% of the prior); {movement}"
+    return {**out, "identified": k, "uncertainty_ratio": ratio, "text": txt}
 
 
 def evaluate_offline(trace: Trace, ctrl: Controller, rank_every: int = 25, truth_jac=None) -> None:
@@ -158,14 +173,14 @@ def identification_report(trace: Trace, ctrl: Controller, true_offset: np.ndarra
       residual's lag-1 autocorrelation. Statistical only: a bias b that co-varies with the motion
       is not in it (compare ``offset_error_final_m``).
     """
-    law = ctrl.law
     p = ctrl.features.n_params
-    out: dict = {"contact_steps": int(law.gram_n)}
+    n_contact = ctrl.contact_steps
+    out: dict = {"contact_steps": n_contact}
     gate = trace["adapt_gate"] > 0
-    if law.gram_n == 0 or not gate.any():
+    if n_contact == 0 or not gate.any():
         out.update(regressor_gram=None, pred_error_rms_contact_w=None, offset_uncertainty_m=None)
         return out
-    G = law.gram_sum / law.gram_n
+    G = ctrl.gram_sum / n_contact
     lam, vec = np.linalg.eigh(G)
     eps = trace["eps_w"][gate]
     out["pred_error_rms_contact_w"] = float(np.sqrt(np.mean(np.sum(eps**2, axis=1))))
@@ -189,7 +204,7 @@ def identification_report(trace: Trace, ctrl: Controller, true_offset: np.ndarra
     rho1 = float(np.sum(e[1:] * e[:-1]) / den) if den > 0 else 0.0
     rho1 = min(max(rho1, 0.0), 0.999)
     n_ratio = (1.0 + rho1) / (1.0 - rho1)  # N / N_eff
-    H = law.gram_sum
+    H = ctrl.gram_sum
     try:
         cov = sigma2 * np.linalg.inv(H) * n_ratio
         out["offset_uncertainty_m"] = [float(np.sqrt(max(c, 0.0))) for c in np.diag(cov)][:p] if p <= 12 else None

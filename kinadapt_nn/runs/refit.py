@@ -26,7 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from kinadapt_nn.controller.controller import Controller
+from kinadapt_nn.controller.controller import Controller, prior_cov_of
+from kinadapt_nn.controller.laws import kalman
 
 
 class Refit:
@@ -35,9 +36,11 @@ class Refit:
     def __init__(self, ctrl: Controller, channels=(1, 2), prior_weight: float = 1.0, decimate_s: float = 0.01) -> None:
         self.ctrl = ctrl
         ad = ctrl.known.adaptation
-        self.P0 = np.asarray(ctrl.law_args["prior_cov"], dtype=float)
+        self.P0 = np.asarray(prior_cov_of(ctrl.features), dtype=float)
         self.theta_prior = ctrl.theta0.copy()
         self._P0inv = np.linalg.inv(self.P0)
+        self._L = np.linalg.cholesky(self.P0)
+        self._Linv = np.linalg.inv(self._L)
         self.decimate_s = float(decimate_s)
         self.n_eff = max(1.0, ad.corr_s / self.decimate_s)
         self.act_ratio = float(ad.act_sd_ratio)
@@ -87,11 +90,9 @@ class Refit:
 
     def _identified(self, P: np.ndarray) -> np.ndarray:
         """Projector (p, p) onto the identified directions: the kalman law's own
-        (``core._identified_projector`` on the controller's prior factor)."""
-        from kinadapt_nn.controller import core
-
+        (``kalman.identified_projector`` on the prior's Cholesky factor)."""
         A = np.empty_like(P)
-        core._identified_projector(np.ascontiguousarray(P), self.ctrl.consts.L0, self.act_ratio, A)
+        kalman.identified_projector(np.ascontiguousarray(P), self._L, self._Linv, self.act_ratio, A)
         return A
 
     def after_insertion(self, trace) -> dict:
@@ -99,10 +100,13 @@ class Refit:
         law its covariance and filter estimate). -> a summary row fragment."""
         n = self.add(trace)
         theta_kf, P, theta_act = self.solve()
-        st = self.ctrl.state
-        st.theta[0] = theta_act
-        if self.ctrl.mode == "kalman":
-            st.P[0] = P
-            st.theta_kf[0] = theta_kf
+        self.ctrl.state.theta[0] = theta_act
+        law = self.ctrl._law_state
+        if "P" in law.blocks:  # a law with a covariance (kalman): hand it the pooled posterior
+            law.blocks["P"][0] = P
+        if "theta_kf" in law.blocks:
+            law.blocks["theta_kf"][0] = theta_kf
+            law.blocks["theta_prior"][0] = self.theta_prior  # the refit's prior is the law's
+            law.counters["kf_init"][0] = 1
         ident = int(round(float(np.trace(self._identified(P)))))
         return {"samples": n, "insertions_pooled": len(self.data), "identified": ident}

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
+from numba.core.dispatcher import Dispatcher
 
 from kinadapt_nn.config import load_config
 from kinadapt_nn.controller.controller import Controller
@@ -77,7 +78,7 @@ def test_different_streams_give_different_commands():
 
 
 def _walk(obj, seen, depth=0):
-    if id(obj) in seen or depth > 6:
+    if id(obj) in seen or depth > 6 or isinstance(obj, Dispatcher):  # a compiled law step is code, not world
         return
     seen.add(id(obj))
     yield obj

@@ -1,85 +1,115 @@
-"""The kalman law (adaptation.mode = "kalman"): the RLS identity, prior directions that the data
-do not excite stay put, a persistent residual counts as little information, the priors of every
-features type, the rank gate every step, repeated insertions."""
+"""The kalman law (controller/laws/kalman.py): one step against the Kalman formula, the RLS
+identity, prior directions that the data do not excite stay put, a persistent residual counts as
+little information, the priors of every features type, the rank gate every step, repeated
+insertions."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from kinadapt_nn.controller.law import CompositeLaw, kalman_update
-from kinadapt_nn.config import load_config
+from kinadapt_nn.config import AdaptationCfg, load_config
+from kinadapt_nn.controller.laws import LawParams
+from kinadapt_nn.controller.standalone import StandaloneLaw
 from kinadapt_nn.runs.build import make_features
 from kinadapt_nn.runs.episode import run_episode, run_insertions
-from kinadapt_nn.features.base import Features, KinState, Regressor
+from tests.controller.law_reference import kalman_update, one_law_step
 
 QUIET = ["run.progress=false", "run.tensorboard=false", "run.figure=false"]
 
 
+def test_one_step_is_the_kalman_update():
+    """One step in contact from the prior, against numpy: R = diag(e^2 + floor) corr_s/dt (the
+    residual level primed with this sample, no persistent part yet), K = P H^T (H P H^T + R)^-1,
+    P = (I - K H) P, theta_kf = Proj_Omega(theta + K e - dt gamma_d P Phi_r^T F), and the controller
+    acts on theta_prior + Pi (theta_kf - theta_prior), Pi the projector onto the directions whose
+    whitened posterior sd fell below act_sd_ratio."""
+    rng = np.random.default_rng(11)
+    m, p = 6, 4
+    A = rng.normal(size=(p, p))
+    P0 = A @ A.T + 0.5 * np.eye(p)
+    H = 3.0 * rng.normal(size=(m, 2)) @ rng.normal(size=(2, p))  # rank 2: two directions can be identified
+    y, F = rng.normal(size=m), rng.normal(size=m)
+    theta0 = 0.1 * rng.normal(size=p)
+    lo, hi = theta0 - 0.3, theta0 + 0.3
+    kw = dict(dt_s=1e-3, gamma_d=0.05, corr_s=0.004, resid_floor_w=1e-3, act_sd_ratio=0.6)
+    theta, a, law = one_law_step("kalman", H, y, theta=theta0, F=F, lo=lo, hi=hi, prior_cov=P0, **kw)
+    e = y - H @ theta0
+    r = (e**2 + kw["resid_floor_w"]) * kw["corr_s"] / kw["dt_s"]
+    d_pred, P1 = kalman_update(P0, H, e, r)
+    v = law.view
+    np.testing.assert_allclose(v.R, r, rtol=1e-12)
+    np.testing.assert_allclose(v.P, P1, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(a.d_pred, d_pred, rtol=1e-9, atol=1e-12)
+    d_track = -kw["dt_s"] * kw["gamma_d"] * P1 @ (H.T @ F)  # Phi_r = H (no filter lag, W = 1)
+    np.testing.assert_allclose(a.d_track, d_track, rtol=1e-9, atol=1e-14)
+    theta_kf = np.clip(theta0 + d_pred + d_track, lo, hi)
+    np.testing.assert_allclose(v.theta_kf, theta_kf, rtol=1e-9, atol=1e-13)
+    L = np.linalg.cholesky(P0)
+    Li = np.linalg.inv(L)
+    lam, V = np.linalg.eigh(Li @ P1 @ Li.T)
+    U = V[:, lam < kw["act_sd_ratio"] ** 2]
+    assert 0 < U.shape[1] < p  # a partly identified step: the projector matters
+    Pi = L @ U @ U.T @ Li
+    np.testing.assert_allclose(theta, theta0 + Pi @ (theta_kf - theta0), rtol=1e-9, atol=1e-12)
+    assert v.identified_directions() == U.shape[1]
+    assert a.phi_norm2 == pytest.approx(np.trace(H.T @ H), rel=1e-12)
+    assert v.uncertainty_ratio() == pytest.approx(np.sqrt(np.trace(P1) / np.trace(P0)), rel=1e-12)
+
+
 def test_kalman_updates_equal_the_batch_posterior():
-    """Sequential updates with any per-sample R equal the batch MAP estimate
-    (P0^-1 + sum H^T R^-1 H)^-1 (P0^-1 theta0 + sum H^T R^-1 y) and its covariance."""
+    """Sequential steps of the law (theta acted on in full: act_sd_ratio = 1; no tracking term)
+    equal the batch MAP estimate (P0^-1 + sum H^T R^-1 H)^-1 (P0^-1 theta0 + sum H^T R^-1 y) and
+    its covariance, R the measurement variance each step used."""
     rng = np.random.default_rng(0)
     p, m, N = 4, 3, 50
     P0 = np.diag(rng.uniform(0.5, 2.0, p))
     th0 = rng.normal(size=p)
-    theta, P = th0.copy(), P0.copy()
+    law = StandaloneLaw("kalman", LawParams.of(AdaptationCfg(), 1e-3, P0, gamma_d=0.0, act_sd_ratio=1.0), np.ones(m),
+                        np.full(p, -np.inf), np.full(p, np.inf), filter_tau_s=0.0, contact_force_N=0.0,
+                        contact_moment_Nm=0.0)
+    theta = th0.copy()
     info, vec = np.linalg.inv(P0), np.linalg.inv(P0) @ th0
     for _ in range(N):
-        H = rng.normal(size=(m, p))
         y = rng.normal(size=m)
-        r = rng.uniform(0.1, 3.0, m)
-        theta = theta + kalman_update(P, H.T, y - H @ theta, r)
+        theta, _ = law.update(np.zeros(m), rng.normal(size=(m, p)), theta, y, np.zeros(m), np.ones(6))
+        H, r = law.Phi_f, law.view.R  # the rows and the variance this step used
         info += H.T @ (H / r[:, None])
         vec += H.T @ (y / r)
-    np.testing.assert_allclose(P, np.linalg.inv(info), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(law.view.P, np.linalg.inv(info), rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(theta, np.linalg.solve(info, vec), rtol=1e-8, atol=1e-10)
 
 
-class _Linear(Features):
-    """J_hat qdot = Phi theta with a fixed regressor (a test double of the features contract)."""
-
-    name = "linear"
-
-    def __init__(self, Phi):
-        self.Phi0 = np.asarray(Phi, dtype=float)
-        self.n_params = self.Phi0.shape[1]
-
-    def jacobian(self, kin, theta):  # pragma: no cover - not used by the law
-        return np.zeros((6, 7))
-
-    def regressor(self, kin, qdot):
-        return Regressor(np.zeros(6), self.Phi0 * qdot[0])
+def _law(Phi, P0):
+    """The kalman law on a fixed regressor Phi (m, p) scaled by qdot[0] (no gate, no Omega)."""
+    params = LawParams.of(AdaptationCfg(), 1e-3, P0, gamma=1.0, gamma_d=0.0, eta=0.5, eps_norm=1e-4, corr_s=0.05,
+                          resid_tau_s=1.0, resid_floor_w=1e-4, persist_tau_s=0.5, act_sd_ratio=0.4)
+    p = P0.shape[0]
+    return StandaloneLaw("kalman", params, np.ones(6), np.full(p, -np.inf), np.full(p, np.inf), filter_tau_s=1e-6,
+                         contact_force_N=0.0, contact_moment_Nm=0.0), Phi
 
 
-def _law(Phi, P0, **kw):
-    dt = 1e-3
-    return CompositeLaw(_Linear(Phi), "kalman", gamma=1.0, gamma_d=0.0, eta=0.5, eps_norm=1e-4, W=np.ones(6),
-                        filter_tau_s=1e-6, dt_s=dt, theta_nominal=np.zeros(P0.shape[0]),
-                        omega_half_width=np.full(P0.shape[0], np.inf), contact_force_N=0.0, contact_moment_Nm=0.0,
-                        prior_cov=P0, **kw), dt
-
-
-def _drive(law, theta, y_of_t, n, qdot_of_t):
-    kin = KinState(np.zeros(7), np.zeros(3), np.eye(3), np.zeros((6, 7)))
+def _drive(law_phi, theta, y_of_t, n, qdot_of_t):
+    law, Phi = law_phi
     for k in range(n):
         t = k * 1e-3
-        theta, _ = law.update(kin, qdot_of_t(t), theta, np.zeros(6), y_of_t(t), np.zeros(6), np.ones(6))
+        theta, _ = law.update(np.zeros(6), Phi * qdot_of_t(t)[0], theta, y_of_t(t), np.zeros(6), np.ones(6))
     return theta
 
 
 def test_unexcited_direction_stays_at_the_prior_and_excited_one_is_learned():
     Phi = np.zeros((6, 2))
     Phi[1, 0] = 1.0  # only parameter 0 shows in the prediction; parameter 1 never does
-    law, _ = _law(Phi, np.eye(2) * 4.0)
+    law = _law(Phi, np.eye(2) * 4.0)
     true = np.array([1.5, -2.0])
     rng = np.random.default_rng(1)
     qd = lambda t: np.array([np.sin(2 * np.pi * 3 * t), 0, 0, 0, 0, 0, 0])  # noqa: E731
     y = lambda t: Phi @ true * qd(t)[0] + np.r_[0, 0.01 * rng.normal(size=5)]  # noqa: E731
     theta = _drive(law, np.zeros(2), y, 3000, qd)
     assert abs(theta[0] - 1.5) < 0.05
-    assert theta[1] == 0.0 and law.P[1, 1] == pytest.approx(4.0)
-    assert law.information_sd()[0] < 0.2 * 2.0
+    v = law[0].view
+    assert theta[1] == 0.0 and v.P[1, 1] == pytest.approx(4.0)
+    assert v.information_sd()[0] < 0.2 * 2.0
 
 
 def test_a_persistent_residual_is_little_information():
@@ -89,13 +119,13 @@ def test_a_persistent_residual_is_little_information():
     Phi = np.zeros((6, 1))
     Phi[1, 0] = 1.0
     qd = lambda t: np.r_[np.sin(2 * np.pi * 3 * t), np.zeros(6)]  # noqa: E731
-    law_b, _ = _law(Phi, np.eye(1))
+    law_b = _law(Phi, np.eye(1))
     th_b = _drive(law_b, np.zeros(1), lambda t: np.r_[0, 0.5, 0, 0, 0, 0], 3000, qd)  # constant bias 0.5
     rng = np.random.default_rng(2)
-    law_w, _ = _law(Phi, np.eye(1))
+    law_w = _law(Phi, np.eye(1))
     _drive(law_w, np.zeros(1), lambda t: np.r_[0, 0.5 * rng.normal(), 0, 0, 0, 0], 3000, qd)  # white, same level
     assert abs(th_b[0]) < 0.5  # short of the bias's size
-    assert law_b.P[0, 0] > 5.0 * law_w.P[0, 0]
+    assert law_b[0].view.P[0, 0] > 5.0 * law_w[0].view.P[0, 0]
 
 
 @pytest.mark.parametrize("features", ["adjoint", "rbf", "neural"])
@@ -118,7 +148,9 @@ def test_rank_gate_is_checked_every_step_and_a_breach_is_a_failure():
     assert s["min_lambda_JJt"] < 1e-6
     assert not s["success"] and s["failure"] == "rank_gate" and s["rank_gate"]["breach_t_s"] is not None
     # the composite law has no covariance: the summary must not claim "no contact was sensed" (it was)
-    assert s["identification"]["identified"] is None and "no contact was sensed" not in s["identification"]["text"]
+    ident = s["identification"]
+    assert ident["identified"] is None and "no contact was sensed" not in ident["text"]
+    assert ident["text"].startswith("theta moved by") and "has no covariance" in ident["text"]
 
 
 def test_repeated_insertions_carry_the_estimate():

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 import torch
 
-from kinadapt_nn.controller.law import prediction_step
 from kinadapt_nn.config import load_config
 from kinadapt_nn.runs.build import make_controller, make_features
 from kinadapt_nn.runs.episode import run_episode
 from kinadapt_nn.errors import ModelFileError
 from kinadapt_nn.robot import MODELS_DIR
+from tests.controller.law_reference import one_law_step
 
 Q0 = np.array([0.05, -0.55, 0.02, -2.45, 0.03, 1.95, 0.75])
 
@@ -50,7 +50,8 @@ def test_rbf_prediction_step_is_the_closed_form():
     feats, _ = make_features(load_config(None, ["run.features=rbf"]))
     Phi = feats.regressor(kin, qdot).Phi
     eps = rng.normal(size=6)
-    step, n2 = prediction_step(Phi, eps, eta=1.0, eps_norm=1e-4)
+    _, a, _ = one_law_step("prediction", Phi, eps, eta=1.0, eps_norm=1e-4)  # the law's numba step
+    step, n2 = a.d_pred, a.phi_norm2
     psi = feats.psi(kin.q_rad)
     assert n2 == pytest.approx((psi @ psi) * (qdot @ qdot), rel=1e-10)
     np.testing.assert_allclose(step, Phi.T @ eps / (n2 + 1e-4), rtol=1e-12)

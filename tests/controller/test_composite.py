@@ -1,15 +1,18 @@
-"""The composite law: identities of the paper checked against independent numerics."""
+"""The composite law (controller/laws/composite.py): identities of the paper checked against
+independent numerics, on the law's own numba step."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from kinadapt_nn.controller.law import CompositeLaw, exact_qp_step, prediction_step
 from kinadapt_nn.config import load_config
+from kinadapt_nn.controller.laws import composite, prediction, tracking
+from kinadapt_nn.controller.standalone import StandaloneLaw
 from kinadapt_nn.runs.build import make_controller
 from kinadapt_nn.runs.episode import run_episode
 from kinadapt_nn.features.base import Features, KinState, Regressor
+from tests.controller.law_reference import exact_qp_step, one_law_step
 
 
 class PerEntryFeatures(Features):
@@ -60,23 +63,59 @@ def test_trace_identity_eq_pred_trace_identity():
 
 
 def test_prediction_step_equals_closed_form_for_per_entry_features():
-    """eta = 1: the law's step is eq. ident_qp_solution, Y^T eps qdot^T / (|psi|^2 |qdot|^2 + eps_norm),
-    and also the exact QP minimiser Phi^T (Phi Phi^T + eps_norm I)^-1 eps."""
+    """eta = 1: the composite law's prediction step is eq. ident_qp_solution, Y^T eps qdot^T /
+    (|psi|^2 |qdot|^2 + eps_norm), and also the exact QP minimiser Phi^T (Phi Phi^T + eps_norm I)^-1 eps
+    (with F = 0 the tracking term is zero and theta_next = theta + d_pred)."""
     rng = np.random.default_rng(2)
     m, n, k = 6, 7, 4
     feats = PerEntryFeatures(m, n, k)
     q, qdot, eps = rng.normal(size=n), rng.normal(size=n), rng.normal(size=m)
     Phi = feats.regressor(_kin(q), qdot).Phi
     eps_norm = 1e-4
-    step, n2 = prediction_step(Phi, eps, eta=1.0, eps_norm=eps_norm)
+    theta_next, a, _ = one_law_step("composite", Phi, eps, eta=1.0, eps_norm=eps_norm)
+    step, n2 = a.d_pred, a.phi_norm2
     psi = feats.psi(q)
     closed = np.einsum("k,i,j->ijk", psi, eps, qdot).ravel() / (psi @ psi * (qdot @ qdot) + eps_norm)
     np.testing.assert_allclose(step, closed, rtol=1e-12)
     np.testing.assert_allclose(step, exact_qp_step(Phi, eps, eps_norm), rtol=1e-10)
+    np.testing.assert_array_equal(theta_next, step)
+    assert not a.d_track.any() and a.gate == 1.0
     assert n2 == pytest.approx(psi @ psi * (qdot @ qdot), rel=1e-12)
     # fractional step: eta scales it and its size does not depend on Gamma
-    half, _ = prediction_step(Phi, eps, eta=0.5, eps_norm=eps_norm)
-    np.testing.assert_allclose(half, 0.5 * closed, rtol=1e-12)
+    for gamma in (100.0, 8000.0):
+        _, half, _ = one_law_step("composite", Phi, eps, eta=0.5, eps_norm=eps_norm, gamma=gamma)
+        np.testing.assert_allclose(half.d_pred, 0.5 * closed, rtol=1e-12)
+
+
+def test_composite_step_is_the_sum_of_the_tracking_and_prediction_terms():
+    """The numba step called from Python on numpy arrays (it is the reference the kernels call):
+    theta_next = Proj_Omega(theta + d_track + d_pred), d_track = -dt Gamma gamma_d Phi_r^T F,
+    d_pred = eta H^T e / (||H||_2^2 + eps_norm); prediction.py and tracking.py give their term only."""
+    rng = np.random.default_rng(5)
+    m, p = 6, 3
+    H = rng.normal(size=(m, p))
+    e, F, theta = rng.normal(size=m), rng.normal(size=m), 0.01 * rng.normal(size=p)
+    PhiF = rng.normal(size=(m, p)).T @ F  # the realised regressor's Phi_r^T F
+    lo, hi = np.full(p, -0.012), np.full(p, 0.012)
+    dt, gamma, gamma_d, eta, eps_norm = 1e-3, 100.0, 1e-3, 0.5, 1e-4
+    n2 = np.linalg.eigvalsh(H.T @ H)[-1]
+    d_track = -dt * gamma * gamma_d * PhiF
+    d_pred = eta * H.T @ e / (n2 + eps_norm)
+    c_track = -dt * gamma * gamma_d
+    consts = {"composite": np.array([c_track, eta, eps_norm]), "tracking": np.array([c_track]),
+              "prediction": np.array([eta, eps_norm])}
+    expect = {"composite": (d_track, d_pred, n2), "tracking": (d_track, 0 * d_pred, 0.0),
+              "prediction": (0 * d_track, d_pred, n2)}
+    for name, mod in (("composite", composite), ("tracking", tracking), ("prediction", prediction)):
+        th = theta.copy()
+        dtr, dpr = np.zeros(p), np.zeros(p)
+        got = mod.step(th, np.ascontiguousarray(H.T), H.T @ H, e, PhiF, lo, hi, consts[name], np.zeros(0),
+                       np.zeros(0, dtype=np.int64), np.full(1, np.nan), dtr, dpr)
+        et, ep, en2 = expect[name]
+        np.testing.assert_allclose(dtr, et, rtol=1e-13, atol=1e-18)
+        np.testing.assert_allclose(dpr, ep, rtol=1e-13, atol=1e-18)
+        assert got == pytest.approx(en2, rel=1e-12)
+        np.testing.assert_allclose(th, np.clip(theta + et + ep, lo, hi), rtol=1e-13, atol=1e-18)
 
 
 def test_nlms_step_contracts_the_parametric_error():
@@ -88,7 +127,7 @@ def test_nlms_step_contracts_the_parametric_error():
     Phi = feats.regressor(_kin(q), qdot).Phi
     th_err = rng.normal(size=feats.n_params)
     for eta in (0.5, 1.0, 1.5):
-        step, _ = prediction_step(Phi, Phi @ th_err, eta=eta, eps_norm=0.0)
+        step = one_law_step("composite", Phi, Phi @ th_err, eta=eta, eps_norm=0.0)[1].d_pred
         after = Phi @ (th_err - step)
         assert np.linalg.norm(after) == pytest.approx(abs(1 - eta) * np.linalg.norm(Phi @ th_err), rel=1e-9)
 
@@ -111,14 +150,16 @@ def test_rigid_lyapunov_derivative_eq_composite_vdot():
         J_true = feats.jacobian(kin, theta_true)
         qdot = J_hat.T @ F  # eq. ft_control
         s_dot = J_true @ qdot
-        law = CompositeLaw(**{**ctrl.law_args, "mode": "composite"})
+        law = StandaloneLaw.of(ctrl.known, feats, "composite")  # the controller's law, stand-alone
         w_contact = np.array([5.0, 0, 0, 0, 0, 0])  # gate open
-        theta_next, a = law.update(kin, qdot, theta_hat, np.zeros(6), s_dot, F, w_contact)
-        dt, G, gd = law.dt, law.gamma, law.gamma_d
+        reg = feats.regressor(kin, qdot)
+        theta_next, a = law.update(reg.known, reg.Phi, theta_hat, s_dot, F, w_contact)
+        ad, dt = cfg.adaptation, cfg.run.dt_s
+        G, gd = ad.gamma, ad.gamma_d
         theta_dot = (a.d_track + a.d_pred) / dt
         Vdot = gd * (-(F @ s_dot)) + (theta_hat - theta_true) @ theta_dot / G  # d/dt of 1/2 |theta~|^2 / Gamma
-        kappa = law.eta / (dt * G * (a.phi_norm2 + law.eps_norm))
-        expected = -gd * (qdot @ qdot) - kappa * np.sum((law.W * ((J_true - J_hat) @ qdot)) ** 2)
+        kappa = ad.eta / (dt * G * (a.phi_norm2 + ad.eps_norm))
+        expected = -gd * (qdot @ qdot) - kappa * np.sum((ctrl.W * ((J_true - J_hat) @ qdot)) ** 2)
         assert Vdot == pytest.approx(expected, rel=1e-6, abs=1e-14)  # filter alpha = 1 - 1e-9
         assert expected < 0.0
 
@@ -126,16 +167,18 @@ def test_rigid_lyapunov_derivative_eq_composite_vdot():
 def test_gate_freezes_adaptation_in_free_space_and_projection_keeps_omega():
     cfg = load_config(None, [])
     ctrl = make_controller(cfg)
-    law = CompositeLaw(**ctrl.law_args)  # the stand-alone law (the kernel's is tested in tests/controller/test_core.py)
+    lo, hi = ctrl.consts.pv[0], ctrl.consts.pv[1]
     kin = ctrl.kin(np.array([0.0, -0.6, 0.0, -2.4, 0.0, 1.9, 0.7]))
-    qdot = np.full(7, 0.1)
+    reg = ctrl.features.regressor(kin, np.full(7, 0.1))
     th = np.array([0.007, -0.005, 0.1])
     big = np.full(6, 100.0)
-    same, a = law.update(kin, qdot, th, np.zeros(6), big, np.ones(6), np.zeros(6))  # no contact
-    assert a.gate == 0.0 and np.array_equal(same, th)
-    moved, a = law.update(kin, qdot, th, np.zeros(6), big, np.ones(6), np.array([0, 0, 5.0, 0, 0, 0]))
-    assert a.gate == 1.0
-    assert np.all(moved >= law.lo - 1e-15) and np.all(moved <= law.hi + 1e-15)
+    for name in ("kalman", "composite"):
+        law = StandaloneLaw.of(ctrl.known, ctrl.features, name)  # the controller's law, stand-alone
+        same, a = law.update(reg.known, reg.Phi, th, big, np.ones(6), np.zeros(6))  # no contact
+        assert a.gate == 0.0 and np.array_equal(same, th)
+        moved, a = law.update(reg.known, reg.Phi, th, big, np.ones(6), np.array([0, 0, 5.0, 0, 0, 0]))
+        assert a.gate == 1.0 and a.d_pred.any()  # in contact the law adapts (kalman: its own estimate first)
+        assert np.all(moved >= lo - 1e-15) and np.all(moved <= hi + 1e-15)
 
 
 @pytest.fixture(scope="module")

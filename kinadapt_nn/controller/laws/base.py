@@ -1,0 +1,263 @@
+"""The contract every adaptation law fulfils, and the pieces the laws share.
+
+A law is one module (``laws/kalman.py``, ``composite.py``, ...) that defines:
+
+* ``step`` -- a ``numba.njit(cache=True)`` function with the signature :data:`STEP_SIG`. It is
+  the law: the controller's kernels call it through its address (one compiled kernel serves every
+  law), and it is callable from Python on numpy arrays (``StandaloneLaw``, tests). Per episode and
+  control step *in contact* (the gate, eq. ft_pred and the Gram log are the kernel's,
+  ``core._law``), with shapes for p parameters and m channels::
+
+      n2 = step(theta (p,), H_T (p, m), G (p, p), e (m,), PhiF (p,), lo (p,), hi (p,),
+                consts (nc,), x (nx,), k (nk,), unc (1,), d_track (p,), d_pred (p,))
+
+  ``theta``: the estimate the controller used this step, overwritten with theta_{k+1};
+  ``H_T = (W Phi_f)^T`` the W-scaled filtered regressor; ``G = H^T H``; ``e = W (s_dot_meas -
+  known_f - Phi_f theta)`` (eq. ft_pred); ``PhiF = Phi_r^T F`` on the realised regressor (the
+  features' tracking rows); ``lo, hi``: the box Omega (eq. QPaug); ``consts``: the law's own
+  constants (:attr:`LawSpec.constants`); ``x, k``: the law's own float state and counters (the
+  blocks it declares, :attr:`LawSpec.blocks`); ``unc[0]``: theta's remaining uncertainty as a
+  fraction of the prior (the trace's ``theta_uncertainty``; NaN for a law without covariance);
+  ``d_track, d_pred``: the increments for the trace (zero on entry). Returns ``||W Phi_f||^2`` as
+  the law defines it (the trace's ``phi_norm2``; 0 when it has none).
+* ``LAW = LawSpec(...)`` -- its name, constants, state blocks, reset and summary view.
+
+Registering it is one line in ``laws/__init__.py`` (docs/architecture.md, "Adding a law").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable, NamedTuple
+
+import numba as nb
+import numpy as np
+from llvmlite import ir
+from numba.core import cgutils, types
+from numba.experimental.function_type import _get_jit_address
+from numba.extending import intrinsic
+
+from kinadapt_nn.config import AdaptationCfg
+from kinadapt_nn.errors import ConfigError
+
+_F1 = types.Array(types.float64, 1, "C")
+_F2 = types.Array(types.float64, 2, "C")
+_I1 = types.Array(types.int64, 1, "C")
+#: the signature of every law's ``step`` (module docstring)
+STEP_SIG = types.float64(_F1, _F2, _F2, _F1, _F1, _F1, _F1, _F1, _F1, _I1, _F1, _F1, _F1)
+_STEP_FN = types.FunctionType(STEP_SIG)
+if getattr(nb.core.datamodel.default_manager.lookup(_STEP_FN), "_fields", ()) != ("c_addr", "py_addr", "jit_addr"):
+    raise ImportError("kinadapt_nn's law dispatch needs numba's first-class function model (c_addr, py_addr, "
+                      "jit_addr; numba >= 0.59)")
+
+
+@intrinsic
+def law_step_fn(typingctx, addr):
+    """The law step at native address ``addr`` (int64, :meth:`LawSpec.address`) as a first-class
+    function of :data:`STEP_SIG`, called with numba's own calling convention (exceptions
+    propagate). The address is data, not code: the kernels that call it compile and cache once
+    for every law."""
+    if not isinstance(addr, types.Integer):
+        return None
+
+    def codegen(context, builder, sig, args):
+        vp = context.get_value_type(types.voidptr)
+        fn = cgutils.create_struct_proxy(_STEP_FN)(context, builder)
+        fn.c_addr = ir.Constant(vp, None)
+        fn.py_addr = ir.Constant(vp, None)
+        fn.jit_addr = builder.inttoptr(args[0], vp)
+        return fn._getvalue()
+
+    return _STEP_FN(addr), codegen
+
+
+# ------------------------------------------------------------------------------------------------
+# shared maths (numba)
+@nb.njit(cache=True)
+def project_omega(th, lo, hi, theta):
+    """theta = Proj_Omega(th): the Euclidean projection onto the box Omega (a clip; eq. QPaug)."""
+    for j in range(theta.shape[0]):
+        theta[j] = min(max(th[j], lo[j]), hi[j])
+
+
+@nb.njit(cache=True)
+def lambda_max_sym3(G):
+    """Largest eigenvalue of a symmetric 3x3 (lower triangle read), closed form: the trigonometric
+    solution of the characteristic cubic (Smith 1961); relative error ~1e-15 on PSD Grams."""
+    a, b, d, c, e, f = G[0, 0], G[1, 0], G[1, 1], G[2, 0], G[2, 1], G[2, 2]
+    p1 = b * b + c * c + e * e
+    q = (a + d + f) / 3.0
+    if p1 == 0.0:
+        return max(a, d, f)
+    a, d, f = a - q, d - q, f - q
+    p = math.sqrt((a * a + d * d + f * f + 2.0 * p1) / 6.0)
+    a, b, c, d, e, f = a / p, b / p, c / p, d / p, e / p, f / p
+    r = 0.5 * (a * (d * f - e * e) - b * (b * f - e * c) + c * (b * e - d * c))
+    r = -1.0 if r < -1.0 else (1.0 if r > 1.0 else r)
+    return q + 2.0 * p * math.cos(math.acos(r) / 3.0)
+
+
+# ------------------------------------------------------------------------------------------------
+class AdaptStep(NamedTuple):
+    """What one adaptation step did (for the trace)."""
+
+    s_dot_pred: np.ndarray  #: (m,) filtered prediction known_f + Phi_f theta (before the update)
+    eps_w: np.ndarray  #: (m,) W-scaled filtered prediction error before the update
+    d_track: np.ndarray  #: (p,) tracking increment (before the gate)
+    d_pred: np.ndarray  #: (p,) prediction increment (before the gate)
+    gate: float  #: 1 in contact, 0 in free space
+    phi_norm2: float  #: ||W Phi_f||^2 as the law defines it (0 when not adapting)
+
+
+class LawParams(NamedTuple):
+    """The numbers a law's constants are built from (SI units; each law reads what it needs)."""
+
+    dt_s: float  #: [s] control period
+    gamma: float  #: [m^2] Gamma = gamma I (composite, tracking); negative: the myopic sign
+    gamma_d: float  #: [1/J] weight of V(s) in V_aug
+    eta: float  #: [-] fraction of the exact per-sample QP step (composite, prediction)
+    eps_norm: float  #: [-] regulariser of the normalised step, W-scaled units of ||W Phi||^2
+    corr_s: float  #: [s] kalman: residual correlation time (samples within it count as one)
+    resid_tau_s: float  #: [s] kalman: time constant of the measured residual level
+    resid_floor_w: float  #: [W-scaled^2] kalman: floor of the residual level
+    persist_tau_s: float  #: [s] kalman: window of the residual's mean (a persistent residual)
+    act_sd_ratio: float  #: [-] kalman: act on a direction once its sd < this x the prior sd
+    prior_cov: np.ndarray  #: (p, p) theta's prior covariance (kalman)
+
+    @classmethod
+    def of(cls, adaptation: AdaptationCfg, dt_s: float, prior_cov: np.ndarray, **override) -> "LawParams":
+        """From the known adaptation config; ``override``: fields set directly (unvalidated, e.g.
+        a negative gamma for the myopic-sign demo)."""
+        ad = adaptation
+        vals = dict(dt_s=dt_s, gamma=ad.gamma, gamma_d=ad.gamma_d, eta=ad.eta, eps_norm=ad.eps_norm, corr_s=ad.corr_s,
+                    resid_tau_s=ad.resid_tau_s, resid_floor_w=ad.resid_floor_w, persist_tau_s=ad.persist_tau_s,
+                    act_sd_ratio=ad.act_sd_ratio, prior_cov=np.asarray(prior_cov, dtype=float))
+        unknown = set(override) - set(vals)
+        if unknown:
+            raise TypeError(f"LawParams has no field(s) {sorted(unknown)}")
+        vals.update(override)
+        return cls(**vals)
+
+
+class LawState(NamedTuple):
+    """A law's state in one or more episodes: named views of its own blocks (leading B axis)."""
+
+    x: np.ndarray  #: (B, nx) the law's float state (its blocks, in declaration order)
+    k: np.ndarray  #: (B, nk) the law's counters
+    unc: np.ndarray  #: (B,) theta's remaining uncertainty, fraction of the prior (NaN: no covariance)
+    blocks: dict[str, np.ndarray]  #: name -> (B, *shape) view into ``x``
+    counters: dict[str, np.ndarray]  #: name -> (B,) view into ``k``
+
+
+class LawView:
+    """What a law learned in one episode, read from *its own* state only: the summary's door into
+    a law (``Controller.law``). Laws without a covariance keep these defaults."""
+
+    has_covariance = False
+
+    def __init__(self, spec: "LawSpec", consts: np.ndarray, state: LawState, b: int = 0) -> None:
+        self.spec, self.name, self.consts, self.b = spec, spec.name, consts, b
+        self.blocks = {k: v[b] for k, v in state.blocks.items()}
+        self.counters = {k: v[b:b + 1] for k, v in state.counters.items()}
+        self._unc = state.unc[b:b + 1]
+
+    def identified_directions(self) -> int | None:
+        """How many directions of theta the controller acts on as identified; None: the law has no
+        notion of it (no covariance)."""
+        return None
+
+    def uncertainty_ratio(self) -> float:
+        """``sqrt(tr P / tr P0)``: theta's remaining uncertainty as a fraction of the prior (NaN
+        without a covariance)."""
+        return float(self._unc[0])
+
+    def information_sd(self) -> np.ndarray | None:
+        """Posterior standard deviation of each parameter (None without a covariance)."""
+        return None
+
+    def residual_rms(self) -> float:
+        """RMS of the W-scaled residual level the law measured in contact (NaN if it keeps none)."""
+        return math.nan
+
+    def identified_criterion(self) -> str:
+        """What "identified" means for this law, in words ('' without a covariance)."""
+        return ""
+
+
+def _no_blocks(m: int, p: int) -> tuple[tuple[str, tuple[int, ...]], ...]:
+    return ()
+
+
+def _no_consts(params: LawParams, m: int, p: int) -> np.ndarray:
+    return np.zeros(0)
+
+
+def reset_plain(consts: np.ndarray, state: LawState, carried: bool) -> None:
+    """The reset of a law without covariance: no uncertainty (NaN); state and counters zero
+    unless ``carried`` (the next insertion keeps what the law learned)."""
+    if not carried:
+        state.x[...] = 0.0
+        state.k[...] = 0
+    state.unc[...] = math.nan
+
+
+@dataclass(frozen=True)
+class LawSpec:
+    """One adaptation law: its name, its step and what the controller needs around it."""
+
+    name: str  #: the config's ``adaptation.mode`` value
+    doc: str  #: one line for help texts and docs tables
+    step: Callable  #: the numba step (module docstring, :data:`STEP_SIG`)
+    #: (params, m, p) -> the law's constants (nc,), passed to every step
+    constants: Callable[[LawParams, int, int], np.ndarray] = _no_consts
+    #: (m, p) -> ((name, shape), ...): the law's float state blocks, in the order ``step`` reads them
+    blocks: Callable[[int, int], tuple[tuple[str, tuple[int, ...]], ...]] = _no_blocks
+    counters: tuple[str, ...] = ()  #: names of the law's integer counters
+    #: (consts, state, carried) -> None: the start of an insertion (``carried``: the law's state of
+    #: the previous insertion of the same tool is in place; keep what it learned)
+    reset: Callable[[np.ndarray, LawState, bool], None] = reset_plain
+    view: type[LawView] = LawView  #: the summary's view of the law's state
+    _address: list = field(default_factory=list, repr=False, compare=False)
+
+    def sizes(self, m: int, p: int) -> tuple[int, int]:
+        """(nx, nk): the law's float state and counter sizes."""
+        return sum(int(np.prod(s)) for _, s in self.blocks(m, p)), len(self.counters)
+
+    def address(self) -> int:
+        """The native address of ``step`` compiled for :data:`STEP_SIG` in this process (compiled,
+        or loaded from numba's cache, on first use)."""
+        if not self._address:
+            self.step.compile(STEP_SIG)
+            self._address.append(_get_jit_address(self.step, STEP_SIG))
+        return self._address[0]
+
+
+def law_state(spec: LawSpec, x: np.ndarray, k: np.ndarray, unc: np.ndarray, m: int, p: int) -> LawState:
+    """Named views of a law's blocks in ``x`` (B, nx) and counters in ``k`` (B, nk)."""
+    B = x.shape[0]
+    blocks, o = {}, 0
+    for name, shape in spec.blocks(m, p):
+        size = int(np.prod(shape))
+        blocks[name] = x[:, o:o + size].reshape((B, *shape))
+        o += size
+    counters = {name: k[:, i] for i, name in enumerate(spec.counters)}
+    return LawState(x, k, unc, blocks, counters)
+
+
+def registry(*specs: LawSpec) -> dict[str, LawSpec]:
+    """name -> LawSpec, refusing duplicate names."""
+    laws: dict[str, LawSpec] = {}
+    for s in specs:
+        if s.name in laws:
+            raise ValueError(f"two laws named {s.name!r}")
+        laws[s.name] = s
+    return laws
+
+
+def lookup(laws: dict[str, LawSpec], name: str) -> LawSpec:
+    """The law named ``name``; a ConfigError listing the registered laws otherwise."""
+    try:
+        return laws[name]
+    except KeyError:
+        raise ConfigError(f"adaptation mode {name!r} is not a registered law (choose from {', '.join(laws)})") from None
