@@ -410,6 +410,7 @@ class CellCfg(_Cfg):
     between: Literal["carry", "refit"] = "carry"  # between insertions: carry theta/P | refit theta on every logged insertion (measured data only)
     refit_channels: tuple[int, ...] = (1, 2)  # [-] channels of s the refit fits (0 d, 1-2 F_lat, 3-5 M); default: the lateral forces (docs/cell.md)
     refit_prior_weight: float = Field(1.0, gt=0.0, le=1e6)  # [-] the refit's prior information = this x P0^-1
+    refit_timing_sd_s: float = Field(0.0, ge=0.0, le=0.1)  # [s] > 0: the refit also estimates the F/T-vs-encoder timing offset (prior sd); 0 = off
 
     @field_validator("bores_w_m")
     @classmethod

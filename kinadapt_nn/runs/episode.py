@@ -61,7 +61,8 @@ def run_insertions(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
     if cfg.cell.between == "refit":
         from kinadapt_nn.runs.refit import Refit
 
-        refit = Refit(ctrl, cfg.cell.refit_channels, cfg.cell.refit_prior_weight)
+        refit = Refit(ctrl, cfg.cell.refit_channels, cfg.cell.refit_prior_weight,
+                      timing_sd_s=cfg.cell.refit_timing_sd_s)
     rows = []
     res = None
     for i in range(n):

@@ -20,6 +20,14 @@ passes) and n_eff = corr_s / decimate_s the samples per independent observation.
 does, the controller then acts on theta* only in the directions the data identified (posterior sd
 below ``act_sd_ratio`` x the prior's, in the prior's whitened coordinates); elsewhere the prior
 stays. Nothing here reads the truth: the trace's ``truth_*`` channels are never touched.
+
+``timing_sd_s > 0`` (``cell.refit_timing_sd_s``) adds one unknown shared by all insertions: the
+timing offset delta [s] between the F/T reading and the encoders, entering as one more column
+``W d/dt(s_dot_pred)`` (the controller's own filtered prediction, differentiated): the measured rate
+is modelled as the prediction delta seconds later, ``y ~ H theta + delta W d(s_dot_pred)/dt``, with
+the prior delta ~ N(0, timing_sd_s^2). On the simulated cell the measured F/T rate leads the
+encoders' prediction by about 0.75 ms (docs/cell.md): a bias proportional to the tip acceleration
+that the 12 neural directions otherwise absorb.
 """
 
 from __future__ import annotations
@@ -33,7 +41,8 @@ from kinadapt_nn.controller.laws import kalman
 class Refit:
     """Pooled refit of theta over a work cell's logged insertions (see the module docstring)."""
 
-    def __init__(self, ctrl: Controller, channels=(1, 2), prior_weight: float = 1.0, decimate_s: float = 0.01) -> None:
+    def __init__(self, ctrl: Controller, channels=(1, 2), prior_weight: float = 1.0, decimate_s: float = 0.01,
+                 timing_sd_s: float = 0.0) -> None:
         self.ctrl = ctrl
         ad = ctrl.known.adaptation
         self.P0 = np.asarray(prior_cov_of(ctrl.features), dtype=float)
@@ -47,7 +56,17 @@ class Refit:
         self.r_floor = float(ad.resid_floor_w)
         self.channels = np.asarray(channels, dtype=int)
         self.prior_weight = float(prior_weight)
-        self.data: list[tuple[np.ndarray, np.ndarray]] = []  # per insertion: H (N, m, p), y (N, m)
+        self.data: list[tuple[np.ndarray, np.ndarray]] = []  # per insertion: H (N, m, p[+1]), y (N, m)
+        # the sensor timing offset (F/T against encoders) as one more unknown, prior N(0, sd^2)
+        self.timing_sd_s = float(timing_sd_s)
+        p = len(self.theta_prior)
+        self._prior_a = np.r_[self.theta_prior, 0.0] if self.timing_sd_s > 0 else self.theta_prior
+        self._P0inv_a = self.prior_weight * self._P0inv
+        if self.timing_sd_s > 0:
+            self._P0inv_a = np.zeros((p + 1, p + 1))
+            self._P0inv_a[:p, :p] = self.prior_weight * self._P0inv
+            self._P0inv_a[p, p] = 1.0 / self.timing_sd_s**2
+        self.timing_s = 0.0  #: [s] the estimated lead of the F/T rate over the encoders' prediction
 
     def add(self, trace) -> int:
         """Keep one insertion's contact samples (``trace`` from ``run_episode(keep_regressor=True)``;
@@ -60,19 +79,25 @@ class Refit:
         W = self.ctrl.W
         H = PhiT[on].transpose(0, 2, 1) * W[None, :, None]  # (N, m, p)
         y = trace["eps_w"][on] + np.einsum("kmp,kp->km", H, trace["theta"][on])
+        if self.timing_sd_s > 0:  # d/dt of the controller's own prediction: the timing offset's column
+            g = np.gradient(trace["s_dot_pred"], dt, axis=0)[on] * W[None, :]
+            H = np.concatenate([H, g[:, :, None]], axis=2)
         H, y = H[:, self.channels], y[:, self.channels]
         ok = np.all(np.isfinite(y), axis=1) & np.all(np.isfinite(H), axis=(1, 2))
         self.data.append((H[ok], y[ok]))
         return int(ok.sum())
 
-    def solve(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The pooled estimate. -> (theta* (p,), P* (p, p), the theta the controller acts on (p,))."""
+    def solve(self, data=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The pooled estimate on ``data`` (default: every insertion kept). -> (theta* (p,),
+        P* (p, p), the theta the controller acts on (p,))."""
+        data = self.data if data is None else data
         p = len(self.theta_prior)
-        theta = self.theta_prior.copy()
+        prior = self._prior_a
+        theta = prior.copy()
         for _ in range(3):  # residual levels at the current solution
-            Lam = self.prior_weight * self._P0inv
-            eta = np.zeros(p)
-            for H, y in self.data:
+            Lam = self._P0inv_a.copy()
+            eta = np.zeros(len(prior))
+            for H, y in data:
                 if not len(y):
                     continue
                 r = y - np.einsum("kmp,p->km", H, theta)
@@ -80,10 +105,13 @@ class Refit:
                 w = 1.0 / (R * self.n_eff)
                 Hw = H * w[None, :, None]
                 Lam += np.einsum("kmp,kmq->pq", Hw, H)
-                eta += np.einsum("kmp,km->p", Hw, y - np.einsum("kmp,p->km", H, self.theta_prior))
-            theta = self.theta_prior + np.linalg.solve(Lam, eta)
+                eta += np.einsum("kmp,km->p", Hw, y - np.einsum("kmp,p->km", H, prior))
+            theta = prior + np.linalg.solve(Lam, eta)
         P = np.linalg.inv(Lam)
         P = 0.5 * (P + P.T)
+        if len(theta) > p:  # the timing offset: kept for the report; theta's marginal covariance
+            self.timing_s = float(theta[p])
+            theta, P = theta[:p], np.ascontiguousarray(P[:p, :p])
         lo, hi = self.ctrl.consts.pv[0], self.ctrl.consts.pv[1]
         theta = np.clip(theta, lo, hi)  # Proj_Omega, as the law
         return theta, P, self.theta_prior + self._identified(P) @ (theta - self.theta_prior)
@@ -109,4 +137,7 @@ class Refit:
             law.blocks["theta_prior"][0] = self.theta_prior  # the refit's prior is the law's
             law.counters["kf_init"][0] = 1
         ident = int(round(float(np.trace(self._identified(P)))))
-        return {"samples": n, "insertions_pooled": len(self.data), "identified": ident}
+        row = {"samples": n, "insertions_pooled": len(self.data), "identified": ident}
+        if self.timing_sd_s > 0:
+            row["timing_offset_s"] = self.timing_s
+        return row

@@ -117,6 +117,53 @@ def test_refit_is_the_stacked_least_squares_solution():
     assert np.all(np.linalg.eigvalsh(P) > 0)
 
 
+class _Trace:
+    """The few trace channels Refit.add reads (a logged insertion, controller side only)."""
+
+    def __init__(self, arrays: dict, dt: float) -> None:
+        self.arrays, self.meta = arrays, {"dt_s": dt}
+
+    def __getitem__(self, k: str) -> np.ndarray:
+        return self.arrays[k]
+
+
+def test_refit_recovers_a_sensor_timing_offset():
+    """The measured rate is the prediction 0.7 ms later (an F/T reading that leads the encoders; to
+    first order, the refit's own model of it):
+    with the timing unknown the refit recovers both the offset and theta; without it, theta is
+    pulled away by the acceleration-shaped residual."""
+    cfg = load_config(None, [BORES, "cell.heldout_per_bore=1"])
+    ctrl = make_controller(cfg)
+    dt, N, m, p = 1e-3, 4000, 6, 3
+    t = np.arange(N) * dt
+    rng = np.random.default_rng(1)
+    freqs = rng.uniform(10.0, 25.0, size=(p, m, 2))
+
+    def phi(tt):  # (N, p, m): smooth regressor rows, 10-25 Hz (the admittance loop's band in contact)
+        return 30.0 * np.sin(2 * np.pi * freqs[None, :, :, 0] * tt[:, None, None]) \
+            + 20.0 * np.cos(2 * np.pi * freqs[None, :, :, 1] * tt[:, None, None])
+
+    th_used = ctrl.theta0.copy()
+    th_true = th_used + np.array([0.002, -0.001, 0.003])
+    delta = 0.7e-3
+    W = ctrl.W
+    h = 1e-6  # the measured rate = the true prediction delta later, to first order in delta
+    pred_true_later = np.einsum("kpm,p->km", phi(t) + delta * (phi(t + h) - phi(t - h)) / (2 * h), th_true)
+    s_dot_pred = np.einsum("kpm,p->km", phi(t), th_used)
+    arrays = {"law_Phi_fT": phi(t), "adapt_gate": np.ones(N), "drive_scale": np.ones(N), "theta": np.tile(th_used, (N, 1)),
+              "eps_w": W * (pred_true_later - s_dot_pred), "s_dot_pred": s_dot_pred}
+    fits = {}
+    for sd in (0.0, 0.005):
+        rf = Refit(ctrl, channels=(1, 2), prior_weight=1e-6, timing_sd_s=sd, decimate_s=dt)
+        rf.add(_Trace(dict(arrays), dt))
+        fits[sd] = (rf.solve()[0], rf.timing_s)
+    theta_t, timing = fits[0.005]
+    assert abs(timing - delta) < 0.05 * delta
+    err_with = np.linalg.norm(theta_t - th_true)
+    err_without = np.linalg.norm(fits[0.0][0] - th_true)
+    assert err_with < 0.1 * err_without
+
+
 def test_sample_cell_with_one_path_is_sample_workspace_bit_for_bit():
     """The default pretraining data (one bore) are unchanged by the work-cell sampling."""
     from kinadapt_nn.sim.workspace import sample_cell, sample_workspace
