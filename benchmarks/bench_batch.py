@@ -1,10 +1,13 @@
 """Batched simulation throughput: >= 256 randomised-tool episodes stepped together.
 
 Prints as its last line
-    sim_steps_per_s=<a> episodes_per_s=<b> raw_physics_sim_steps_per_s=<c>
+    sim_steps_per_s=<a> episodes_per_s=<b> raw_physics_sim_steps_per_s=<c> ratio_median=<r> ratio_spread=<s>
 where ``c`` is the same batch (same models, same split over processes, one thread each) stepped
-without the controller in the same run, replaying the controlled run's servo set-points so the
-contacts are alike. Target: a / c >= 0.6. Also checks a sample of episodes against the
+without the controller, replaying the controlled run's servo set-points so the contacts are alike.
+The two are timed in ``--rounds`` alternating rounds in the same processes (controlled, raw,
+controlled, raw, ...), so a shared machine's load falls on both alike; ``r`` is the median over
+rounds of raw wall / controlled wall (= a / c), ``s`` the spread (max - min) of the per-round
+ratios, and ``a``, ``c`` are the medians. Target: a / c >= 0.6. Also checks a sample of episodes against the
 single-episode path (success, seat time): the batch runs the same kernels, so they agree.
 Usage: python benchmarks/bench_batch.py [--episodes 256] [--processes 2] [--check 8] [--set key=value]
 """
@@ -40,17 +43,24 @@ def raw_physics(cfgs, ctrl_log: np.ndarray, steps: np.ndarray) -> float:
     return time.perf_counter() - t0
 
 
-def _chunk(cfgs):
-    res = run_batch(cfgs, nthread=1, record_ctrl=True)
-    steps = np.array([s["steps"] for s in res.summaries])
-    raw = raw_physics(cfgs, res.ctrl_log, steps)
-    return res._replace(ctrl_log=None), raw
+def _chunk(job):
+    """``rounds`` alternating (controlled, raw) timings of one process's share. -> (the last
+    controlled result, [controlled loop wall], [raw wall])."""
+    cfgs, rounds = job
+    walls, raws = [], []
+    for _ in range(rounds):
+        res = run_batch(cfgs, nthread=1, record_ctrl=True)
+        steps = np.array([s["steps"] for s in res.summaries])
+        walls.append(res.wall_s)
+        raws.append(raw_physics(cfgs, res.ctrl_log, steps))
+    return res._replace(ctrl_log=None), walls, raws
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--episodes", type=int, default=256)
     ap.add_argument("--processes", type=int, default=2, help="one single-threaded batch per process")
+    ap.add_argument("--rounds", type=int, default=5, help="alternating controlled/raw timing rounds")
     ap.add_argument("--check", type=int, default=8, help="episodes re-run on the single path for comparison")
     ap.add_argument("--set", action="append", default=[], help="config override key=value (e.g. adaptation.mode=composite)")
     a = ap.parse_args()
@@ -60,16 +70,19 @@ def main() -> None:
     cfgs = [load_config(None, [*base, *tool_overrides(sw, s), f"run.seed={s}"]) for s in range(a.episodes)]
     chunks = [cfgs[i::a.processes] for i in range(a.processes) if cfgs[i::a.processes]]
     with ProcessPoolExecutor(max_workers=len(chunks)) as ex:
-        parts = list(ex.map(_chunk, chunks))
-    summaries = [s for res, _ in parts for s in res.summaries]
-    sim_steps = sum(res.sim_steps for res, _ in parts)
-    wall = max(res.wall_s for res, _ in parts)
-    raw = max(r for _, r in parts)
+        parts = list(ex.map(_chunk, [(c, a.rounds) for c in chunks]))
+    summaries = [s for res, _, _ in parts for s in res.summaries]
+    sim_steps = sum(res.sim_steps for res, _, _ in parts)
+    walls = [max(w[r] for _, w, _ in parts) for r in range(a.rounds)]  # per round: the slower process
+    raws = [max(x[r] for _, _, x in parts) for r in range(a.rounds)]
+    ratios = [x / w for w, x in zip(walls, raws)]
+    wall, raw = float(np.median(walls)), float(np.median(raws))
     ok = sum(s["success"] for s in summaries)
     seats = np.array([s["seat_time_s"] for s in summaries if s["seat_time_s"] is not None])
     print(f"episodes={a.episodes} law={summaries[0]['law']} seated={ok} seat_time_median_s={np.median(seats):.3f} "
-          f"setup_s={max(r.setup_s for r, _ in parts):.1f} loop_wall_s={wall:.2f} raw_physics_wall_s={raw:.2f} "
+          f"setup_s={max(r.setup_s for r, _, _ in parts):.1f} loop_wall_s={wall:.2f} raw_physics_wall_s={raw:.2f} "
           f"sim_steps={sim_steps}")
+    print("per-round controlled / raw throughput ratio: " + " ".join(f"{r:.3f}" for r in ratios))
     by_seed = {s["seed"]: s for s in summaries}
     d_seat, same = [], 0
     for c in cfgs[: a.check]:
@@ -81,7 +94,8 @@ def main() -> None:
         print(f"single-path check: {same}/{a.check} same outcome, max |seat time difference| = "
               f"{max(d_seat) if d_seat else float('nan'):.4f} s")
     print(f"sim_steps_per_s={sim_steps / wall:.0f} episodes_per_s={a.episodes / wall:.2f} "
-          f"raw_physics_sim_steps_per_s={sim_steps / raw:.0f}")
+          f"raw_physics_sim_steps_per_s={sim_steps / raw:.0f} ratio_median={np.median(ratios):.3f} "
+          f"ratio_spread={max(ratios) - min(ratios):.3f}")
 
 
 if __name__ == "__main__":

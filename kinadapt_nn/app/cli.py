@@ -188,7 +188,7 @@ def cmd_online(args: argparse.Namespace) -> int:
         from kinadapt_nn.controller.core import kernels_cached
         from kinadapt_nn.runs.episode import run_insertions
 
-        if not args.quiet and not kernels_cached():
+        if not args.quiet and not cfg.run.progress and not kernels_cached():  # (with a bar: its own bar)
             print("kinadapt online: compiling the controller's kernels (the first run on this machine, ~35 s, once)",
                   file=sys.stderr, flush=True)
         result = run_insertions(cfg, progress=cfg.run.progress and not args.quiet)

@@ -376,6 +376,28 @@ class Controller:
         and call :meth:`advance_input` (no copies on the hot path)."""
         return self._inp[0]
 
+    def kernel_calls(self) -> list[tuple[str, object, tuple]]:
+        """The numba kernels one step of this controller calls: (name, dispatcher, arguments) each,
+        the arguments being this controller's own buffers (what :meth:`advance_input` passes)."""
+        st, cs, lay = self.state, self.consts, self.layout.arr
+        if self._fused:
+            return [("step", core.step_kernel, (0.0, self._inp, self.chain, self._p_O, self._R, self._J, self._reg,
+                                                 self._ext_J, st.x, st.k, lay, cs.c, cs.mats, cs.pv, cs.lc, cs.law_fn,
+                                                 cs.seg, self._fx, self.out))]
+        return [("intake", core.intake_kernel, (self._inp, st.x, st.k, lay, cs.c)),
+                ("kinematics", core.fk_batch, (self.chain, self._inp, self._p_O, self._R, self._J)),
+                ("sense", core.sense_kernel, (0.0, self._inp, self._p_O, self._R, st.x, st.k, lay, cs.c, cs.mats,
+                                              self.out)),
+                ("act", core.act_kernel, (0.0, self._inp, self._p_O, self._R, self._J, self._reg, self._ext_J, st.x,
+                                          st.k, lay, cs.c, cs.mats, cs.pv, cs.lc, cs.law_fn, cs.seg, self._fx,
+                                          self.out))]
+
+    def compile_kernels(self, progress: bool = False) -> float:
+        """Compile (or load from numba's on-disk cache) every kernel :meth:`advance_input` will call,
+        so that the episode's first step does not carry the one-time compile. ``progress``: when the
+        cache is cold, show it as its own bar (``core.compile_bar``). -> wall seconds spent."""
+        return core.compile_calls(self.kernel_calls(), progress)
+
     def advance_input(self, t: float) -> None:
         """``advance`` on the sample already in :attr:`input_row`."""
         st, cs = self.state, self.consts

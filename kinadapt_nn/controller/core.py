@@ -773,6 +773,104 @@ def fk_batch(chain, inp, p_O, R, J):
         _fk(chain[:nbody], chain[nbody], inp[b], p_O[b], R[b], J[b])
 
 
+#: [s] the one-time compile of the fused step kernel, measured on the 2-core CI VM (bench_first_run.py);
+#: the estimate shown until this machine has measured its own (``compile_record``)
+COMPILE_ESTIMATE_S = 36.0
+
+
+def _compile_record_path():
+    """Where the last measured compile time is kept: numba's cache folder for this module
+    (``NUMBA_CACHE_DIR`` when set, else ``__pycache__`` beside this file, else numba's user-wide one)."""
+    from pathlib import Path
+
+    try:
+        return Path(step_kernel._cache._cache_path) / "kinadapt_compile_s.json"
+    except Exception:  # numba's cache internals moved: no record
+        return None
+
+
+def compile_record() -> float:
+    """[s] this machine's last measured compile of the kernels, else :data:`COMPILE_ESTIMATE_S`."""
+    import json
+
+    path = _compile_record_path()
+    try:
+        return float(json.loads(path.read_text())["seconds"])
+    except Exception:
+        return COMPILE_ESTIMATE_S
+
+
+_COMPILING = [False]  # a compile phase is open (nested phases add nothing)
+
+
+class compiling:
+    """Context manager: the one-time compile phase of a run (the law's step, built with the
+    controller, and the step kernels). With ``progress`` and a cold cache it is one bar in seconds
+    against the expected compile time (this machine's last measured one, else
+    :data:`COMPILE_ESTIMATE_S`) and, at the end, one line with the measured time, which is recorded
+    for the next estimate. A warm cache shows nothing."""
+
+    def __init__(self, progress: bool = False) -> None:
+        self.progress = progress
+        self.wall_s = 0.0
+
+    def __enter__(self) -> "compiling":
+        import threading
+        import time
+
+        self._outer = not _COMPILING[0]
+        self._cold = self._outer and not kernels_cached()
+        _COMPILING[0] = True
+        self._t0 = time.perf_counter()
+        self._stop = threading.Event()
+        self._bar = None
+        if self.progress and self._cold:
+            from tqdm import tqdm
+
+            bar = self._bar = tqdm(total=round(compile_record()), unit="s", leave=False,
+                                   desc="compiling the controller (first run only, cached after)",
+                                   bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed} of about {total} s")
+            t0, stop = self._t0, self._stop
+
+            def tick() -> None:
+                while not stop.wait(0.5):
+                    bar.n = min(round(time.perf_counter() - t0), bar.total)
+                    bar.refresh()
+
+            threading.Thread(target=tick, daemon=True).start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        import json
+        import sys
+        import time
+
+        self.wall_s = time.perf_counter() - self._t0
+        if not self._outer:
+            return
+        _COMPILING[0] = False
+        self._stop.set()
+        if self._bar is not None:
+            self._bar.close()
+        if self._cold and exc[0] is None:
+            try:
+                _compile_record_path().write_text(json.dumps({"seconds": round(self.wall_s, 2)}))
+            except Exception:  # a read-only cache location: the next estimate stays the default
+                pass
+            if self.progress:
+                print(f"compiled the controller's kernels in {self.wall_s:.0f} s (cached: later runs start at once)",
+                      file=sys.stderr, flush=True)
+
+
+def compile_calls(calls, progress: bool = False) -> float:
+    """Compile (or load from numba's cache) each ``(name, dispatcher, args)`` for the types of
+    ``args``, inside a :class:`compiling` phase. -> wall seconds."""
+    with compiling(progress) as phase:
+        for _name, fn, args in calls:
+            fn.compile(tuple(nb.typeof(a) for a in args))
+    return phase.wall_s
+
+
 def kernels_cached() -> bool:
     """True when the step kernel's compiled code is in numba's on-disk cache (the first run on a
     machine compiles it, ~35 s once); True also when that cannot be told (no message then)."""

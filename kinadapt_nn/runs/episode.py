@@ -18,6 +18,7 @@ import numpy as np
 
 from kinadapt_nn.config import ExperimentCfg, arm_mjcf_path
 from kinadapt_nn.controller.controller import Controller
+from kinadapt_nn.controller import core
 from kinadapt_nn.controller.core import RANK_GATE  # the paper's kinematic gate (1e-6)
 from kinadapt_nn.errors import SensorError
 from kinadapt_nn.sensing import CHANNEL_NAMES
@@ -54,7 +55,9 @@ def run_insertions(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
         return run_episode(cfg, progress)
     from kinadapt_nn.runs.cell import CellJacobianError
 
-    ctrl = make_controller(cfg)
+    with core.compiling(progress):  # a first run's one-time compile: its own bar
+        ctrl = make_controller(cfg)
+        ctrl.compile_kernels()
     cell = CellJacobianError(cfg, ctrl)
     cell_err = [cell.median(ctrl)]  # insertion 0: before the first
     refit = None
@@ -116,7 +119,10 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False, ctrl: Controller | N
     refit of theta needs)."""
     wall0 = time.perf_counter()
     sim = PegInHoleSim(cfg)
-    ctrl = make_controller(cfg) if ctrl is None else ctrl
+    if ctrl is None:
+        with core.compiling(progress):
+            ctrl = make_controller(cfg)
+            ctrl.compile_kernels()
     tcfg = sim.cfg  # the truth-side config (hidden effects folded in): evaluation only
     dt = cfg.run.dt_s
     n_steps = int(round(cfg.run.duration_s / dt))
@@ -129,6 +135,7 @@ def run_episode(cfg: ExperimentCfg, progress: bool = False, ctrl: Controller | N
     divergence_reason = None
     warn0 = int(sim.data.warning.number.sum())
     stop_at: float | None = None
+    ctrl.compile_kernels(progress)  # (compiled already, or a ctrl built elsewhere: not the episode's first step)
     bar = None
     if progress:
         from tqdm import tqdm

@@ -205,3 +205,25 @@ def test_neural_basis_in_the_kernel_equals_the_features():
     np.testing.assert_allclose(ctrl.state.Phi_fT[0], alpha * reg.Phi.T, rtol=1e-9, atol=1e-12)
     lam = rank_margin(ctrl.W, ctrl.features.jacobian(kin, th))
     assert ctrl.rank_margin_now() == pytest.approx(lam, rel=1e-8)
+
+
+@pytest.mark.parametrize("features", ["adjoint", "rbf"])
+def test_compile_kernels_covers_every_kernel_a_step_calls(features):
+    """``Controller.compile_kernels`` compiles exactly the specialisations the steps then use: after
+    it, a run of steps adds no new signature to any kernel (so the one-time compile is the
+    compile phase's, never the episode's first step)."""
+    from kinadapt_nn.config import load_config
+    from kinadapt_nn.runs.build import make_controller
+    from kinadapt_nn.sim.adapter import PegInHoleSim
+
+    cfg = load_config(None, [f"run.features={features}", "run.progress=false"])
+    ctrl = make_controller(cfg)
+    calls = ctrl.kernel_calls()
+    assert calls and all(hasattr(fn, "signatures") for _, fn, _ in calls)
+    ctrl.compile_kernels()
+    before = {name: len(fn.signatures) for name, fn, _ in calls}
+    sim = PegInHoleSim(cfg)
+    for k in range(5):
+        o = sim.sense()
+        ctrl.step(sim.time_s, o.q_rad, o.qdot_rad_s, o.wrench_raw_f)
+    assert {name: len(fn.signatures) for name, fn, _ in calls} == before

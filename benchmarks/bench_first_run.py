@@ -1,0 +1,64 @@
+"""The first ``kinadapt online`` on a machine (cold numba cache) against the same command warm.
+
+    python benchmarks/bench_first_run.py [--repeats 3] [--config FILE]
+
+In one run, each in a fresh subprocess with ``NUMBA_CACHE_DIR`` pointing at a new temporary
+folder (so the first run compiles every kernel it uses, as on a fresh clone, whatever this
+checkout's own ``__pycache__`` holds):
+  (a) cold: ``kinadapt online`` with the empty cache, process start to exit, and the compile
+      time it measured and recorded (``kinadapt_compile_s.json``);
+  (b) warm: the same command ``--repeats`` times on the cache (a) filled (median).
+Last line:
+    cold_s=<a> compile_s=<recorded> warm_s=<b> ratio=<a/b>
+Target (issue 22): ratio <= 4.
+
+The machine is shared and has 2 cores; timings vary by +-30 % between runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def _timed(cmd: list[str], env: dict) -> float:
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    wall = time.perf_counter() - t0
+    if proc.returncode not in (0, 1):  # 1: ran to the end, not seated
+        raise SystemExit(f"{' '.join(cmd)} failed (exit {proc.returncode}):\n{proc.stderr}")
+    return wall
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--config", help="an online config (default: the built-in defaults)")
+    args = ap.parse_args()
+    base = [sys.executable, "-m", "kinadapt_nn.app.cli"]  # what the ``kinadapt`` console script runs
+    with tempfile.TemporaryDirectory(prefix="bench-first-run-") as tmp:
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "numba"))
+
+        def online(k: str) -> float:
+            return _timed([*base, "online", "--out", str(Path(tmp) / k), "--quiet",
+                           *(["--config", args.config] if args.config else [])], env)
+
+        cold = online("cold")
+        rec = list(Path(tmp, "numba").rglob("kinadapt_compile_s.json"))
+        compile_s = json.loads(rec[0].read_text())["seconds"] if rec else float("nan")
+        warm = [online(f"warm{k}") for k in range(args.repeats)]
+    w = statistics.median(warm)
+    print(f"cold run (empty numba cache): {cold:.1f} s, of which the recorded compile {compile_s:.1f} s")
+    print("warm runs: " + ", ".join(f"{x:.2f}" for x in warm) + " s")
+    print(f"cold_s={cold:.2f} compile_s={compile_s:.2f} warm_s={w:.2f} ratio={cold / w:.2f}")
+
+
+if __name__ == "__main__":
+    main()
