@@ -97,8 +97,8 @@ def one(features: str, family: str, variant: str, n: int, extra: tuple[str, ...]
             chose.append(note["identified"])
         curve.append(cell.median(ctrl))
     rise = max(b / a - 1.0 for a, b in zip(curve[1:], curve[2:]))
-    extra = f"   timing offset {1e3 * rf.timing_s:+.2f} ms" if variant == "timing" else ""
     label = variant + "".join(" " + e for e in extra)
+    extra = f"   timing offset {1e3 * rf.timing_s:+.2f} ms" if variant == "timing" else ""
     print(f"{features:8s} {family:10s} {label:9s} {100 * curve[0]:.3f} % -> " + " ".join(f"{100 * e:.3f}" for e in curve[1:])
           + f" %   largest rise {100 * rise:+.1f} %   directions acted on {chose}{extra}   ({time.perf_counter() - t0:.0f} s)",
           flush=True)
