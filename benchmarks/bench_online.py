@@ -26,9 +26,10 @@ from pathlib import Path
 IMPORT_MNM = "import mujoco, numpy, matplotlib.pyplot"
 
 
-def _timed(cmd: list[str]) -> float:
+def _timed(cmd: list[str], env: dict | None = None) -> float:
+    """Wall seconds of ``cmd`` in a fresh process (``env``: its environment, default ours)."""
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True)
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
     wall = time.perf_counter() - t0
     if proc.returncode not in (0, 1):  # 1: ran to the end, not seated
         raise SystemExit(f"{' '.join(cmd)} failed (exit {proc.returncode}):\n{proc.stderr}")

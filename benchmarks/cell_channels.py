@@ -45,28 +45,28 @@ def _fit(data, th0, P0inv, ch, n_eff):
     return th
 
 
-def one(features: str, family: str, n: int) -> None:
+def cell_setup(features: str, family: str, extra=()):
+    """The work cell of ``online/cell.toml`` for the held-out tool above. -> (cfg, controller,
+    its CellJacobianError)."""
     from kinadapt_nn.config import load_config
     from kinadapt_nn.runs.build import make_controller
     from kinadapt_nn.runs.cell import CellJacobianError
-    from kinadapt_nn.runs.episode import run_episode
-    from kinadapt_nn.runs.refit import Refit
 
     cfg = load_config(None, ["run.progress=false", "scene.contact_model=socket", "control.dither_rad_s=[0.05,0.05,0.05]",
                              TOOL, CELL, f"run.features={features}", "features.neural_checkpoint=neural_cell.pt",
-                             *(ARM if family == "arm_errors" else [])])
+                             *(ARM if family == "arm_errors" else []), *extra])
     ctrl = make_controller(cfg)
-    cell = CellJacobianError(cfg, ctrl)
+    return cfg, ctrl, CellJacobianError(cfg, ctrl)
+
+
+def one(features: str, family: str, n: int) -> None:
+    from kinadapt_nn.runs.episode import run_insertion
+    from kinadapt_nn.runs.refit import Refit
+
+    cfg, ctrl, cell = cell_setup(features, family)
     rf = Refit(ctrl, channels=(0, 1, 2, 3, 4, 5))
-    bores = cfg.cell.bores(cfg.scene)
     for i in range(n):
-        b = cfg.cell.bore_of(i)
-        if i:
-            ctrl.reset(carry_estimate=True)
-        ctrl.set_bore(bores[b])
-        c = cfg.model_copy(update={"run": cfg.run.model_copy(update={"seed": i}),
-                                   "scene": cfg.scene.model_copy(update={"bore_entry_w_m": tuple(bores[b])})})
-        rf.add(run_episode(c, ctrl=ctrl, keep_regressor=True).trace)
+        rf.add(run_insertion(cfg, ctrl, i, keep_regressor=True).trace)
     th0, p = rf.theta_prior, len(rf.theta_prior)
     # the best theta the basis allows (truth side): J_hat is affine in theta for these features
     h = 1e-3 if features == "adjoint" else 1.0

@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from cell_channels import ARM, CELL, TOOL
+from cell_channels import cell_setup
 
 
 def _cv_rank(rf) -> int:
@@ -66,29 +66,15 @@ def _cv_rank(rf) -> int:
 
 
 def one(features: str, family: str, variant: str, n: int, extra: tuple[str, ...] = ()) -> None:
-    from kinadapt_nn.config import load_config
-    from kinadapt_nn.runs.build import make_controller
-    from kinadapt_nn.runs.cell import CellJacobianError
-    from kinadapt_nn.runs.episode import run_episode
+    from kinadapt_nn.runs.episode import run_insertion
     from kinadapt_nn.runs.refit import Refit
 
-    cfg = load_config(None, ["run.progress=false", "scene.contact_model=socket", "control.dither_rad_s=[0.05,0.05,0.05]",
-                             TOOL, CELL, f"run.features={features}", "features.neural_checkpoint=neural_cell.pt",
-                             *(ARM if family == "arm_errors" else []), *extra])
-    ctrl = make_controller(cfg)
-    cell = CellJacobianError(cfg, ctrl)
+    cfg, ctrl, cell = cell_setup(features, family, extra)
     rf = Refit(ctrl, channels=(1, 2), timing_sd_s=0.005 if variant == "timing" else 0.0)
-    bores = cfg.cell.bores(cfg.scene)
     curve, chose = [cell.median(ctrl)], []
     t0 = time.perf_counter()
     for i in range(n):
-        b = cfg.cell.bore_of(i)
-        if i:
-            ctrl.reset(carry_estimate=True)
-        ctrl.set_bore(bores[b])
-        c = cfg.model_copy(update={"run": cfg.run.model_copy(update={"seed": i}),
-                                   "scene": cfg.scene.model_copy(update={"bore_entry_w_m": tuple(bores[b])})})
-        note = rf.after_insertion(run_episode(c, ctrl=ctrl, keep_regressor=True).trace)
+        note = rf.after_insertion(run_insertion(cfg, ctrl, i, keep_regressor=True).trace)
         if variant == "cv":
             k, theta = _cv_rank(rf)
             ctrl.state.theta[0] = theta

@@ -231,6 +231,7 @@ class Controller:
         #: what the law learned, read from its own state (the summary's view; LawView)
         self.law = self.law_spec.view(self.law_spec, self.consts.lc, self._law_state, 0)
         self._fused = self.consts.c[core.FEAT] in (core.FEAT_ADJOINT, core.FEAT_NEURAL)  # one kernel call per step
+        self._kernels_ready = False  # compile_kernels done
         self._fx = feature_consts(features)
         self._observe = getattr(features, "observe", None)
         # -- kernel buffers (B = 1), allocated once
@@ -395,8 +396,13 @@ class Controller:
     def compile_kernels(self, progress: bool = False) -> float:
         """Compile (or load from numba's on-disk cache) every kernel :meth:`advance_input` will call,
         so that the episode's first step does not carry the one-time compile. ``progress``: when the
-        cache is cold, show it as its own bar (``core.compile_bar``). -> wall seconds spent."""
-        return core.compile_calls(self.kernel_calls(), progress)
+        cache is cold, show it as its own bar (``core.compiling``). Once per controller (a work
+        cell's later insertions skip it). -> wall seconds spent (0 when done before)."""
+        if self._kernels_ready:
+            return 0.0
+        wall = core.compile_calls(self.kernel_calls(), progress)
+        self._kernels_ready = True
+        return wall
 
     def advance_input(self, t: float) -> None:
         """``advance`` on the sample already in :attr:`input_row`."""

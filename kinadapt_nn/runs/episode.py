@@ -70,13 +70,7 @@ def run_insertions(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
     res = None
     for i in range(n):
         b = cfg.cell.bore_of(i)
-        scene_i = cfg.scene.model_copy(update={"bore_entry_w_m": tuple(bores[b])})
-        cfg_i = cfg.model_copy(update={"run": cfg.run.model_copy(update={"seed": (cfg.run.seed + i) % 2**32}),
-                                       "scene": scene_i})
-        if i:
-            ctrl.reset(carry_estimate=True)
-        ctrl.set_bore(bores[b])
-        res = run_episode(cfg_i, progress, ctrl=ctrl, keep_regressor=refit is not None)
+        res = run_insertion(cfg, ctrl, i, progress, keep_regressor=refit is not None)
         s = res.summary
         refit_note = None
         if refit is not None:
@@ -104,6 +98,20 @@ def run_insertions(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
         "all_seated": all(r["success"] for r in rows),
     }
     return res
+
+
+def run_insertion(cfg: ExperimentCfg, ctrl: Controller, i: int, progress: bool = False,
+                  keep_regressor: bool = False) -> EpisodeResult:
+    """Insertion ``i`` (0-based) of a work cell with the controller ``ctrl`` carried over: bore
+    ``cell.bore_of(i)``, seed ``run.seed + i``; theta and the law's state kept from insertion i - 1
+    (``reset(carry_estimate=True)``). ``keep_regressor`` as for :func:`run_episode`."""
+    bore = tuple(cfg.cell.bores(cfg.scene)[cfg.cell.bore_of(i)])
+    cfg_i = cfg.model_copy(update={"run": cfg.run.model_copy(update={"seed": (cfg.run.seed + i) % 2**32}),
+                                   "scene": cfg.scene.model_copy(update={"bore_entry_w_m": bore})})
+    if i:
+        ctrl.reset(carry_estimate=True)
+    ctrl.set_bore(bore)
+    return run_episode(cfg_i, progress, ctrl=ctrl, keep_regressor=keep_regressor)
 
 
 def _finite_or_none(x: float) -> float | None:
