@@ -132,9 +132,11 @@ def feature_consts(features: Features) -> np.ndarray:
     return core.neural_consts(features) if feature_kind(features) == core.FEAT_NEURAL else np.zeros(1)
 
 
-def core_consts(known: KnownCfg, features: Features) -> tuple[core.CoreConsts, LawSpec]:
+def core_consts(known: KnownCfg, features: Features, law_address: bool = True) -> tuple[core.CoreConsts, LawSpec]:
     """The kernels' constants from the known config and the features, for the law ``known.law``
-    (a registered law, ``controller.laws.LAWS``). -> (CoreConsts, the law's LawSpec)."""
+    (a registered law, ``controller.laws.LAWS``). ``law_address``: False leaves ``law_fn`` at 0
+    for the caller to set (``spec.address()``) before the first kernel call. -> (CoreConsts, the
+    law's LawSpec)."""
     c, sc, ad, dt = known.control, known.sensing, known.adaptation, known.dt_s
     n_axis = known.n_axis
     S = nominal_sensor_map(sc, n_axis)
@@ -187,7 +189,8 @@ def core_consts(known: KnownCfg, features: Features) -> tuple[core.CoreConsts, L
     seg = np.column_stack([np.cumsum(segs[:, 0]), segs[:, 1:]]) if len(segs) else np.zeros((0, 7))
     return core.CoreConsts(
         c=v, mats=np.stack([S, G]), pv=np.ascontiguousarray(np.stack([lo, hi, mask])),
-        lc=np.ascontiguousarray(lc, dtype=float), law_fn=np.array([spec.address()], dtype=np.int64),
+        lc=np.ascontiguousarray(lc, dtype=float),
+        law_fn=np.array([spec.address() if law_address else 0], dtype=np.int64),
         seg=np.ascontiguousarray(seg),
     ), spec
 
@@ -218,7 +221,7 @@ class Controller:
         self.P = lateral_projector(self.S, sc.stiffness_lat_N_per_m)  # (2, 3)
         self.W = channel_metric(sc)
         self.value_fn = ValueFunction(known)
-        self.consts, self.law_spec = core_consts(known, features)
+        self.consts, self.law_spec = core_consts(known, features, law_address=False)  # (compile_kernels)
         self.chain = core.arm_chain(self.kin.model, self.kin.site)  # the kernels' kinematics of the bare arm
         self.M_virt = self.consts.c[core.V_M:core.V_M + 6].copy()
         self.D_virt = self.consts.c[core.V_D:core.V_D + 6].copy()
@@ -230,7 +233,8 @@ class Controller:
         self._law_state = law_state(self.law_spec, st.law_x, st.law_k, st.unc, m, p)
         #: what the law learned, read from its own state (the summary's view; LawView)
         self.law = self.law_spec.view(self.law_spec, self.consts.lc, self._law_state, 0)
-        self._fused = self.consts.c[core.FEAT] in (core.FEAT_ADJOINT, core.FEAT_NEURAL)  # one kernel call per step
+        #: the fused step kernel (features computed in the kernel: one call per step), else None
+        self._fused = core.FUSED.get(int(self.consts.c[core.FEAT]))
         self._kernels_ready = False  # compile_kernels done
         self._fx = feature_consts(features)
         self._observe = getattr(features, "observe", None)
@@ -318,7 +322,7 @@ class Controller:
         """``lambda_min(W J_hat J_hat^T W)`` of the Jacobian the controller will use next (the
         current theta) at this step's configuration (the rank gate, every step). The adjoint's is
         computed in the kernel; other features evaluate ``features.jacobian`` here."""
-        if self._fused:
+        if self._fused is not None:
             return float(self.out[0, self._i_lam])
         kin = KinState(self._q.copy(), self._p_O[0], self._R[0], self._J[0])
         return rank_margin(self.W, self.features.jacobian(kin, self.theta))
@@ -381,17 +385,16 @@ class Controller:
         """The numba kernels one step of this controller calls: (name, dispatcher, arguments) each,
         the arguments being this controller's own buffers (what :meth:`advance_input` passes)."""
         st, cs, lay = self.state, self.consts, self.layout.arr
-        if self._fused:
-            return [("step", core.step_kernel, (0.0, self._inp, self.chain, self._p_O, self._R, self._J, self._reg,
-                                                 self._ext_J, st.x, st.k, lay, cs.c, cs.mats, cs.pv, cs.lc, cs.law_fn,
-                                                 cs.seg, self._fx, self.out))]
+        if self._fused is not None:
+            return [("step", self._fused, (0.0, self._inp, self.chain, self._p_O, self._R, self._J, self._reg, st.x,
+                                            st.k, lay, cs.c, cs.mats, cs.pv, cs.lc, cs.law_fn, cs.seg, self._fx,
+                                            self.out))]
         return [("intake", core.intake_kernel, (self._inp, st.x, st.k, lay, cs.c)),
                 ("kinematics", core.fk_batch, (self.chain, self._inp, self._p_O, self._R, self._J)),
                 ("sense", core.sense_kernel, (0.0, self._inp, self._p_O, self._R, st.x, st.k, lay, cs.c, cs.mats,
                                               self.out)),
                 ("act", core.act_kernel, (0.0, self._inp, self._p_O, self._R, self._J, self._reg, self._ext_J, st.x,
-                                          st.k, lay, cs.c, cs.mats, cs.pv, cs.lc, cs.law_fn, cs.seg, self._fx,
-                                          self.out))]
+                                          st.k, lay, cs.c, cs.mats, cs.pv, cs.lc, cs.law_fn, cs.seg, self.out))]
 
     def compile_kernels(self, progress: bool = False) -> float:
         """Compile (or load from numba's on-disk cache) every kernel :meth:`advance_input` will call,
@@ -400,16 +403,19 @@ class Controller:
         cell's later insertions skip it). -> wall seconds spent (0 when done before)."""
         if self._kernels_ready:
             return 0.0
-        wall = core.compile_calls(self.kernel_calls(), progress)
+        wall = core.compile_calls(self.kernel_calls(), progress, law=self.law_spec)
+        self.consts.law_fn[0] = self.law_spec.address()
         self._kernels_ready = True
         return wall
 
     def advance_input(self, t: float) -> None:
         """``advance`` on the sample already in :attr:`input_row`."""
+        if not self._kernels_ready:  # the kernels and the law's address, once
+            self.compile_kernels()
         st, cs = self.state, self.consts
-        if self._fused:  # intake, kinematics, sense, regressor, drive, admittance, law: one dispatch
-            core.step_kernel(t, self._inp, self.chain, self._p_O, self._R, self._J, self._reg, self._ext_J, st.x, st.k,
-                             self.layout.arr, cs.c, cs.mats, cs.pv, cs.lc, cs.law_fn, cs.seg, self._fx, self.out)
+        if self._fused is not None:  # intake, kinematics, sense, regressor, drive, admittance, law: one dispatch
+            self._fused(t, self._inp, self.chain, self._p_O, self._R, self._J, self._reg, st.x, st.k,
+                        self.layout.arr, cs.c, cs.mats, cs.pv, cs.lc, cs.law_fn, cs.seg, self._fx, self.out)
         else:
             core.intake_kernel(self._inp, st.x, st.k, self.layout.arr, cs.c)
             if not st.k[0, core.K_ERROR]:
@@ -443,7 +449,7 @@ class Controller:
                 cs.c[core.FEAT] = core.FEAT_JHAT
                 self._ext_J[0, :, :self.kin_n] = self.features.jacobian(kin, self.theta)
         core.act_kernel(t, self._inp, self._p_O, self._R, self._J, self._reg, self._ext_J, st.x, st.k, lay, cs.c,
-                        cs.mats, cs.pv, cs.lc, cs.law_fn, cs.seg, self._fx, self.out)
+                        cs.mats, cs.pv, cs.lc, cs.law_fn, cs.seg, self.out)
 
     def set_bore(self, bore_entry_w_m) -> None:
         """Aim at another KNOWN bore entrance (world, (3,) [m]): the next insertion of a work cell.

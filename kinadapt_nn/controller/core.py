@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from kinadapt_nn.controller.dense import chol, chol_solve, mm, mm_nt
+from kinadapt_nn.controller.dense import chol, chol_solve, mm, mm_nt, sym_eigmin, vcopy, vfill
 from kinadapt_nn.controller.laws.base import law_step_fn
 
 #: the paper's kinematic gate on lambda_min(W J_hat J_hat^T W) (Results, "A separate kinematic gate")
@@ -156,7 +156,7 @@ def _intake(b, inp, x, k, lay, c):
     k[b, K_HOLDING] = 0
     if math.isfinite(enc + wr):
         k[b, K_BAD_RUN] = 0
-        x[b, hd:hd + 2 * n + 6] = inp[b]
+        vcopy(x[b, hd:hd + 2 * n + 6], inp[b])
         k[b, K_HAVE_HELD] = 1
         return
     k[b, K_DROPOUTS] += 1
@@ -166,9 +166,9 @@ def _intake(b, inp, x, k, lay, c):
         return
     k[b, K_HOLDING] = 1
     if k[b, K_HAVE_HELD] == 1:
-        inp[b] = x[b, hd:hd + 2 * n + 6]
+        vcopy(inp[b], x[b, hd:hd + 2 * n + 6])
     else:  # the very first samples: valid encoders, no valid wrench yet -> zero wrench, no tare
-        inp[b, 2 * n:] = 0.0
+        vfill(inp[b, 2 * n:], 0.0)
 
 
 @nb.njit(cache=True)
@@ -178,20 +178,22 @@ def _sense(t, b, inp, p_O, R, x, k, lay, c, mats, out):
     q, wrench = inp[b, :n], inp[b, 2 * n:2 * n + 6]
     xs, o = x[b], out[b]
     if k[b, K_STARTED] == 0:  # the first sample: the joint reference and the posture start at q
-        xs[lay[X_QREF]:lay[X_QREF] + n] = q
-        xs[lay[X_QPOST]:lay[X_QPOST] + n] = q
+        vcopy(xs[lay[X_QREF]:lay[X_QREF] + n], q)
+        vcopy(xs[lay[X_QPOST]:lay[X_QPOST] + n], q)
         k[b, K_STARTED] = 1
     w_env = o[lay[O_WENV]:lay[O_WENV] + 6]
     tare = xs[lay[X_TARE]:lay[X_TARE] + 6]
     if t < c[T_SETTLE]:  # tare: average the free-space reading (tool weight) while holding still
         if t >= c[T_TARE0] and k[b, K_HOLDING] == 0:
-            xs[lay[X_TSUM]:lay[X_TSUM] + 6] += wrench
+            for i in range(6):
+                xs[lay[X_TSUM] + i] += wrench[i]
             k[b, K_TARE_N] += 1
         rho = 0.0
-        w_env[:] = 0.0
+        vfill(w_env, 0.0)
     else:
         if k[b, K_TARED] == 0:
-            tare[:] = xs[lay[X_TSUM]:lay[X_TSUM] + 6] / max(k[b, K_TARE_N], 1)
+            for i in range(6):
+                tare[i] = xs[lay[X_TSUM] + i] / max(k[b, K_TARE_N], 1)
             k[b, K_TARED] = 1
         rho = min(1.0, (t - c[T_SETTLE]) / c[RAMP]) if c[RAMP] > 0 else 1.0
         Rb = R[b]
@@ -303,21 +305,20 @@ def _excite_drive(t_rel, b, R, c, seg, drive):
 
 
 @nb.njit(cache=True)
-def _act(t, b, rho, inp, p_O, R, J, ext_J, x, k, lay, c, mats, seg, out):
-    """Rate filter, value force, drive, admittance and joint reference of episode b (after
-    ``_sense``; the drive reads theta before this step's law update)."""
+def _act_head(b, J, x, k, lay, c, out):
+    """Rate filter and value force of episode b (after ``_sense``), written to ``out``; returns
+    the Cholesky factor L (6, 6) of J J^T + damp I for :func:`_act_tail`."""
     n, m, p = lay[L_N], lay[L_M], lay[L_P]
     xs, o = x[b], out[b]
     filt = xs[lay[X_FILT]:lay[X_FILT] + (2 + p) * m].reshape((2 + p, m))
     s = o[lay[O_S]:lay[O_S] + m]
     sdm = o[lay[O_SDM]:lay[O_SDM] + m]
     F = o[lay[O_F]:lay[O_F] + m]
-    w_env = o[lay[O_WENV]:lay[O_WENV] + 6]
     theta = xs[lay[X_TH]:lay[X_TH] + p]
-    o[lay[O_TH]:lay[O_TH] + p] = theta
+    vcopy(o[lay[O_TH]:lay[O_TH] + p], theta)
     # -- the rate filter (sensing.RateFilter): s_dot_meas = (s - y) / (tau + dt); y += alpha (s - y)
     if k[b, K_PRIMED] == 0:
-        filt[0] = s
+        vcopy(filt[0], s)
         k[b, K_PRIMED] = 1
     for i in range(m):
         sdm[i] = (s[i] - filt[0, i]) * c[INV_TAU]  # s_dot_meas = (s - y) / (tau + dt)
@@ -337,30 +338,33 @@ def _act(t, b, rho, inp, p_O, R, J, ext_J, x, k, lay, c, mats, seg, out):
             Lc[i, j] = v
         Lc[i, i] += c[DAMP]
     chol(Lc, 6)
-    # -- the drive J_hat_xi^T F (eq. cp_admittance's drive)
-    drive = np.empty(6)
-    feat = int(c[FEAT])
-    if c[EXCITE] > 0.0:  # the scripted program replaces V's drive (control.program = "excite")
-        _excite_drive(t - c[T_SETTLE], b, R, c, seg, drive)
-    elif feat == FEAT_ADJOINT:
-        _adjoint_drive(b, R, theta, F, c, mats, drive)
-    elif feat == FEAT_TWIST:  # J_hat_xi (m, 6) from the features
+    return Lc
+
+
+@nb.njit(cache=True)
+def _ext_drive(b, J, Lc, ext_J, lay, c, out, drive):
+    """The drive J_hat_xi^T F from the features' ``ext_J`` (FEAT_TWIST: J_hat_xi (m, 6); else
+    J_hat (m, n): J_hat_xi^T F = (J J^T + damp)^-1 J J_hat^T F)."""
+    m = lay[L_M]
+    F = out[b, lay[O_F]:lay[O_F] + m]
+    if int(c[FEAT]) == FEAT_TWIST:
         for j in range(6):
             v = 0.0
             for i in range(m):
                 v += ext_J[b, i, j] * F[i]
             drive[j] = v
-    else:  # J_hat (m, n): J_hat_xi^T F = (J J^T + damp)^-1 J J_hat^T F
-        g = np.zeros(n)
-        for j in range(n):
-            for i in range(m):
-                g[j] += ext_J[b, i, j] * F[i]
-        for i in range(6):
-            v = 0.0
-            for j in range(n):
-                v += Jb[i, j] * g[j]
-            drive[i] = v
-        chol_solve(Lc, 6, drive)
+        return
+    _jhat_drive(b, J, Lc, ext_J[b], lay, out, drive)
+
+
+@nb.njit(cache=True)
+def _act_tail(t, b, rho, drive, Lc, inp, J, x, lay, c, out):
+    """eq. cp_admittance with the drive J_hat_xi^T F (read with theta before this step's law
+    update), the speed limits, the dither and the joint reference of episode b."""
+    n = lay[L_N]
+    xs, o = x[b], out[b]
+    w_env = o[lay[O_WENV]:lay[O_WENV] + 6]
+    Jb = J[b]
     # -- eq. cp_admittance: M (xi+ - xi)/dt + D xi+ = rho drive - w_env (implicit in the damping)
     xi = xs[lay[X_XI]:lay[X_XI] + 6]
     for i in range(6):
@@ -370,12 +374,14 @@ def _act(t, b, rho, inp, p_O, R, J, ext_J, x, k, lay, c, mats, seg, out):
             xi[i] = (c[V_M + i] * xi[i] + c[DT] * (rho * drive[i] - w_env[i])) * c[V_INVDEN + i]
     vn = math.sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2])
     if vn > c[V_MAX]:
-        xi[0:3] *= c[V_MAX] / vn
+        for i in range(3):
+            xi[i] *= c[V_MAX] / vn
     wn = math.sqrt(xi[3] * xi[3] + xi[4] * xi[4] + xi[5] * xi[5])
     if wn > c[W_MAX]:
-        xi[3:6] *= c[W_MAX] / wn
+        for i in range(3, 6):
+            xi[i] *= c[W_MAX] / wn
     xc = o[lay[O_XI]:lay[O_XI] + 6]
-    xc[:] = xi
+    vcopy(xc, xi)
     if c[DITHER_ON] > 0.0 and rho > 0.0:  # commanded excitation (Remark ft_excitation), not stored
         ph = c[TWO_PI_F] * (t - c[T_SETTLE])
         xc[3] += rho * c[V_DITHER] * math.sin(ph)
@@ -428,13 +434,13 @@ def _law(b, reg, x, k, lay, c, pv, lc, law_fn, out):
     sdm, F = o[lay[O_SDM]:lay[O_SDM] + m], o[lay[O_F]:lay[O_F] + m]
     pred, eps = o[lay[O_SDP]:lay[O_SDP] + m], o[lay[O_EPS]:lay[O_EPS] + m]
     d_track, d_pred = o[lay[O_DTR]:lay[O_DTR] + p], o[lay[O_DPR]:lay[O_DPR] + p]
-    d_track[:] = 0.0
-    d_pred[:] = 0.0
+    vfill(d_track, 0.0)
+    vfill(d_pred, 0.0)
     o[lay[O_GATE]] = 0.0
     o[lay[O_N2]] = 0.0
     if k[b, K_HOLDING] == 1:  # a held sample carries no new information: theta stays
-        pred[:] = sdm
-        eps[:] = 0.0
+        vcopy(pred, sdm)
+        vfill(eps, 0.0)
         return
     W = c[V_W:V_W + m]
     for i in range(m):  # eq. ft_pred: e = W (s_dot_meas - (known_f + Phi_f theta))
@@ -455,7 +461,9 @@ def _law(b, reg, x, k, lay, c, pv, lc, law_fn, out):
             Phi_wT[j, i] = Phi_fT[j, i] * W[i]
     G = mm_nt(Phi_wT, Phi_wT)  # (p, p) = (W Phi_f)^T (W Phi_f)
     gs = xs[lay[X_GRAM]:lay[X_GRAM] + p * p].reshape((p, p))
-    gs += G  # observability: <Phi^T Phi> over the contact phase
+    for i in range(p):  # observability: <Phi^T Phi> over the contact phase
+        for j in range(p):
+            gs[i, j] += G[i, j]
     k[b, K_GRAM_N] += 1
     lo, hi, mask = pv[0], pv[1], pv[2]
     PhiF = np.zeros(p)  # Phi_r^T F, on the realised (unfiltered) regressor, tracking rows only
@@ -508,28 +516,24 @@ def _neural_body(fx, q, n):
     x = np.empty(n)
     for j in range(n):
         x[j] = (q[j] - fx[5 + j]) * fx[5 + n + j]
-    W1 = fx[o:o + H * n].reshape((H, n))
-    o += H * n
-    h1 = np.tanh(_mv(W1, x) + fx[o:o + H])
-    o += H
-    W2 = fx[o:o + H * H].reshape((H, H))
-    o += H * H
-    h2 = np.tanh(_mv(W2, h1) + fx[o:o + H])
-    o += H
-    nout = 5 * n * K
-    W3 = fx[o:o + nout * H].reshape((nout, H))
-    o += nout * H
-    return (_mv(W3, h2) + fx[o:o + nout]).reshape((5, n, K))
+    h1 = _affine(fx, o, H, n, x, True)
+    o += H * n + H
+    h2 = _affine(fx, o, H, H, h1, True)
+    o += H * H + H
+    return _affine(fx, o, 5 * n * K, H, h2, False).reshape((5, n, K))
 
 
 @nb.njit(cache=True)
-def _mv(A, x):
-    y = np.empty(A.shape[0])
-    for i in range(A.shape[0]):
+def _affine(fx, o, rows, cols, x, squash):
+    """y = W x + b (tanh'd when ``squash``), W (rows, cols) then b (rows,) stored at fx[o:]."""
+    y = np.empty(rows)
+    ob = o + rows * cols
+    for i in range(rows):
         v = 0.0
-        for j in range(A.shape[1]):
-            v += A[i, j] * x[j]
-        y[i] = v
+        for j in range(cols):
+            v += fx[o + i * cols + j] * x[j]
+        v += fx[ob + i]
+        y[i] = math.tanh(v) if squash else v
     return y
 
 
@@ -575,7 +579,9 @@ def _adjoint_twist_jacobian(b, R, theta, c, mats):
     for i in range(3):
         a[i] = Rb[i, 0] * theta[0] + Rb[i, 1] * theta[1] + Rb[i, 2] * theta[2]
     l0, l1, l2 = _lever(b, R, c)
-    Jx = S.copy()  # S Ad(l) = [S_v, S_w - S_v [l]x]
+    Jx = np.empty((6, 6))  # S Ad(l) = [S_v, S_w - S_v [l]x]
+    for i in range(6):
+        vcopy(Jx[i], S[i])
     for i in range(6):
         if i == 0:
             v0, v1, v2, a0, a1, a2 = S[0, 0], S[0, 1], S[0, 2], l0, l1, l2
@@ -590,9 +596,10 @@ def _adjoint_twist_jacobian(b, R, theta, c, mats):
 @nb.njit(cache=True)
 def _rank_margin(b, Jh, c, out, lay):
     """lambda_min(W J_hat J_hat^T W) (the rank gate); with RANK_ON = 2 only the gate (Cholesky)."""
-    WJ = Jh.copy()
+    WJ = np.empty(Jh.shape)
     for i in range(6):
-        WJ[i] *= c[V_W + i]
+        for j in range(Jh.shape[1]):
+            WJ[i, j] = Jh[i, j] * c[V_W + i]
     G = mm_nt(WJ, WJ)
     if c[RANK_ON] == 2.0:  # gate only: lambda_min > gate  <=>  G - gate I is positive definite
         for i in range(6):
@@ -601,7 +608,7 @@ def _rank_margin(b, Jh, c, out, lay):
             out[b, lay[O_LAM]] = np.inf
             return
         G = mm_nt(WJ, WJ)
-    out[b, lay[O_LAM]] = np.linalg.eigvalsh(G)[0]
+    out[b, lay[O_LAM]] = sym_eigmin(G)
 
 
 # ================================================================================================
@@ -614,49 +621,111 @@ def sense_kernel(t, inp, p_O, R, x, k, lay, c, mats, out):
 
 
 @nb.njit(cache=True)
-def act_kernel(t, inp, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, lc, law_fn, seg, fx, out):
-    """The rest of the step after ``sense_kernel``, with the regressor rows ``reg`` (B, 1+p, m) =
-    [known; Phi^T] and ``ext_J`` (J_hat_xi or J_hat) from the features (the adjoint's and the
-    neural basis' are computed here; ``fx``: ``neural_consts``; ``lc``, ``law_fn``: the law's
-    constants and its step's address)."""
-    n, p = lay[L_N], lay[L_P]
-    feat = int(c[FEAT])
+def act_kernel(t, inp, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, lc, law_fn, seg, out):
+    """The rest of the step after ``sense_kernel`` for features computed in Python: the regressor
+    rows ``reg`` (B, 1+p, m) = [known; Phi^T] and ``ext_J`` (J_hat_xi: FEAT_TWIST, or J_hat:
+    FEAT_JHAT) (``lc``, ``law_fn``: the law's constants and its step's address)."""
     for b in range(inp.shape[0]):
         if k[b, K_ERROR] != 0 or k[b, K_DONE] != 0:  # diverged, or a batch episode that has stopped
             continue
-        if feat == FEAT_ADJOINT:
-            _adjoint_regressor(b, inp, R, J, lay, c, mats, reg[b, 0], reg[b, 1:])
-        elif feat == FEAT_NEURAL:  # Y(q) once per step: regressor, J_hat for the drive and the gate
-            Y = _neural_body(fx, inp[b, :n], n)
-            _neural_rows(b, inp, R, J, Y, lay, c, mats, fx, reg[b, 0], reg[b, 1:])
-            ext_J[b, :, :n] = _neural_jhat(b, R, J, Y, x[b, lay[X_TH]:lay[X_TH] + p], c, mats, fx)
         _filter_regressor(b, reg, x, lay, c)
         rho = out[b, lay[O_RHO]]
-        _act(t, b, rho, inp, p_O, R, J, ext_J, x, k, lay, c, mats, seg, out)
+        Lc = _act_head(b, J, x, k, lay, c, out)
+        drive = np.empty(6)
+        if c[EXCITE] > 0.0:  # the scripted program replaces V's drive (control.program = "excite")
+            _excite_drive(t - c[T_SETTLE], b, R, c, seg, drive)
+        else:
+            _ext_drive(b, J, Lc, ext_J, lay, c, out, drive)
+        _act_tail(t, b, rho, drive, Lc, inp, J, x, lay, c, out)
         _law(b, reg, x, k, lay, c, pv, lc, law_fn, out)
         out[b, lay[O_UNC]] = x[b, lay[X_UNC]]  # theta's remaining uncertainty (the law's; NaN: none)
-        if c[RANK_ON] > 0.0 and rho > 0.0:  # the rank gate on the next step's J_hat
-            if feat == FEAT_ADJOINT:
-                _rank_margin_adjoint(b, R, J, x, lay, c, mats, out)
-            elif feat == FEAT_NEURAL:
-                _rank_margin(b, _neural_jhat(b, R, J, Y, x[b, lay[X_TH]:lay[X_TH] + p], c, mats, fx), c, out, lay)
 
 
 @nb.njit(cache=True)
-def step_kernel(t, inp, chain, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, lc, law_fn, seg, fx, out):
-    """One whole period for B episodes with in-kernel features (adjoint, neural basis; one
-    dispatch): intake (dropout hold), forward kinematics of the bare arm, sense, regressor, act,
-    law, rank gate."""
+def _front(t, b, inp, chain, p_O, R, J, x, k, lay, c, mats, out):
+    """Intake (dropout hold), forward kinematics of the bare arm and sense of episode b; False
+    when it has diverged (nothing more this step)."""
+    if k[b, K_ERROR] == 0:
+        _intake(b, inp, x, k, lay, c)
+    if k[b, K_ERROR] != 0:
+        return False
     nbody = chain.shape[0] - 1
+    _fk(chain[:nbody], chain[nbody], inp[b], p_O[b], R[b], J[b])
+    _sense(t, b, inp, p_O, R, x, k, lay, c, mats, out)
+    return True
+
+
+@nb.njit(cache=True)
+def step_adjoint(t, inp, chain, p_O, R, J, reg, x, k, lay, c, mats, pv, lc, law_fn, seg, fx, out):
+    """One whole period for B episodes with the adjoint features (one dispatch): intake,
+    forward kinematics of the bare arm, sense, regressor, act, law, rank gate (``fx``: unused,
+    the fused kernels share one signature)."""
+    p = lay[L_P]
     for b in range(inp.shape[0]):
-        if k[b, K_DONE] != 0:  # a batch episode that has stopped
+        if k[b, K_DONE] != 0 or not _front(t, b, inp, chain, p_O, R, J, x, k, lay, c, mats, out):
             continue
-        if k[b, K_ERROR] == 0:
-            _intake(b, inp, x, k, lay, c)
-        if k[b, K_ERROR] == 0:
-            _fk(chain[:nbody], chain[nbody], inp[b], p_O[b], R[b], J[b])
-            _sense(t, b, inp, p_O, R, x, k, lay, c, mats, out)
-    act_kernel(t, inp, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, lc, law_fn, seg, fx, out)
+        _adjoint_regressor(b, inp, R, J, lay, c, mats, reg[b, 0], reg[b, 1:])
+        _filter_regressor(b, reg, x, lay, c)
+        rho = out[b, lay[O_RHO]]
+        Lc = _act_head(b, J, x, k, lay, c, out)
+        drive = np.empty(6)
+        if c[EXCITE] > 0.0:
+            _excite_drive(t - c[T_SETTLE], b, R, c, seg, drive)
+        else:
+            _adjoint_drive(b, R, x[b, lay[X_TH]:lay[X_TH] + p], out[b, lay[O_F]:lay[O_F] + 6], c, mats, drive)
+        _act_tail(t, b, rho, drive, Lc, inp, J, x, lay, c, out)
+        _law(b, reg, x, k, lay, c, pv, lc, law_fn, out)
+        out[b, lay[O_UNC]] = x[b, lay[X_UNC]]
+        if c[RANK_ON] > 0.0 and rho > 0.0:  # the rank gate on the next step's J_hat
+            _rank_margin_adjoint(b, R, J, x, lay, c, mats, out)
+
+
+@nb.njit(cache=True)
+def step_neural(t, inp, chain, p_O, R, J, reg, x, k, lay, c, mats, pv, lc, law_fn, seg, fx, out):
+    """``step_adjoint`` for the neural basis (``fx``: ``neural_consts``): Y(q) once per step for
+    the regressor, J_hat for the drive and the rank gate."""
+    n, m, p = lay[L_N], lay[L_M], lay[L_P]
+    for b in range(inp.shape[0]):
+        if k[b, K_DONE] != 0 or not _front(t, b, inp, chain, p_O, R, J, x, k, lay, c, mats, out):
+            continue
+        Y = _neural_body(fx, inp[b, :n], n)
+        _neural_rows(b, inp, R, J, Y, lay, c, mats, fx, reg[b, 0], reg[b, 1:])
+        Jh = _neural_jhat(b, R, J, Y, x[b, lay[X_TH]:lay[X_TH] + p], c, mats, fx)
+        _filter_regressor(b, reg, x, lay, c)
+        rho = out[b, lay[O_RHO]]
+        Lc = _act_head(b, J, x, k, lay, c, out)
+        drive = np.empty(6)
+        if c[EXCITE] > 0.0:
+            _excite_drive(t - c[T_SETTLE], b, R, c, seg, drive)
+        else:  # J_hat (m, n): J_hat_xi^T F = (J J^T + damp)^-1 J J_hat^T F
+            _jhat_drive(b, J, Lc, Jh, lay, out, drive)
+        _act_tail(t, b, rho, drive, Lc, inp, J, x, lay, c, out)
+        _law(b, reg, x, k, lay, c, pv, lc, law_fn, out)
+        out[b, lay[O_UNC]] = x[b, lay[X_UNC]]
+        if c[RANK_ON] > 0.0 and rho > 0.0:
+            _rank_margin(b, _neural_jhat(b, R, J, Y, x[b, lay[X_TH]:lay[X_TH] + p], c, mats, fx), c, out, lay)
+
+
+#: the fused step kernel of each in-kernel features kind (FEAT_ADJOINT, FEAT_NEURAL); each compiles
+#: only its own features' code, on first use
+FUSED = {FEAT_ADJOINT: step_adjoint, FEAT_NEURAL: step_neural}
+
+
+@nb.njit(cache=True)
+def _jhat_drive(b, J, Lc, Jh, lay, out, drive):
+    """J_hat_xi^T F = (J J^T + damp)^-1 J J_hat^T F for J_hat (m, n)."""
+    n, m = lay[L_N], lay[L_M]
+    F = out[b, lay[O_F]:lay[O_F] + m]
+    g = np.zeros(n)
+    for j in range(n):
+        for i in range(m):
+            g[j] += Jh[i, j] * F[i]
+    for i in range(6):
+        v = 0.0
+        for j in range(n):
+            v += J[b, i, j] * g[j]
+        drive[i] = v
+    chol_solve(Lc, 6, drive)
 
 
 # ================================================================================================
@@ -743,12 +812,13 @@ def _fk(chain, site, q, p_O, R, J):
             sh = math.sin(half)
             ql[0], ql[1], ql[2], ql[3] = math.cos(half), chain[i, 12] * sh, chain[i, 13] * sh, chain[i, 14] * sh
             _quat_mul(xquat[i], ql, tmp)
-            xquat[i] = tmp
+            vcopy(xquat[i], tmp)
             _quat_mat(xquat[i], M)
             for r in range(3):  # off-centre rotation: the anchor stays put
                 xpos[i, r] = anchors[adr, r] - (M[r, 0] * chain[i, 9] + M[r, 1] * chain[i, 10] + M[r, 2] * chain[i, 11])
         nrm = math.sqrt(xquat[i, 0] ** 2 + xquat[i, 1] ** 2 + xquat[i, 2] ** 2 + xquat[i, 3] ** 2)
-        xquat[i] /= nrm
+        for r in range(4):
+            xquat[i, r] /= nrm
     sb = int(site[0])
     _quat_mat(xquat[sb], M)
     for r in range(3):
@@ -784,7 +854,7 @@ def _compile_record_path():
     from pathlib import Path
 
     try:
-        return Path(step_kernel._cache._cache_path) / "kinadapt_compile_s.json"
+        return Path(step_adjoint._cache._cache_path) / "kinadapt_compile_s.json"
     except Exception:  # numba's cache internals moved: no record
         return None
 
@@ -862,12 +932,21 @@ class compiling:
                       file=sys.stderr, flush=True)
 
 
-def compile_calls(calls, progress: bool = False) -> float:
+def compile_calls(calls, progress: bool = False, law=None) -> float:
     """Compile (or load from numba's cache) each ``(name, dispatcher, args)`` for the types of
-    ``args``, inside a :class:`compiling` phase. -> wall seconds."""
+    ``args``, inside a :class:`compiling` phase; ``law`` (a ``LawSpec``): its step too, in a
+    second process at the same time when it is not cached (``LawSpec.compile_aside``), loaded
+    here after. -> wall seconds."""
     with compiling(progress) as phase:
-        for _name, fn, args in calls:
-            fn.compile(tuple(nb.typeof(a) for a in args))
+        aside = law.compile_aside() if law is not None else None
+        try:
+            for _name, fn, args in calls:
+                fn.compile(tuple(nb.typeof(a) for a in args))
+        finally:
+            if aside is not None:
+                aside.wait()
+        if law is not None:
+            law.address()  # (from the cache the second process wrote; compiled here if it failed)
     return phase.wall_s
 
 
@@ -875,6 +954,6 @@ def kernels_cached() -> bool:
     """True when the step kernel's compiled code is in numba's on-disk cache (the first run on a
     machine compiles it, ~35 s once); True also when that cannot be told (no message then)."""
     try:  # the index is empty when missing or written for another version of this source file
-        return bool(step_kernel._cache._cache_file._load_index())
+        return bool(step_adjoint._cache._cache_file._load_index())
     except Exception:  # numba's cache internals moved: say nothing
         return True

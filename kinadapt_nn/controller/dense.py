@@ -72,3 +72,59 @@ def mm_nt(A, B):
                 v += A[i, r] * B[j, r]
             out[i, j] = v
     return out
+
+
+# slice assignment and array arithmetic compile to numba's broadcasting machinery (seconds of
+# compile per layout); the kernels copy and fill by these loops instead
+@nb.njit(cache=True)
+def vcopy(dst, src):
+    """dst[i] = src[i] (1-D, same length)."""
+    for i in range(dst.shape[0]):
+        dst[i] = src[i]
+
+
+@nb.njit(cache=True)
+def vfill(dst, v):
+    """dst[i] = v (1-D)."""
+    for i in range(dst.shape[0]):
+        dst[i] = v
+
+
+@nb.njit(cache=True)
+def sym_eigmin(G):
+    """The smallest eigenvalue of the symmetric G (k, k) by cyclic Jacobi rotations on a copy
+    (small k: the 6x6 rank-gate Gram; converged to ~1e-15 relative to ||G||, at most 50 sweeps)."""
+    k = G.shape[0]
+    A = np.empty((k, k))
+    for i in range(k):
+        for j in range(k):
+            A[i, j] = G[i, j]
+    for _sweep in range(50):
+        off, scale = 0.0, 0.0
+        for i in range(k):
+            scale += A[i, i] * A[i, i]
+            for j in range(i + 1, k):
+                off += A[i, j] * A[i, j]
+        if off <= 1e-32 * scale or off == 0.0:
+            break
+        for pp in range(k - 1):
+            for q in range(pp + 1, k):
+                apq = A[pp, q]
+                if apq == 0.0:
+                    continue
+                tau = (A[q, q] - A[pp, pp]) / (2.0 * apq)  # the rotation that zeroes A[p, q]
+                t = (1.0 if tau >= 0.0 else -1.0) / (abs(tau) + math.sqrt(1.0 + tau * tau))
+                cs = 1.0 / math.sqrt(1.0 + t * t)
+                sn = t * cs
+                for r in range(k):  # A <- A J (columns p, q)
+                    arp, arq = A[r, pp], A[r, q]
+                    A[r, pp] = cs * arp - sn * arq
+                    A[r, q] = sn * arp + cs * arq
+                for r in range(k):  # A <- J^T A (rows p, q)
+                    apr, aqr = A[pp, r], A[q, r]
+                    A[pp, r] = cs * apr - sn * aqr
+                    A[q, r] = sn * apr + cs * aqr
+    lam = A[0, 0]
+    for i in range(1, k):
+        lam = min(lam, A[i, i])
+    return lam

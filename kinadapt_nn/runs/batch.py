@@ -135,7 +135,7 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
     st = core.ControllerState(lay, B)
     st.theta[:] = theta0
     law.reset(cs.lc, law_state(law, st.law_x, st.law_k, st.unc, m, p), False)
-    fused = cs.c[core.FEAT] in (core.FEAT_ADJOINT, core.FEAT_NEURAL)  # features computed in the kernel
+    fused = core.FUSED.get(int(cs.c[core.FEAT]))  # the step kernel of features computed in the kernel
     fx = feature_consts(feats)
     cs.c[core.RANK_ON] = 2.0  # the rank gate every step as a Cholesky test; lambda_min itself only on a breach
     inp = np.zeros((B, 2 * n + 6))
@@ -162,7 +162,7 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
     ctrl_log = np.zeros((n_steps, B, n)) if record_ctrl else None
     peaks = np.zeros((B, 3))  # max |f_env|, max |F_lat|, max |m_env| while the drive is on
     lim = np.array([d_seat, su.max_lateral_force_N, su.max_moment_Nm, su.hold_s, c0.run.stop_after_seat_s,
-                    1.0 if fused else 0.0])
+                    1.0 if fused is not None else 0.0])
     i_s, i_w = lay.out_blocks["s"][0], lay.out_blocks["w_env"][0]
     qadr, vadr = np.ascontiguousarray(ids.qpos_adr), np.ascontiguousarray(ids.dof_adr)
     sim_steps = 0
@@ -173,9 +173,9 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
     k = 0
     for k in range(n_steps):
         _gather(qpos, qvel, sensordata, qadr, vadr, f_adr, inp)
-        if fused:
-            core.step_kernel(t, inp, chain, p_O, R, J, reg, ext_J, st.x, st.k, lay.arr, cs.c, cs.mats, cs.pv, cs.lc,
-                             cs.law_fn, cs.seg, fx, out)
+        if fused is not None:
+            fused(t, inp, chain, p_O, R, J, reg, st.x, st.k, lay.arr, cs.c, cs.mats, cs.pv, cs.lc, cs.law_fn, cs.seg,
+                  fx, out)
         else:
             core.intake_kernel(inp, st.x, st.k, lay.arr, cs.c)
             core.fk_batch(chain, inp, p_O, R, J)
@@ -192,7 +192,7 @@ def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = F
                     cs.c[core.FEAT] = core.FEAT_JHAT
                     ext_J[b, :, :n] = feats.jacobian(kin, st.theta[b])
             core.act_kernel(t, inp, p_O, R, J, reg, ext_J, st.x, st.k, lay.arr, cs.c, cs.mats, cs.pv, cs.lc,
-                            cs.law_fn, cs.seg, fx, out)
+                            cs.law_fn, cs.seg, out)
         err = st.k[:, core.K_ERROR] != 0  # a dropout longer than max_dropout_s: divergence
         if err.any():
             diverged |= err & active

@@ -207,7 +207,7 @@ def test_neural_basis_in_the_kernel_equals_the_features():
     assert ctrl.rank_margin_now() == pytest.approx(lam, rel=1e-8)
 
 
-@pytest.mark.parametrize("features", ["adjoint", "rbf"])
+@pytest.mark.parametrize("features", ["adjoint", "neural", "rbf"])
 def test_compile_kernels_covers_every_kernel_a_step_calls(features):
     """``Controller.compile_kernels`` compiles exactly the specialisations the steps then use: after
     it, a run of steps adds no new signature to any kernel (so the one-time compile is the
@@ -227,3 +227,16 @@ def test_compile_kernels_covers_every_kernel_a_step_calls(features):
         o = sim.sense()
         ctrl.step(sim.time_s, o.q_rad, o.qdot_rad_s, o.wrench_raw_f)
     assert {name: len(fn.signatures) for name, fn, _ in calls} == before
+
+
+def test_sym_eigmin_matches_lapack():
+    """The rank gate's smallest eigenvalue (cyclic Jacobi, ``dense.sym_eigmin``) against LAPACK on
+    random 6x6 Grams of every scale, rank-deficient ones and indefinite ones included."""
+    from kinadapt_nn.controller.dense import sym_eigmin
+
+    rng = np.random.default_rng(0)
+    for k in range(300):
+        A = rng.normal(size=(6, 4 if k % 4 == 0 else 7)) * 10.0 ** rng.uniform(-4, 2, size=(6, 1))
+        G = A @ A.T + (np.diag(rng.normal(size=6)) if k % 3 == 0 else 0.0)
+        ref = np.linalg.eigvalsh(G)[0]
+        assert abs(sym_eigmin(G) - ref) <= 1e-13 * np.linalg.norm(G, 2)

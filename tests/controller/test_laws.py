@@ -83,7 +83,7 @@ def test_a_law_registered_in_a_test_module_runs_through_the_controller(sign_lms)
     wrench = np.array([3.0, -2.0, -6.0, 0.2, -0.1, 0.05])  # in contact: the gate opens
     t = cfg.start.settle_s + 1.0
     Controller(KnownCfg.of(cfg), feats, theta0).step(t, q, qdot, wrench)  # a built-in law compiles the kernel
-    n_kernels = len(core.step_kernel.signatures)
+    n_kernels = len(core.step_adjoint.signatures)
     ctrl = Controller(replace(KnownCfg.of(cfg), law="sign_lms"), feats, theta0)
     assert ctrl.layout.law_nx == 3 and ctrl.layout.law_nk == 1
     theta = theta0 + np.array([0.004, -0.003, 0.002])
@@ -97,7 +97,7 @@ def test_a_law_registered_in_a_test_module_runs_through_the_controller(sign_lms)
     np.testing.assert_allclose(ctrl.theta, theta + step, rtol=1e-15)
     np.testing.assert_array_equal(ctrl.state.law_x[0], a.d_pred)  # its own block
     assert ctrl.state.law_k[0, 0] == 1  # its own counter
-    assert len(core.step_kernel.signatures) == n_kernels  # no new kernel for a new law
+    assert len(core.step_adjoint.signatures) == n_kernels  # no new kernel for a new law
     assert ctrl.law.name == "sign_lms" and ctrl.law.identified_directions() is None
     words = identification_words(ctrl, cfg)["text"]
     assert words.startswith("theta moved by") and "sign_lms law has no covariance" in words

@@ -232,6 +232,31 @@ class LawSpec:
             self._address.append(_get_jit_address(self.step, STEP_SIG))
         return self._address[0]
 
+    def compile_aside(self):
+        """Start compiling ``step`` into numba's on-disk cache in a second process, so that a first
+        run compiles the law and the step kernel at once on two cores; :meth:`address` then loads
+        it. -> the ``subprocess.Popen`` to wait for, or None when there is nothing to gain (compiled
+        in this process already, cached, or a law the second process cannot import: it is then
+        compiled here, as before)."""
+        import subprocess
+        import sys
+
+        fn = getattr(self.step, "py_func", None)
+        if self._address or fn is None or "<" in fn.__qualname__ or fn.__module__ == "__main__":
+            return None
+        try:
+            if self.step._cache._cache_file._load_index():
+                return None
+        except Exception:  # numba's cache internals moved: compile here
+            return None
+        code = (f"import importlib; from kinadapt_nn.controller.laws.base import STEP_SIG; "
+                f"importlib.import_module({fn.__module__!r}).{fn.__qualname__}.compile(STEP_SIG)")
+        try:
+            return subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.DEVNULL,
+                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        except OSError:
+            return None
+
 
 def law_state(spec: LawSpec, x: np.ndarray, k: np.ndarray, unc: np.ndarray, m: int, p: int) -> LawState:
     """Named views of a law's blocks in ``x`` (B, nx) and counters in ``k`` (B, nk)."""

@@ -34,7 +34,7 @@ import math
 import numba as nb
 import numpy as np
 
-from kinadapt_nn.controller.dense import chol, chol_solve, mm, mm_nt
+from kinadapt_nn.controller.dense import chol, chol_solve, mm, mm_nt, vcopy
 from kinadapt_nn.controller.laws.base import LawParams, LawSpec, LawState, LawView
 
 #: consts indices (scalars; then P0, L and L^-1 (p, p) each, L L^T = P0)
@@ -89,8 +89,8 @@ def step(theta, H_T, G, e, PhiF, lo, hi, consts, x, k, unc, d_track, d_pred):
         n2 += G[j, j]
     _residual_level(e, r2, r1, k, c)
     if k[KF_INIT] == 0:  # the filter's own estimate starts where the controller's is
-        th[:] = theta
-        prior[:] = theta
+        vcopy(th, theta)
+        vcopy(prior, theta)
         k[KF_INIT] = 1
     # R = diag(r2 + floor) n_eff; n_eff = max(corr_s/dt, (2 tau_m/dt) r1^2 / r2)
     e_kf = np.empty(m)
@@ -155,25 +155,33 @@ def _measurement_update(P, H_T, e_kf, R, d_pred):
     place. False (nothing changed) when H P H^T + diag R is not positive definite."""
     p, m = H_T.shape
     PHt = mm(P, H_T)  # (p, m)
-    S = mm(H_T.T, PHt)  # (m, m) = H P H^T + R
+    S = np.empty((m, m))  # (m, m) = H P H^T + R
     for i in range(m):
+        for j in range(m):
+            v = 0.0
+            for r in range(p):
+                v += H_T[r, i] * PHt[r, j]
+            S[i, j] = v
         S[i, i] += R[i]
     if not chol(S, m):
         return False
-    X = PHt.T.copy()  # (m, p) -> S^-1 P H^T  (K = X^T)
+    K = np.empty((p, m))  # K = P H^T S^-1, row j: S^-1 (P H^T)[j]
     col = np.empty(m)
     for j in range(p):
         for i in range(m):
-            col[i] = X[i, j]
+            col[i] = PHt[j, i]
         chol_solve(S, m, col)
         for i in range(m):
-            X[i, j] = col[i]
+            K[j, i] = col[i]
     for j in range(p):  # K e
         v = 0.0
         for i in range(m):
-            v += X[i, j] * e_kf[i]
+            v += K[j, i] * e_kf[i]
         d_pred[j] = v
-    P -= mm_nt(X.T, PHt)  # P = (1 - K H) P, symmetrised
+    KHP = mm_nt(K, PHt)  # P = (1 - K H) P, symmetrised
+    for i in range(p):
+        for j in range(p):
+            P[i, j] -= KHP[i, j]
     for i in range(p):
         for j in range(i + 1, p):
             v = 0.5 * (P[i, j] + P[j, i])
@@ -189,19 +197,25 @@ def identified_projector(P, L, Linv, ratio, A):
     posterior sd has fallen below ``ratio`` of the prior sd; oblique along the rest."""
     p = P.shape[0]
     if ratio >= 1.0:
-        A[:] = 0.0
         for i in range(p):
-            A[i, i] = 1.0
+            for j in range(p):
+                A[i, j] = 1.0 if i == j else 0.0
         return
-    M = Linv @ P @ Linv.T
-    lam, V = np.linalg.eigh(0.5 * (M + M.T))
+    M = mm_nt(mm(Linv, P), Linv)
+    for i in range(p):
+        for j in range(i + 1):
+            M[i, j] = M[j, i] = 0.5 * (M[i, j] + M[j, i])
+    lam, V = np.linalg.eigh(M)
     UUt = np.zeros((p, p))
     for kk in range(p):
         if lam[kk] < ratio * ratio:
             for i in range(p):
                 for j in range(p):
                     UUt[i, j] += V[i, kk] * V[j, kk]
-    A[:] = L @ UUt @ Linv
+    LUL = mm(mm(L, UUt), Linv)
+    for i in range(p):
+        for j in range(p):
+            A[i, j] = LUL[i, j]
 
 
 def reset(consts: np.ndarray, state: LawState, carried: bool) -> None:
