@@ -5,7 +5,8 @@ Prints as its last line
 where ``c`` is the same batch (same models, same split over processes, one thread each) stepped
 without the controller, replaying the controlled run's servo set-points so the contacts are alike.
 The two are timed in ``--rounds`` alternating rounds in the same processes (controlled, raw,
-controlled, raw, ...), so a shared machine's load falls on both alike; ``r`` is the median over
+controlled, raw, ...; the processes start each phase together), so a shared machine's load
+falls on both alike; ``r`` is the median over
 rounds of raw wall / controlled wall (= a / c), ``s`` the spread (max - min) of the per-round
 ratios, and ``a``, ``c`` are the medians. Target: a / c >= 0.6. Also checks a sample of episodes against the
 single-episode path (success, seat time): the batch runs the same kernels, so they agree.
@@ -15,6 +16,7 @@ Usage: python benchmarks/bench_batch.py [--episodes 256] [--processes 2] [--chec
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import os
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -44,14 +46,17 @@ def raw_physics(cfgs, ctrl_log: np.ndarray, steps: np.ndarray) -> float:
 
 
 def _chunk(job):
-    """``rounds`` alternating (controlled, raw) timings of one process's share. -> (the last
-    controlled result, [controlled loop wall], [raw wall])."""
-    cfgs, rounds = job
+    """``rounds`` alternating (controlled, raw) timings of one process's share; every process
+    starts each phase together (``barrier``), so a controlled phase never shares the machine with
+    another process's raw phase. -> (the last controlled result, [controlled loop wall], [raw wall])."""
+    cfgs, rounds, barrier = job
     walls, raws = [], []
     for _ in range(rounds):
+        barrier.wait()
         res = run_batch(cfgs, nthread=1, record_ctrl=True)
         steps = np.array([s["steps"] for s in res.summaries])
         walls.append(res.wall_s)
+        barrier.wait()
         raws.append(raw_physics(cfgs, res.ctrl_log, steps))
     return res._replace(ctrl_log=None), walls, raws
 
@@ -69,8 +74,9 @@ def main() -> None:
             *a.set]
     cfgs = [load_config(None, [*base, *tool_overrides(sw, s), f"run.seed={s}"]) for s in range(a.episodes)]
     chunks = [cfgs[i::a.processes] for i in range(a.processes) if cfgs[i::a.processes]]
-    with ProcessPoolExecutor(max_workers=len(chunks)) as ex:
-        parts = list(ex.map(_chunk, [(c, a.rounds) for c in chunks]))
+    with multiprocessing.Manager() as mgr, ProcessPoolExecutor(max_workers=len(chunks)) as ex:
+        barrier = mgr.Barrier(len(chunks))
+        parts = list(ex.map(_chunk, [(c, a.rounds, barrier) for c in chunks]))
     summaries = [s for res, _, _ in parts for s in res.summaries]
     sim_steps = sum(res.sim_steps for res, _, _ in parts)
     walls = [max(w[r] for _, w, _ in parts) for r in range(a.rounds)]  # per round: the slower process

@@ -378,6 +378,16 @@ def cmd_setup_template(args: argparse.Namespace) -> int:
     return 0
 
 
+class _Lazy:
+    """A help-text parameter computed when argparse formats the help (``%(name)s``)."""
+
+    def __init__(self, fn) -> None:
+        self.fn = fn
+
+    def __str__(self) -> str:
+        return self.fn()
+
+
 def _builtin_names() -> list[str]:
     from kinadapt_nn.diagnostics.builtin import BUILTINS
 
@@ -539,11 +549,12 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--config", help="the known model (default: the run's config.toml, else built-in defaults)")
     dg.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a model key")
     dg.add_argument("--theta", help="offset estimate x,y,z [m] to evaluate (default: the run's final estimate)")
-    dg.add_argument("--add", action="append", nargs="+", metavar="EFFECT",
+    add = dg.add_argument("--add", action="append", nargs="+", metavar="EFFECT",
                     help="refit with these effects added and report the residual before/after (--add A B, or "
-                    "repeated; a one-of effect's parameter: encoder_offset:joint5); with --setup: the built-ins ("
-                    + ", ".join(_builtin_names()) + ") and your own "
-                    "(--effects); own runs also contact_stiffness, contact_friction_couple, grasp_compliance")
+                    "repeated; a one-of effect's parameter: encoder_offset:joint5); with --setup: the built-ins "
+                    "(%(builtins)s) and your own (--effects); own runs also contact_stiffness, "
+                    "contact_friction_couple, grasp_compliance")
+    add.builtins = _Lazy(lambda: ", ".join(_builtin_names()))  # read when the help is shown, not on every command
     dg.add_argument("--effects", action="append", metavar="FILE.py",
                     help="with --setup: a Python file of your own effects (@effect from kinadapt_nn.diagnostics; "
                     "docs/missing_physics.md); judged and --add-able like the built-ins (repeatable). An effects "
