@@ -185,12 +185,12 @@ def cmd_online(args: argparse.Namespace) -> int:
 
         figures = FigureWorker.start()
     try:
-        from kinadapt_nn.controller.core import kernels_cached
+        from kinadapt_nn.controller.core import compile_record, kernels_cached
         from kinadapt_nn.runs.episode import run_insertions
 
         if not args.quiet and not cfg.run.progress and not kernels_cached():  # (with a bar: its own bar)
-            print("kinadapt online: compiling the controller's kernels (the first run on this machine, ~35 s, once)",
-                  file=sys.stderr, flush=True)
+            print(f"kinadapt online: compiling the controller's kernels (the first run on this machine, "
+                  f"~{compile_record():.0f} s, once)", file=sys.stderr, flush=True)
         result = run_insertions(cfg, progress=cfg.run.progress and not args.quiet)
         with staged_output(out, args.overwrite) as stage:
             _write_online(stage, cfg, result, figures)

@@ -843,9 +843,10 @@ def fk_batch(chain, inp, p_O, R, J):
         _fk(chain[:nbody], chain[nbody], inp[b], p_O[b], R[b], J[b])
 
 
-#: [s] the one-time compile of the fused step kernel, measured on the 2-core CI VM (bench_first_run.py);
-#: the estimate shown until this machine has measured its own (``compile_record``)
-COMPILE_ESTIMATE_S = 36.0
+#: [s] the one-time compile of the adjoint's step kernel and the kalman law (two processes), measured
+#: on the 2-core CI VM (bench_first_run.py); the estimate shown until this machine has measured its
+#: own (``compile_record``)
+COMPILE_ESTIMATE_S = 17.0
 
 
 def _compile_record_path():
@@ -952,7 +953,7 @@ def compile_calls(calls, progress: bool = False, law=None) -> float:
 
 def kernels_cached() -> bool:
     """True when the step kernel's compiled code is in numba's on-disk cache (the first run on a
-    machine compiles it, ~35 s once); True also when that cannot be told (no message then)."""
+    machine compiles it, once); True also when that cannot be told (no message then)."""
     try:  # the index is empty when missing or written for another version of this source file
         return bool(step_adjoint._cache._cache_file._load_index())
     except Exception:  # numba's cache internals moved: say nothing
