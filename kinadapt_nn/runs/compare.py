@@ -144,6 +144,12 @@ def run_compare(cfg: CompareCfg, out: Path, progress: bool = True) -> list[dict]
                     for i, over in enumerate(rows):
                         tb = out / "tb" / scen / fam / feat / (f"{law}/" if len(laws) > 1 else "") / f"tool{i}"
                         jobs.append((scen, fam, feat, i, [*cfg.base, *scen_over, *over], str(tb), law))
+    from kinadapt_nn.config import load_config
+    from kinadapt_nn.runs.episode import precompile
+
+    precompile([load_config(None, ["run.progress=false", *over, f"run.features={feat}",
+                                   *([f"adaptation.mode={law}"] if law else [])])
+                for _scen, _fam, feat, _i, over, _tb, law in jobs], progress)  # before the workers
     results = []
     bar = None
     if progress:

@@ -38,6 +38,21 @@ class EpisodeResult(NamedTuple):
     summary: dict  #: the run-outputs contract (``summary.json``)
 
 
+def precompile(cfgs: list[ExperimentCfg], progress: bool = False) -> float:
+    """Compile (or load from numba's cache) the kernels of every distinct features type and law
+    among ``cfgs``, in this process and as one compile phase (``core.compiling``: its own bar on a
+    cold cache), before a pool of worker processes runs the episodes: the workers then load the
+    kernels from the cache instead of each compiling them behind a frozen episode bar.
+    -> wall seconds."""
+    kinds = {}
+    for c in cfgs:
+        kinds.setdefault((c.run.features, c.adaptation.mode), c)
+    with core.compiling(progress) as phase:
+        for c in kinds.values():
+            make_controller(c).compile_kernels()
+    return phase.wall_s
+
+
 def run_insertions(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
     """``run.insertions`` consecutive insertions of the same tool on the same arm (a work cell):
     insertion i aims at bore ``cell.bore_of(i)`` of ``cell.bores_w_m`` (the scene's one bore

@@ -165,6 +165,11 @@ def run_sweep(cfg: SweepCfg, out: Path, executor: str = "local", address: str | 
     write_text_atomic(cfg_path, cfg_text)
     jobs = episode_jobs(cfg)
     todo = [j for j in jobs if not (out / "episodes" / f"{j['id']}.json").is_file()]
+    if todo and executor == "local":  # the kernels once here, not in every worker at once
+        from kinadapt_nn.runs.episode import precompile
+
+        groups = {j["group"]: j for j in todo}  # one config per group (the seed changes no kernel)
+        precompile([load_config(None, j["overrides"]) for j in groups.values()], progress)
     bar = None
     if progress:
         from tqdm import tqdm

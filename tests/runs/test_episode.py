@@ -157,3 +157,23 @@ def test_rank_gate_breach_stops_the_episode_cleanly():
     assert r.summary["min_lambda_JJt"] < 1e-6 and r.summary["rank_gate"]["breach_t_s"] is not None
     assert "rank gate" in r.summary["divergence_reason"]
     assert 0 < len(r.trace) < 1000
+
+
+def test_precompile_builds_one_controller_per_features_and_law(monkeypatch):
+    """A pool's kernels are compiled (or loaded) once in the parent, one controller per distinct
+    (features, law) -- the seed and the tool change no kernel -- and each one ready to step."""
+    import kinadapt_nn.runs.episode as ep
+
+    built = []
+
+    def counting(cfg):
+        ctrl = make_controller(cfg)
+        built.append(ctrl)
+        return ctrl
+
+    monkeypatch.setattr(ep, "make_controller", counting)
+    cfgs = [load_config(None, [f"run.seed={s}", "tool.offset_f_m=[0.002,0.0,0.1]"]) for s in range(3)]
+    cfgs.append(load_config(None, ["adaptation.mode=composite"]))
+    ep.precompile(cfgs)
+    assert sorted(c.known.law for c in built) == ["composite", "kalman"]
+    assert all(c._kernels_ready and c.consts.law_fn[0] == c.law_spec.address() != 0 for c in built)
