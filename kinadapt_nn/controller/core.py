@@ -684,7 +684,7 @@ def step_adjoint(t, inp, chain, p_O, R, J, reg, x, k, lay, c, mats, pv, lc, law_
 def step_neural(t, inp, chain, p_O, R, J, reg, x, k, lay, c, mats, pv, lc, law_fn, seg, fx, out):
     """``step_adjoint`` for the neural basis (``fx``: ``neural_consts``): Y(q) once per step for
     the regressor, J_hat for the drive and the rank gate."""
-    n, m, p = lay[L_N], lay[L_M], lay[L_P]
+    n, p = lay[L_N], lay[L_P]
     for b in range(inp.shape[0]):
         if k[b, K_DONE] != 0 or not _front(t, b, inp, chain, p_O, R, J, x, k, lay, c, mats, out):
             continue
