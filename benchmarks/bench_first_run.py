@@ -17,23 +17,17 @@ The machine is shared and has 2 cores; timings vary by +-30 % between runs.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import statistics
-import sys
 import tempfile
 from pathlib import Path
 
-from bench_online import _timed  # the same fresh-process timing
+from bench_online import _timed, online_args  # the same fresh-process timing and options
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--config", help="an online config (default: the built-in defaults)")
-    args = ap.parse_args()
-    base = [sys.executable, "-m", "kinadapt_nn.app.cli"]  # what the ``kinadapt`` console script runs
+    args, base = online_args(__doc__)
     with tempfile.TemporaryDirectory(prefix="bench-first-run-") as tmp:
         env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "numba"))
 

@@ -36,12 +36,17 @@ def _timed(cmd: list[str], env: dict | None = None) -> float:
     return wall
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def online_args(doc: str) -> tuple[argparse.Namespace, list[str]]:
+    """The ``--repeats`` / ``--config`` options of the online benchmarks, and the command the
+    ``kinadapt`` console script runs."""
+    ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--config", help="an online config (default: the built-in defaults)")
-    args = ap.parse_args()
-    base = [sys.executable, "-m", "kinadapt_nn.app.cli"]  # what the ``kinadapt`` console script runs
+    return ap.parse_args(), [sys.executable, "-m", "kinadapt_nn.app.cli"]
+
+
+def main() -> None:
+    args, base = online_args(__doc__)
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench-online-") as tmp:
         _timed([sys.executable, "-c", IMPORT_MNM])  # page cache warm, as for every later run

@@ -706,6 +706,9 @@ def step_neural(t, inp, chain, p_O, R, J, reg, x, k, lay, c, mats, pv, lc, law_f
             _rank_margin(b, _neural_jhat(b, R, J, Y, x[b, lay[X_TH]:lay[X_TH] + p], c, mats, fx), c, out, lay)
 
 
+# step_adjoint, step_neural and act_kernel spell out the same act / law sequence around their own
+# drive on purpose: one more helper level (measured: _begin_act / _end_act) adds ~3 s to a first
+# run's compile, because numba optimises and emits a callee's code again in every caller
 #: the fused step kernel of each in-kernel features kind (FEAT_ADJOINT, FEAT_NEURAL); each compiles
 #: only its own features' code, on first use
 FUSED = {FEAT_ADJOINT: step_adjoint, FEAT_NEURAL: step_neural}

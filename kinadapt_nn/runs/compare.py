@@ -147,9 +147,10 @@ def run_compare(cfg: CompareCfg, out: Path, progress: bool = True) -> list[dict]
     from kinadapt_nn.config import load_config
     from kinadapt_nn.runs.episode import precompile
 
+    kinds = {(feat, law): over for _scen, _fam, feat, _i, over, _tb, law in jobs}  # the tool changes no kernel
     precompile([load_config(None, ["run.progress=false", *over, f"run.features={feat}",
                                    *([f"adaptation.mode={law}"] if law else [])])
-                for _scen, _fam, feat, _i, over, _tb, law in jobs], progress)  # before the workers
+                for (feat, law), over in kinds.items()], progress)  # before the workers
     results = []
     bar = None
     if progress:
