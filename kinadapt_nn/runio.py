@@ -93,7 +93,9 @@ class EventWriter:
 
         Path(log_dir).mkdir(parents=True, exist_ok=True)
         self._ev, self._pb = event_pb2, summary_pb2
-        self._writer = EventFileWriter(str(log_dir))
+        # an unbounded queue: a run's events are queued without waiting for the writer thread
+        # (the default 10-event queue made every add wait on it); close() writes them all
+        self._writer = EventFileWriter(str(log_dir), max_queue_size=1 << 30)
 
     def __enter__(self) -> EventWriter:
         return self

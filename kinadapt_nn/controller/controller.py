@@ -121,15 +121,21 @@ def rank_margin(W: np.ndarray, J_hat: np.ndarray) -> float:
 
 
 def feature_kind(features: Features) -> int:
-    """The adjoint and the neural basis are computed in the kernel (``features.kernel``); others
+    """The adjoint, the neural basis and the RBF are computed in the kernel (``features.kernel``); others
     supply their rows from Python (``FEAT_JHAT``, switched to ``FEAT_TWIST`` where the features
     factor through the twist)."""
-    return {"adjoint": core.FEAT_ADJOINT, "neural": core.FEAT_NEURAL}.get(features.kernel, core.FEAT_JHAT)
+    return {"adjoint": core.FEAT_ADJOINT, "neural": core.FEAT_NEURAL, "rbf": core.FEAT_RBF}.get(features.kernel,
+                                                                                                  core.FEAT_JHAT)
 
 
 def feature_consts(features: Features) -> np.ndarray:
-    """The in-kernel features' constants (the neural body), else a placeholder."""
-    return core.neural_consts(features) if feature_kind(features) == core.FEAT_NEURAL else np.zeros(1)
+    """The in-kernel features' constants (the neural body, the RBF centres), else a placeholder."""
+    kind = feature_kind(features)
+    if kind == core.FEAT_NEURAL:
+        return core.neural_consts(features)
+    if kind == core.FEAT_RBF:
+        return core.rbf_consts(features)
+    return np.zeros(1)
 
 
 def core_consts(known: KnownCfg, features: Features, law_address: bool = True) -> tuple[core.CoreConsts, LawSpec]:

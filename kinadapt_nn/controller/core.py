@@ -39,13 +39,13 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from kinadapt_nn.controller.dense import chol, chol_solve, mm, mm_nt, sym_eigmin, vcopy, vfill
+from kinadapt_nn.controller.dense import chol, chol_solve, gram_sparse, mm, mm_nt, sym_eigmin, vcopy, vfill
 from kinadapt_nn.controller.laws.base import law_step_fn
 
 #: the paper's kinematic gate on lambda_min(W J_hat J_hat^T W) (Results, "A separate kinematic gate")
 RANK_GATE = 1e-6
 # -- feature kinds ----------------------------------------------------------------------------
-FEAT_ADJOINT, FEAT_TWIST, FEAT_JHAT, FEAT_NEURAL = 0, 1, 2, 3
+FEAT_ADJOINT, FEAT_TWIST, FEAT_JHAT, FEAT_NEURAL, FEAT_RBF = 0, 1, 2, 3, 4
 # -- scalar constants: indices into CoreConsts.c -----------------------------------------------
 (DT, T_SETTLE, T_TARE0, RAMP, D_STAR, K_D, F_MAX, C_F, C_M, V_MAX, W_MAX, K_NS, DAMP, ALPHA, INV_TAU,
  N_ENTRY, RIGID, DITHER_ON, TWO_PI_F, EXCITE, BLEND, F_GATE, M_GATE, MAX_HOLD, FEAT, RANK_ON, RANK_GATE_V) = range(27)
@@ -459,7 +459,7 @@ def _law(b, reg, x, k, lay, c, pv, lc, law_fn, out):
     for j in range(p):
         for i in range(m):
             Phi_wT[j, i] = Phi_fT[j, i] * W[i]
-    G = mm_nt(Phi_wT, Phi_wT)  # (p, p) = (W Phi_f)^T (W Phi_f)
+    G = gram_sparse(Phi_wT)  # (p, p) = (W Phi_f)^T (W Phi_f)
     gs = xs[lay[X_GRAM]:lay[X_GRAM] + p * p].reshape((p, p))
     for i in range(p):  # observability: <Phi^T Phi> over the contact phase
         for j in range(p):
@@ -566,6 +566,66 @@ def _neural_jhat(b, R, J, Y, theta, c, mats, fx):
             v = 0.0
             for kk in range(K):
                 v += Y[i, j, kk] * theta[kk]
+            Jh[1 + i, j] += v
+    return Jh
+
+
+# ================================================================================================
+# RBF features in the kernel: J_hat = K(q) + [0; Theta psi(q)], K the adjoint at the prior offset
+def rbf_consts(features) -> np.ndarray:
+    """The Gaussian RBF of ``RBFFeatures`` as one array for the kernel: [K, 1/(2 w^2), prior
+    offset (3), centres (K n)] (the prior at the same place as in :func:`neural_consts`)."""
+    parts = [np.array([features.K, features.inv2w2], dtype=float), features.prior, features.centres.ravel()]
+    return np.ascontiguousarray(np.concatenate([np.asarray(a, dtype=float).ravel() for a in parts]))
+
+
+@nb.njit(cache=True)
+def _rbf_psi(fx, q, n):
+    """psi (K,): psi_k = exp(-|q - c_k|^2 / (2 w^2)) (RBFFeatures.psi)."""
+    K = int(fx[0])
+    psi = np.empty(K)
+    for kk in range(K):
+        v = 0.0
+        for j in range(n):
+            d = fx[5 + kk * n + j] - q[j]
+            v += d * d
+        psi[kk] = math.exp(-v * fx[1])
+    return psi
+
+
+@nb.njit(cache=True)
+def _rbf_rows(b, inp, R, J, psi, lay, c, mats, fx, known, Phi_T):
+    """Regressor of the per-entry RBF: known = adjoint's known + Phi_adj l_prior; row 1 + i of Phi
+    holds qdot_j psi_k in block i ((i, j, k) order) and zeros elsewhere (RBFFeatures.regressor)."""
+    n, m, p = lay[L_N], lay[L_M], lay[L_P]
+    K = psi.shape[0]
+    PhiA = np.zeros((3, 6))
+    _adjoint_regressor(b, inp, R, J, lay, c, mats, known, PhiA)
+    for i in range(6):
+        known[i] += PhiA[0, i] * fx[2] + PhiA[1, i] * fx[3] + PhiA[2, i] * fx[4]
+    for r in range(p):
+        for i in range(m):
+            Phi_T[r, i] = 0.0
+    w = n * K
+    for i in range(5):
+        for j in range(n):
+            qd = inp[b, n + j]
+            for kk in range(K):
+                Phi_T[i * w + j * K + kk, 1 + i] = qd * psi[kk]
+
+
+@nb.njit(cache=True)
+def _rbf_jhat(b, R, J, psi, theta, c, mats, fx):
+    """J_hat (6, n) = S Ad(R l_prior) J + [0; Theta psi], Theta = theta as (5, n, K)."""
+    Jx = _adjoint_twist_jacobian(b, R, fx[2:5], c, mats)
+    Jh = mm(Jx, J[b])
+    n, K = J.shape[2], psi.shape[0]
+    for i in range(5):
+        for j in range(n):
+            v = 0.0
+            o = (i * n + j) * K
+            for kk in range(K):
+                v += theta[o + kk] * psi[kk]
             Jh[1 + i, j] += v
     return Jh
 
@@ -706,12 +766,38 @@ def step_neural(t, inp, chain, p_O, R, J, reg, x, k, lay, c, mats, pv, lc, law_f
             _rank_margin(b, _neural_jhat(b, R, J, Y, x[b, lay[X_TH]:lay[X_TH] + p], c, mats, fx), c, out, lay)
 
 
-# step_adjoint, step_neural and act_kernel spell out the same act / law sequence around their own
+@nb.njit(cache=True)
+def step_rbf(t, inp, chain, p_O, R, J, reg, x, k, lay, c, mats, pv, lc, law_fn, seg, fx, out):
+    """``step_neural`` for the per-entry Gaussian RBF (``fx``: ``rbf_consts``): psi(q) once per
+    step for the regressor, J_hat for the drive and the rank gate."""
+    n, p = lay[L_N], lay[L_P]
+    for b in range(inp.shape[0]):
+        if k[b, K_DONE] != 0 or not _front(t, b, inp, chain, p_O, R, J, x, k, lay, c, mats, out):
+            continue
+        psi = _rbf_psi(fx, inp[b, :n], n)
+        _rbf_rows(b, inp, R, J, psi, lay, c, mats, fx, reg[b, 0], reg[b, 1:])
+        Jh = _rbf_jhat(b, R, J, psi, x[b, lay[X_TH]:lay[X_TH] + p], c, mats, fx)
+        _filter_regressor(b, reg, x, lay, c)
+        rho = out[b, lay[O_RHO]]
+        Lc = _act_head(b, J, x, k, lay, c, out)
+        drive = np.empty(6)
+        if c[EXCITE] > 0.0:
+            _excite_drive(t - c[T_SETTLE], b, R, c, seg, drive)
+        else:
+            _jhat_drive(b, J, Lc, Jh, lay, out, drive)
+        _act_tail(t, b, rho, drive, Lc, inp, J, x, lay, c, out)
+        _law(b, reg, x, k, lay, c, pv, lc, law_fn, out)
+        out[b, lay[O_UNC]] = x[b, lay[X_UNC]]
+        if c[RANK_ON] > 0.0 and rho > 0.0:
+            _rank_margin(b, _rbf_jhat(b, R, J, psi, x[b, lay[X_TH]:lay[X_TH] + p], c, mats, fx), c, out, lay)
+
+
+# step_adjoint, step_neural, step_rbf and act_kernel spell out the same act / law sequence around their own
 # drive on purpose: one more helper level (measured: _begin_act / _end_act) adds ~3 s to a first
 # run's compile, because numba optimises and emits a callee's code again in every caller
-#: the fused step kernel of each in-kernel features kind (FEAT_ADJOINT, FEAT_NEURAL); each compiles
+#: the fused step kernel of each in-kernel features kind (FEAT_ADJOINT, FEAT_NEURAL, FEAT_RBF); each compiles
 #: only its own features' code, on first use
-FUSED = {FEAT_ADJOINT: step_adjoint, FEAT_NEURAL: step_neural}
+FUSED = {FEAT_ADJOINT: step_adjoint, FEAT_NEURAL: step_neural, FEAT_RBF: step_rbf}
 
 
 @nb.njit(cache=True)

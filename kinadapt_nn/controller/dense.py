@@ -74,6 +74,29 @@ def mm_nt(A, B):
     return out
 
 
+@nb.njit(cache=True)
+def gram_sparse(A):
+    """A @ A.T for A (p, m) with many zeros (the RBF's regressor: each parameter in one channel),
+    from the non-zero entries of each column only; summed over the columns in order, as ``mm_nt``'s
+    loops do. -> (p, p)."""
+    p, m = A.shape
+    G = np.zeros((p, p))
+    idx = np.empty(p, dtype=np.int64)
+    for r in range(m):
+        nz = 0
+        for i in range(p):
+            if A[i, r] != 0.0:
+                idx[nz] = i
+                nz += 1
+        for a in range(nz):
+            i = idx[a]
+            v = A[i, r]
+            for b in range(nz):
+                j = idx[b]
+                G[i, j] += v * A[j, r]
+    return G
+
+
 # slice assignment and array arithmetic compile to numba's broadcasting machinery (seconds of
 # compile per layout); the kernels copy and fill by these loops instead
 @nb.njit(cache=True)

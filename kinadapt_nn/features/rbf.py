@@ -36,6 +36,12 @@ class RBFFeatures(Features):
         self._cache_key: bytes | None = None
         self._cache_val: np.ndarray | None = None
 
+    @property
+    def kernel(self) -> str | None:
+        """"rbf": psi, the regressor and J_hat run in the controller's kernel (``core.step_rbf``,
+        on the in-kernel adjoint's known part); this class's methods are the reference."""
+        return "rbf" if self.known.kernel == "adjoint" else None
+
     def psi(self, q: np.ndarray) -> np.ndarray:
         """RBF activations (cached for the last q; do not modify the result). (n,) -> (K,)."""
         key = q.tobytes()

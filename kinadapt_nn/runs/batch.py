@@ -33,6 +33,7 @@ from kinadapt_nn.controller.laws.base import law_state
 from kinadapt_nn.controller.core import RANK_GATE
 from kinadapt_nn.runs.monitor import classify_failure, seat_step
 from kinadapt_nn.runs.build import make_features
+from kinadapt_nn.runs.episode import one_blas_thread
 from kinadapt_nn.errors import ConfigError
 from kinadapt_nn.features.base import KinState
 from kinadapt_nn.known import KnownCfg
@@ -113,7 +114,13 @@ def _monitor(t, out, i_s, i_w, i_rho, i_lam, lim, active, clock, stop_at, peaks,
 
 def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = False) -> BatchResult:
     """Run len(cfgs) episodes together. All cfgs share every KNOWN setting (sensing, control,
-    adaptation, success, bore pose) and differ in hidden truth (tool, start, seed)."""
+    adaptation, success, bore pose) and differ in hidden truth (tool, start, seed). BLAS at one
+    thread meanwhile (``runs.episode.one_blas_thread``)."""
+    with one_blas_thread():
+        return _run_batch(cfgs, nthread, record_ctrl)
+
+
+def _run_batch(cfgs: list[ExperimentCfg], nthread: int, record_ctrl: bool) -> BatchResult:
     t_setup = time.perf_counter()
     c0 = cfgs[0]
     known = _known_of(cfgs)

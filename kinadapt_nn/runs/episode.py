@@ -133,13 +133,31 @@ def _finite_or_none(x: float) -> float | None:
     return float(x) if x is not None and math.isfinite(x) else None
 
 
+def one_blas_thread():
+    """Context manager: the BLAS libraries loaded in this process (numpy's, and scipy's that the
+    kernels call for the RBF's p x p products and eigh) at one thread while episodes step.
+
+    The per-step products are small (p = 210 at most by default); OpenBLAS's threads win nothing
+    on them and, with episodes in parallel processes (compare, sweep: one per core), spin against
+    each other's: two RBF socket episodes side by side took 6.2 s each with OpenBLAS's default
+    threads against 1.7 s at one thread (2-core VM)."""
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(1, user_api="blas")
+
+
 def run_episode(cfg: ExperimentCfg, progress: bool = False, ctrl: Controller | None = None,
                 keep_regressor: bool = False) -> EpisodeResult:
     """Simulate one insertion with config ``cfg``. Deterministic for a given config. ``ctrl``: a
     controller to use as it is (``run_insertions`` carries one over), else a new one.
     ``keep_regressor``: also return the law's filtered regressor rows ``Phi_f^T`` of every logged
     step as ``trace.arrays["law_Phi_fT"]`` (N, p, m) (controller side: what a between-insertion
-    refit of theta needs)."""
+    refit of theta needs). BLAS runs at one thread meanwhile (:func:`one_blas_thread`)."""
+    with one_blas_thread():
+        return _run_episode(cfg, progress, ctrl, keep_regressor)
+
+
+def _run_episode(cfg: ExperimentCfg, progress: bool, ctrl: Controller | None, keep_regressor: bool) -> EpisodeResult:
     wall0 = time.perf_counter()
     sim = PegInHoleSim(cfg)
     if ctrl is None:

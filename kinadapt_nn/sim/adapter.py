@@ -21,6 +21,7 @@ from kinadapt_nn.known import BORE_AXIS_W
 from kinadapt_nn.robot import JOINT_LIMITS_RAD, Q_HOME_RAD, SERVO_KP, SERVO_KV
 from kinadapt_nn.sim.effects import SensorEffects, truth_config
 from kinadapt_nn.sim.scene import SceneIds, build_model
+from kinadapt_nn.sim.socket import N_STATE, socket_params, socket_step
 
 #: Flange "down" orientation: z_f along the bore axis, x_f along x_w (peg square aligned with
 #: the bore walls).
@@ -84,8 +85,6 @@ class PegInHoleSim:
         self.cfg = cfg
         self.model, self.ids = build_model(cfg.tool, cfg.scene, arm=cfg.arm, effects=cfg.effects)
         self._sensor_fx = SensorEffects(cfg)
-        fc = cfg.effects.contact_friction_couple
-        self._couple = (fc.radius_m, fc.omega_eps_rad_s) if fc.enabled else None
         self.model.opt.timestep = cfg.run.dt_s
         self.data = mujoco.MjData(self.model)
         self.entry_w = np.asarray(true_bore_entry(cfg.scene), dtype=float)  # the TRUE bore
@@ -93,7 +92,7 @@ class PegInHoleSim:
         self._kv_over_kp = SERVO_KV / SERVO_KP
         self._socket = cfg.scene.contact_model == "socket"
         self._tool_body = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, "tool")
-        self._vel6 = np.zeros(6)
+        self._sock_st = np.zeros(N_STATE)  # the socket's state (sim.socket): engaged, anchor, |f|
         self._f6 = np.zeros(6)  # mj_contactForce output
         # views into MjData fetched once (each attribute access builds a new array object; the
         # buffers live as long as self.data): encoders, F/T reading, servo set-point, true tip
@@ -108,6 +107,10 @@ class PegInHoleSim:
         self._entry_t = tuple(self.entry_w.tolist())
         self._peg = int(a.peg_geom)
         self._face_lat = cfg.scene.bore_half_width_m + 0.5e-3  # truth(): contact outside the bore mouth
+        self._sock_prm = socket_params(cfg, self.entry_w, BORE_AXIS_W)
+        tb, vb = self._tool_body, int(self.model.site_bodyid[a.tip_site])  # the tip's body: its velocity
+        self._sock_views = (d.site_xpos[a.tip_site], d.xmat[tb], d.xipos[tb], d.cvel[vb],
+                            d.subtree_com[int(self.model.body_rootid[vb])], d.xfrc_applied[tb])
         self.q_start = self._start_configuration()
         self.reset()
 
@@ -127,8 +130,7 @@ class PegInHoleSim:
     def reset(self) -> SensorSample:
         """Put the arm at the start configuration at rest, servo holding it."""
         mujoco.mj_resetData(self.model, self.data)
-        self._anchor = None
-        self._socket_force = 0.0
+        self._sock_st[:] = 0.0
         self.data.qpos[self.ids.qpos_adr] = self.q_start
         self.data.ctrl[:] = self.q_start
         mujoco.mj_forward(self.model, self.data)
@@ -181,41 +183,9 @@ class PegInHoleSim:
         axial spring ``socket_k_axial`` pushing the tip out below the plane (a compliant
         fixture). It is the nominal map S's own contact model, so the bias b is what remains:
         the lever (true offset vs nominal), the F-dependent terms, and any stiffness mismatch
-        set in the config. Effect ``contact_friction_couple`` adds ``-radius |f| w/(|w|+eps)``."""
-        d, sc = self.data, self.cfg.scene
-        tip = d.site_xpos[self.ids.tip_site]
-        R = d.xmat[self._tool_body].reshape(3, 3)
-        depth = float(BORE_AXIS_W @ (tip - self.entry_w))
-        if sc.socket_engage == "drive":
-            if d.time < self.cfg.start.settle_s:
-                return
-        elif self._anchor is None and depth < 0.0 or self._anchor is not None and depth < -1e-3:
-            self._anchor = None
-            d.xfrc_applied[self._tool_body] = 0.0
-            self._socket_force = 0.0
-            return
-        if self._anchor is None:
-            self._anchor = (tip.copy(), R.copy())
-        p0, R0 = self._anchor
-        mujoco.mj_objectVelocity(self.model, d, mujoco.mjtObj.mjOBJ_SITE, self.ids.tip_site, self._vel6, 0)
-        w, v = self._vel6[:3], self._vel6[3:]
-        m_eff = 3.0  # [kg] order of the arm's effective mass at the tip, for the damping only
-        c_lat = 2.0 * sc.socket_damping_ratio * np.sqrt(sc.socket_k_lat_N_per_m * m_eff)
-        f = np.zeros(3)
-        f[:2] = -sc.socket_k_lat_N_per_m * (tip[:2] - p0[:2]) - c_lat * v[:2]
-        if sc.socket_k_axial_N_per_m > 0.0 and depth > 0.0:  # pushes the tip back out (-n)
-            c_ax = 2.0 * sc.socket_damping_ratio * np.sqrt(sc.socket_k_axial_N_per_m * m_eff)
-            f -= BORE_AXIS_W * (sc.socket_k_axial_N_per_m * depth + c_ax * float(BORE_AXIS_W @ v))
-        c_rot = 2.0 * sc.socket_damping_ratio * np.sqrt(max(sc.socket_k_rot_Nm_per_rad, 0.0) * 0.01)
-        tau = -sc.socket_k_rot_Nm_per_rad * rotvec_from_matrix(R @ R0.T) - c_rot * w
-        fn = float(np.linalg.norm(f))
-        if self._couple is not None:  # effect contact_friction_couple
-            radius, eps = self._couple
-            tau -= radius * fn * w / (float(np.linalg.norm(w)) + eps)
-        com = d.xipos[self._tool_body]
-        d.xfrc_applied[self._tool_body, :3] = f
-        d.xfrc_applied[self._tool_body, 3:] = tau + np.cross(tip - com, f)
-        self._socket_force = fn
+        set in the config. Effect ``contact_friction_couple`` adds ``-radius |f| w/(|w|+eps)``.
+        The arithmetic is ``sim.socket.socket_step`` (shared with the batched runs)."""
+        socket_step(float(self.data.time), self._sock_st, self._sock_prm, *self._sock_views)
 
     @property
     def time_s(self) -> float:
@@ -249,8 +219,8 @@ class PegInHoleSim:
                 face |= on_top
                 bore |= not on_top
         if self._socket:
-            bore = self._anchor is not None
-            fsum = self._socket_force
+            bore = bool(self._sock_st[0])
+            fsum = float(self._sock_st[13])
         return TruthSample(tip, depth, face, bore, fsum)
 
 

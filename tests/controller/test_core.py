@@ -178,15 +178,17 @@ def test_known_cfg_is_the_controllers_only_config():
     assert ctrl.mode == "frozen" and not hasattr(ctrl, "cfg")
 
 
-def test_neural_basis_in_the_kernel_equals_the_features():
-    """The neural body evaluated in the kernel gives NeuralFeatures' regressor and J_hat (the rank
-    gate's lambda_min and the filtered regressor after one step from zero filter state)."""
+@pytest.mark.parametrize("features", ["neural", "rbf"])
+def test_learned_features_in_the_kernel_equal_the_features(features):
+    """The neural body and the RBF evaluated in the kernel give NeuralFeatures' / RBFFeatures'
+    regressor and J_hat (the rank gate's lambda_min and the filtered regressor after one step from
+    zero filter state)."""
     from kinadapt_nn.controller.controller import rank_margin
     from kinadapt_nn.features.base import KinState
 
-    cfg = load_config(None, ["run.progress=false", "run.features=neural"])
+    cfg = load_config(None, ["run.progress=false", f"run.features={features}"])
     ctrl = make_controller(cfg)
-    assert ctrl.consts.c[core.FEAT] == core.FEAT_NEURAL
+    assert ctrl.consts.c[core.FEAT] == {"neural": core.FEAT_NEURAL, "rbf": core.FEAT_RBF}[features]
     rng = np.random.default_rng(3)
     ctrl.theta = 0.1 * rng.normal(size=ctrl.features.n_params)
     th = ctrl.theta.copy()
@@ -240,3 +242,17 @@ def test_sym_eigmin_matches_lapack():
         G = A @ A.T + (np.diag(rng.normal(size=6)) if k % 3 == 0 else 0.0)
         ref = np.linalg.eigvalsh(G)[0]
         assert abs(sym_eigmin(G) - ref) <= 1e-13 * np.linalg.norm(G, 2)
+
+
+def test_gram_sparse_matches_numpy():
+    """The law's Gram (W Phi_f)^T (W Phi_f) from the non-zero entries only (``dense.gram_sparse``)
+    equals numpy's A A^T on dense, block-sparse (the RBF's rows) and all-zero regressors."""
+    from kinadapt_nn.controller.dense import gram_sparse
+
+    rng = np.random.default_rng(1)
+    dense = rng.normal(size=(7, 6))
+    blocks = np.zeros((40, 6))
+    for i in range(5):
+        blocks[8 * i:8 * (i + 1), 1 + i] = rng.normal(size=8)
+    for A in (dense, blocks, np.zeros((5, 6))):
+        np.testing.assert_allclose(gram_sparse(A), A @ A.T, rtol=1e-13, atol=1e-15)

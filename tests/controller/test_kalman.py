@@ -18,17 +18,25 @@ from tests.controller.law_reference import kalman_update, one_law_step
 QUIET = ["run.progress=false", "run.tensorboard=false", "run.figure=false"]
 
 
-def test_one_step_is_the_kalman_update():
+@pytest.mark.parametrize("rows", ["dense", "blocks"])
+def test_one_step_is_the_kalman_update(rows):
     """One step in contact from the prior, against numpy: R = diag(e^2 + floor) corr_s/dt (the
     residual level primed with this sample, no persistent part yet), K = P H^T (H P H^T + R)^-1,
     P = (I - K H) P, theta_kf = Proj_Omega(theta + K e - dt gamma_d P Phi_r^T F), and the controller
     acts on theta_prior + Pi (theta_kf - theta_prior), Pi the projector onto the directions whose
-    whitened posterior sd fell below act_sd_ratio."""
+    whitened posterior sd fell below act_sd_ratio. ``rows``: a dense rank-2 H (p = 4), or the
+    RBF's block rows (row 0 zero, row i only in block i; p = 5 x 8, a dense prior), whose zeros
+    the law skips."""
     rng = np.random.default_rng(11)
-    m, p = 6, 4
+    m, p = 6, (4 if rows == "dense" else 40)
     A = rng.normal(size=(p, p))
     P0 = A @ A.T + 0.5 * np.eye(p)
-    H = 3.0 * rng.normal(size=(m, 2)) @ rng.normal(size=(2, p))  # rank 2: two directions can be identified
+    if rows == "dense":
+        H = 3.0 * rng.normal(size=(m, 2)) @ rng.normal(size=(2, p))  # rank 2: two directions can be identified
+    else:
+        H = np.zeros((m, p))
+        for i in range(5):
+            H[1 + i, 8 * i:8 * (i + 1)] = 3.0 * rng.normal(size=8)
     y, F = rng.normal(size=m), rng.normal(size=m)
     theta0 = 0.1 * rng.normal(size=p)
     lo, hi = theta0 - 0.3, theta0 + 0.3

@@ -121,10 +121,13 @@ def step(theta, H_T, G, e, PhiF, lo, hi, consts, x, k, unc, d_track, d_pred):
         pp = p * p
         o = N_SCALARS + pp
         identified_projector(P, c[o:o + pp].reshape((p, p)), c[o + pp:o + 2 * pp].reshape((p, p)), c[ACT_RATIO], A)
+    dth = np.empty(p)
+    for j in range(p):
+        dth[j] = th[j] - prior[j]
     for i in range(p):  # act on the identified part only
         v = 0.0
         for j in range(p):
-            v += A[i, j] * (th[j] - prior[j])
+            v += A[i, j] * dth[j]
         theta[i] = prior[i] + v
     tr = 0.0
     for j in range(p):
@@ -151,42 +154,59 @@ def _residual_level(e, r2, r1, k, c):
 
 @nb.njit(cache=True)
 def _measurement_update(P, H_T, e_kf, R, d_pred):
-    """K = P H^T (H P H^T + diag R)^-1: d_pred = K e_kf and P = (1 - K H) P, symmetrised, in
-    place. False (nothing changed) when H P H^T + diag R is not positive definite."""
+    """K = P H^T (H P H^T + diag R)^-1: d_pred = K e_kf and P = (1 - K H) P, symmetric, in place.
+    False (nothing changed) when H P H^T + diag R is not positive definite.
+
+    Written for the sparse rows of per-entry features (the RBF's row i touches only its own block
+    of theta): zeros of H are skipped, the rank-m downdate is formed on the lower triangle and
+    mirrored (P stays exactly symmetric)."""
     p, m = H_T.shape
-    PHt = mm(P, H_T)  # (p, m)
+    nz = np.empty((m, p), dtype=np.int64)  # per row of H, its non-zero columns
+    cnt = np.zeros(m, dtype=np.int64)
+    for j in range(m):
+        for r in range(p):
+            if H_T[r, j] != 0.0:
+                nz[j, cnt[j]] = r
+                cnt[j] += 1
+    HP = np.zeros((m, p))  # H P = (P H^T)^T, row j = sum_r H[j, r] P[r, :] (P symmetric)
+    for j in range(m):
+        for a in range(cnt[j]):
+            r = nz[j, a]
+            h = H_T[r, j]
+            for i in range(p):
+                HP[j, i] += h * P[r, i]
     S = np.empty((m, m))  # (m, m) = H P H^T + R
     for i in range(m):
         for j in range(m):
             v = 0.0
-            for r in range(p):
-                v += H_T[r, i] * PHt[r, j]
+            for a in range(cnt[i]):
+                r = nz[i, a]
+                v += H_T[r, i] * HP[j, r]
             S[i, j] = v
         S[i, i] += R[i]
     if not chol(S, m):
         return False
-    K = np.empty((p, m))  # K = P H^T S^-1, row j: S^-1 (P H^T)[j]
+    K = np.empty((p, m))  # K = P H^T S^-1, row j: S^-1 (H P)[:, j]
     col = np.empty(m)
     for j in range(p):
         for i in range(m):
-            col[i] = PHt[j, i]
+            col[i] = HP[i, j]
         chol_solve(S, m, col)
-        for i in range(m):
-            K[j, i] = col[i]
-    for j in range(p):  # K e
         v = 0.0
         for i in range(m):
-            v += K[j, i] * e_kf[i]
-        d_pred[j] = v
-    KHP = mm_nt(K, PHt)  # P = (1 - K H) P, symmetrised
+            K[j, i] = col[i]
+            v += col[i] * e_kf[i]
+        d_pred[j] = v  # K e
+    for i in range(p):  # P -= K (H P) on the lower triangle, then mirrored
+        for r in range(m):
+            kr = K[i, r]
+            if kr == 0.0:
+                continue
+            for j in range(i + 1):
+                P[i, j] -= kr * HP[r, j]
     for i in range(p):
-        for j in range(p):
-            P[i, j] -= KHP[i, j]
-    for i in range(p):
-        for j in range(i + 1, p):
-            v = 0.5 * (P[i, j] + P[j, i])
-            P[i, j] = v
-            P[j, i] = v
+        for j in range(i):
+            P[j, i] = P[i, j]
     return True
 
 
@@ -206,13 +226,25 @@ def identified_projector(P, L, Linv, ratio, A):
         for j in range(i + 1):
             M[i, j] = M[j, i] = 0.5 * (M[i, j] + M[j, i])
     lam, V = np.linalg.eigh(M)
-    UUt = np.zeros((p, p))
+    sel = 0
+    for kk in range(p):
+        if lam[kk] < ratio * ratio:
+            sel += 1
+    if sel == 0:
+        for i in range(p):
+            for j in range(p):
+                A[i, j] = 0.0
+        return
+    U = np.empty((p, sel))  # the identified directions (whitened), as columns and as rows
+    Ut = np.empty((sel, p))
+    s_ = 0
     for kk in range(p):
         if lam[kk] < ratio * ratio:
             for i in range(p):
-                for j in range(p):
-                    UUt[i, j] += V[i, kk] * V[j, kk]
-    LUL = mm(mm(L, UUt), Linv)
+                U[i, s_] = V[i, kk]
+                Ut[s_, i] = V[i, kk]
+            s_ += 1
+    LUL = mm(mm(L, U), mm(Ut, Linv))  # L U U^T L^-1: products with the selected directions only
     for i in range(p):
         for j in range(p):
             A[i, j] = LUL[i, j]
