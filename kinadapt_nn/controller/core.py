@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from kinadapt_nn.controller.dense import chol, chol_solve, gram_sparse, mm, mm_nt, sym_eigmin, vcopy, vfill
+from kinadapt_nn.controller.dense import chol, chol_solve, dot, gram_sparse, mm, mm_nt, sym_eigmin, vcopy, vfill
 from kinadapt_nn.controller.laws.base import law_step_fn
 
 #: the paper's kinematic gate on lambda_min(W J_hat J_hat^T W) (Results, "A separate kinematic gate")
@@ -529,10 +529,7 @@ def _affine(fx, o, rows, cols, x, squash):
     y = np.empty(rows)
     ob = o + rows * cols
     for i in range(rows):
-        v = 0.0
-        for j in range(cols):
-            v += fx[o + i * cols + j] * x[j]
-        v += fx[ob + i]
+        v = dot(fx[o + i * cols:o + (i + 1) * cols], x) + fx[ob + i]
         y[i] = math.tanh(v) if squash else v
     return y
 

@@ -75,6 +75,25 @@ def mm_nt(A, B):
 
 
 @nb.njit(cache=True)
+def dot(a, b):
+    """sum_j a[j] b[j] (1-D) with four partial sums: a strict-IEEE reduction is one serial chain
+    of adds (~4 cycles each); four chains run ~4x faster on the p ~ 200 rows of the RBF's law."""
+    n = a.shape[0]
+    v0 = v1 = v2 = v3 = 0.0
+    j = 0
+    while j + 4 <= n:
+        v0 += a[j] * b[j]
+        v1 += a[j + 1] * b[j + 1]
+        v2 += a[j + 2] * b[j + 2]
+        v3 += a[j + 3] * b[j + 3]
+        j += 4
+    while j < n:
+        v0 += a[j] * b[j]
+        j += 1
+    return (v0 + v1) + (v2 + v3)
+
+
+@nb.njit(cache=True)
 def gram_sparse(A):
     """A @ A.T for A (p, m) with many zeros (the RBF's regressor: each parameter in one channel),
     from the non-zero entries of each column only; summed over the columns in order, as ``mm_nt``'s

@@ -34,7 +34,7 @@ import math
 import numba as nb
 import numpy as np
 
-from kinadapt_nn.controller.dense import chol, chol_solve, mm, mm_nt, vcopy
+from kinadapt_nn.controller.dense import chol, chol_solve, dot, mm, mm_nt, vcopy
 from kinadapt_nn.controller.laws.base import LawParams, LawSpec, LawState, LawView
 
 #: consts indices (scalars; then P0, L and L^-1 (p, p) each, L L^T = P0)
@@ -107,10 +107,7 @@ def step(theta, H_T, G, e, PhiF, lo, hi, consts, x, k, unc, d_track, d_pred):
         th[j] += d_pred[j]
     if c[GAMMA_D] > 0.0:  # eq. ft_composite's tracking term with Gamma = P
         for i in range(p):
-            v = 0.0
-            for j in range(p):
-                v += P[i, j] * PhiF[j]
-            d_track[i] = v * (-c[DT] * c[GAMMA_D])
+            d_track[i] = dot(P[i], PhiF) * (-c[DT] * c[GAMMA_D])
             th[i] += d_track[i]
     for j in range(p):  # Proj_Omega (clip)
         th[j] = min(max(th[j], lo[j]), hi[j])
@@ -125,10 +122,7 @@ def step(theta, H_T, G, e, PhiF, lo, hi, consts, x, k, unc, d_track, d_pred):
     for j in range(p):
         dth[j] = th[j] - prior[j]
     for i in range(p):  # act on the identified part only
-        v = 0.0
-        for j in range(p):
-            v += A[i, j] * dth[j]
-        theta[i] = prior[i] + v
+        theta[i] = prior[i] + dot(A[i], dth)
     tr = 0.0
     for j in range(p):
         tr += P[j, j]
