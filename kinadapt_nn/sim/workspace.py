@@ -16,8 +16,30 @@ from kinadapt_nn.sim.adapter import R_W_F_DOWN, solve_start_ik
 from kinadapt_nn.sim.scene import build_model
 
 
+#: results of the IK-solved sets below, per process, by their inputs (a pure function of them:
+#: a compare worker builds the same RBF centres and held-out set for every tool it runs)
+_MEMO: dict[tuple, object] = {}
+_MEMO_MAX = 64
+
+
+def _memo(key: tuple, compute):
+    """``compute()`` once per ``key`` in this process; the caller gets copies (arrays it may change)."""
+    if key not in _MEMO:
+        if len(_MEMO) >= _MEMO_MAX:
+            _MEMO.pop(next(iter(_MEMO)))
+        _MEMO[key] = compute()
+    val = _MEMO[key]
+    return tuple(v.copy() for v in val) if isinstance(val, tuple) else val.copy()
+
+
 def insertion_path(cfg: ExperimentCfg, n: int = 12, depth_range_m: tuple[float, float] = (-0.01, 0.05)) -> np.ndarray:
     """Joint configurations with the tip on the bore axis at ``n`` depths. -> (n, 7)."""
+    key = ("path", cfg.tool.model_dump_json(), cfg.scene.model_dump_json(), tuple(cfg.start.tilt_deg), int(n),
+           tuple(float(d) for d in depth_range_m))
+    return _memo(key, lambda: _insertion_path(cfg, n, depth_range_m))
+
+
+def _insertion_path(cfg: ExperimentCfg, n: int, depth_range_m: tuple[float, float]) -> np.ndarray:
     model, ids = build_model(cfg.tool, cfg.scene)
     entry = np.asarray(cfg.scene.bore_entry_w_m, dtype=float)
     R = tilt_rotation(cfg.start.tilt_deg) @ R_W_F_DOWN
@@ -69,12 +91,17 @@ def heldout_configurations(cfg: ExperimentCfg) -> tuple[np.ndarray, np.ndarray]:
     flange tilted uniformly within +-``heldout_tilt_deg`` about world x and y; IK on the nominal
     arm from the bore's own insertion path. Drawn from ``cell.heldout_seed`` alone: the same set
     for every tool, features type and insertion. -> (q (N, 7) [rad], bore index (N,))."""
-    cc = cfg.cell
-    rng = np.random.default_rng(cc.heldout_seed)
     tool = cfg.tool.model_copy(update={"offset_f_m": tuple(cfg.sensing.nominal_offset_f_m), "tilt_deg": (0.0, 0.0)})
-    model, ids = build_model(tool, cfg.scene.model_copy(update={"contact_model": "socket"}))
+    scene = cfg.scene.model_copy(update={"contact_model": "socket"})
+    key = ("heldout", cfg.cell.model_dump_json(), tool.model_dump_json(), scene.model_dump_json())
+    return _memo(key, lambda: _heldout_configurations(cfg.cell, tool, scene))
+
+
+def _heldout_configurations(cc, tool, scene) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(cc.heldout_seed)
+    model, ids = build_model(tool, scene)
     qs, which = [], []
-    for b, entry in enumerate(cc.bores(cfg.scene)):
+    for b, entry in enumerate(cc.bores(scene)):
         q = Q_HOME_RAD.copy()
         for _ in range(cc.heldout_per_bore):
             lat = rng.uniform(-1.0, 1.0, 2) * cc.heldout_lateral_m

@@ -67,3 +67,15 @@ def test_online_adjoint_path_imports_no_torch_and_tensorboard_reads_it_back(tmp_
     assert {"_hparams_/experiment", "_hparams_/session_start_info"} <= set(ea.summary_metadata)
     img = ea.Images("rollout")[0]
     assert img.width == 1680 and img.height == 1200
+
+
+def test_event_record_crc_is_tensorboards():
+    """The event records' masked CRC-32C (google_crc32c) equals TensorBoard's own pure-Python one."""
+    from tensorboard.compat.tensorflow_stub.pywrap_tensorflow import masked_crc32c
+
+    from kinadapt_nn.runio import _masked_crc
+
+    rng = np.random.default_rng(0)
+    for n in (0, 1, 8, 33, 1000):
+        data = rng.integers(0, 256, n, dtype=np.uint8).tobytes()
+        assert _masked_crc(data) == masked_crc32c(data)
