@@ -24,7 +24,8 @@ compile -- and are cached -- once for every law, registered ones included. A law
 own block of the state rows (``Layout``'s ``law`` block and counters, declared by the law).
 
 Features: the adjoint's regressor and drive are computed in the kernel (``FEAT_ADJOINT``), and so
-is the neural basis (``FEAT_NEURAL``: the frozen MLP body evaluated here, ``neural_consts``);
+are the neural basis (``FEAT_NEURAL``: the frozen MLP body evaluated here, ``neural_consts``) and
+the per-entry Gaussian RBF (``FEAT_RBF``: ``rbf_consts``);
 other features supply ``[known; Phi^T]`` and either ``J_hat_xi`` (``FEAT_TWIST``) or ``J_hat``
 (``FEAT_JHAT``) from Python between :func:`sense_kernel` and :func:`act_kernel`.
 

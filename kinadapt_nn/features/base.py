@@ -51,7 +51,7 @@ class Features(abc.ABC):
     @property
     def kernel(self) -> str | None:
         """Which in-kernel implementation of ``kinadapt_nn.controller.core`` computes these
-        features ("adjoint", "neural"); ``None``: the controller takes their rows from Python."""
+        features ("adjoint", "neural", "rbf"); ``None``: the controller takes their rows from Python."""
         return None
 
     def twist_jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray | None:

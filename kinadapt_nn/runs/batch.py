@@ -8,7 +8,7 @@ supplies encoders and raw F/T readings.
 
 Every law (kalman by default), the rigid loop, dither, the excitation program and the sensor-side
 rank gate run as in the single episode; the adjoint and the neural basis are fused in their step
-kernels (``core.FUSED``), other features (RBF) supply their rows from Python per episode. Stepping each model with ``mj_step`` as the
+kernels (``core.FUSED``: adjoint, neural basis, RBF), other features supply their rows from Python per episode. Stepping each model with ``mj_step`` as the
 single episode does, a batch episode reproduces ``run_episode`` to float precision
 (``tests/controller/test_core.py``). Not here: model effects (``model.effects``: per-episode
 feature state), simulated sensor faults and hidden sensor effects, the socket contact model's
