@@ -10,11 +10,15 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import socket
+import struct
 import tempfile
+import time
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterator, Mapping
 
+import google_crc32c
 import numpy as np
 
 from kinadapt_nn.errors import OutputExistsError
@@ -82,8 +86,6 @@ HIST_BINS = 30
 
 def _masked_crc(data: bytes) -> int:
     """TFRecord's masked CRC-32C of ``data``."""
-    import google_crc32c
-
     crc = google_crc32c.value(data)
     return (((crc >> 15) | (crc << 17)) + 0xA282EAD8) & 0xFFFFFFFF
 
@@ -96,9 +98,6 @@ class EventWriter:
     ``add_png`` (an already encoded image). Use as a context manager (flushes and closes)."""
 
     def __init__(self, log_dir: Path | str):
-        import socket
-        import time
-
         from tensorboard.compat.proto import event_pb2, summary_pb2
 
         Path(log_dir).mkdir(parents=True, exist_ok=True)
@@ -125,15 +124,11 @@ class EventWriter:
         """One TFRecord: length, its masked CRC-32C, the serialised event, its masked CRC-32C
         (CRC-32C in C, ``google_crc32c``: TensorBoard's pure-Python one was ~70 % of a run's
         event writing)."""
-        import struct
-
         data = event.SerializeToString()
         header = struct.pack("<Q", len(data))
         self._fh.write(header + struct.pack("<I", _masked_crc(header)) + data + struct.pack("<I", _masked_crc(data)))
 
     def _add(self, values: list, step: int, wall_time: float | None = None) -> None:
-        import time
-
         ev = self._ev.Event(wall_time=time.time() if wall_time is None else wall_time, step=int(step),
                             summary=self._pb.Summary(value=values))
         self._write(ev)
