@@ -540,10 +540,7 @@ def _neural_rows(b, inp, R, J, Y, lay, c, mats, fx, known, Phi_T):
     """Regressor of the neural basis: known = adjoint's known + Phi_adj l_prior; Phi rows 1..5 =
     qdot^T Y_i (NeuralFeatures.regressor)."""
     n, p = lay[L_N], lay[L_P]
-    PhiA = np.zeros((3, 6))
-    _adjoint_regressor(b, inp, R, J, lay, c, mats, known, PhiA)
-    for i in range(6):
-        known[i] += PhiA[0, i] * fx[2] + PhiA[1, i] * fx[3] + PhiA[2, i] * fx[4]
+    _known_at_prior(b, inp, R, J, lay, c, mats, fx, known)
     for kk in range(p):
         Phi_T[kk, 0] = 0.0
         for i in range(5):
@@ -554,11 +551,28 @@ def _neural_rows(b, inp, R, J, Y, lay, c, mats, fx, known, Phi_T):
 
 
 @nb.njit(cache=True)
-def _neural_jhat(b, R, J, Y, theta, c, mats, fx):
-    """J_hat (6, n) = S Ad(R l_prior) J + [0; Y theta]."""
-    Jx = _adjoint_twist_jacobian(b, R, fx[2:5], c, mats)
-    Jh = mm(Jx, J[b])
+def _known_at_prior(b, inp, R, J, lay, c, mats, fx, known):
+    """The learned features' known part of the regressor: the adjoint's known + Phi_adj l_prior
+    (l_prior = fx[2:5]) (m,), written to ``known``."""
+    PhiA = np.zeros((3, 6))
+    _adjoint_regressor(b, inp, R, J, lay, c, mats, known, PhiA)
+    for i in range(6):
+        known[i] += PhiA[0, i] * fx[2] + PhiA[1, i] * fx[3] + PhiA[2, i] * fx[4]
+
+
+@nb.njit(cache=True)
+def _jhat_prior(b, R, J, c, mats, fx):
+    """The learned features' known Jacobian K(q) = S Ad(R l_prior) J (6, n) (l_prior = fx[2:5])."""
+    return mm(_adjoint_twist_jacobian(b, R, fx[2:5], c, mats), J[b])
+
+
+@nb.njit(cache=True)
+def _neural_jhat(Kq, Y, theta):
+    """J_hat (6, n) = K(q) + [0; Y theta] (a new array; ``Kq`` from :func:`_jhat_prior`)."""
     n, K = Y.shape[1], Y.shape[2]
+    Jh = np.empty((6, n))  # (a loop copy: .copy() costs compile, see dense.vcopy)
+    for i in range(6):
+        vcopy(Jh[i], Kq[i])
     for i in range(5):
         for j in range(n):
             v = 0.0
@@ -597,10 +611,7 @@ def _rbf_rows(b, inp, R, J, psi, lay, c, mats, fx, known, Phi_T):
     holds qdot_j psi_k in block i ((i, j, k) order) and zeros elsewhere (RBFFeatures.regressor)."""
     n, m, p = lay[L_N], lay[L_M], lay[L_P]
     K = psi.shape[0]
-    PhiA = np.zeros((3, 6))
-    _adjoint_regressor(b, inp, R, J, lay, c, mats, known, PhiA)
-    for i in range(6):
-        known[i] += PhiA[0, i] * fx[2] + PhiA[1, i] * fx[3] + PhiA[2, i] * fx[4]
+    _known_at_prior(b, inp, R, J, lay, c, mats, fx, known)
     for r in range(p):
         for i in range(m):
             Phi_T[r, i] = 0.0
@@ -613,11 +624,13 @@ def _rbf_rows(b, inp, R, J, psi, lay, c, mats, fx, known, Phi_T):
 
 
 @nb.njit(cache=True)
-def _rbf_jhat(b, R, J, psi, theta, c, mats, fx):
-    """J_hat (6, n) = S Ad(R l_prior) J + [0; Theta psi], Theta = theta as (5, n, K)."""
-    Jx = _adjoint_twist_jacobian(b, R, fx[2:5], c, mats)
-    Jh = mm(Jx, J[b])
-    n, K = J.shape[2], psi.shape[0]
+def _rbf_jhat(Kq, psi, theta):
+    """J_hat (6, n) = K(q) + [0; Theta psi], Theta = theta as (5, n, K) (a new array; ``Kq`` from
+    :func:`_jhat_prior`)."""
+    n, K = Kq.shape[1], psi.shape[0]
+    Jh = np.empty((6, n))
+    for i in range(6):
+        vcopy(Jh[i], Kq[i])
     for i in range(5):
         for j in range(n):
             v = 0.0
@@ -748,7 +761,8 @@ def step_neural(t, inp, chain, p_O, R, J, reg, x, k, lay, c, mats, pv, lc, law_f
             continue
         Y = _neural_body(fx, inp[b, :n], n)
         _neural_rows(b, inp, R, J, Y, lay, c, mats, fx, reg[b, 0], reg[b, 1:])
-        Jh = _neural_jhat(b, R, J, Y, x[b, lay[X_TH]:lay[X_TH] + p], c, mats, fx)
+        Kq = _jhat_prior(b, R, J, c, mats, fx)  # once: the drive's J_hat and the rank gate's share it
+        Jh = _neural_jhat(Kq, Y, x[b, lay[X_TH]:lay[X_TH] + p])
         _filter_regressor(b, reg, x, lay, c)
         rho = out[b, lay[O_RHO]]
         Lc = _act_head(b, J, x, k, lay, c, out)
@@ -761,7 +775,7 @@ def step_neural(t, inp, chain, p_O, R, J, reg, x, k, lay, c, mats, pv, lc, law_f
         _law(b, reg, x, k, lay, c, pv, lc, law_fn, out)
         out[b, lay[O_UNC]] = x[b, lay[X_UNC]]
         if c[RANK_ON] > 0.0 and rho > 0.0:
-            _rank_margin(b, _neural_jhat(b, R, J, Y, x[b, lay[X_TH]:lay[X_TH] + p], c, mats, fx), c, out, lay)
+            _rank_margin(b, _neural_jhat(Kq, Y, x[b, lay[X_TH]:lay[X_TH] + p]), c, out, lay)
 
 
 @nb.njit(cache=True)
@@ -774,7 +788,8 @@ def step_rbf(t, inp, chain, p_O, R, J, reg, x, k, lay, c, mats, pv, lc, law_fn, 
             continue
         psi = _rbf_psi(fx, inp[b, :n], n)
         _rbf_rows(b, inp, R, J, psi, lay, c, mats, fx, reg[b, 0], reg[b, 1:])
-        Jh = _rbf_jhat(b, R, J, psi, x[b, lay[X_TH]:lay[X_TH] + p], c, mats, fx)
+        Kq = _jhat_prior(b, R, J, c, mats, fx)
+        Jh = _rbf_jhat(Kq, psi, x[b, lay[X_TH]:lay[X_TH] + p])
         _filter_regressor(b, reg, x, lay, c)
         rho = out[b, lay[O_RHO]]
         Lc = _act_head(b, J, x, k, lay, c, out)
@@ -787,7 +802,7 @@ def step_rbf(t, inp, chain, p_O, R, J, reg, x, k, lay, c, mats, pv, lc, law_fn, 
         _law(b, reg, x, k, lay, c, pv, lc, law_fn, out)
         out[b, lay[O_UNC]] = x[b, lay[X_UNC]]
         if c[RANK_ON] > 0.0 and rho > 0.0:
-            _rank_margin(b, _rbf_jhat(b, R, J, psi, x[b, lay[X_TH]:lay[X_TH] + p], c, mats, fx), c, out, lay)
+            _rank_margin(b, _rbf_jhat(Kq, psi, x[b, lay[X_TH]:lay[X_TH] + p]), c, out, lay)
 
 
 # step_adjoint, step_neural, step_rbf and act_kernel spell out the same act / law sequence around their own
