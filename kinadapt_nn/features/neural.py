@@ -14,7 +14,7 @@ import numpy as np
 
 from kinadapt_nn.features.adjoint import AdjointFeatures
 from kinadapt_nn.features.base import Features, KinState, Regressor
-from kinadapt_nn.learning.nets import N_JOINTS, N_ROWS
+from kinadapt_nn.learning.weights import N_JOINTS, N_ROWS
 
 
 class NeuralFeatures(Features):
@@ -23,17 +23,16 @@ class NeuralFeatures(Features):
     name = "neural"
 
     def __init__(self, known: AdjointFeatures, prior_offset_f: np.ndarray, checkpoint: Path, W: np.ndarray) -> None:
-        from kinadapt_nn.learning.checkpoint import load_checkpoint
+        from kinadapt_nn.learning.weights import load_checkpoint_arrays
 
-        net, meta = load_checkpoint(checkpoint)
+        sd, meta = load_checkpoint_arrays(checkpoint)  # (numpy; torch is not imported online)
         self.meta = meta
         self.checkpoint = Path(checkpoint)
         self.known = known
         self.prior = np.asarray(prior_offset_f, dtype=float)
         self.structure = meta["structure"]
         self.K = int(meta["n_features"])
-        self.n_params = int(net.n_params)
-        sd = {k: v.detach().cpu().numpy().astype(np.float64) for k, v in net.state_dict().items()}
+        self.n_params = self.K if self.structure == "basis" else N_ROWS * N_JOINTS * self.K
         self.W1, self.b1 = sd["l1.weight"], sd["l1.bias"]
         self.W2, self.b2 = sd["l2.weight"], sd["l2.bias"]
         self.W3, self.b3 = sd["l3.weight"], sd["l3.bias"]

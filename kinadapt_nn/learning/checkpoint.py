@@ -17,9 +17,7 @@ import torch
 
 from kinadapt_nn.errors import ModelFileError
 from kinadapt_nn.learning.nets import JacobianBasisNet
-
-CHECKPOINT_FORMAT = "kinadapt-jacobian-basis"
-CHECKPOINT_VERSION = 1
+from kinadapt_nn.learning.weights import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, check_meta  # noqa: F401
 
 
 def atomic_torch_save(obj, path: Path) -> None:
@@ -63,10 +61,7 @@ def load_checkpoint(path: Path) -> tuple[JacobianBasisNet, dict]:
     if not isinstance(blob, dict) or not {"state_dict", "meta", "sha256"} <= set(blob):
         raise ModelFileError(f"checkpoint '{path}' is not a kinadapt checkpoint (missing state_dict/meta/sha256)")
     meta = blob["meta"]
-    if meta.get("format") != CHECKPOINT_FORMAT:
-        raise ModelFileError(f"checkpoint '{path}' has format {meta.get('format')!r}, expected {CHECKPOINT_FORMAT!r}")
-    if int(meta.get("version", -1)) > CHECKPOINT_VERSION:
-        raise ModelFileError(f"checkpoint '{path}' has version {meta.get('version')}; upgrade kinadapt_nn to read it")
+    check_meta(path, meta)
     if state_hash(blob["state_dict"], meta) != blob["sha256"]:
         raise ModelFileError(f"checkpoint '{path}' failed its content hash (file modified or damaged)")
     try:

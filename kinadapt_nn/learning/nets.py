@@ -16,8 +16,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-N_ROWS = 5
-N_JOINTS = 7
+from kinadapt_nn.learning.weights import N_JOINTS, N_ROWS
 
 
 class JacobianBasisNet(nn.Module):

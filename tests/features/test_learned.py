@@ -130,6 +130,51 @@ def test_checkpoint_round_trip_and_corruption(tmp_path):
     assert rc == 2 and not out.exists()
 
 
+@pytest.mark.parametrize("name", ["neural_default.pt", "neural_cell.pt", "copy"])
+def test_checkpoint_arrays_without_torch_equal_torch_load(tmp_path, name):
+    """The torch-free reader (kinadapt_nn.learning.weights) gives torch.load's tensors and metadata
+    exactly, verifies the content hash, and a damaged file is a one-line ModelFileError."""
+    from kinadapt_nn.learning.checkpoint import load_checkpoint, save_checkpoint
+    from kinadapt_nn.learning.weights import load_checkpoint_arrays, read_torch_file
+
+    path = MODELS_DIR / name
+    if name == "copy":  # written here by this torch: the reader follows the current format
+        net, meta = load_checkpoint(MODELS_DIR / "neural_default.pt")
+        path = tmp_path / "copy.pt"
+        save_checkpoint(path, net, np.asarray(meta["theta_mean"]),
+                        {k: v for k, v in meta.items() if k not in ("format", "version", "theta_mean", "theta_std")},
+                        np.asarray(meta["theta_std"]))
+    raw = read_torch_file(path)  # (no fallback to torch here: the file's own layout is read)
+    blob = torch.load(path, map_location="cpu", weights_only=True)
+    assert raw["sha256"] == blob["sha256"] and raw["meta"] == blob["meta"]
+    assert sorted(raw["state_dict"]) == sorted(blob["state_dict"])
+    for k, v in blob["state_dict"].items():
+        assert raw["state_dict"][k].dtype == v.numpy().dtype and np.array_equal(raw["state_dict"][k], v.numpy())
+    sd, meta = load_checkpoint_arrays(path)
+    net, meta_t = load_checkpoint(path)
+    assert meta == meta_t
+    assert all(np.array_equal(sd[k], v.double().numpy()) for k, v in net.state_dict().items())
+    data = bytearray(path.read_bytes())  # a flipped byte in the tensor data
+    data[len(data) // 2] ^= 0xFF
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(ModelFileError):
+        load_checkpoint_arrays(bad)
+
+
+def test_neural_features_are_built_without_importing_torch():
+    """An online run with neural features reads its checkpoint without torch (~1.2 s import)."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from kinadapt_nn.config import load_config; from kinadapt_nn.runs.build import make_features; "
+            "f, th = make_features(load_config(None, ['run.features=neural'])); "
+            "print(f.n_params, 'torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    feats, _ = make_features(load_config(None, ["run.features=neural"]))
+    assert out == [str(feats.n_params), "False"]
+
+
 def test_pretraining_resume_equals_uninterrupted(tmp_path):
     """Deterministic from the seed; an interrupted run resumed from train_state.pt ends bit-identical."""
     from kinadapt_nn.learning.checkpoint import checkpoint_bytes_equal
