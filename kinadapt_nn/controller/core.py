@@ -1053,6 +1053,27 @@ def compile_calls(calls, progress: bool = False, law=None) -> float:
     return phase.wall_s
 
 
+def _in_cache(fn, sig) -> bool:
+    """True when numba's on-disk cache holds ``fn`` compiled for ``sig`` by this source and this
+    machine's code generator (the key ``load_overload`` would look up)."""
+    cache = fn._cache
+    return cache._index_key(sig, fn.targetctx.codegen()) in cache._cache_file._load_index()
+
+
+def calls_cached(calls, law=None) -> bool:
+    """True when every ``(name, dispatcher, args)`` of ``calls`` (for the types of ``args``) and
+    ``law``'s step (a ``LawSpec``) are in numba's on-disk cache, so a process can load them
+    instead of compiling; False when not, or when that cannot be told."""
+    from kinadapt_nn.controller.laws.base import STEP_SIG
+
+    try:
+        if law is not None and not law._address and not _in_cache(law.step, STEP_SIG):
+            return False
+        return all(_in_cache(fn, tuple(nb.typeof(a) for a in args)) for _name, fn, args in calls)
+    except Exception:  # numba's cache internals moved
+        return False
+
+
 def kernels_cached() -> bool:
     """True when the step kernel's compiled code is in numba's on-disk cache (the first run on a
     machine compiles it, once); True also when that cannot be told (no message then)."""

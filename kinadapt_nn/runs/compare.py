@@ -172,6 +172,7 @@ def run_compare(cfg: CompareCfg, out: Path, progress: bool = True) -> list[dict]
     done: dict[int, dict] = {}
     with ProcessPoolExecutor(max_workers=cfg.jobs) as ex:
         futures = {ex.submit(_run_one, jobs[i]): i for i in order}
+        _import_pyplot()  # (while the workers run: the figure at the end then only draws)
         for fut in as_completed(futures):
             done[futures[fut]] = fut.result()
             if bar is not None:
@@ -254,16 +255,34 @@ def _markdown(rows: list[dict], cols: list[str]) -> str:
     return "\n".join(lines) + "\n" + note
 
 
-def _figure(results: list[dict], cfg: CompareCfg, path: Path) -> None:
+def _import_pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    return plt
+
+
+#: the figure's grid [in]: left (y tick labels + y label), right, top (title), bottom (x label),
+#: between columns (the next panel's y labels) and rows (x labels + the next title)
+_GRID_IN = dict(left=0.95, right=0.2, top=0.4, bottom=0.6, wgap=1.05, hgap=0.95)
+
+
+def _figure(results: list[dict], cfg: CompareCfg, path: Path) -> None:
+    """Jacobian error vs time, one panel per (scenario, family), one colour per features type.
+    Fixed margins (``_GRID_IN``) rather than constrained_layout: its solver measured half of the
+    figure's drawing time (it draws every tick label to size them, then the figure again)."""
+    plt = _import_pyplot()
     scen = list(cfg.scenarios)
     fams = list(cfg.families)
-    fig, axes = plt.subplots(len(scen), len(fams), figsize=(5.5 * len(fams), 3.6 * len(scen)), squeeze=False,
-                             constrained_layout=True)
+    w, h = 5.5 * len(fams), 3.6 * len(scen)
+    fig, axes = plt.subplots(len(scen), len(fams), figsize=(w, h), squeeze=False)
+    g = _GRID_IN
+    aw = (w - g["left"] - g["right"] - (len(fams) - 1) * g["wgap"]) / len(fams)
+    ah = (h - g["top"] - g["bottom"] - (len(scen) - 1) * g["hgap"]) / len(scen)
+    fig.subplots_adjust(left=g["left"] / w, right=1 - g["right"] / w, bottom=g["bottom"] / h, top=1 - g["top"] / h,
+                        wspace=g["wgap"] / aw, hspace=g["hgap"] / ah)
     for a, sc in enumerate(scen):
         for b, fam in enumerate(fams):
             ax = axes[a, b]

@@ -42,14 +42,17 @@ def precompile(cfgs: list[ExperimentCfg], progress: bool = False) -> float:
     """Compile (or load from numba's cache) the kernels of every distinct features type and law
     among ``cfgs``, in this process and as one compile phase (``core.compiling``: its own bar on a
     cold cache), before a pool of worker processes runs the episodes: the workers then load the
-    kernels from the cache instead of each compiling them behind a frozen episode bar.
-    -> wall seconds."""
+    kernels from the cache instead of each compiling them behind a frozen episode bar. Nothing
+    when every kernel is cached already (``core.calls_cached``). -> wall seconds."""
     kinds = {}
     for c in cfgs:
         kinds.setdefault((c.run.features, c.adaptation.mode), c)
+    ctrls = [make_controller(c) for c in kinds.values()]
+    if all(core.calls_cached(k.kernel_calls(), k.law_spec) for k in ctrls):
+        return 0.0  # all cached: each worker loads them (loading here too would only delay the workers)
     with core.compiling(progress) as phase:
-        for c in kinds.values():
-            make_controller(c).compile_kernels()
+        for k in ctrls:
+            k.compile_kernels()
     return phase.wall_s
 
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from kinadapt_nn.config import load_config
+from kinadapt_nn.controller import core
 from kinadapt_nn.runs.monitor import SeatMonitor, classify_failure
 from kinadapt_nn.runs.build import make_controller
 from kinadapt_nn.runs.episode import run_episode
@@ -160,8 +161,8 @@ def test_rank_gate_breach_stops_the_episode_cleanly():
 
 
 def test_precompile_builds_one_controller_per_features_and_law(monkeypatch):
-    """A pool's kernels are compiled (or loaded) once in the parent, one controller per distinct
-    (features, law) -- the seed and the tool change no kernel -- and each one ready to step."""
+    """A pool's kernels are compiled once in the parent, one controller per distinct (features,
+    law) -- the seed and the tool change no kernel -- after which every one is in the cache."""
     import kinadapt_nn.runs.episode as ep
 
     built = []
@@ -176,4 +177,22 @@ def test_precompile_builds_one_controller_per_features_and_law(monkeypatch):
     cfgs.append(load_config(None, ["adaptation.mode=composite"]))
     ep.precompile(cfgs)
     assert sorted(c.known.law for c in built) == ["composite", "kalman"]
-    assert all(c._kernels_ready and c.consts.law_fn[0] == c.law_spec.address() != 0 for c in built)
+    assert all(core.calls_cached(c.kernel_calls(), c.law_spec) for c in built)
+    assert ep.precompile(cfgs) == 0.0  # all cached: nothing loaded in the parent
+
+
+def test_calls_cached_tells_a_cold_cache_from_a_warm_one(tmp_path):
+    """``core.calls_cached`` (precompile's check) is False in a process whose numba cache folder is
+    empty -- checking compiles nothing -- and True once the kernels are compiled into it."""
+    import subprocess
+    import sys
+
+    code = ("from kinadapt_nn.config import load_config; from kinadapt_nn.runs.build import make_controller; "
+            "from kinadapt_nn.controller import core; c = make_controller(load_config(None, [])); "
+            "print(core.calls_cached(c.kernel_calls(), c.law_spec))")
+    env = dict(__import__("os").environ, NUMBA_CACHE_DIR=str(tmp_path))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True, timeout=120)
+    assert out.stdout.split() == ["False"] and not any(tmp_path.rglob("*.nbc"))  # nothing compiled to check
+    ctrl = make_controller(load_config(None, []))
+    ctrl.compile_kernels()
+    assert core.calls_cached(ctrl.kernel_calls(), ctrl.law_spec)
