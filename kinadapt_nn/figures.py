@@ -339,8 +339,14 @@ def _rms_bars(a, free: np.ndarray, contact: np.ndarray) -> None:
     a.set_title("prediction error by contact state (drive on)", fontsize=10)
 
 
+#: resolution the figures are saved at [dots per inch]
+SAVE_DPI = 120
+#: zlib level of the saved PNGs (fast: each PNG is written once)
+PNG_COMPRESS_LEVEL = 1
+
+
 def save_figure(fig: plt.Figure, path: Path) -> None:
-    fig.savefig(path, dpi=120, pil_kwargs={"compress_level": 1})  # fast zlib: the PNG is written once
+    fig.savefig(path, dpi=SAVE_DPI, pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
     plt.close(fig)
 
 

@@ -14,6 +14,18 @@ caller (``multiprocessing``'s fork context): it inherits numpy, pydantic and the
 already imported, and only imports matplotlib. Elsewhere it is a fresh interpreter,
 ``python -m kinadapt_nn.app.figure_worker``, fed through its stdin.
 
+Once the episode has ended, drawing the figure is what ``kinadapt online`` waits on: 0.80-0.86 s
+warm from ``submit`` to ``wait`` returning (measured: the default run, a two-core machine, the
+median of five, two sessions). So where it forks and ``os.cpu_count() >= 2`` the worker shares
+it with a fork of itself made when the job arrives (warm: matplotlib imported, caches filled):
+each builds the whole figure, the worker draws panels 0-3 and the suptitle and footer, the fork
+panels 4-8 (``SPLIT_AT``); the fork sends its pixels back, the worker lays its own over them and
+writes the PNG (``_draw_shared``, ``_draw_part``): 0.54-0.59 s from ``submit`` to ``wait``,
+measured alike with both parts forked at ``start``, with pixels at most one 8-bit level from
+``save_figure``'s (at anti-aliased edges). Forking at the job keeps one warm-up beside the
+episode: two warm-ups at ``start`` slowed the episode's process on two cores as much as the
+split saved. The gain needs the second core free.
+
 If the worker cannot be started or fails, ``wait`` says so (``FigureWorkerError``) and the
 caller draws the figure in its own process instead.
 """
@@ -50,9 +62,16 @@ class FigureWorker:
         self._sender: threading.Thread | None = None
 
     @classmethod
-    def start(cls, fork: bool | None = None) -> FigureWorker:
-        """A started worker: forked where ``can_fork()`` (or ``fork``), else a fresh interpreter."""
-        return _ForkedWorker() if (can_fork() if fork is None else fork) else _SpawnedWorker()
+    def start(cls, fork: bool | None = None, parts: int | None = None) -> FigureWorker:
+        """A started worker: forked where ``can_fork()`` (or ``fork``), else a fresh interpreter.
+
+        ``parts``: how many forked processes share the drawing, 1 or 2 (default: 2 where
+        ``os.cpu_count() >= 2``, else 1); the fresh interpreter is always one."""
+        if not (can_fork() if fork is None else fork):
+            return _SpawnedWorker()
+        if parts is None:
+            parts = 2 if (os.cpu_count() or 1) >= 2 else 1
+        return _ForkedWorker(parts)
 
     def submit(self, trace, summary: dict, cfg, png_path: Path) -> None:
         """Send the run to the worker; it writes ``png_path`` (returns at once: a thread writes
@@ -87,23 +106,30 @@ class FigureWorker:
 
 
 class _ForkedWorker(FigureWorker):
-    """The worker as a fork of this process, talking through a ``multiprocessing`` pipe."""
+    """The worker as a fork of this process, talking through a ``multiprocessing`` pipe.
 
-    def __init__(self) -> None:
+    ``parts=1``: it draws and writes the whole figure. ``parts=2``: when the job arrives it forks
+    itself -- warm, matplotlib imported -- and the two share the drawing (``_draw_shared``): the
+    fork draws panels ``SPLIT_AT``..8 and sends its pixels back, the worker draws panels
+    0..``SPLIT_AT - 1`` with the figure-level texts, lays them over the fork's, writes the PNG and
+    answers. Forking at the job, not at ``start``, keeps one warm-up (matplotlib's import and a
+    throw-away figure) beside the episode instead of two."""
+
+    def __init__(self, parts: int = 1) -> None:
         import multiprocessing
 
         super().__init__()
+        if parts not in (1, 2):
+            raise ValueError(f"parts must be 1 or 2, not {parts}")
         ctx = multiprocessing.get_context("fork")
         self._conn, child = ctx.Pipe()
-        self._proc = ctx.Process(target=_forked_main, args=(child,), name="kinadapt-figure", daemon=True)
+        self._proc = ctx.Process(target=_forked_main, args=(child, parts, self._conn), name="kinadapt-figure",
+                                 daemon=True)
         self._proc.start()
-        child.close()
+        child.close()  # (so a worker that dies is seen as end-of-file)
 
     def _send(self, job: tuple) -> None:
-        try:
-            self._conn.send(job)
-        except (BrokenPipeError, OSError):  # the worker died early: wait() reports it
-            pass
+        _send_bytes(self._conn, pickle.dumps(job, protocol=pickle.HIGHEST_PROTOCOL))
 
     def _finish(self, timeout_s: float) -> str | None:
         if self._sender is None:  # nothing submitted: the worker ends on end-of-file
@@ -123,8 +149,17 @@ class _ForkedWorker(FigureWorker):
     def close(self) -> None:
         if self._proc.is_alive():
             self._proc.kill()
-            self._proc.join()
+        self._proc.join()
+        if self._sender is not None:  # (its write fails once the worker is gone; then the pipe closes)
+            self._sender.join(5.0)
         self._conn.close()
+
+
+def _send_bytes(conn, data: bytes) -> None:
+    try:
+        conn.send_bytes(data)
+    except (BrokenPipeError, OSError):  # the part died early: wait() reports it
+        pass
 
 
 class _SpawnedWorker(FigureWorker):
@@ -174,7 +209,9 @@ class _SpawnedWorker(FigureWorker):
 
 def _warm_up() -> None:
     """Draw a small throw-away figure with what the rollout figure uses (fonts, log-axis tick
-    labels in mathtext, legends), so the real one is drawn warm."""
+    labels in mathtext, legends), at the PNG's dpi, so the real one is drawn warm: matplotlib
+    caches parsed mathtext per (text, dpi, font) and the glyphs per size, so the log axis spans
+    the decades the rollout figure's log panels label (1e-6 .. 1e2)."""
     import io
 
     import matplotlib
@@ -183,7 +220,7 @@ def _warm_up() -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    import kinadapt_nn.figures  # noqa: F401  (its imports: config, trace)
+    from kinadapt_nn.figures import SAVE_DPI  # (its imports: config, trace)
 
     fig, ax = plt.subplots(1, 2, figsize=(4, 2))
     x = np.linspace(0, 1, 50)
@@ -191,11 +228,11 @@ def _warm_up() -> None:
     ax[0].legend(fontsize=7)
     ax[0].set_title("t", fontsize=10)
     ax[0].set_xlabel("x")
-    ax[1].semilogy(x, 1e-3 + x, label="b")
+    ax[1].semilogy(x, np.logspace(-6, 2, len(x)), label="b")
     ax[1].legend(fontsize=8)
     fig.suptitle("s")
     fig.text(0.0, 0.0, "w", fontsize=8)
-    fig.savefig(io.BytesIO(), format="png", dpi=30)
+    fig.savefig(io.BytesIO(), format="png", dpi=SAVE_DPI)  # (also loads PIL's PNG encoder)
     plt.close(fig)
 
 
@@ -205,25 +242,139 @@ def _draw(trace, summary: dict, cfg, path: str) -> None:
     save_figure(rollout_figure(trace, summary, cfg), Path(path))
 
 
-def _forked_main(conn) -> None:
-    """The forked worker: import matplotlib, warm up unless the job is already waiting (a short
-    episode: warming up would only delay it), take one job from ``conn``, draw it, answer None or
-    the error."""
+#: the two forked parts' split of the rollout figure's panels (``fig.axes`` order, row by row):
+#: part 0 draws 0 .. SPLIT_AT - 1 and the figure-level texts, part 1 the rest. Measured warm on a
+#: two-core machine: the first four panels ~0.41-0.45 s, the other five ~0.42-0.50 s (part 0
+#: also lays the two over each other and writes the PNG).
+SPLIT_AT = 4
+
+
+class _PartFailed(Exception):
+    """Part 1 failed or died (raised in part 0, which answers for both)."""
+
+
+def _draw_part(trace, summary: dict, cfg, path: str, part: int, link) -> None:
+    """Draw part ``part`` (0 or 1) of the rollout figure at the PNG's dpi with Agg, in a figure
+    the same size in pixels as ``save_figure``'s ((14 x 10) in x 120 dpi = 1680 x 1200 px).
+
+    Part 1 draws its panels over the opaque figure background and sends its pixels through
+    ``link`` (a header ``("pixels", (width, height))``, then the (height, width, 4) uint8 RGBA
+    rows as bytes; ``("error", message)`` instead if it fails). Part 0 draws its panels and the
+    figure-level texts over a transparent background (Agg's RGBA is not premultiplied), lays them
+    over part 1's pixels (``PIL.Image.alpha_composite``, the "over" operator) and writes ``path``
+    as ``save_figure`` would (PNG, zlib level ``PNG_COMPRESS_LEVEL``, the dpi and Software
+    metadata matplotlib writes): to a temporary file beside it, then renamed, so a crash leaves
+    no half-written PNG."""
+    import matplotlib
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import to_rgba
+    from PIL import Image, PngImagePlugin
+
+    from kinadapt_nn.figures import PNG_COMPRESS_LEVEL, SAVE_DPI, rollout_figure
+
+    fig = rollout_figure(trace, summary, cfg)
+    face = matplotlib.rcParams["savefig.facecolor"]  # the background savefig would give it
+    if isinstance(face, str) and face == "auto":
+        face = fig.get_facecolor()
+    for k, a in enumerate(fig.axes):
+        a.set_visible((k < SPLIT_AT) == (part == 0))
+    if part == 0:
+        fig.patch.set_alpha(0.0)
+    else:
+        fig.patch.set_facecolor(face)
+        for artist in (*fig.texts, *fig.legends, *fig.lines, *fig.patches, *fig.images):  # (texts: suptitle, footer)
+            artist.set_visible(False)
+    fig.set_dpi(SAVE_DPI)
+    fig.canvas.draw()
+    pixels = memoryview(fig.canvas.buffer_rgba())  # (height, width, 4) uint8, RGBA
+    size = (pixels.shape[1], pixels.shape[0])  # (width, height) [px]
+    if part == 1:
+        link.send(("pixels", size))
+        link.send_bytes(pixels.cast("B"))
+        plt.close(fig)
+        return
+    try:
+        kind, what = link.recv()
+        if kind != "pixels":
+            raise _PartFailed(f"part 1: {what}")
+        if what != size:
+            raise _PartFailed(f"part 1 drew {what[0]} x {what[1]} px, part 0 {size[0]} x {size[1]}")
+        under = Image.frombuffer("RGBA", size, link.recv_bytes(), "raw", "RGBA", 0, 1)
+    except (EOFError, OSError) as exc:
+        raise _PartFailed("part 1 ended without its pixels") from exc
+    image = Image.alpha_composite(under, Image.frombuffer("RGBA", size, pixels, "raw", "RGBA", 0, 1))
+    plt.close(fig)
+    if to_rgba(face)[3] >= 1.0:  # opaque: RGB (a quarter less to compress)
+        image = image.convert("RGB")
+    info = PngImagePlugin.PngInfo()
+    info.add_text("Software", f"Matplotlib version{matplotlib.__version__}, https://matplotlib.org/")
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        image.save(tmp, format="PNG", compress_level=PNG_COMPRESS_LEVEL, dpi=(SAVE_DPI, SAVE_DPI), pnginfo=info)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def _draw_shared(trace, summary: dict, cfg, path: str) -> None:
+    """The figure drawn by this process and a fork of it (``_draw_part``): the fork draws part 1
+    and sends its pixels through a pipe made for it, this process part 0 and writes the PNG. A
+    fork that fails sends its error instead; one that dies is end-of-file (``_PartFailed``)."""
+    import multiprocessing
+
+    recv, send = multiprocessing.Pipe(duplex=False)
+    pid = os.fork()
+    if pid == 0:  # the fork: part 1, then exit without running the parent's clean-up
+        code = 0
+        try:
+            recv.close()
+            try:
+                _draw_part(trace, summary, cfg, path, part=1, link=send)
+            except Exception as exc:
+                send.send(("error", f"{type(exc).__name__}: {exc}"))
+        except BaseException:
+            code = 1
+        finally:
+            os._exit(code)
+    send.close()
+    try:
+        _draw_part(trace, summary, cfg, path, part=0, link=recv)
+    finally:
+        recv.close()
+        try:
+            os.waitpid(pid, 0)
+        except ChildProcessError:
+            pass
+
+
+def _forked_main(conn, parts: int = 1, parent_end=None) -> None:
+    """The forked worker: close the parent's end of the pipe (``parent_end``: so a parent that
+    dies is seen as end-of-file), import matplotlib, warm up unless the job is already waiting (a
+    short episode: warming up would only delay it), take one job from ``conn``, draw it -- alone
+    (``parts`` 1) or with a fork of itself (2, ``_draw_shared``) -- and answer None or the error."""
+    if parent_end is not None:
+        parent_end.close()
     try:
         import kinadapt_nn.figures  # noqa: F401  (matplotlib)
 
         if not conn.poll():
             _warm_up()
         try:
-            job = conn.recv()
+            job = pickle.loads(conn.recv_bytes())
         except EOFError:  # the parent ended without a figure to draw
             return
-        _draw(*job)
+        (_draw_shared if parts == 2 else _draw)(*job)
         conn.send(None)
     except KeyboardInterrupt:
         pass
     except Exception as exc:  # reported by the parent's wait(), which then draws the figure itself
-        conn.send(f"{type(exc).__name__}: {exc}")
+        error = str(exc) if isinstance(exc, _PartFailed) else f"{type(exc).__name__}: {exc}"
+        try:
+            conn.send(error)
+        except (BrokenPipeError, OSError):  # (the parent already gone)
+            pass
 
 
 def main() -> int:

@@ -23,9 +23,15 @@ class NeuralFeatures(Features):
     name = "neural"
 
     def __init__(self, known: AdjointFeatures, prior_offset_f: np.ndarray, checkpoint: Path, W: np.ndarray) -> None:
-        from kinadapt_nn.learning.weights import load_checkpoint_arrays
+        from kinadapt_nn.learning.weights import LayoutNotRead, load_checkpoint_arrays
 
-        sd, meta = load_checkpoint_arrays(checkpoint)  # (numpy; torch is not imported online)
+        try:
+            sd, meta = load_checkpoint_arrays(checkpoint)  # (numpy; torch is not imported online)
+        except LayoutNotRead:  # a layout only torch reads (and reports on)
+            from kinadapt_nn.learning.checkpoint import load_checkpoint
+
+            net, meta = load_checkpoint(checkpoint)
+            sd = {k: v.detach().cpu().numpy().astype(np.float64) for k, v in net.state_dict().items()}
         self.meta = meta
         self.checkpoint = Path(checkpoint)
         self.known = known

@@ -9,7 +9,8 @@ are ``torch._utils._rebuild_tensor_v2`` calls on storages named by key) and ``<r
 restricted unpickler -- like ``torch.load(weights_only=True)``, only the tensor rebuild, the
 storage types and ``collections.OrderedDict`` may be named, so no pickled code runs. A file
 it does not understand (another byte order, a legacy pre-zip file, a tensor subclass) is a
-``ValueError``; :func:`load_checkpoint_arrays` then reads it with torch instead.
+``ValueError`` (:class:`LayoutNotRead` from :func:`load_checkpoint_arrays`): the caller then
+reads it with torch (``checkpoint.load_checkpoint``).
 
 ``tests/features/test_learned.py`` checks the arrays and metadata equal ``torch.load``'s.
 """
@@ -93,6 +94,11 @@ class _Unpickler(pickle.Unpickler):
         return self._loaded[key]
 
 
+class LayoutNotRead(ValueError):
+    """A file this module's reader does not understand; ``checkpoint.load_checkpoint`` (torch)
+    reads it, and reports what is wrong with it."""
+
+
 def read_torch_file(path: Path):
     """The object ``torch.save`` wrote to ``path`` (zip format), tensors as numpy arrays.
     ``ValueError`` for anything this reader does not understand; ``OSError`` if unreadable."""
@@ -152,8 +158,8 @@ def load_checkpoint_arrays(path: Path) -> tuple[dict[str, np.ndarray], dict]:
     """A verified checkpoint (the checks of ``checkpoint.load_checkpoint``: format, version,
     content hash, the tensors the structure needs) -> (state_dict, meta), the state_dict as float64
     numpy arrays holding the values ``load_checkpoint``'s network holds (its layers are float32),
-    without torch where the file allows (:func:`read_torch_file`). One-line ``ModelFileError``
-    for anything wrong with it."""
+    without torch (:func:`read_torch_file`); :class:`LayoutNotRead` for a file whose layout it
+    does not read (torch may). One-line ``ModelFileError`` for anything wrong with it."""
     from kinadapt_nn.errors import ModelFileError
 
     path = Path(path)
@@ -161,11 +167,8 @@ def load_checkpoint_arrays(path: Path) -> tuple[dict[str, np.ndarray], dict]:
         raise ModelFileError(f"checkpoint '{path}' not found (run 'kinadapt pretrain --out DIR' or fix the path)")
     try:
         blob = read_torch_file(path)
-    except ValueError:  # not the plain zip layout: torch reads it (and reports what is wrong)
-        from kinadapt_nn.learning.checkpoint import load_checkpoint
-
-        net, meta = load_checkpoint(path)
-        return {k: v.detach().cpu().numpy().astype(np.float64) for k, v in net.state_dict().items()}, meta
+    except ValueError as exc:  # not the plain zip layout: the caller has torch read it
+        raise LayoutNotRead(f"checkpoint '{path}': {exc}") from None
     except OSError as exc:
         raise ModelFileError(f"checkpoint '{path}' cannot be read ({exc.strerror or exc})") from None
     if not isinstance(blob, dict) or not {"state_dict", "meta", "sha256"} <= set(blob):

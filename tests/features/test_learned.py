@@ -135,7 +135,7 @@ def test_checkpoint_arrays_without_torch_equal_torch_load(tmp_path, name):
     """The torch-free reader (kinadapt_nn.learning.weights) gives torch.load's tensors and metadata
     exactly, verifies the content hash, and a damaged file is a one-line ModelFileError."""
     from kinadapt_nn.learning.checkpoint import load_checkpoint, save_checkpoint
-    from kinadapt_nn.learning.weights import load_checkpoint_arrays, read_torch_file
+    from kinadapt_nn.learning.weights import LayoutNotRead, load_checkpoint_arrays, read_torch_file
 
     path = MODELS_DIR / name
     if name == "copy":  # written here by this torch: the reader follows the current format
@@ -154,12 +154,14 @@ def test_checkpoint_arrays_without_torch_equal_torch_load(tmp_path, name):
     net, meta_t = load_checkpoint(path)
     assert meta == meta_t
     assert all(np.array_equal(sd[k], v.double().numpy()) for k, v in net.state_dict().items())
-    data = bytearray(path.read_bytes())  # a flipped byte in the tensor data
-    data[len(data) // 2] ^= 0xFF
+    data = bytearray(path.read_bytes())  # a flipped byte in the tensor data: refused, and the
+    data[len(data) // 2] ^= 0xFF  # features (which then ask torch) report a one-line ModelFileError
     bad = tmp_path / "bad.pt"
     bad.write_bytes(bytes(data))
-    with pytest.raises(ModelFileError):
+    with pytest.raises((ModelFileError, LayoutNotRead)):
         load_checkpoint_arrays(bad)
+    with pytest.raises(ModelFileError):
+        make_features(load_config(None, ["run.features=neural", f"features.neural_checkpoint='{bad}'"]))
 
 
 def test_neural_features_are_built_without_importing_torch():

@@ -34,7 +34,7 @@ import math
 import numba as nb
 import numpy as np
 
-from kinadapt_nn.controller.dense import chol, chol_solve, dot, mm, mm_nt, vcopy
+from kinadapt_nn.controller.dense import chol, mm, mm_nt, vcopy
 from kinadapt_nn.controller.laws.base import LawParams, LawSpec, LawState, LawView
 
 #: consts indices (scalars; then P0, L and L^-1 (p, p) each, L L^T = P0)
@@ -105,9 +105,17 @@ def step(theta, H_T, G, e, PhiF, lo, hi, consts, x, k, unc, d_track, d_pred):
         return n2
     for j in range(p):
         th[j] += d_pred[j]
-    if c[GAMMA_D] > 0.0:  # eq. ft_composite's tracking term with Gamma = P
+    if c[GAMMA_D] > 0.0:  # eq. ft_composite's tracking term with Gamma = P: P PhiF as sum_j PhiF_j P[j, :]
+        for i in range(p):  # (P is exactly symmetric: rows are columns; contiguous row sweeps vectorise)
+            d_track[i] = 0.0
+        for j in range(p):
+            v = PhiF[j]
+            Pj = P[j]
+            for i in range(p):
+                d_track[i] += v * Pj[i]
+        g = -c[DT] * c[GAMMA_D]
         for i in range(p):
-            d_track[i] = dot(P[i], PhiF) * (-c[DT] * c[GAMMA_D])
+            d_track[i] *= g
             th[i] += d_track[i]
     for j in range(p):  # Proj_Omega (clip)
         th[j] = min(max(th[j], lo[j]), hi[j])
@@ -117,12 +125,20 @@ def step(theta, H_T, G, e, PhiF, lo, hi, consts, x, k, unc, d_track, d_pred):
         k[ACT_INIT] = 1
         pp = p * p
         o = N_SCALARS + pp
-        identified_projector(P, c[o:o + pp].reshape((p, p)), c[o + pp:o + 2 * pp].reshape((p, p)), c[ACT_RATIO], A)
+        identified_projector(P, c[o:o + pp].reshape((p, p)), c[o + pp:o + 2 * pp].reshape((p, p)), c[ACT_RATIO], A,
+                             True)
     dth = np.empty(p)
     for j in range(p):
         dth[j] = th[j] - prior[j]
-    for i in range(p):  # act on the identified part only
-        theta[i] = prior[i] + dot(A[i], dth)
+    act = np.zeros(p)  # act on the identified part only: Pi dth = sum_j dth_j Pi[:, j] (A holds Pi^T)
+    for j in range(p):
+        v = dth[j]
+        if v != 0.0:
+            Aj = A[j]
+            for i in range(p):
+                act[i] += v * Aj[i]
+    for i in range(p):
+        theta[i] = prior[i] + act[i]
     tr = 0.0
     for j in range(p):
         tr += P[j, j]
@@ -180,24 +196,42 @@ def _measurement_update(P, H_T, e_kf, R, d_pred):
         S[i, i] += R[i]
     if not chol(S, m):
         return False
-    K = np.empty((p, m))  # K = P H^T S^-1, row j: S^-1 (H P)[:, j]
-    col = np.empty(m)
-    for j in range(p):
-        for i in range(m):
-            col[i] = HP[i, j]
-        chol_solve(S, m, col)
+    X = HP.copy()  # K^T = S^-1 (H P): chol_solve's arithmetic on every column at once (row sweeps)
+    for i in range(m):
+        for r in range(i):
+            Lir = S[i, r]
+            for j in range(p):
+                X[i, j] -= Lir * X[r, j]
+        d = S[i, i]
+        for j in range(p):
+            X[i, j] /= d
+    for i in range(m - 1, -1, -1):
+        for r in range(i + 1, m):
+            Lri = S[r, i]
+            for j in range(p):
+                X[i, j] -= Lri * X[r, j]
+        d = S[i, i]
+        for j in range(p):
+            X[i, j] /= d
+    for j in range(p):  # K e
         v = 0.0
         for i in range(m):
-            K[j, i] = col[i]
-            v += col[i] * e_kf[i]
-        d_pred[j] = v  # K e
-    for i in range(p):  # P -= K (H P) on the lower triangle, then mirrored
+            v += X[i, j] * e_kf[i]
+        d_pred[j] = v
+    row = np.empty(p)
+    for i in range(p):  # P -= K (H P) on the lower triangle (one pass per row), then mirrored
+        for j in range(i + 1):
+            row[j] = 0.0
         for r in range(m):
-            kr = K[i, r]
+            kr = X[r, i]
             if kr == 0.0:
                 continue
+            Hr = HP[r]
             for j in range(i + 1):
-                P[i, j] -= kr * HP[r, j]
+                row[j] += kr * Hr[j]
+        Pi = P[i]
+        for j in range(i + 1):
+            Pi[j] -= row[j]
     for i in range(p):
         for j in range(i):
             P[j, i] = P[i, j]
@@ -205,10 +239,12 @@ def _measurement_update(P, H_T, e_kf, R, d_pred):
 
 
 @nb.njit(cache=True)
-def identified_projector(P, L, Linv, ratio, A):
+def identified_projector(P, L, Linv, ratio, A, transposed=False):
     """A = the projector (p, p) onto the directions of theta the data have identified: in the
     prior's whitened coordinates (``P0 = L L^T``), the eigen-directions of ``L^-1 P L^-T`` whose
-    posterior sd has fallen below ``ratio`` of the prior sd; oblique along the rest."""
+    posterior sd has fallen below ``ratio`` of the prior sd; oblique along the rest.
+    ``transposed``: A = the projector's transpose (its columns as rows: the law's state, which
+    sums them with contiguous row sweeps)."""
     p = P.shape[0]
     if ratio >= 1.0:
         for i in range(p):
@@ -241,7 +277,10 @@ def identified_projector(P, L, Linv, ratio, A):
     LUL = mm(mm(L, U), mm(Ut, Linv))  # L U U^T L^-1: products with the selected directions only
     for i in range(p):
         for j in range(p):
-            A[i, j] = LUL[i, j]
+            if transposed:
+                A[j, i] = LUL[i, j]
+            else:
+                A[i, j] = LUL[i, j]
 
 
 def reset(consts: np.ndarray, state: LawState, carried: bool) -> None:
