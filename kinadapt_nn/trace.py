@@ -87,9 +87,14 @@ class Trace:
         )
         from kinadapt_nn.runio import atomic_write
 
-        def write(tmp: str) -> None:
-            with open(tmp, "wb") as fh:
-                np.savez_compressed(fh, meta=np.array(json.dumps(meta)), **self.arrays)
+        def write(tmp: str) -> None:  # np.savez_compressed's layout (one .npy per array in a zip) at
+            # zlib level 1: a third of level 6's time on these float channels, the file ~5 % larger
+            import zipfile
+
+            with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
+                for name, arr in (("meta", np.array(json.dumps(meta))), *self.arrays.items()):
+                    with zf.open(f"{name}.npy", "w", force_zip64=True) as fh:
+                        np.lib.format.write_array(fh, np.asanyarray(arr), allow_pickle=False)
 
         atomic_write(path, write)
 
