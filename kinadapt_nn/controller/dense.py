@@ -45,6 +45,29 @@ def chol_solve(L, k, x):
 
 
 @nb.njit(cache=True)
+def chol_solve_cols(L, k, X):
+    """Solve (L L^T) X = B in place (B given in X (k, p)) for all p columns at once: per column
+    the arithmetic of :func:`chol_solve`, swept along rows (contiguous, vectorised)."""
+    p = X.shape[1]
+    for i in range(k):
+        for r in range(i):
+            Lir = L[i, r]
+            for j in range(p):
+                X[i, j] -= Lir * X[r, j]
+        d = L[i, i]
+        for j in range(p):
+            X[i, j] /= d
+    for i in range(k - 1, -1, -1):
+        for r in range(i + 1, k):
+            Lri = L[r, i]
+            for j in range(p):
+                X[i, j] -= Lri * X[r, j]
+        d = L[i, i]
+        for j in range(p):
+            X[i, j] /= d
+
+
+@nb.njit(cache=True)
 def mm(A, B):
     """A @ B: by loops for the small products of the per-step maths (a BLAS call costs more than
     the product), by BLAS for large ones (p in the hundreds: the RBF features)."""

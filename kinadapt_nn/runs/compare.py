@@ -172,7 +172,7 @@ def run_compare(cfg: CompareCfg, out: Path, progress: bool = True) -> list[dict]
     done: dict[int, dict] = {}
     with ProcessPoolExecutor(max_workers=cfg.jobs) as ex:
         futures = {ex.submit(_run_one, jobs[i]): i for i in order}
-        _import_pyplot()  # (while the workers run: the figure at the end then only draws)
+        import kinadapt_nn.figures  # noqa: F401  (matplotlib, while the workers run: the figure then only draws)
         for fut in as_completed(futures):
             done[futures[fut]] = fut.result()
             if bar is not None:
@@ -255,15 +255,6 @@ def _markdown(rows: list[dict], cols: list[str]) -> str:
     return "\n".join(lines) + "\n" + note
 
 
-def _import_pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 #: the figure's grid [in]: left (y tick labels + y label), right, top (title), bottom (x label),
 #: between columns (the next panel's y labels) and rows (x labels + the next title)
 _GRID_IN = dict(left=0.95, right=0.2, top=0.4, bottom=0.6, wgap=1.05, hgap=0.95)
@@ -273,7 +264,8 @@ def _figure(results: list[dict], cfg: CompareCfg, path: Path) -> None:
     """Jacobian error vs time, one panel per (scenario, family), one colour per features type.
     Fixed margins (``_GRID_IN``) rather than constrained_layout: its solver measured half of the
     figure's drawing time (it draws every tick label to size them, then the figure again)."""
-    plt = _import_pyplot()
+    from kinadapt_nn.figures import plt
+
     scen = list(cfg.scenarios)
     fams = list(cfg.families)
     w, h = 5.5 * len(fams), 3.6 * len(scen)

@@ -256,3 +256,23 @@ def test_gram_sparse_matches_numpy():
         blocks[8 * i:8 * (i + 1), 1 + i] = rng.normal(size=8)
     for A in (dense, blocks, np.zeros((5, 6))):
         np.testing.assert_allclose(gram_sparse(A), A @ A.T, rtol=1e-13, atol=1e-15)
+
+
+def test_chol_solve_cols_is_chol_solve_per_column():
+    """The kalman law's multi-column solve (``dense.chol_solve_cols``) gives each column exactly
+    what ``chol_solve`` gives it alone, and solves the system (against numpy)."""
+    from kinadapt_nn.controller.dense import chol, chol_solve, chol_solve_cols
+
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(6, 6))
+    S = A @ A.T + 6 * np.eye(6)
+    L = S.copy()
+    assert chol(L, 6)
+    B = rng.normal(size=(6, 40))
+    X = B.copy()
+    chol_solve_cols(L, 6, X)
+    for j in range(B.shape[1]):
+        col = B[:, j].copy()
+        chol_solve(L, 6, col)
+        assert np.array_equal(X[:, j], col)
+    np.testing.assert_allclose(S @ X, B, rtol=1e-12, atol=1e-12)

@@ -34,7 +34,7 @@ import math
 import numba as nb
 import numpy as np
 
-from kinadapt_nn.controller.dense import chol, mm, mm_nt, vcopy
+from kinadapt_nn.controller.dense import chol, chol_solve_cols, mm, mm_nt, vcopy
 from kinadapt_nn.controller.laws.base import LawParams, LawSpec, LawState, LawView
 
 #: consts indices (scalars; then P0, L and L^-1 (p, p) each, L L^T = P0)
@@ -196,23 +196,8 @@ def _measurement_update(P, H_T, e_kf, R, d_pred):
         S[i, i] += R[i]
     if not chol(S, m):
         return False
-    X = HP.copy()  # K^T = S^-1 (H P): chol_solve's arithmetic on every column at once (row sweeps)
-    for i in range(m):
-        for r in range(i):
-            Lir = S[i, r]
-            for j in range(p):
-                X[i, j] -= Lir * X[r, j]
-        d = S[i, i]
-        for j in range(p):
-            X[i, j] /= d
-    for i in range(m - 1, -1, -1):
-        for r in range(i + 1, m):
-            Lri = S[r, i]
-            for j in range(p):
-                X[i, j] -= Lri * X[r, j]
-        d = S[i, i]
-        for j in range(p):
-            X[i, j] /= d
+    X = HP.copy()  # K^T = S^-1 (H P), every column at once
+    chol_solve_cols(S, m, X)
     for j in range(p):  # K e
         v = 0.0
         for i in range(m):
