@@ -1037,17 +1037,21 @@ class compiling:
 
 def compile_calls(calls, progress: bool = False, law=None) -> float:
     """Compile (or load from numba's cache) each ``(name, dispatcher, args)`` for the types of
-    ``args``, inside a :class:`compiling` phase; ``law`` (a ``LawSpec``): its step too, in a
-    second process at the same time when it is not cached (``LawSpec.compile_aside``), loaded
-    here after. -> wall seconds."""
+    ``args``, inside a :class:`compiling` phase; ``law`` (a ``LawSpec``): its step too. A cold
+    cache is compiled by two processes (``twocore.compile_two_cores``: the kernels' callees shared,
+    then the law's step there while the kernels compile here; else the law's step alone aside,
+    ``LawSpec.compile_aside``); the law is loaded here after. -> wall seconds."""
+    from kinadapt_nn.controller.twocore import compile_two_cores
+
     with compiling(progress) as phase:
-        aside = law.compile_aside() if law is not None else None
-        try:
-            for _name, fn, args in calls:
-                fn.compile(tuple(nb.typeof(a) for a in args))
-        finally:
-            if aside is not None:
-                aside.wait()
+        if not compile_two_cores(calls, law):  # a cold cache: the kernels' callees on two cores
+            aside = law.compile_aside() if law is not None else None
+            try:
+                for _name, fn, args in calls:
+                    fn.compile(tuple(nb.typeof(a) for a in args))
+            finally:
+                if aside is not None:
+                    aside.wait()
         if law is not None:
             law.address()  # (from the cache the second process wrote; compiled here if it failed)
     return phase.wall_s

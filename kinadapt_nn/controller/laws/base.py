@@ -232,6 +232,20 @@ class LawSpec:
             self._address.append(_get_jit_address(self.step, STEP_SIG))
         return self._address[0]
 
+    def aside_target(self) -> tuple[str, str] | None:
+        """(module, qualified name) of ``step`` when a second process can compile it into numba's
+        on-disk cache for this one to load; None when there is nothing to gain (compiled in this
+        process already, cached) or it cannot (a law defined in ``__main__`` or in a function)."""
+        fn = getattr(self.step, "py_func", None)
+        if self._address or fn is None or "<" in fn.__qualname__ or fn.__module__ == "__main__":
+            return None
+        try:
+            if self.step._cache._cache_file._load_index():
+                return None
+        except Exception:  # numba's cache internals moved: compile here
+            return None
+        return fn.__module__, fn.__qualname__
+
     def compile_aside(self):
         """Start compiling ``step`` into numba's on-disk cache in a second process, so that a first
         run compiles the law and the step kernel at once on two cores; :meth:`address` then loads
@@ -241,16 +255,11 @@ class LawSpec:
         import subprocess
         import sys
 
-        fn = getattr(self.step, "py_func", None)
-        if self._address or fn is None or "<" in fn.__qualname__ or fn.__module__ == "__main__":
-            return None
-        try:
-            if self.step._cache._cache_file._load_index():
-                return None
-        except Exception:  # numba's cache internals moved: compile here
+        target = self.aside_target()
+        if target is None:
             return None
         code = (f"import importlib; from kinadapt_nn.controller.laws.base import STEP_SIG; "
-                f"importlib.import_module({fn.__module__!r}).{fn.__qualname__}.compile(STEP_SIG)")
+                f"importlib.import_module({target[0]!r}).{target[1]}.compile(STEP_SIG)")
         try:
             return subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.DEVNULL,
                                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

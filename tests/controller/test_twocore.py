@@ -1,0 +1,68 @@
+"""The first run's compile on two cores (``controller.twocore``): the callees it compiles ahead are
+the ones the kernels use, with the types the kernels give them, and what it compiles computes the
+same numbers as a kernel compiled in one piece."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from kinadapt_nn.config import load_config
+from kinadapt_nn.controller import core
+from kinadapt_nn.controller.twocore import callee_plan
+from kinadapt_nn.runs.build import make_controller
+from kinadapt_nn.runs.episode import run_episode
+
+_EPISODE = ["run.progress=false", "run.duration_s=1.2"]
+
+
+@pytest.mark.parametrize("features", ["adjoint", "neural", "rbf"])
+def test_plan_lists_the_kernels_callees_with_their_cached_types(features):
+    """Every planned (callee, types) is what compiling the kernel put in numba's cache (the kernel
+    typed it so), and the plan covers the large callees of the step kernel."""
+    ctrl = make_controller(load_config(None, ["run.progress=false", f"run.features={features}"]))
+    ctrl.compile_kernels()
+    plan = callee_plan(ctrl.kernel_calls())
+    names = [fn.py_func.__name__ for fn, _ in plan]
+    assert {"_front", "_law", "_act_head", "_act_tail", "_filter_regressor"} <= set(names)
+    assert len(names) == len(set(names))
+    for fn, sig in plan:
+        assert core._in_cache(fn, sig), (fn.py_func.__name__, sig)
+
+
+def test_cold_compile_on_two_cores_types_every_callee_once_and_gives_the_same_episode(tmp_path):
+    """A first run (empty numba cache folder, a fresh process) compiles through the helper process:
+    each planned callee ends up compiled or loaded for its planned types only (a wrong type would
+    leave a second signature), the law's step lands in the cache, and an episode run on those
+    kernels equals, to the last bit, the same episode run here."""
+    code = f"""
+import json, numpy as np
+from kinadapt_nn.config import load_config
+from kinadapt_nn.controller import core
+from kinadapt_nn.controller.twocore import callee_plan
+from kinadapt_nn.runs.build import make_controller
+from kinadapt_nn.runs.episode import run_episode
+from kinadapt_nn.controller.laws.base import STEP_SIG
+cfg = load_config(None, {_EPISODE!r})
+ctrl = make_controller(cfg)
+plan = callee_plan(ctrl.kernel_calls())
+cold = not core.calls_cached(ctrl.kernel_calls(), ctrl.law_spec)
+ctrl.compile_kernels()
+bad = [fn.py_func.__name__ for fn, sig in plan if [tuple(s) for s in fn.signatures] != [tuple(sig)]]
+law_cached = core._in_cache(ctrl.law_spec.step, STEP_SIG)
+res = run_episode(cfg, ctrl=ctrl)
+np.save({str(tmp_path / "theta.npy")!r}, res.trace["theta"])
+print(json.dumps({{"cold": cold, "bad": bad, "n": len(plan), "law_cached": law_cached}}))
+"""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["cold"] and got["n"] >= 5 and got["bad"] == [] and got["law_cached"]
+    here = run_episode(load_config(None, _EPISODE))
+    np.testing.assert_array_equal(np.load(tmp_path / "theta.npy"), here.trace["theta"])
