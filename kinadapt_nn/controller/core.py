@@ -40,8 +40,10 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from kinadapt_nn.controller.dense import chol, chol_solve, dot, gram_sparse, mm, mm_nt, sym_eigmin, vcopy, vfill
+from kinadapt_nn.controller.dense import chol, chol_solve, dot, gram_sparse_log, mm, mm_nt, sym_eigmin, vcopy, vfill
 from kinadapt_nn.controller.laws.base import law_step_fn
+from kinadapt_nn.controller.twocore import compile_two_cores
+from kinadapt_nn.controller.twocore import in_cache as _in_cache
 
 #: the paper's kinematic gate on lambda_min(W J_hat J_hat^T W) (Results, "A separate kinematic gate")
 RANK_GATE = 1e-6
@@ -460,11 +462,8 @@ def _law(b, reg, x, k, lay, c, pv, lc, law_fn, out):
     for j in range(p):
         for i in range(m):
             Phi_wT[j, i] = Phi_fT[j, i] * W[i]
-    G = gram_sparse(Phi_wT)  # (p, p) = (W Phi_f)^T (W Phi_f)
-    gs = xs[lay[X_GRAM]:lay[X_GRAM] + p * p].reshape((p, p))
-    for i in range(p):  # observability: <Phi^T Phi> over the contact phase
-        for j in range(p):
-            gs[i, j] += G[i, j]
+    # G (p, p) = (W Phi_f)^T (W Phi_f), added to the observability log <Phi^T Phi> over the contact phase
+    G = gram_sparse_log(Phi_wT, xs[lay[X_GRAM]:lay[X_GRAM] + p * p].reshape((p, p)))
     k[b, K_GRAM_N] += 1
     lo, hi, mask = pv[0], pv[1], pv[2]
     PhiF = np.zeros(p)  # Phi_r^T F, on the realised (unfiltered) regressor, tracking rows only
@@ -1041,8 +1040,6 @@ def compile_calls(calls, progress: bool = False, law=None) -> float:
     cache is compiled by two processes (``twocore.compile_two_cores``: the kernels' callees shared,
     then the law's step there while the kernels compile here; else the law's step alone aside,
     ``LawSpec.compile_aside``); the law is loaded here after. -> wall seconds."""
-    from kinadapt_nn.controller.twocore import compile_two_cores
-
     with compiling(progress) as phase:
         if not compile_two_cores(calls, law):  # a cold cache: the kernels' callees on two cores
             aside = law.compile_aside() if law is not None else None
@@ -1055,13 +1052,6 @@ def compile_calls(calls, progress: bool = False, law=None) -> float:
         if law is not None:
             law.address()  # (from the cache the second process wrote; compiled here if it failed)
     return phase.wall_s
-
-
-def _in_cache(fn, sig) -> bool:
-    """True when numba's on-disk cache holds ``fn`` compiled for ``sig`` by this source and this
-    machine's code generator (the key ``load_overload`` would look up)."""
-    cache = fn._cache
-    return cache._index_key(sig, fn.targetctx.codegen()) in cache._cache_file._load_index()
 
 
 def calls_cached(calls, law=None) -> bool:

@@ -121,21 +121,83 @@ def gram_sparse(A):
     """A @ A.T for A (p, m) with many zeros (the RBF's regressor: each parameter in one channel),
     from the non-zero entries of each column only; summed over the columns in order, as ``mm_nt``'s
     loops do. -> (p, p)."""
+    return gram_sparse_log(A, np.empty((0, 0)))
+
+
+@nb.njit(cache=True)
+def gram_sparse_log(A, log):
+    """:func:`gram_sparse`, and ``log += A @ A.T`` (``log`` (p, p); (0, 0): none) with the same
+    roundings as adding the whole Gram: where the columns' non-zero rows are disjoint (the RBF:
+    each parameter in one channel) only each column's block is added -- the Gram is exactly zero
+    elsewhere --, else every (i, j) of the rows that have a non-zero. Each column's products go
+    through a contiguous copy of its non-zeros, so a contiguous block's row update vectorises.
+    -> the Gram (p, p)."""
     p, m = A.shape
     G = np.zeros((p, p))
-    idx = np.empty(p, dtype=np.int64)
+    idx = np.empty((m, p), dtype=np.int64)  # per column: its non-zero rows, and how many
+    cnt = np.zeros(m, dtype=np.int64)
+    owner = np.full(p, -1, dtype=np.int64)
+    disjoint = True
+    col = np.empty(p)
     for r in range(m):
         nz = 0
         for i in range(p):
             if A[i, r] != 0.0:
-                idx[nz] = i
+                idx[r, nz] = i
+                col[nz] = A[i, r]
                 nz += 1
-        for a in range(nz):
-            i = idx[a]
-            v = A[i, r]
-            for b in range(nz):
-                j = idx[b]
-                G[i, j] += v * A[j, r]
+                if owner[i] >= 0:
+                    disjoint = False
+                owner[i] = r
+        cnt[r] = nz
+        if nz == 0:
+            continue
+        j0 = idx[r, 0]
+        if idx[r, nz - 1] - j0 == nz - 1:  # a contiguous block of rows (slices: the loops vectorise)
+            for a in range(nz):
+                Gi = G[j0 + a, j0:j0 + nz]
+                v = col[a]
+                for b in range(nz):
+                    Gi[b] += v * col[b]
+        else:
+            for a in range(nz):
+                Gi = G[idx[r, a]]
+                v = col[a]
+                for b in range(nz):
+                    Gi[idx[r, b]] += v * col[b]
+    if log.shape[0] == 0:
+        return G
+    if disjoint:
+        for r in range(m):
+            nz = cnt[r]
+            if nz == 0:
+                continue
+            j0 = idx[r, 0]
+            if idx[r, nz - 1] - j0 == nz - 1:
+                for a in range(nz):
+                    Li, Gi = log[j0 + a, j0:j0 + nz], G[j0 + a, j0:j0 + nz]
+                    for b in range(nz):
+                        Li[b] += Gi[b]
+                continue
+            for a in range(nz):
+                i = idx[r, a]
+                Li, Gi = log[i], G[i]
+                for b in range(nz):
+                    j = idx[r, b]
+                    Li[j] += Gi[j]
+    else:
+        rows = np.empty(p, dtype=np.int64)
+        n_rows = 0
+        for i in range(p):
+            if owner[i] >= 0:
+                rows[n_rows] = i
+                n_rows += 1
+        for a in range(n_rows):
+            i = rows[a]
+            Li, Gi = log[i], G[i]
+            for b in range(n_rows):
+                j = rows[b]
+                Li[j] += Gi[j]
     return G
 
 

@@ -41,6 +41,13 @@ LOCAL_TYPES = {"b": T.int64, "n": T.int64, "rho": T.float64, "t_rel": T.float64,
                "q": _F1}
 
 
+def in_cache(fn, sig) -> bool:
+    """True when numba's on-disk cache holds ``fn`` compiled for ``sig`` by this source and this
+    machine's code generator (the key ``load_overload`` would look up)."""
+    cache = fn._cache
+    return cache._index_key(sig, fn.targetctx.codegen()) in cache._cache_file._load_index()
+
+
 def _code_size(fn, module: dict, seen: set) -> int:
     """Bytecode bytes of ``fn`` and of the callees it reaches in ``module`` (each counted once):
     the order of the compile list, largest first."""
@@ -95,12 +102,10 @@ def compile_two_cores(calls, law=None) -> bool:
     """Compile the kernels of ``calls`` and ``law``'s step (a ``LawSpec``) with a helper process
     sharing the callees (module docstring). -> False, having done nothing, where there is nothing to
     share (every callee cached, or one core): the caller compiles as before."""
-    from kinadapt_nn.controller.core import _in_cache
-
     if (os.cpu_count() or 1) < 2:
         return False
     try:
-        plan = [(fn, sig) for fn, sig in callee_plan(calls) if not _in_cache(fn, sig)]
+        plan = [(fn, sig) for fn, sig in callee_plan(calls) if not in_cache(fn, sig)]
     except Exception:  # numba's cache internals moved: compile as before
         return False
     if not plan:

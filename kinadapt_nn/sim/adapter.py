@@ -12,6 +12,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import mujoco
+import numba as nb
 import numpy as np
 
 from kinadapt_nn.config import ExperimentCfg, true_bore_entry
@@ -75,6 +76,14 @@ def solve_start_ik(
             "closer to the robot or reduce start.tilt_deg"
         )
     return q
+
+
+@nb.njit(cache=True)
+def _servo_setpoint(u, q_ref, qdot_ref, kv_over_kp):
+    """u = q_ref + kv/kp qdot_ref, element by element (u, q_ref, qdot_ref: (n,)); one call where
+    numpy's two (a multiply into u, then an add) cost ~4 us a step. The same two roundings."""
+    for i in range(u.shape[0]):
+        u[i] = qdot_ref[i] * kv_over_kp + q_ref[i]
 
 
 class PegInHoleSim:
@@ -166,9 +175,7 @@ class PegInHoleSim:
 
     def apply(self, q_ref: np.ndarray, qdot_ref: np.ndarray) -> None:
         """Joint servo set-point with velocity feed-forward (q_ref + kv/kp qdot_ref)."""
-        u = self._ctrl_v
-        np.multiply(qdot_ref, self._kv_over_kp, out=u)
-        u += q_ref
+        _servo_setpoint(self._ctrl_v, q_ref, qdot_ref, self._kv_over_kp)
 
     def step(self) -> None:
         if self._socket:

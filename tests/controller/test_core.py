@@ -258,6 +258,32 @@ def test_gram_sparse_matches_numpy():
         np.testing.assert_allclose(gram_sparse(A), A @ A.T, rtol=1e-13, atol=1e-15)
 
 
+
+def test_gram_sparse_log_adds_exactly_what_adding_the_whole_gram_adds():
+    """``dense.gram_sparse_log`` (the kernels' Gram and observability log in one pass, blocks only
+    where the channels' rows are disjoint) leaves the log bit for bit where ``log += A A^T`` would,
+    and returns ``gram_sparse``'s Gram: contiguous blocks (the RBF), scattered disjoint rows,
+    overlapping channels, a dense regressor and an all-zero one, over a few steps."""
+    from kinadapt_nn.controller.dense import gram_sparse, gram_sparse_log
+
+    rng = np.random.default_rng(2)
+    cases = [rng.normal(size=(3, 6)), np.zeros((12, 6))]
+    blocks, scattered, overlap = np.zeros((60, 6)), np.zeros((60, 6)), np.zeros((60, 6))
+    for i in range(5):
+        blocks[12 * i:12 * (i + 1), 1 + i] = rng.normal(size=12)
+        scattered[rng.choice(60, 7, replace=False) if i == 0 else np.arange(i, 60, 5)[:7], 1 + i] = rng.normal(size=7)
+        overlap[10 * i:10 * i + 15, 1 + i] = rng.normal(size=15)
+    scattered[:, 1:] *= (np.cumsum(scattered[:, 1:] != 0, axis=1) <= 1)  # keep each row in one channel
+    cases += [blocks, scattered, overlap]
+    for A in cases:
+        log_ref = rng.normal(size=(A.shape[0],) * 2)
+        log = log_ref.copy()
+        for _ in range(3):
+            G = gram_sparse_log(A, log)
+            log_ref += gram_sparse(A)
+            np.testing.assert_array_equal(G, gram_sparse(A))
+            np.testing.assert_array_equal(log, log_ref)
+
 def test_chol_solve_cols_is_chol_solve_per_column():
     """The kalman law's multi-column solve (``dense.chol_solve_cols``) gives each column exactly
     what ``chol_solve`` gives it alone, and solves the system (against numpy)."""
