@@ -8,11 +8,12 @@ takes ~3 s) and the machine code, hence every number, is the same (checked: a wh
 trace equal to the last bit).
 
 :func:`compile_two_cores` therefore lists the kernels' direct callees with their argument types
-(:func:`callee_plan`), starts one helper process (``python -m kinadapt_nn.controller.twocore``)
-and both take callees from the same list, largest first, each claiming one before compiling it (a
-file created exclusively in a shared temporary folder), so none is compiled twice. Once the
-helper has finished its callees it compiles the law's step while this process compiles the
-kernels themselves, their callees now loaded from the cache.
+(:func:`callee_plan`) and starts one helper process (``python -m kinadapt_nn.controller.twocore``).
+The helper compiles the law's step first (measured: 12.7-12.9 s in all against 13.3 s with the
+law last); both then take callees from the same list, largest first, each claiming one before
+compiling it (a file created exclusively in a shared temporary folder), so none is compiled
+twice. Once the helper has finished its callees, this process compiles the kernels themselves,
+their callees now loaded from the cache.
 
 A callee whose argument types cannot be told from the kernel's call (a local value not in
 :data:`LOCAL_TYPES`) is left out: the kernel compiles it in line, as before. If the helper cannot
@@ -139,8 +140,8 @@ def compile_two_cores(calls, law=None) -> bool:
 
 
 def _helper(claims: str) -> None:
-    """The helper process: the unclaimed callees of the plan on stdin, a line on stdout when done
-    with them, then the law's step."""
+    """The helper process: the law's step, then the unclaimed callees of the plan on stdin, and a
+    line on stdout when done with them."""
     import importlib
 
     entries, law_target = pickle.loads(sys.stdin.buffer.read())
