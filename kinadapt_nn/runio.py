@@ -82,6 +82,10 @@ def write_json(path: Path, obj: dict) -> None:
 
 #: bins of one histogram (TensorBoard)
 HIST_BINS = 30
+#: TensorBoard's HParams records: their tags and plugin-data version (``tensorboard.plugins.hparams.metadata``:
+#: EXPERIMENT_TAG, SESSION_START_INFO_TAG, SESSION_END_INFO_TAG, PLUGIN_DATA_VERSION)
+HPARAMS_TAGS = ("_hparams_/experiment", "_hparams_/session_start_info", "_hparams_/session_end_info")
+HPARAMS_PLUGIN_DATA_VERSION = 0
 
 
 def _masked_crc(data: bytes) -> int:
@@ -164,11 +168,22 @@ class EventWriter:
         img = self._pb.Summary.Image(height=int(height), width=int(width), colorspace=4, encoded_image_string=png)
         self._add([self._pb.Summary.Value(tag=tag, image=img)], step)
 
+    def _hparams_metadata(self, data):
+        """The ``SummaryMetadata`` of an ``HParamsPluginData`` record, as TensorBoard's
+        ``plugins.hparams.metadata.create_summary_metadata`` makes it (plugin "hparams", the record
+        at plugin-data version 0 as its content): written here because importing that module
+        costs ~0.13 s (it loads TensorBoard's TensorFlow stub and fsspec) for four lines."""
+        content = type(data)()
+        content.CopyFrom(data)
+        content.version = HPARAMS_PLUGIN_DATA_VERSION
+        meta = self._pb.SummaryMetadata
+        return meta(plugin_data=meta.PluginData(plugin_name="hparams", content=content.SerializeToString()))
+
     def add_hparams(self, hparams: Mapping[str, float | int | str | bool], metrics: Mapping[str, float]) -> None:
         """The run's hyperparameters and final metrics for TensorBoard's HParams tab (the
         experiment, session-start and session-end records, as ``SummaryWriter.add_hparams``
         writes them), and each metric as a scalar at step 0."""
-        from tensorboard.plugins.hparams import api_pb2, metadata, plugin_data_pb2
+        from tensorboard.plugins.hparams import api_pb2, plugin_data_pb2
 
         ssi = plugin_data_pb2.SessionStartInfo()
         infos = []
@@ -185,8 +200,8 @@ class EventWriter:
         exp = api_pb2.Experiment(hparam_infos=infos,
                                  metric_infos=[api_pb2.MetricInfo(name=api_pb2.MetricName(tag=k)) for k in metrics])
         sei = plugin_data_pb2.SessionEndInfo(status=api_pb2.Status.Value("STATUS_SUCCESS"))
-        for tag, data in ((metadata.EXPERIMENT_TAG, plugin_data_pb2.HParamsPluginData(experiment=exp)),
-                          (metadata.SESSION_START_INFO_TAG, plugin_data_pb2.HParamsPluginData(session_start_info=ssi)),
-                          (metadata.SESSION_END_INFO_TAG, plugin_data_pb2.HParamsPluginData(session_end_info=sei))):
-            self._add([self._pb.Summary.Value(tag=tag, metadata=metadata.create_summary_metadata(data))], 0)
+        for tag, data in ((HPARAMS_TAGS[0], plugin_data_pb2.HParamsPluginData(experiment=exp)),
+                          (HPARAMS_TAGS[1], plugin_data_pb2.HParamsPluginData(session_start_info=ssi)),
+                          (HPARAMS_TAGS[2], plugin_data_pb2.HParamsPluginData(session_end_info=sei))):
+            self._add([self._pb.Summary.Value(tag=tag, metadata=self._hparams_metadata(data))], 0)
         self.add_scalars_at(0, metrics)

@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[2]
 #: modules the online path with adjoint features must not import (numba itself imports ``scipy``
 #: and, for np.linalg inside the controller's kernels, ``scipy.linalg.cython_blas/lapack``)
 NOT_IMPORTED = ("torch", "matplotlib", "scipy.stats", "scipy.optimize", "scipy.signal", "pyarrow", "rosbags",
-                "tensorflow")
+                "tensorflow", "tensorboard.compat.tensorflow_stub")
 
 _PROBE = """
 import sys
@@ -79,3 +79,28 @@ def test_event_record_crc_is_tensorboards():
     for n in (0, 1, 8, 33, 1000):
         data = rng.integers(0, 256, n, dtype=np.uint8).tobytes()
         assert _masked_crc(data) == masked_crc32c(data)
+
+
+def test_hparams_records_are_tensorboards(tmp_path):
+    """The three HParams records carry TensorBoard's own metadata (``create_summary_metadata``,
+    its tags) byte for byte, and TensorBoard's HParams plugin parses them back to the values."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    from tensorboard.plugins.hparams import metadata, plugin_data_pb2
+
+    from kinadapt_nn.runio import HPARAMS_TAGS, EventWriter
+
+    assert HPARAMS_TAGS == (metadata.EXPERIMENT_TAG, metadata.SESSION_START_INFO_TAG, metadata.SESSION_END_INFO_TAG)
+    with EventWriter(tmp_path) as wr:
+        data = plugin_data_pb2.HParamsPluginData(session_start_info=plugin_data_pb2.SessionStartInfo())
+        data.session_start_info.hparams["law"].string_value = "kalman"
+        assert wr._hparams_metadata(data).SerializeToString() == metadata.create_summary_metadata(data).SerializeToString()
+        wr.add_hparams({"features": "rbf", "seed": 3, "fused": True}, {"summary/seat_time_s": 4.5})
+    ea = EventAccumulator(str(tmp_path))
+    ea.Reload()
+    start = metadata.parse_session_start_info_plugin_data(
+        ea.summary_metadata[metadata.SESSION_START_INFO_TAG].plugin_data.content)
+    assert start.hparams["features"].string_value == "rbf" and start.hparams["seed"].number_value == 3.0
+    assert start.hparams["fused"].bool_value is True
+    exp = metadata.parse_experiment_plugin_data(ea.summary_metadata[metadata.EXPERIMENT_TAG].plugin_data.content)
+    assert [m.name.tag for m in exp.metric_infos] == ["summary/seat_time_s"]
+    assert ea.Scalars("summary/seat_time_s")[0].value == 4.5
