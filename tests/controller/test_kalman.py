@@ -170,3 +170,32 @@ def test_repeated_insertions_carry_the_estimate():
     # the second insertion starts where the first ended (theta carried), with less uncertainty
     assert rows[1]["jacobian_rel_error_initial"] == pytest.approx(rows[0]["jacobian_rel_error_final"], rel=0.2)
     assert np.mean(rows[1]["theta_sd_final"]) < np.mean(rows[0]["theta_sd_final"])
+
+
+def test_downdate_rounds_as_accumulating_the_terms_one_by_one():
+    """``_downdate_lower`` (the one-pass rows for m = 6) gives, bit for bit, what accumulating the
+    non-zero terms X[r, i] HP[r, j] from 0.0 in r's order and subtracting gives -- on rows where
+    all six terms are there and on rows where some are exactly zero (the per-term path); the
+    upper triangle is left alone."""
+    from kinadapt_nn.controller.laws.kalman import _downdate_lower
+
+    rng = np.random.default_rng(7)
+    p = 37
+    for m, zero_frac in ((6, 0.0), (6, 0.3), (4, 0.0), (8, 0.2)):
+        A = rng.standard_normal((p, p))
+        P = A @ A.T
+        X = rng.standard_normal((m, p))
+        X[rng.random((m, p)) < zero_frac] = 0.0
+        HP = rng.standard_normal((m, p)) * 10.0 ** rng.integers(-3, 3, (m, 1))
+        want = P.copy()
+        for i in range(p):
+            row = [0.0] * (i + 1)
+            for r in range(m):
+                if X[r, i] != 0.0:
+                    for j in range(i + 1):
+                        row[j] = row[j] + float(X[r, i]) * float(HP[r, j])
+            for j in range(i + 1):
+                want[i, j] = want[i, j] - row[j]
+        got = P.copy()
+        _downdate_lower(got, X, HP)
+        assert np.array_equal(got, want), (m, zero_frac)

@@ -203,24 +203,44 @@ def _measurement_update(P, H_T, e_kf, R, d_pred):
         for i in range(m):
             v += X[i, j] * e_kf[i]
         d_pred[j] = v
+    _downdate_lower(P, X, HP)
+    for i in range(p):
+        for j in range(i):
+            P[j, i] = P[i, j]
+    return True
+
+
+@nb.njit(cache=True)
+def _downdate_lower(P, X, HP):
+    """P[i, :i+1] -= sum_r X[r, i] HP[r, :i+1] for every row i (the lower triangle of P - K H P,
+    K^T = X (m, p), HP (m, p)): the terms with X[r, i] = 0 left out, the others summed from 0.0 in
+    r's order. A row with all six terms of m = 6 is one pass over the row (a straight-line sum per
+    entry that vectorises, with the roundings of accumulating the terms one by one: 22 -> 13 us
+    at p = 210); any other row, one pass per term."""
+    p = P.shape[0]
+    m = X.shape[0]
     row = np.empty(p)
-    for i in range(p):  # P -= K (H P) on the lower triangle (one pass per row), then mirrored
+    for i in range(p):
+        full = m == 6
+        for r in range(m):
+            if X[r, i] == 0.0:
+                full = False
+        if full:
+            a0, a1, a2, a3, a4, a5 = X[0, i], X[1, i], X[2, i], X[3, i], X[4, i], X[5, i]
+            for j in range(i + 1):
+                P[i, j] -= (((((0.0 + a0 * HP[0, j]) + a1 * HP[1, j]) + a2 * HP[2, j]) + a3 * HP[3, j])
+                            + a4 * HP[4, j]) + a5 * HP[5, j]
+            continue
         for j in range(i + 1):
             row[j] = 0.0
         for r in range(m):
             kr = X[r, i]
             if kr == 0.0:
                 continue
-            Hr = HP[r]
             for j in range(i + 1):
-                row[j] += kr * Hr[j]
-        Pi = P[i]
+                row[j] += kr * HP[r, j]
         for j in range(i + 1):
-            Pi[j] -= row[j]
-    for i in range(p):
-        for j in range(i):
-            P[j, i] = P[i, j]
-    return True
+            P[i, j] -= row[j]
 
 
 @nb.njit(cache=True)
