@@ -8,6 +8,7 @@ set, and even then it is replaced only after the new run has been written.
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import socket
@@ -94,6 +95,32 @@ def _masked_crc(data: bytes) -> int:
     return (((crc >> 15) | (crc << 17)) + 0xA282EAD8) & 0xFFFFFFFF
 
 
+def _pb_varint(n: int) -> bytes:
+    """A protobuf varint (int64: a negative ``n`` as its 64-bit two's complement, 10 bytes)."""
+    if n < 0:
+        n += 1 << 64
+    out = bytearray()
+    while n > 0x7F:
+        out.append((n & 0x7F) | 0x80)
+        n >>= 7
+    out.append(n)
+    return bytes(out)
+
+
+def _pb_bytes(field: int, data: bytes) -> bytes:
+    """A length-delimited protobuf field (string, bytes or message)."""
+    return _pb_varint(field << 3 | 2) + _pb_varint(len(data)) + data
+
+
+def _pb_float(v: float) -> bytes:
+    """A protobuf ``float`` (32-bit little-endian), rounded from ``v`` as protobuf's C cast
+    rounds it: beyond the float range, +-inf (where ``struct`` would refuse)."""
+    try:
+        return struct.pack("<f", v)
+    except OverflowError:
+        return struct.pack("<f", math.copysign(math.inf, v))
+
+
 class EventWriter:
     """A TensorBoard event file in ``log_dir``: scalars, histograms, PNG images, hparams.
 
@@ -110,6 +137,7 @@ class EventWriter:
         EventWriter._count += 1
         name = f"events.out.tfevents.{time.time():010.0f}.{socket.gethostname()}.{os.getpid()}.{EventWriter._count}"
         self._fh = open(Path(log_dir) / name, "wb")
+        self._tag_head: dict[str, bytes] = {}  # tag -> its Summary.value field's bytes before the value
         self._write(self._ev.Event(wall_time=time.time(), file_version="brain.Event:2"))
 
     _count = 0
@@ -125,10 +153,13 @@ class EventWriter:
             self._fh.close()
 
     def _write(self, event) -> None:
-        """One TFRecord: length, its masked CRC-32C, the serialised event, its masked CRC-32C
-        (CRC-32C in C, ``google_crc32c``: TensorBoard's pure-Python one was ~70 % of a run's
-        event writing)."""
-        data = event.SerializeToString()
+        """One TFRecord of the event proto ``event`` (:meth:`_write_bytes`)."""
+        self._write_bytes(event.SerializeToString())
+
+    def _write_bytes(self, data: bytes) -> None:
+        """One TFRecord: length, its masked CRC-32C, the serialised event ``data``, its masked
+        CRC-32C (CRC-32C in C, ``google_crc32c``: TensorBoard's pure-Python one was ~70 % of a
+        run's event writing)."""
         header = struct.pack("<Q", len(data))
         self._fh.write(header + struct.pack("<I", _masked_crc(header)) + data + struct.pack("<I", _masked_crc(data)))
 
@@ -140,11 +171,29 @@ class EventWriter:
     def add_scalar(self, tag: str, value: float, step: int) -> None:
         self._add([self._pb.Summary.Value(tag=tag, simple_value=float(value))], step)
 
-    def add_scalars_at(self, step: int, values: Mapping[str, float]) -> None:
-        """Every (tag, value) of ``values`` at one step, in one event (non-finite values skipped)."""
-        vals = [self._pb.Summary.Value(tag=k, simple_value=float(v)) for k, v in values.items() if np.isfinite(v)]
-        if vals:
-            self._add(vals, step)
+    def add_scalars_at(self, step: int, values: Mapping[str, float], wall_time: float | None = None) -> None:
+        """Every (tag, value) of ``values`` at one step, in one event (non-finite values skipped).
+
+        The event is encoded here, byte for byte what ``Event(wall_time, step, summary=Summary(
+        value=[Summary.Value(tag, simple_value), ...])).SerializeToString()`` gives (tested): a
+        run's ~500 scalar events took 30 of its 36 ms of TensorBoard writing through the protos."""
+        parts = []
+        for k, v in values.items():
+            v = float(v)
+            if not math.isfinite(v):
+                continue
+            head = self._tag_head.get(k)
+            if head is None:  # Summary.value (1): a Summary.Value of tag (1) and simple_value (2, 32-bit)
+                tag = _pb_bytes(1, k.encode()) if k else b""
+                head = self._tag_head[k] = b"\x0a" + _pb_varint(len(tag) + 5) + tag + b"\x15"
+            parts.append(head + _pb_float(v))
+        if not parts:
+            return
+        summary = b"".join(parts)
+        step = int(step)
+        self._write_bytes(b"\x09" + struct.pack("<d", time.time() if wall_time is None else wall_time)  # wall_time (1)
+                          + (b"\x10" + _pb_varint(step) if step else b"")  # step (2), omitted at 0
+                          + b"\x2a" + _pb_varint(len(summary)) + summary)  # summary (5)
 
     def add_histogram(self, tag: str, values: np.ndarray, step: int, bins: int = HIST_BINS) -> None:
         """``values`` (any shape) as a histogram of ``bins`` equal bins over [min, max]."""

@@ -104,3 +104,34 @@ def test_hparams_records_are_tensorboards(tmp_path):
     exp = metadata.parse_experiment_plugin_data(ea.summary_metadata[metadata.EXPERIMENT_TAG].plugin_data.content)
     assert [m.name.tag for m in exp.metric_infos] == ["summary/seat_time_s"]
     assert ea.Scalars("summary/seat_time_s")[0].value == 4.5
+
+
+def test_scalar_events_are_the_protos_bytes(tmp_path):
+    """``add_scalars_at`` encodes its event itself: the bytes equal the TensorBoard protos'
+    ``SerializeToString`` -- steps 0 (omitted), large and negative, empty and non-ASCII tags,
+    -0.0, values beyond float32 (inf), non-finite values (left out) -- and read back."""
+    from tensorboard.compat.proto import event_pb2, summary_pb2
+
+    from kinadapt_nn.runio import EventWriter
+
+    cases = [(0, {"a": 1.5}), (7, {"sensor/d": -0.0, "x": 1e300, "y": -1e300}), (2**40 + 3, {"é/ü": 3.25e-12}),
+             (-5, {"": 2.0, "b": float("nan"), "c": float("inf"), "d": np.float64(0.1)}), (300, {"q": 0.0})]
+    sent = []
+    with EventWriter(tmp_path) as wr:
+        n0 = wr._fh.tell()
+        for step, vals in cases:
+            wr.add_scalars_at(step, vals, wall_time=1234.5)
+    written = next(tmp_path.iterdir()).read_bytes()
+    for step, vals in cases:
+        ev = event_pb2.Event(wall_time=1234.5, step=step, summary=summary_pb2.Summary(value=[
+            summary_pb2.Summary.Value(tag=k, simple_value=float(v)) for k, v in vals.items() if np.isfinite(v)]))
+        sent.append(ev.SerializeToString())
+    pos, got = n0, []
+    while pos < len(written):  # the TFRecords: length (8), its crc (4), data, the data's crc (4)
+        size = int.from_bytes(written[pos:pos + 8], "little")
+        got.append(written[pos + 12:pos + 12 + size])
+        pos += 16 + size
+    assert got == sent
+    back = event_pb2.Event.FromString(got[1])
+    assert [(v.tag, v.simple_value) for v in back.summary.value] == [("sensor/d", 0.0), ("x", float("inf")),
+                                                                      ("y", -float("inf"))]
