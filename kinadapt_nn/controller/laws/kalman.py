@@ -215,7 +215,7 @@ def _downdate_lower(P, X, HP):
     """P[i, :i+1] -= sum_r X[r, i] HP[r, :i+1] for every row i (the lower triangle of P - K H P,
     K^T = X (m, p), HP (m, p)): the terms with X[r, i] = 0 left out, the others summed from 0.0 in
     r's order. A row with all six terms of m = 6 is one pass over the row (a straight-line sum per
-    entry that vectorises, with the roundings of accumulating the terms one by one: 22 -> 13 us
+    entry that vectorises, with the roundings of accumulating the terms one by one: 22 -> 14 us
     at p = 210); any other row, one pass per term."""
     p = P.shape[0]
     m = X.shape[0]
