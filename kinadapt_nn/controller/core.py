@@ -42,7 +42,7 @@ import numpy as np
 
 from kinadapt_nn.controller.dense import chol, chol_solve, dot, gram_sparse_log, mm, mm_nt, sym_eigmin, vcopy, vfill
 from kinadapt_nn.controller.laws.base import law_step_fn
-from kinadapt_nn.controller.twocore import compile_two_cores
+from kinadapt_nn.controller.twocore import compile_two_cores, kernel_opt_level
 from kinadapt_nn.controller.twocore import in_cache as _in_cache
 
 #: the paper's kinematic gate on lambda_min(W J_hat J_hat^T W) (Results, "A separate kinematic gate")
@@ -1040,7 +1040,7 @@ def compile_calls(calls, progress: bool = False, law=None) -> float:
     cache is compiled by two processes (``twocore.compile_two_cores``: the kernels' callees shared,
     then the law's step there while the kernels compile here; else the law's step alone aside,
     ``LawSpec.compile_aside``); the law is loaded here after. -> wall seconds."""
-    with compiling(progress) as phase:
+    with compiling(progress) as phase, kernel_opt_level():  # LLVM at level 1: the same code, compiled sooner
         if not compile_two_cores(calls, law):  # a cold cache: the kernels' callees on two cores
             aside = law.compile_aside() if law is not None else None
             try:

@@ -22,6 +22,7 @@ start or fails, this process compiles whatever it left, so the result never depe
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 import os
 import pickle
@@ -40,6 +41,37 @@ _F1, _F2, _F3 = (T.Array(T.float64, d, "C") for d in (1, 2, 3))
 LOCAL_TYPES = {"b": T.int64, "n": T.int64, "rho": T.float64, "t_rel": T.float64, "known": _F1, "Phi_T": _F2,
                "theta": _F1, "F": _F1, "drive": _F1, "Lc": _F2, "Jh": _F2, "Kq": _F2, "Y": _F3, "psi": _F1,
                "q": _F1}
+
+
+#: LLVM's optimisation level for the kernels (numba's default is 3). Measured on the 2-core VM, a
+#: fresh cache each time: the default episode's compile 13.7-14.7 s at 3, 11.3-12.0 s at 1; the
+#: episodes' traces and summaries bit for bit the same (eight configurations: no fast-math, so no
+#: level may reorder floating point) and the episodes as fast (bench_episode: adjoint 5.40 vs
+#: 5.33, RBF 10.61 vs 10.21). Level 0 compiles no faster (13.6 s) and runs 6x slower.
+KERNEL_OPT = 1
+
+
+@contextlib.contextmanager
+def kernel_opt_level():
+    """Compile the kernels at :data:`KERNEL_OPT` meanwhile: ``numba.config.OPT`` in this process
+    and ``NUMBA_OPT`` for the helper processes started meanwhile; both restored after. numba's
+    code generator is made first at the process's own level, so the user's other numba code
+    keeps it. A ``NUMBA_OPT`` the user has set is left to rule."""
+    if "NUMBA_OPT" in os.environ:
+        yield
+        return
+    from numba.core import config
+    from numba.core.registry import cpu_target
+
+    cpu_target.target_context  # noqa: B018  (numba's code generator, made at the process's level)
+    old = config.OPT
+    config.OPT = config._OptLevel(KERNEL_OPT)
+    os.environ["NUMBA_OPT"] = str(KERNEL_OPT)
+    try:
+        yield
+    finally:
+        config.OPT = old
+        os.environ.pop("NUMBA_OPT", None)
 
 
 def in_cache(fn, sig) -> bool:

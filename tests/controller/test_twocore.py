@@ -39,7 +39,9 @@ def test_cold_compile_on_two_cores_types_every_callee_once_and_gives_the_same_ep
     """A first run (empty numba cache folder, a fresh process) compiles through the helper process:
     each planned callee ends up compiled or loaded for its planned types only (a wrong type would
     leave a second signature), the law's step lands in the cache, and an episode run on those
-    kernels equals, to the last bit, the same episode run here."""
+    kernels equals, to the last bit, the same episode run here. That process compiles at LLVM's
+    level 3 (``NUMBA_OPT`` set, which ``kernel_opt_level`` leaves to rule), this one's kernels at
+    ``KERNEL_OPT`` (1) unless the environment says otherwise: the two levels give the same numbers."""
     code = f"""
 import json, numpy as np
 from kinadapt_nn.config import load_config
@@ -59,10 +61,30 @@ res = run_episode(cfg, ctrl=ctrl)
 np.save({str(tmp_path / "theta.npy")!r}, res.trace["theta"])
 print(json.dumps({{"cold": cold, "bad": bad, "n": len(plan), "law_cached": law_cached}}))
 """
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"), NUMBA_OPT="3")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600)
     assert out.returncode == 0, out.stderr[-2000:]
     got = json.loads(out.stdout.strip().splitlines()[-1])
     assert got["cold"] and got["n"] >= 5 and got["bad"] == [] and got["law_cached"]
     here = run_episode(load_config(None, _EPISODE))
     np.testing.assert_array_equal(np.load(tmp_path / "theta.npy"), here.trace["theta"])
+
+
+def test_kernel_opt_level_sets_level_one_for_the_compile_only(monkeypatch):
+    """Inside ``kernel_opt_level`` numba's level and the helpers' ``NUMBA_OPT`` are 1; after it
+    (also after an error) both are back; a ``NUMBA_OPT`` the user set is not touched."""
+    from numba.core import config
+
+    from kinadapt_nn.controller.twocore import KERNEL_OPT, kernel_opt_level
+
+    monkeypatch.delenv("NUMBA_OPT", raising=False)
+    before = config.OPT
+    with pytest.raises(RuntimeError):
+        with kernel_opt_level():
+            assert int(config.OPT) == KERNEL_OPT == 1 and os.environ["NUMBA_OPT"] == "1"
+            raise RuntimeError("a failed compile")
+    assert config.OPT is before and "NUMBA_OPT" not in os.environ
+    monkeypatch.setenv("NUMBA_OPT", "2")
+    with kernel_opt_level():
+        assert config.OPT is before and os.environ["NUMBA_OPT"] == "2"
+    assert os.environ["NUMBA_OPT"] == "2"
