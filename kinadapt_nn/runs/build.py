@@ -24,6 +24,31 @@ from kinadapt_nn.known import BORE_AXIS_W
 FAILURES = ("none", "timeout", "jam", "block_face", "divergence")
 
 
+def one_blas_thread():
+    """Context manager: the BLAS libraries loaded in this process (numpy's, and scipy's that the
+    kernels call for the RBF's p x p products and eigh) at one thread while episodes step.
+
+    The per-step products are small (p = 210 at most by default); OpenBLAS's threads win nothing
+    on them and, with episodes in parallel processes (compare, sweep: one per core), spin against
+    each other's: two RBF socket episodes side by side took 6.2 s each with OpenBLAS's default
+    threads against 1.7 s at one thread (2-core VM).
+
+    scipy's OpenBLAS is loaded first (``scipy.linalg.cython_lapack``, through which numba's
+    ``np.linalg`` calls it; loading the kernels imports it anyway): the limit covers only the
+    libraries loaded when it is set, and before this the first episode of a process ran scipy's
+    BLAS at every core while later ones ran at one, so an RBF episode's numbers depended on
+    whether it was its process's first (different roundings from t = 0.46 s on). Controllers are
+    built under it too (:func:`make_controller`): the RBF's fit and prior are BLAS products whose
+    roundings depend on the thread count."""
+    import importlib
+
+    from threadpoolctl import threadpool_limits
+
+    importlib.import_module("scipy.linalg.cython_lapack")
+
+    return threadpool_limits(1, user_api="blas")
+
+
 def initial_estimate(cfg: ExperimentCfg) -> np.ndarray:
     """theta0 = true offset + ``initial_error_m`` along ``initial_error_dir_f`` (default: away
     from the flange axis, along the true lateral offset). Experiment design: the controller
@@ -40,7 +65,13 @@ def initial_estimate(cfg: ExperimentCfg) -> np.ndarray:
 
 def make_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
     """``_base_features`` plus, with ``model.effects``, the library effects' columns
-    (``kinadapt_nn.features.effects``; their parameters start at 0)."""
+    (``kinadapt_nn.features.effects``; their parameters start at 0). BLAS at one thread meanwhile
+    (:func:`one_blas_thread`: the same roundings wherever it is called from)."""
+    with one_blas_thread():
+        return _make_features(cfg)
+
+
+def _make_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
     feats, theta0 = _base_features(cfg)
     if cfg.model.effects:
         from kinadapt_nn.features.effects import EffectFeatures
@@ -123,5 +154,8 @@ def law_name(cfg: ExperimentCfg) -> str:
 
 
 def make_controller(cfg: ExperimentCfg) -> Controller:
-    feats, theta0 = make_features(cfg)
-    return Controller(KnownCfg.of(cfg), feats, theta0)
+    """The controller of ``cfg`` (its features, theta0 and law), built with BLAS at one thread
+    (:func:`one_blas_thread`)."""
+    with one_blas_thread():
+        feats, theta0 = make_features(cfg)
+        return Controller(KnownCfg.of(cfg), feats, theta0)

@@ -98,15 +98,43 @@ def draw_tools(cfg: CompareCfg) -> dict[str, list[list[str]]]:
     return out
 
 
-def _run_one(job: tuple) -> dict:
+def _job_config(job: tuple):
+    """The online config of one job (scenario, family, features, tool, overrides, tb, law)."""
     from kinadapt_nn.config import load_config
-    from kinadapt_nn.runs.episode import run_insertions
+
+    _scenario, _family, features, _tool_i, overrides, _tb_dir, law = job
+    return load_config(None, ["run.progress=false", *overrides, f"run.features={features}",
+                              *([f"adaptation.mode={law}"] if law else [])])
+
+
+def _prefix_groups(jobs: list[tuple]) -> list[list[int]]:
+    """Job indices grouped where the jobs' configs differ in ``run.insertions`` only: a run of n
+    insertions holds every shorter one as its prefix (``runs.episode.run_insertion_prefixes``),
+    so a group is simulated once, its longest member's insertions. Order: first appearance."""
+    groups: dict[str, list[int]] = {}
+    for i, job in enumerate(jobs):
+        cfg = _job_config(job)
+        key = cfg.model_copy(update={"run": cfg.run.model_copy(update={"insertions": 1})}).model_dump_json()
+        groups.setdefault(key, []).append(i)
+    return list(groups.values())
+
+
+def _run_group(group: list[tuple]) -> list[dict]:
+    """The jobs of one prefix group (:func:`_prefix_groups`), simulated once: their results in
+    the group's order, each what the job run alone gives (its own TensorBoard run)."""
+    from kinadapt_nn.runs.episode import run_insertion_prefixes
+
+    cfgs = [_job_config(job) for job in group]
+    longest = max(cfgs, key=lambda c: c.run.insertions)
+    runs = run_insertion_prefixes(longest, [c.run.insertions for c in cfgs])
+    return [_job_result(job, cfg, runs[cfg.run.insertions]) for job, cfg in zip(group, cfgs)]
+
+
+def _job_result(job: tuple, cfg, res) -> dict:
+    """A job's row material from its run ``res``; writes its TensorBoard run."""
     from kinadapt_nn.runs.tb import write_cell_tensorboard, write_tensorboard
 
-    scenario, family, features, tool_i, overrides, tb_dir, law = job
-    cfg = load_config(None, ["run.progress=false", *overrides, f"run.features={features}",
-                             *([f"adaptation.mode={law}"] if law else [])])
-    res = run_insertions(cfg)
+    scenario, family, features, tool_i, _overrides, tb_dir, _law = job
     s = res.summary
     if "insertions" in s:  # a work cell: judged from the first insertion's start to the last one's end
         rows = s["insertions"]
@@ -144,8 +172,9 @@ def _median(xs):
     return float(np.median(xs)) if xs else None
 
 
-def run_compare(cfg: CompareCfg, out: Path, progress: bool = True) -> list[dict]:
-    """Run every episode, write tb/, comparison.csv/.md and jacobian_error.png into ``out``."""
+def compare_jobs(cfg: CompareCfg, out: Path) -> list[tuple]:
+    """Every run of the comparison: (scenario, family, features, tool index, overrides, TensorBoard
+    folder, law), the tools drawn by :func:`draw_tools`."""
     tools = draw_tools(cfg)
     jobs = []
     laws = list(cfg.laws) or [None]
@@ -156,6 +185,12 @@ def run_compare(cfg: CompareCfg, out: Path, progress: bool = True) -> list[dict]
                     for i, over in enumerate(rows):
                         tb = out / "tb" / scen / fam / feat / (f"{law}/" if len(laws) > 1 else "") / f"tool{i}"
                         jobs.append((scen, fam, feat, i, [*cfg.base, *scen_over, *over], str(tb), law))
+    return jobs
+
+
+def run_compare(cfg: CompareCfg, out: Path, progress: bool = True) -> list[dict]:
+    """Run every episode, write tb/, comparison.csv/.md and jacobian_error.png into ``out``."""
+    jobs = compare_jobs(cfg, out)
     from kinadapt_nn.config import load_config
     from kinadapt_nn.runs.episode import precompile
 
@@ -168,15 +203,18 @@ def run_compare(cfg: CompareCfg, out: Path, progress: bool = True) -> list[dict]
         from tqdm import tqdm
 
         bar = tqdm(total=len(jobs), desc="compare", unit="episode")
-    order = sorted(range(len(jobs)), key=lambda i: -_job_cost(jobs[i]))  # the longest first: no lone tail
+    groups = _prefix_groups(jobs)  # jobs differing only in run.insertions: simulated once
+    groups.sort(key=lambda g: -max(_job_cost(jobs[i]) for i in g))  # the longest first: no lone tail
     done: dict[int, dict] = {}
     with ProcessPoolExecutor(max_workers=cfg.jobs) as ex:
-        futures = {ex.submit(_run_one, jobs[i]): i for i in order}
+        futures = {ex.submit(_run_group, [jobs[i] for i in g]): g for g in groups}
         import kinadapt_nn.figures  # noqa: F401  (matplotlib, while the workers run: the figure then only draws)
         for fut in as_completed(futures):
-            done[futures[fut]] = fut.result()
+            g = futures[fut]
+            for i, r in zip(g, fut.result()):
+                done[i] = r
             if bar is not None:
-                bar.update(1)
+                bar.update(len(g))
     results = [done[i] for i in range(len(jobs))]
     if bar is not None:
         bar.close()

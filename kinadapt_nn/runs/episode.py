@@ -26,7 +26,7 @@ from kinadapt_nn.sim.adapter import PegInHoleSim
 from kinadapt_nn.sim.faults import SensorFaults
 from kinadapt_nn.trace import Trace, TraceRecorder
 from kinadapt_nn.sim.truth import TrueSensorJacobian
-from kinadapt_nn.runs.build import make_controller
+from kinadapt_nn.runs.build import make_controller, one_blas_thread  # noqa: F401  (one_blas_thread: runs.batch)
 from kinadapt_nn.runs.evaluate import certificate_check, evaluate_offline, summarize
 from kinadapt_nn.runs.monitor import SeatMonitor
 
@@ -67,12 +67,26 @@ def run_insertions(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
     the cell Jacobian error on the held-out configurations before the first insertion and after
     each (``kinadapt_nn.runs.cell``, truth side). One insertion without a cell is ``run_episode``."""
     n = cfg.run.insertions
-    bores = cfg.cell.bores(cfg.scene)
+    return run_insertion_prefixes(cfg, [n], progress)[n]
+
+
+def run_insertion_prefixes(cfg: ExperimentCfg, counts, progress: bool = False) -> dict[int, EpisodeResult]:
+    """:func:`run_insertions` for several ``run.insertions`` at once (``counts``, each >= 1;
+    ``cfg.run.insertions`` is ignored): insertion i depends only on the insertions before it, so
+    the run of max(counts) insertions holds the others as its prefixes. -> {k: the result
+    ``run_insertions`` gives with ``run.insertions = k``}, each with its own summary (the rows of
+    its k insertions, the cell error up to insertion k). ``kinadapt compare`` runs scenarios that
+    differ only in the number of insertions this way, once."""
+    counts = sorted({int(k) for k in counts})
+    if not counts or counts[0] < 1:
+        raise ValueError(f"insertion counts must be >= 1, got {counts}")
+    n = counts[-1]
     is_cell = bool(cfg.cell.bores_w_m)
     if n == 1 and not is_cell:
-        return run_episode(cfg, progress)
+        return {1: run_episode(cfg, progress)}
     from kinadapt_nn.runs.cell import CellJacobianError
 
+    bores = cfg.cell.bores(cfg.scene)
     with core.compiling(progress):  # a first run's one-time compile: its own bar
         ctrl = make_controller(cfg)
         ctrl.compile_kernels()
@@ -85,7 +99,7 @@ def run_insertions(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
         refit = Refit(ctrl, cfg.cell.refit_channels, cfg.cell.refit_prior_weight,
                       timing_sd_s=cfg.cell.refit_timing_sd_s)
     rows = []
-    res = None
+    out: dict[int, EpisodeResult] = {}
     for i in range(n):
         b = cfg.cell.bore_of(i)
         res = run_insertion(cfg, ctrl, i, progress, keep_regressor=refit is not None)
@@ -93,6 +107,9 @@ def run_insertions(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
         refit_note = None
         if refit is not None:
             refit_note = refit.after_insertion(res.trace)
+        if i == 0 and 1 in counts and not is_cell:  # one insertion without a cell: what run_episode gives
+            res.trace.arrays.pop("law_Phi_fT", None)
+            out[1] = EpisodeResult(res.trace, dict(s))
         errs = cell.errors(ctrl)
         cell_err.append(float(np.median(errs)))
         rows.append({"insertion": i + 1, "bore": b, "bore_entry_w_m": list(bores[b]), "success": s["success"],
@@ -106,16 +123,17 @@ def run_insertions(cfg: ExperimentCfg, progress: bool = False) -> EpisodeResult:
                      "identified": s["identification"].get("identified"),
                      "refit": refit_note,
                      "theta_sd_final": s.get("theta_sd_final"), "max_force_N": s["max_force_N"]})
-    res.summary["insertions"] = rows
-    res.summary["cell"] = {
-        "bores_w_m": [list(x) for x in bores],
-        "order": [cfg.cell.bore_of(i) for i in range(n)],
-        "between": cfg.cell.between,
-        "heldout_configurations": int(len(cell.q)),
-        "jacobian_error_cell_median": cell_err,  # [before the first, after insertion 1, ..., n]
-        "all_seated": all(r["success"] for r in rows),
-    }
-    return res
+        if i + 1 in counts and i + 1 not in out:
+            k = i + 1
+            out[k] = EpisodeResult(res.trace, dict(s, insertions=list(rows), cell={
+                "bores_w_m": [list(x) for x in bores],
+                "order": [cfg.cell.bore_of(j) for j in range(k)],
+                "between": cfg.cell.between,
+                "heldout_configurations": int(len(cell.q)),
+                "jacobian_error_cell_median": list(cell_err),  # [before the first, after insertion 1, ..., k]
+                "all_seated": all(r["success"] for r in rows),
+            }))
+    return out
 
 
 def run_insertion(cfg: ExperimentCfg, ctrl: Controller, i: int, progress: bool = False,
@@ -134,19 +152,6 @@ def run_insertion(cfg: ExperimentCfg, ctrl: Controller, i: int, progress: bool =
 
 def _finite_or_none(x: float) -> float | None:
     return float(x) if x is not None and math.isfinite(x) else None
-
-
-def one_blas_thread():
-    """Context manager: the BLAS libraries loaded in this process (numpy's, and scipy's that the
-    kernels call for the RBF's p x p products and eigh) at one thread while episodes step.
-
-    The per-step products are small (p = 210 at most by default); OpenBLAS's threads win nothing
-    on them and, with episodes in parallel processes (compare, sweep: one per core), spin against
-    each other's: two RBF socket episodes side by side took 6.2 s each with OpenBLAS's default
-    threads against 1.7 s at one thread (2-core VM)."""
-    from threadpoolctl import threadpool_limits
-
-    return threadpool_limits(1, user_api="blas")
 
 
 def run_episode(cfg: ExperimentCfg, progress: bool = False, ctrl: Controller | None = None,

@@ -224,3 +224,62 @@ def test_compare_writes_one_row_per_insertion(tmp_path):
     assert (tmp_path / "cell_learning.png").stat().st_size > 10_000
     assert rows[1]["insertion"] == 0
     json.dumps(rows)
+
+
+def _same(a, b, path=""):
+    """a == b to the last bit (NaN == NaN), wall times left out."""
+    if isinstance(a, dict):
+        assert set(a) - {"wall_time_s"} == set(b) - {"wall_time_s"}, path
+        for k in set(a) - {"wall_time_s"}:
+            _same(a[k], b[k], f"{path}/{k}")
+    elif isinstance(a, (list, tuple)):
+        assert len(a) == len(b), path
+        for i, (x, y) in enumerate(zip(a, b)):
+            _same(x, y, f"{path}[{i}]")
+    elif isinstance(a, np.ndarray):
+        assert np.array_equal(a, b, equal_nan=True), path
+    elif isinstance(a, float) and a != a:
+        assert isinstance(b, float) and b != b, path
+    else:
+        assert a == b, (path, a, b)
+
+
+@pytest.mark.parametrize("over", [["run.features=rbf"], ["cell.between=refit", BORES, "cell.heldout_per_bore=2"]])
+def test_insertion_prefixes_are_the_shorter_runs(over):
+    """run_insertion_prefixes(cfg, [1, 2]) gives, for each count, what run_insertions gives with
+    run.insertions set to it: summary and trace to the last bit (RBF: its p x p BLAS work; a
+    cell with a refit between insertions: the regressor rows kept, the cell error per insertion)."""
+    from kinadapt_nn.runs.episode import run_insertion_prefixes, run_insertions
+
+    base = ["run.progress=false", *SOCKET, "run.duration_s=1.5", *over]
+    both = run_insertion_prefixes(load_config(None, base), [2, 1])
+    assert sorted(both) == [1, 2]
+    for k in (1, 2):
+        alone = run_insertions(load_config(None, [*base, f"run.insertions={k}"]))
+        _same(alone.summary, both[k].summary)
+        _same(dict(alone.trace.arrays), dict(both[k].trace.arrays))
+    assert "insertions" in both[2].summary and len(both[2].summary["insertions"]) == 2
+
+
+def test_compare_simulates_runs_that_differ_in_insertions_once(tmp_path):
+    """``kinadapt compare``: scenarios that differ only in run.insertions form one group (the
+    default compare's 72 runs are 48 simulations); a scenario's row is what its runs alone give."""
+    from kinadapt_nn.runs.compare import _prefix_groups, compare_jobs, draw_tools, load_compare_config, run_compare
+    from kinadapt_nn.runs.episode import run_insertions
+
+    jobs = compare_jobs(load_compare_config(None), tmp_path)
+    groups = _prefix_groups(jobs)
+    assert len(groups) == 48 and sorted(len(g) for g in groups) == [1] * 24 + [2] * 24
+    assert all({jobs[i][0] for i in g} == {"socket_dither", "socket_dither_x3"} for g in groups if len(g) == 2)
+
+    short = [*SOCKET, "run.duration_s=1.5"]
+    cfg = load_compare_config(None, ["features=['adjoint']", "families=['nominal']", "n_tools=1", "jobs=1",
+                                     f"scenarios={{one={short!r},two={[*short, 'run.insertions=2']!r}}}"])
+    rows = run_compare(cfg, tmp_path, progress=False)
+    tool = draw_tools(cfg)["nominal"][0]
+    for scen, n in (("one", 1), ("two", 2)):
+        alone = run_insertions(load_config(None, ["run.progress=false", *short, *tool, "run.features=adjoint",
+                                                  f"run.insertions={n}"])).summary
+        row = next(r for r in rows if r["scenario"] == scen and r["insertion"] in (None, "all"))
+        assert row["jacobian_rel_error_final_median"] == alone["jacobian_rel_error_final"]
+        assert row["offset_error_lateral_final_m_median"] == alone["offset_error_lateral_final_m"]

@@ -55,6 +55,30 @@ def test_same_config_and_seed_give_the_same_numbers():
     assert sa == sb
 
 
+def test_a_process_first_rbf_episode_equals_its_later_ones(tmp_path):
+    """The RBF law's BLAS work (scipy's OpenBLAS, loaded with the kernels) runs at one thread in a
+    process's first episode too: before, that library was loaded after the thread limit was set,
+    so the first episode ran it at every core and rounded differently from t = 0.46 s on (the same
+    config gave two answers in a compare worker). A fresh process runs the same episode twice."""
+    import subprocess
+    import sys
+
+    code = f"""
+import numpy as np
+from kinadapt_nn.config import load_config
+from kinadapt_nn.runs.episode import run_episode
+cfg = load_config(None, ["run.progress=false", "run.features=rbf", "scene.contact_model=socket",
+                         "control.dither_rad_s=[0.05,0.05,0.05]", "run.duration_s=1.2"])
+a, b = run_episode(cfg), run_episode(cfg)
+np.save({str(tmp_path / "a.npy")!r}, a.trace["theta"]); np.save({str(tmp_path / "b.npy")!r}, b.trace["theta"])
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    a, b = np.load(tmp_path / "a.npy"), np.load(tmp_path / "b.npy")
+    assert np.ptp(a[-1] - a[0]) > 0  # the estimate moved: the law ran
+    np.testing.assert_array_equal(a, b)
+
+
 @pytest.mark.parametrize(
     ("overrides", "expected"),
     [
