@@ -45,9 +45,9 @@ def test_batch_of_three_equals_three_single_episodes(law):
     assert res.sim_steps == steps
 
 
-def test_batch_refuses_per_episode_feature_state():
-    with pytest.raises(ConfigError, match="model.effects"):
-        run_batch([load_config(None, ["model.effects=[ft_bias_drift]"])])
+def test_batch_refuses_episodes_that_differ_in_a_known_setting():
+    with pytest.raises(ConfigError, match="KNOWN"):
+        run_batch([load_config(None, []), load_config(None, ['model.effects=["ft_bias_drift"]'])])
 
 
 def _jac_site(model, data, q):

@@ -35,3 +35,40 @@ def test_batch_runs_learned_features_and_the_kalman_law():
     res = run_batch(cfgs, nthread=1)
     assert res.theta_final.shape == (2, make_features(cfgs[0])[0].n_params)
     assert all(s["law"] == "kalman" for s in res.summaries) and np.all(np.isfinite(res.theta_final))
+
+
+_TRUTH_SIDE = {
+    "socket": ["scene.contact_model=socket", "control.dither_rad_s=[0.05,0.05,0.05]"],
+    "faults": ["faults.ft_noise_N=0.5", "faults.ft_dropout_prob=0.05", "faults.ft_bias_N=[0.5,0,0]",
+               "faults.encoder_resolution_rad=1e-5", "faults.latency_steps=2"],
+    "hidden_effects": ["effects.ft_bias_drift.enabled=true", "effects.ft_frame_rotation.enabled=true",
+                       "effects.tool_tilt.enabled=true"],
+    "model_effects": ['model.effects=["contact_stiffness"]', "scene.contact_model=socket",
+                      "control.dither_rad_s=[0.05,0.05,0.05]", "effects.contact_stiffness.enabled=true"],
+    "dropout_divergence": ["faults.ft_dropout_prob=0.5", "sensing.max_dropout_s=0.002"],
+    "rank_gate_model_effects": ['model.effects=["ft_bias_drift"]', "sensing.stiffness_rot_Nm_per_rad=0",
+                                "sensing.stiffness_lat_N_per_m=1e-9"],
+}
+
+
+@pytest.mark.parametrize("case", list(_TRUTH_SIDE))
+def test_batch_runs_the_truth_side_and_effect_columns_as_single_episodes(case):
+    """Socket contact, simulated faults, hidden sensor and tool effects, library effect columns
+    (per-episode features state, the rank gate from Python), a divergence by dropouts: each
+    batch episode ends as run_episode does, to the last bit (seat time, peaks, final theta,
+    control steps, failure class)."""
+    from kinadapt_nn.runs.build import make_controller
+
+    base = ["run.progress=false", "start.lateral_jitter_m=0.0003", "start.tilt_jitter_deg=0.5",
+            "run.stop_after_seat_s=0.05", *_TRUTH_SIDE[case]]
+    cfgs = [load_config(None, [*base, *tool_overrides(SweepCfg(), s), f"run.seed={s}"]) for s in range(2)]
+    res = run_batch(cfgs, nthread=1)
+    for c, b, theta_b in zip(cfgs, res.summaries, res.theta_final):
+        ctrl = make_controller(c)
+        e = run_episode(c, ctrl=ctrl).summary
+        assert (b["success"], b["failure"], b["steps"]) == (e["success"], e["failure"], e["steps"])
+        assert b["seat_time_s"] == e["seat_time_s"]
+        assert (b["max_force_N"], b["max_moment_Nm"]) == (e["max_force_N"], e["max_moment_Nm"])
+        np.testing.assert_array_equal(theta_b, ctrl.theta)
+    expect = {"dropout_divergence": "divergence", "rank_gate_model_effects": "rank_gate"}.get(case, "none")
+    assert [b["failure"] for b in res.summaries] == [expect] * 2
