@@ -77,6 +77,32 @@ def test_sweep_aggregates_and_resumes(tmp_path):
         run_sweep(other, out, progress=False)
 
 
+def test_batched_sweep_records_what_the_episode_by_episode_sweep_records(tmp_path):
+    """``batch = true``: the groups' seeds stepped together (faults on, one group's seeds split
+    over two tasks) give every column they share with the episode-by-episode sweep, to the last
+    digit, and the same aggregate; resuming runs only what is missing."""
+    import csv
+
+    from kinadapt_nn.runs.sweep import batch_tasks, episode_jobs
+
+    over = ["seeds=3", "jobs=2", "base=['run.stop_after_seat_s=0.05','start.lateral_jitter_m=0.0003']",
+            "groups={a=[], b=['faults.ft_noise_N=0.5','faults.ft_dropout_prob=0.05']}"]
+    one = run_sweep(load_sweep_config(None, over), tmp_path / "one", progress=False)
+    cfg = load_sweep_config(None, [*over, "batch=true", "batch_size=2"])
+    tasks = batch_tasks(cfg, episode_jobs(cfg))
+    assert [len(t) for t in tasks] == [2, 1, 2, 1] and all(len({j["group"] for j in t}) == 1 for t in tasks)
+    bat = run_sweep(cfg, tmp_path / "bat", progress=False)
+    for k in ("total", "groups"):
+        assert bat[k] == one[k]
+    rows = {n: {r["id"]: r for r in csv.DictReader(open(tmp_path / n / "sweep.csv"))} for n in ("one", "bat")}
+    cols = [c for c in next(iter(rows["bat"].values())) if c != "wall_time_s"]
+    assert {"success", "failure", "seat_time_s", "max_force_N", "offset_error_final_m_0", "steps"} <= set(cols)
+    assert all(rows["bat"][i][c] == rows["one"][i][c] for i in rows["one"] for c in cols)
+    assert bat["total"]["successes"] == 6
+    (tmp_path / "bat" / "episodes" / "b-s2.json").unlink()
+    assert run_sweep(cfg, tmp_path / "bat", progress=False)["episodes"] == 6
+
+
 def test_killed_sweep_completes_every_episode_exactly_once(tmp_path):
     """SIGINT mid-way, then the same command: every episode once, finished ones not rerun."""
     out = tmp_path / "kill"
