@@ -37,7 +37,7 @@ from kinadapt_nn.controller.laws.base import law_state
 from kinadapt_nn.controller.core import RANK_GATE
 from kinadapt_nn.runs.monitor import classify_failure, seat_step
 from kinadapt_nn.runs.build import make_features
-from kinadapt_nn.runs.episode import one_blas_thread
+from kinadapt_nn.runs.build import one_blas_thread
 from kinadapt_nn.errors import ConfigError
 from kinadapt_nn.features.base import KinState
 from kinadapt_nn.known import KnownCfg
@@ -117,6 +117,7 @@ def _monitor(t, out, i_s, i_w, i_rho, i_lam, lim, active, clock, stop_at, peaks,
         if lim[5] > 0.0 and out[b, i_lam] < RANK_GATE:
             breach[b] = True
 
+
 def _sensor_side(t: float, row: np.ndarray, n: int, sensor_fx, faults) -> None:
     """One episode's sample ``row`` = [q; qdot; raw F/T] (2n+6,), in place, as the single episode
     reads it: hidden sensor effects on the wrench (``PegInHoleSim.sense``), then the simulated
@@ -132,7 +133,7 @@ def _sensor_side(t: float, row: np.ndarray, n: int, sensor_fx, faults) -> None:
 def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = False) -> BatchResult:
     """Run len(cfgs) episodes together. All cfgs share every KNOWN setting (sensing, control,
     adaptation, success, bore pose) and differ in hidden truth (tool, start, seed). BLAS at one
-    thread meanwhile (``runs.episode.one_blas_thread``)."""
+    thread meanwhile (``runs.build.one_blas_thread``)."""
     with one_blas_thread():
         return _run_batch(cfgs, nthread, record_ctrl)
 

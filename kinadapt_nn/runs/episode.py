@@ -26,7 +26,7 @@ from kinadapt_nn.sim.adapter import PegInHoleSim
 from kinadapt_nn.sim.faults import SensorFaults
 from kinadapt_nn.trace import Trace, TraceRecorder
 from kinadapt_nn.sim.truth import TrueSensorJacobian
-from kinadapt_nn.runs.build import make_controller, one_blas_thread  # noqa: F401  (one_blas_thread: runs.batch)
+from kinadapt_nn.runs.build import make_controller, one_blas_thread
 from kinadapt_nn.runs.evaluate import certificate_check, evaluate_offline, summarize
 from kinadapt_nn.runs.monitor import SeatMonitor
 
