@@ -208,8 +208,8 @@ def run_sweep(cfg: SweepCfg, out: Path, executor: str = "local", address: str | 
 
         bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="sweep", unit="episode")
 
-    def done(recs) -> None:
-        for rec in recs if isinstance(recs, list) else [recs]:
+    def done(result) -> None:  # a record (run_job) or a batch task's records (run_batch_job)
+        for rec in result if cfg.batch else [result]:
             write_text_atomic(out / "episodes" / f"{rec['id']}.json", json.dumps(rec) + "\n")
             if bar is not None:
                 bar.update(1)
