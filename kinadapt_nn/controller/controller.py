@@ -242,6 +242,7 @@ class Controller:
         #: the fused step kernel (features computed in the kernel: one call per step), else None
         self._fused = core.FUSED.get(int(self.consts.c[core.FEAT]))
         self._kernels_ready = False  # compile_kernels done
+        self._fused_call, self._fused_args = self._fused, ()  # (compile_kernels binds them)
         self._fx = feature_consts(features)
         self._observe = getattr(features, "observe", None)
         # -- kernel buffers (B = 1), allocated once
@@ -409,8 +410,12 @@ class Controller:
         cell's later insertions skip it). -> wall seconds spent (0 when done before)."""
         if self._kernels_ready:
             return 0.0
-        wall = core.compile_calls(self.kernel_calls(), progress, law=self.law_spec)
+        calls = self.kernel_calls()
+        wall = core.compile_calls(calls, progress, law=self.law_spec)
         self.consts.law_fn[0] = self.law_spec.address()
+        if self._fused is not None:  # the step's one dispatch, its arguments (this controller's buffers) bound once
+            (_name, fn, args), = calls
+            self._fused_call, self._fused_args = core.entry_point(fn, args), args[1:]
         self._kernels_ready = True
         return wall
 
@@ -420,8 +425,7 @@ class Controller:
             self.compile_kernels()
         st, cs = self.state, self.consts
         if self._fused is not None:  # intake, kinematics, sense, regressor, drive, admittance, law: one dispatch
-            self._fused(t, self._inp, self.chain, self._p_O, self._R, self._J, self._reg, st.x, st.k,
-                        self.layout.arr, cs.c, cs.mats, cs.pv, cs.lc, cs.law_fn, cs.seg, self._fx, self.out)
+            self._fused_call(t, *self._fused_args)
         else:
             core.intake_kernel(self._inp, st.x, st.k, self.layout.arr, cs.c)
             if not st.k[0, core.K_ERROR]:

@@ -28,7 +28,7 @@ from kinadapt_nn.trace import Trace, TraceRecorder
 from kinadapt_nn.sim.truth import TrueSensorJacobian
 from kinadapt_nn.runs.build import make_controller, one_blas_thread
 from kinadapt_nn.runs.evaluate import certificate_check, evaluate_offline, summarize
-from kinadapt_nn.runs.monitor import SeatMonitor
+from kinadapt_nn.runs.monitor import SeatMonitor, seat_step
 
 FAILURES = ("none", "timeout", "jam", "block_face", "divergence")
 
@@ -204,7 +204,7 @@ def _run_episode(cfg: ExperimentCfg, progress: bool, ctrl: Controller | None, ke
     io_log = np.zeros((n_rec, 3 * n + 6))  # q, qdot, wrench (raw, as given), q_ref
     phi_log = np.zeros((n_rec, p * m)) if (theta_true is not None or keep_regressor) else None
     tip_log = np.zeros((n_rec, 3))
-    truth_log = np.zeros((n_rec, 4))  # depth, face, bore, normal force
+    truth_log = np.zeros((n_rec, 4))  # depth (from the tip after the loop), face, bore, normal force
     lam_log = np.full(n_rec, math.inf)
     k = 0
     n_logged = 0
@@ -212,6 +212,8 @@ def _run_episode(cfg: ExperimentCfg, progress: bool, ctrl: Controller | None, ke
     lam_since = math.inf  # its minimum since the last logged sample
     rank_breach_t: float | None = None
     inp = ctrl.input_row  # the sample is written straight into the controller's input row
+    s_out, phi_row = out[i_s:i_s + 6], x_row[f0:f0 + p * m]  # views, fetched once
+    seat_lim, seat_clock = monitor.lim, monitor.clock
     q_in, qd_in, w_in = inp[:n], inp[n:2 * n], inp[2 * n:]
 
     def read_sample() -> None:
@@ -235,7 +237,7 @@ def _run_episode(cfg: ExperimentCfg, progress: bool, ctrl: Controller | None, ke
             break
         sim.apply(q_ref, qdot_ref)
         if out[i_rho] > 0:  # seat monitor and the rank gate every step (paper Results, "A separate kinematic gate")
-            monitor.update(t, out[i_s:i_s + 6])
+            seat_step(t, s_out, seat_lim, seat_clock)  # (monitor.update, without the method call)
             lam = float(out[i_lam]) if fused else ctrl.rank_margin_now()
             if lam < lam_since:
                 lam_since = lam
@@ -252,16 +254,14 @@ def _run_episode(cfg: ExperimentCfg, progress: bool, ctrl: Controller | None, ke
             out_log[j] = out
             io_log[j, 2 * n + 6:] = q_ref
             if phi_log is not None:
-                phi_log[j] = x_row[f0:f0 + p * m]
-            tr = sim.truth()
-            tip_log[j] = tr.tip_pos_w_m
-            truth_log[j] = (tr.tip_depth_m, tr.contact_face, tr.contact_bore, tr.contact_force_N)
+                phi_log[j] = phi_row
+            sim.truth_into(tip_log[j], truth_log[j, 1:])
         sim.step()
         read_sample()
         t = sim.time_s
         if bar is not None and k % 250 == 0:
             bar.update(250 if k else 1)
-        if monitor.seat_time is not None and stop_at is None:
+        if stop_at is None and seat_clock[1] == seat_clock[1]:  # seated (the clock's seat time is not NaN)
             stop_at = monitor.seat_time + cfg.run.stop_after_seat_s
         if stop_at is not None and t >= stop_at:
             break
@@ -278,6 +278,7 @@ def _run_episode(cfg: ExperimentCfg, progress: bool, ctrl: Controller | None, ke
                 break
     if bar is not None:
         bar.close()
+    truth_log[:n_logged, 0] = sim.tip_depths(tip_log[:n_logged])
     steps = k + 1
     wall = time.perf_counter() - wall0
     meta = {

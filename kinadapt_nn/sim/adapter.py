@@ -200,18 +200,37 @@ class PegInHoleSim:
 
     # -- ground truth (evaluation only) ------------------------------------------------
     def truth(self) -> TruthSample:
-        """Called every logged step: Python floats on the few contacts (only peg <-> block
-        contacts exist in this scene; the check is kept), ``mj_contactForce`` for the normal."""
-        d = self.data
+        """This step's ground truth (evaluation only): the true tip, its depth and the contacts."""
         tip = self._tip_v.copy()
-        t0, t1, t2 = tip.tolist()
+        face, bore, fsum = self._contacts()
+        return TruthSample(tip, float(self.tip_depths(tip[None])[0]), face, bore, fsum)
+
+    def truth_into(self, tip_row: np.ndarray, contact_row: np.ndarray) -> None:
+        """``truth()`` written into an episode's logs, every logged step: the true tip (3,) into
+        ``tip_row``; [face, bore, normal force] into ``contact_row`` (3,) when there is a contact
+        (the caller's row holds zeros otherwise). The depth follows from the tip after the loop
+        (:meth:`tip_depths`, the same arithmetic)."""
+        tip_row[:] = self._tip_v
+        if self._socket or self.data.ncon:
+            contact_row[0], contact_row[1], contact_row[2] = self._contacts()
+
+    def tip_depths(self, tip_w_m: np.ndarray) -> np.ndarray:
+        """True tip depth below the bore entrance along the bore axis for tips (N, 3), world [m]
+        -> (N,): n . (tip - entry), summed left to right as one step's scalars would be."""
         (n0, n1, n2), (e0, e1, e2) = self._n_t, self._entry_t
-        depth = n0 * (t0 - e0) + n1 * (t1 - e1) + n2 * (t2 - e2)  # BORE_AXIS_W . (tip - entry)
+        return n0 * (tip_w_m[:, 0] - e0) + n1 * (tip_w_m[:, 1] - e1) + n2 * (tip_w_m[:, 2] - e2)
+
+    def _contacts(self) -> tuple[bool, bool, float]:
+        """(face, bore, normal force [N]) of this step's peg <-> block contacts: Python floats on
+        the few contacts (only peg <-> block contacts exist in this scene; the check is kept),
+        ``mj_contactForce`` for the normal; the socket model's own state when it is on."""
+        d = self.data
         face = bore = False
         fsum = 0.0
         ncon = d.ncon
         if ncon:
             hw = self._face_lat
+            (e0, e1, e2) = self._entry_t
             con = d.contact
             geoms, pos = con.geom.tolist(), con.pos.tolist()
             peg, block, f6, m = self._peg, self._block_set, self._f6, self.model
@@ -228,7 +247,7 @@ class PegInHoleSim:
         if self._socket:
             bore = bool(self._sock_st[0])
             fsum = float(self._sock_st[13])
-        return TruthSample(tip, depth, face, bore, fsum)
+        return face, bore, fsum
 
 
 def _as_slice(adr: np.ndarray) -> slice | np.ndarray:
