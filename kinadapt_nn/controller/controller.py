@@ -201,6 +201,13 @@ def core_consts(known: KnownCfg, features: Features, law_address: bool = True) -
     ), spec
 
 
+def sensor_error_message(t: float, bad_run: int) -> str:
+    """What a controller says of a dropout longer than ``sensing.max_dropout_s`` at ``t`` [s]:
+    ``bad_run`` non-finite samples in a row (``SensorError``; the batched runs report the same)."""
+    return (f"non-finite sensor sample at t={t:.3f} s ({bad_run} in a row; check the encoders and the F/T sensor "
+            "for NaN/inf)")
+
+
 class Controller:
     """F/T + encoder admittance controller at B = 1. ``step(t, q, qdot, wrench) -> JointCommand``.
 
@@ -432,10 +439,7 @@ class Controller:
                 self._generic_step(t)
         if st.k[0, core.K_ERROR]:
             st.k[0, core.K_ERROR] = 0
-            raise SensorError(
-                f"non-finite sensor sample at t={t:.3f} s ({int(st.k[0, core.K_BAD_RUN])} in a row; check the "
-                "encoders and the F/T sensor for NaN/inf)"
-            )
+            raise SensorError(sensor_error_message(t, int(st.k[0, core.K_BAD_RUN])))
         self._stepped = True
 
     def _generic_step(self, t: float) -> None:

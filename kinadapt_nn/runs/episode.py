@@ -173,14 +173,12 @@ def _run_episode(cfg: ExperimentCfg, progress: bool, ctrl: Controller | None, ke
         with core.compiling(progress):
             ctrl = make_controller(cfg)
             ctrl.compile_kernels()
-    tcfg = sim.cfg  # the truth-side config (hidden effects folded in): evaluation only
     dt = cfg.run.dt_s
     n_steps = int(round(cfg.run.duration_s / dt))
     every = cfg.run.log_every
     n_rec = n_steps // every + 1
     monitor = SeatMonitor(cfg)
     faults = SensorFaults(cfg.faults, cfg.run.seed, cfg.start.settle_s) if SensorFaults.active(cfg.faults) else None
-    theta_true = np.asarray(tcfg.tool.offset_f_m, dtype=float) if ctrl.features.theta_is_offset else None
     diverged = False
     divergence_reason = None
     warn0 = int(sim.data.warning.number.sum())
@@ -202,7 +200,7 @@ def _run_episode(cfg: ExperimentCfg, progress: bool, ctrl: Controller | None, ke
     t_log = np.zeros(n_rec)
     out_log = np.zeros((n_rec, lay.nout))
     io_log = np.zeros((n_rec, 3 * n + 6))  # q, qdot, wrench (raw, as given), q_ref
-    phi_log = np.zeros((n_rec, p * m)) if (theta_true is not None or keep_regressor) else None
+    phi_log = np.zeros((n_rec, p * m)) if (ctrl.features.theta_is_offset or keep_regressor) else None
     tip_log = np.zeros((n_rec, 3))
     truth_log = np.zeros((n_rec, 4))  # depth (from the tip after the loop), face, bore, normal force
     lam_log = np.full(n_rec, math.inf)
@@ -268,21 +266,58 @@ def _run_episode(cfg: ExperimentCfg, progress: bool, ctrl: Controller | None, ke
         # (a non-finite simulator state reaches the controller as a sensor sample: SensorError)
         if rank_breach_t is not None:
             diverged = True
-            divergence_reason = f"rank gate breached (lambda_min {lam_min_all:.3g} < {RANK_GATE:g}) at t={rank_breach_t:.3f} s"
+            divergence_reason = rank_breach_reason(lam_min_all, rank_breach_t)
             break
         if k % 100 == 0:  # divergence watch at 10 Hz: MuJoCo warnings
             nwarn = int(sim.data.warning.number.sum())
             if nwarn > warn0:
                 diverged = True
-                divergence_reason = f"MuJoCo warning(s) at t={t:.3f} s"
+                divergence_reason = warning_reason(t)
                 break
     if bar is not None:
         bar.close()
-    truth_log[:n_logged, 0] = sim.tip_depths(tip_log[:n_logged])
-    steps = k + 1
-    wall = time.perf_counter() - wall0
+    logs = EpisodeLogs(t_log, out_log, io_log, phi_log, tip_log, truth_log, lam_log)
+    return episode_result(cfg, sim, ctrl, monitor, logs, n_logged, steps=k + 1, t_end_s=sim.time_s,
+                          wall_s=time.perf_counter() - wall0, diverged=diverged, divergence_reason=divergence_reason,
+                          lam_min_all=lam_min_all, rank_breach_t=rank_breach_t, keep_regressor=keep_regressor)
+
+
+class EpisodeLogs(NamedTuple):
+    """An episode loop's raw logs, one row per logged step (``n_rec`` rows allocated, the first
+    ``n_logged`` written): what :func:`episode_result` builds the trace from."""
+
+    t: np.ndarray  #: (n_rec,) time [s]
+    out: np.ndarray  #: (n_rec, nout) the controller's out row (``core.Layout.out_blocks``)
+    io: np.ndarray  #: (n_rec, 3n+6) [q; qdot; raw wrench] as given, then q_ref
+    phi: np.ndarray | None  #: (n_rec, p*m) the law's filtered regressor Phi_f^T, or None
+    tip: np.ndarray  #: (n_rec, 3) true tip, world [m] (truth side)
+    truth: np.ndarray  #: (n_rec, 4) [depth (filled here), face, bore, normal force [N]] (truth side)
+    lam: np.ndarray  #: (n_rec,) lambda_min(W J_hat J_hat^T W) minimum since the last logged step (inf: drive off)
+
+
+def rank_breach_reason(lam_min_all: float, t_s: float) -> str:
+    """The divergence reason of an episode stopped by the rank gate."""
+    return f"rank gate breached (lambda_min {lam_min_all:.3g} < {RANK_GATE:g}) at t={t_s:.3f} s"
+
+
+def warning_reason(t_s: float) -> str:
+    """The divergence reason of an episode stopped by a MuJoCo warning (the 10 Hz watch)."""
+    return f"MuJoCo warning(s) at t={t_s:.3f} s"
+
+
+def episode_result(cfg: ExperimentCfg, sim: PegInHoleSim, ctrl: Controller, monitor: SeatMonitor, logs: EpisodeLogs,
+                   n_logged: int, *, steps: int, t_end_s: float, wall_s: float, diverged: bool,
+                   divergence_reason: str | None, lam_min_all: float, rank_breach_t: float | None,
+                   keep_regressor: bool) -> EpisodeResult:
+    """An episode's trace and summary from its loop's logs and the controller's final state (the
+    single episode's loop and the batched one, ``runs.batch``, both end here). ``sim``: the
+    episode's simulator object, for its truth-side config and geometry only (its MjData is not
+    read: ``t_end_s`` is the episode's final simulated time); ``steps``: control steps taken."""
+    tcfg = sim.cfg  # the truth-side config (hidden effects folded in): evaluation only
+    theta_true = np.asarray(tcfg.tool.offset_f_m, dtype=float) if ctrl.features.theta_is_offset else None
+    logs.truth[:n_logged, 0] = sim.tip_depths(logs.tip[:n_logged])
     meta = {
-        "dt_s": dt * every,
+        "dt_s": cfg.run.dt_s * cfg.run.log_every,
         "features": cfg.run.features,
         "seed": cfg.run.seed,
         "truth_offset_f_m": list(tcfg.tool.offset_f_m),
@@ -291,23 +326,23 @@ def _run_episode(cfg: ExperimentCfg, progress: bool, ctrl: Controller | None, ke
         "start_lateral_w_m": [float(x) for x in sim.start_lateral_w_m],
         "start_tilt_deg": [float(x) for x in sim.start_tilt_deg],
     }
-    trace = _trace_from_logs(ctrl, cfg, meta, n_logged, t_log, out_log, io_log, phi_log, tip_log, truth_log,
-                             theta_true, monitor)
-    lam_log = lam_log[:n_logged]
+    trace = _trace_from_logs(ctrl, cfg, meta, n_logged, logs.t, logs.out, logs.io,
+                             logs.phi if theta_true is not None else None, logs.tip, logs.truth, theta_true, monitor)
     if keep_regressor:
-        trace.arrays["law_Phi_fT"] = phi_log[:len(trace)].reshape(len(trace), p, m)
+        p, m = ctrl.layout.p, ctrl.layout.m
+        trace.arrays["law_Phi_fT"] = logs.phi[:len(trace)].reshape(len(trace), p, m)
     truth_jac = TrueSensorJacobian(
         ctrl.S, ctrl.l_nom_f, np.asarray(tcfg.tool.offset_f_m), arm_mjcf_path(cfg.scene),
         tcfg.arm.link_length_error_m, tcfg.arm.joint_offset_rad,
     )
     evaluate_offline(trace, ctrl, truth_jac=truth_jac)
-    lam_arr = lam_log[: len(trace)]  # per-step minima where the drive was on
+    lam_arr = logs.lam[: len(trace)]  # per-step minima where the drive was on
     if len(lam_arr) == len(trace):
         trace.arrays["lambda_min"] = np.where(np.isfinite(lam_arr), lam_arr, trace["lambda_min"])
     trace.meta["min_lambda_JJt_all_steps"] = float(lam_min_all) if math.isfinite(lam_min_all) else None
     trace.meta["rank_gate_breach_t_s"] = rank_breach_t
     certificate = certificate_check(tcfg, trace, ctrl)
-    summary = summarize(tcfg, trace, ctrl, monitor, diverged, steps, sim.time_s, wall)
+    summary = summarize(tcfg, trace, ctrl, monitor, diverged, steps, t_end_s, wall_s)
     summary["certificate"] = certificate
     summary["sensor_dropouts"] = int(ctrl.dropouts)
     summary["divergence_reason"] = divergence_reason

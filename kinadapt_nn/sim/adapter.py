@@ -21,7 +21,7 @@ from kinadapt_nn.geometry import rotvec_from_matrix, tilt_rotation
 from kinadapt_nn.known import BORE_AXIS_W
 from kinadapt_nn.robot import JOINT_LIMITS_RAD, Q_HOME_RAD, SERVO_KP, SERVO_KV
 from kinadapt_nn.sim.effects import SensorEffects, truth_config
-from kinadapt_nn.sim.scene import SceneIds, build_model
+from kinadapt_nn.sim.scene import TRUTH_CONTACT_SLOTS, SceneIds, build_model
 from kinadapt_nn.sim.socket import N_STATE, socket_params, socket_step
 
 #: Flange "down" orientation: z_f along the bore axis, x_f along x_w (peg square aligned with
@@ -112,6 +112,7 @@ class PegInHoleSim:
         self._wrench_v = d.sensordata[a.force_adr : a.force_adr + 6] if a.torque_adr == a.force_adr + 3 else None
         self._ctrl_v = d.ctrl
         self._tip_v = d.site_xpos[a.tip_site]
+        self._sens_v = d.sensordata
         self._n_t = tuple(BORE_AXIS_W.tolist())
         self._entry_t = tuple(self.entry_w.tolist())
         self._peg = int(a.peg_geom)
@@ -202,7 +203,7 @@ class PegInHoleSim:
     def truth(self) -> TruthSample:
         """This step's ground truth (evaluation only): the true tip, its depth and the contacts."""
         tip = self._tip_v.copy()
-        face, bore, fsum = self._contacts()
+        face, bore, fsum = self.contacts_of(self._sens_v, self._own_data)
         return TruthSample(tip, float(self.tip_depths(tip[None])[0]), face, bore, fsum)
 
     def truth_into(self, tip_row: np.ndarray, contact_row: np.ndarray) -> None:
@@ -212,7 +213,7 @@ class PegInHoleSim:
         (:meth:`tip_depths`, the same arithmetic)."""
         tip_row[:] = self._tip_v
         if self._socket or self.data.ncon:
-            contact_row[0], contact_row[1], contact_row[2] = self._contacts()
+            contact_row[0], contact_row[1], contact_row[2] = self.contacts_of(self._sens_v, self._own_data)
 
     def tip_depths(self, tip_w_m: np.ndarray) -> np.ndarray:
         """True tip depth below the bore entrance along the bore axis for tips (N, 3), world [m]
@@ -220,27 +221,30 @@ class PegInHoleSim:
         (n0, n1, n2), (e0, e1, e2) = self._n_t, self._entry_t
         return n0 * (tip_w_m[:, 0] - e0) + n1 * (tip_w_m[:, 1] - e1) + n2 * (tip_w_m[:, 2] - e2)
 
-    def _contacts(self) -> tuple[bool, bool, float]:
-        """(face, bore, normal force [N]) of this step's peg <-> block contacts: Python floats on
-        the few contacts (only peg <-> block contacts exist in this scene; the check is kept),
-        ``mj_contactForce`` for the normal; the socket model's own state when it is on."""
-        d = self.data
+    def _own_data(self) -> mujoco.MjData:
+        return self.data
+
+    def contacts_of(self, sensordata: np.ndarray, get_data) -> tuple[bool, bool, float]:
+        """(face, bore, normal force [N]) of this step's peg <-> block contacts, from this episode's
+        ``sensordata`` (its own, or its row of a batched run's, ``runs.batch``): MuJoCo's contact
+        sensor on those contacts (``scene.TRUTH_CONTACT_SENSOR``: the normal force and position of
+        each, in MuJoCo's contact order). More contacts than the sensor's slots: the contact array of
+        ``get_data()`` (the episode's MjData), ``mj_contactForce`` for the normal. The socket model's
+        own state when it is on."""
         face = bore = False
         fsum = 0.0
-        ncon = d.ncon
-        if ncon:
+        adr = self.ids.contact_adr
+        found = int(sensordata[adr]) if adr >= 0 else 0
+        if found:
             hw = self._face_lat
             (e0, e1, e2) = self._entry_t
-            con = d.contact
-            geoms, pos = con.geom.tolist(), con.pos.tolist()
-            peg, block, f6, m = self._peg, self._block_set, self._f6, self.model
-            for i in range(ncon):
-                g1, g2 = geoms[i]
-                if not ((g1 == peg and g2 in block) or (g2 == peg and g1 in block)):
-                    continue
-                mujoco.mj_contactForce(m, d, i, f6)
-                fsum += abs(float(f6[0]))
-                px, py, pz = pos[i]
+            if found <= TRUTH_CONTACT_SLOTS:
+                vals = sensordata[adr:adr + 7 * found].tolist()  # per contact: found, force (3), pos (3)
+                rows = [(vals[i + 1], vals[i + 4], vals[i + 5], vals[i + 6]) for i in range(0, 7 * found, 7)]
+            else:
+                rows = self._contact_scan(get_data())
+            for fn, px, py, pz in rows:
+                fsum += abs(fn)
                 on_top = abs(pz - e2) < 1.5e-3 and max(abs(px - e0), abs(py - e1)) > hw
                 face |= on_top
                 bore |= not on_top
@@ -248,6 +252,20 @@ class PegInHoleSim:
             bore = bool(self._sock_st[0])
             fsum = float(self._sock_st[13])
         return face, bore, fsum
+
+    def _contact_scan(self, d: mujoco.MjData) -> list[tuple[float, float, float, float]]:
+        """(normal force [N], position (3), world) of each peg <-> block contact in ``d``'s contact
+        array, in its order (what the contact sensor reports, without its slot limit)."""
+        con = d.contact
+        geoms, pos = con.geom.tolist(), con.pos.tolist()
+        peg, block, f6, m = self._peg, self._block_set, self._f6, self.model
+        rows = []
+        for i in range(d.ncon):
+            g1, g2 = geoms[i]
+            if (g1 == peg and g2 in block) or (g2 == peg and g1 in block):
+                mujoco.mj_contactForce(m, d, i, f6)
+                rows.append((float(f6[0]), *pos[i]))
+        return rows
 
 
 def _as_slice(adr: np.ndarray) -> slice | np.ndarray:

@@ -30,6 +30,10 @@ TOOL_BODY = "tool"
 FORCE_SENSOR = "ft_force"
 TORQUE_SENSOR = "ft_torque"
 BLOCK_BODY = "bore_block"
+#: truth only: MuJoCo's contact sensor on the peg <-> block contacts (number found, then per slot the
+#: normal force (3, contact frame) and the position (3, world)); never given to the controller
+TRUTH_CONTACT_SENSOR = "truth_peg_block_contacts"
+TRUTH_CONTACT_SLOTS = 24  #: contacts it reports (more are rare: the scan of the contact array then)
 BLOCK_TOP_GEOMS_PREFIX = "block_"
 
 
@@ -44,6 +48,7 @@ class SceneIds(NamedTuple):
     torque_adr: int  #: sensordata address of the 3 torque values
     qpos_adr: np.ndarray  #: (n,) qpos addresses of the arm joints
     dof_adr: np.ndarray  #: (n,) dof addresses of the arm joints
+    contact_adr: int = -1  #: sensordata address of the truth contact sensor (-1: no block in the scene)
 
 
 def _box_inertia(mass: float, half: np.ndarray) -> np.ndarray:
@@ -190,6 +195,12 @@ def build_spec(
     spec.add_sensor(
         name=TORQUE_SENSOR, type=mujoco.mjtSensor.mjSENS_TORQUE, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=FT_SITE
     )
+    if scene.contact_model == "bore":
+        fields = sum(1 << int(f) for f in (mujoco.mjtConDataField.mjCONDATA_FOUND, mujoco.mjtConDataField.mjCONDATA_FORCE,
+                                            mujoco.mjtConDataField.mjCONDATA_POS))
+        spec.add_sensor(name=TRUTH_CONTACT_SENSOR, type=mujoco.mjtSensor.mjSENS_CONTACT, objtype=mujoco.mjtObj.mjOBJ_GEOM,
+                        objname=PEG_GEOM, reftype=mujoco.mjtObj.mjOBJ_BODY, refname=BLOCK_BODY,
+                        intprm=[fields, 0, TRUTH_CONTACT_SLOTS])  # reduce 0: every contact, in MuJoCo's order
     spec.worldbody.add_light(pos=[0.4, -0.6, 1.5], dir=[0, 0.5, -1])
     spec.visual.headlight.ambient = [0.35, 0.35, 0.35]
     spec.visual.rgba.haze = [0.55, 0.6, 0.68, 1.0]
@@ -209,6 +220,12 @@ def build_spec(
         xyaxes=[1, 0, 0, 0, 0.3, 1],
     )
     return spec
+
+
+def _sensor_adr(model: mujoco.MjModel, name: str) -> int:
+    """sensordata address of sensor ``name``, -1 when the model has none."""
+    i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, name)
+    return int(model.sensor_adr[i]) if i >= 0 else -1
 
 
 def build_model(tool: ToolCfg, scene: SceneCfg, mjcf_path: Path | None = None, arm: ArmCfg | None = None,
@@ -231,5 +248,6 @@ def build_model(tool: ToolCfg, scene: SceneCfg, mjcf_path: Path | None = None, a
         torque_adr=int(model.sensor_adr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, TORQUE_SENSOR)]),
         qpos_adr=np.array([int(model.jnt_qposadr[j]) for j in joint_ids]),
         dof_adr=np.array([int(model.jnt_dofadr[j]) for j in joint_ids]),
+        contact_adr=_sensor_adr(model, TRUTH_CONTACT_SENSOR),
     )
     return model, ids

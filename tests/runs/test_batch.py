@@ -72,3 +72,77 @@ def test_batch_runs_the_truth_side_and_effect_columns_as_single_episodes(case):
         np.testing.assert_array_equal(theta_b, ctrl.theta)
     expect = {"dropout_divergence": "divergence", "rank_gate_model_effects": "rank_gate"}.get(case, "none")
     assert [b["failure"] for b in res.summaries] == [expect] * 2
+
+
+def _assert_same_episode(batch, single) -> None:
+    """Every trace channel, the trace's meta and every summary field but the wall time equal."""
+    assert set(batch.trace.arrays) == set(single.trace.arrays)
+    for k, a in single.trace.arrays.items():
+        np.testing.assert_array_equal(batch.trace.arrays[k], a, err_msg=k)
+    assert batch.trace.meta == single.trace.meta
+    sb, ss = dict(batch.summary), dict(single.summary)
+    assert sb.pop("wall_time_s") > 0.0
+    ss.pop("wall_time_s")
+    assert repr(sb) == repr(ss)
+
+
+_TRACED = {
+    "adjoint": [],
+    "rbf": ["run.features=rbf", "run.duration_s=1.5"],
+    "neural_log_every_3": ["run.features=neural", "run.duration_s=1.5", "run.log_every=3"],
+    **{k: _TRUTH_SIDE[k] for k in ("socket", "faults", "dropout_divergence", "rank_gate_model_effects")},
+}
+
+
+@pytest.mark.parametrize("case", list(_TRACED))
+def test_run_episodes_equals_run_episode_to_the_last_bit(case):
+    """``run_episodes`` (one batched physics, the batched kernels, the truth from the batch's
+    buffers and its contact sensor) gives each episode's whole trace and summary as
+    ``run_episode`` does, and leaves each controller in the same state; the episodes stop at
+    different steps (seated, diverged, rank gate), so the masks of stopped episodes are used."""
+    from kinadapt_nn.runs.batch import run_episodes
+    from kinadapt_nn.runs.build import make_controller
+
+    base = ["run.progress=false", "start.lateral_jitter_m=0.0003", "start.tilt_jitter_deg=0.5",
+            "run.stop_after_seat_s=0.05", *_TRACED[case]]
+    cfgs = [load_config(None, [*base, *tool_overrides(SweepCfg(), s), f"run.seed={s}"]) for s in range(3)]
+    ctrls_b = [make_controller(c) for c in cfgs]
+    got = run_episodes(cfgs, ctrls=ctrls_b, keep_regressor=True)
+    steps = []
+    for c, r, kb in zip(cfgs, got, ctrls_b):
+        ks = make_controller(c)
+        e = run_episode(c, ctrl=ks, keep_regressor=True)
+        _assert_same_episode(r, e)
+        np.testing.assert_array_equal(kb.state.x, ks.state.x)
+        np.testing.assert_array_equal(kb.state.k, ks.state.k)
+        steps.append(e.summary["steps"])
+    if case in ("adjoint", "socket", "faults"):  # seated at different steps: stopped episodes masked
+        assert len(set(steps)) > 1
+
+
+def test_run_episodes_carries_controllers_as_a_work_cell_does():
+    """A second insertion from the controllers the first one left (theta and the law's state
+    carried, ``reset(carry_estimate=True)``) equals the single episodes' second insertion."""
+    from kinadapt_nn.runs.batch import run_episodes
+    from kinadapt_nn.runs.build import make_controller
+
+    cfgs = [load_config(None, ["run.progress=false", "run.duration_s=1.5", *tool_overrides(SweepCfg(), s),
+                               f"run.seed={s}"]) for s in range(2)]
+    kb, ks = [make_controller(c) for c in cfgs], [make_controller(c) for c in cfgs]
+    run_episodes(cfgs, ctrls=kb)
+    for c, k in zip(cfgs, ks):
+        run_episode(c, ctrl=k)
+    for k in (*kb, *ks):
+        k.reset(carry_estimate=True)
+    for r, c, k in zip(run_episodes(cfgs, ctrls=kb), cfgs, ks):
+        _assert_same_episode(r, run_episode(c, ctrl=k))
+
+
+def test_run_episodes_refuses_configs_that_cannot_share_a_batch():
+    from kinadapt_nn.errors import ConfigError
+    from kinadapt_nn.runs.batch import run_episodes
+
+    with pytest.raises(ConfigError, match="run.log_every"):
+        run_episodes([load_config(None, ["run.progress=false"]), load_config(None, ["run.progress=false", "run.log_every=2"])])
+    with pytest.raises(ConfigError, match="KNOWN"):
+        run_episodes([load_config(None, []), load_config(None, ["control.gain_trans=2.0"])])

@@ -37,3 +37,38 @@ def test_truth_logs_equal_truth_samples_through_contact(over):
     assert rows[:, 1].any() and rows[:, 2].max() > 1.0
     # the depth against an independent computation: the bore axis times (tip - true entrance)
     assert np.allclose(depth, (tips - sim.entry_w) @ BORE_AXIS_W, rtol=0, atol=1e-15)
+
+
+def test_contact_sensor_truth_equals_the_contact_array_scan(monkeypatch):
+    """The truth's contacts come from MuJoCo's contact sensor (``scene.TRUTH_CONTACT_SENSOR``):
+    at every step of an insertion, its (normal force, position) rows equal ``mj_contactForce`` on
+    the peg <-> block entries of the contact array, to the last bit and in the same order; with the
+    slot limit forced below the contact count, ``contacts_of`` takes the scan and gives the same."""
+    import kinadapt_nn.sim.adapter as adapter
+
+    cfg = load_config(None, ["run.progress=false"])
+    sim, ctrl = PegInHoleSim(cfg), make_controller(cfg)
+    n, adr = ctrl.layout.n, sim.ids.contact_adr
+    inp = ctrl.input_row
+    seen, most = 0, 0
+    results = []
+    slots = adapter.TRUTH_CONTACT_SLOTS
+    for _k in range(3500):
+        sim.sense_into(inp[:n], inp[n:2 * n], inp[2 * n:])
+        ctrl.advance_input(sim.time_s)
+        sim.apply(ctrl.state.q_ref[0], ctrl._o["qdot_ref"])
+        scan = sim._contact_scan(sim.data)
+        found = int(sim.data.sensordata[adr])
+        assert found == len(scan)
+        rows = sim.data.sensordata[adr:adr + 7 * found].reshape(found, 7)
+        assert [(abs(r[1]), *r[4:7]) for r in rows.tolist()] == [(abs(f), *p) for f, *p in scan]
+        if found:
+            seen += 1
+            most = max(most, found)
+            results.append((sim.data.sensordata.copy(), sim.contacts_of(sim.data.sensordata, sim._own_data)))
+            monkeypatch.setattr(adapter, "TRUTH_CONTACT_SLOTS", 0)  # the scan, from the same data
+            assert sim.contacts_of(sim.data.sensordata, sim._own_data) == results[-1][1]
+            monkeypatch.setattr(adapter, "TRUTH_CONTACT_SLOTS", slots)
+        sim.step()
+    assert seen > 500 and most >= 2  # in contact, with several contacts at once
+    assert any(r[1][2] > 1.0 for r in results)
