@@ -16,7 +16,12 @@ sample (``sim.effects.SensorEffects``, ``sim.faults.SensorFaults``), the socket 
 wrench (``sim.socket.socket_step`` on the rows of the bound arrays), hidden effects with a
 truth-side knob in each episode's model. Stepping each model with ``mj_step`` as the single
 episode does, a batch episode reproduces ``run_episode`` exactly (``tests/controller/test_core.py``,
-``tests/runs/test_batch.py``). Not here: traces (summaries only).
+``tests/runs/test_batch.py``). :func:`run_batch` gives summaries only (``kinadapt sweep``);
+:func:`run_episodes` each episode's whole trace and summary, as ``run_episode`` gives them, from
+the episodes' own controllers (``kinadapt compare``): it logs what the single loop logs, the
+truth from the batch's bound buffers (the true tip, MuJoCo's contact sensor on the peg <-> block
+contacts) and ends each episode in the single episode's post-processing
+(``runs.episode.episode_result``).
 """
 
 from __future__ import annotations

@@ -139,8 +139,12 @@ def _batch_groups(jobs: list[tuple], groups: list[list[int]]) -> list[list[int]]
     return out
 
 
-#: episodes per batch in ``kinadapt compare`` (measured on the 2-core VM, bore scenario, 24
-#: episodes, 2 workers: 8 per batch 6.01 s, 4 per batch {b4} s; single episodes 6.15 s)
+#: episodes per batch in ``kinadapt compare``. Measured on the 2-core VM, 2 workers, the bore
+#: scenario only: 24 episodes, 6.01 s with 8 per batch, 6.18 s with 4, 6.15-6.28 s as single
+#: episodes; 72 episodes, 16.72 s with 8 per batch, 17.6 s with 4, 16.6-16.9 s single. In one
+#: process, 8 adjoint episodes take 0.83 of their single-episode time batched, 8 RBF ones 0.99
+#: (``benchmarks/bench_traced_batch.py``): the step kernel and each episode's fixed costs (start
+#: pose, offline evaluation) are the same either way, and the pool already keeps both cores busy.
 BATCH_MAX = 8
 
 
