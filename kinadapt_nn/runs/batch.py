@@ -213,6 +213,9 @@ class _Run(NamedTuple):
 
 def _run_batch(cfgs: list[ExperimentCfg], nthread: int, record_ctrl: bool, ctrls: list | None = None,
                traces: bool = False, keep_regressor: bool = False, wall0: float | None = None):
+    """The batched loop of :func:`run_batch` and :func:`run_episodes`. -> ``BatchResult`` with the
+    summaries, or with ``traces`` a ``_Run`` (the ``BatchResult`` without summaries, and each
+    episode's ``EpisodeResult``)."""
     t_setup = time.perf_counter() if wall0 is None else wall0
     c0 = cfgs[0]
     known = _known_of(cfgs)

@@ -155,7 +155,7 @@ def _run_group(group: list[tuple]) -> list[dict]:
     from kinadapt_nn.runs.episode import run_insertion_prefixes
 
     cfgs = [_job_config(job) for job in group]
-    if len(group) > 1 and all(c.run.insertions == 1 and not c.cell.bores_w_m for c in cfgs):
+    if _is_batch(group):
         from kinadapt_nn.runs.batch import run_episodes
 
         return [_job_result(job, cfg, res) for job, cfg, res in zip(group, cfgs, run_episodes(cfgs))]
@@ -205,8 +205,13 @@ def _group_cost(group: list[tuple]) -> float:
     """A group's expected cost: its longest job (a prefix group is simulated once) or, for a
     batch, the sum of its episodes' (measured: a batch of 8 costs ~0.85 of its single episodes)."""
     costs = [_job_cost(j) for j in group]
-    batch = len(group) > 1 and len({(j[1], j[3]) for j in group}) == len(group)  # a tool each: a batch
-    return 0.85 * sum(costs) if batch else max(costs)
+    return 0.85 * sum(costs) if _is_batch(group) else max(costs)
+
+
+def _is_batch(group: list[tuple]) -> bool:
+    """Whether a group of :func:`_batch_groups` is a batch (one job per (family, tool)) rather than
+    a prefix group (one tool's jobs that differ in ``run.insertions`` or not at all)."""
+    return len(group) > 1 and len({(j[1], j[3]) for j in group}) == len(group)
 
 
 def _median(xs):

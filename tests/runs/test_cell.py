@@ -283,3 +283,29 @@ def test_compare_simulates_runs_that_differ_in_insertions_once(tmp_path):
         row = next(r for r in rows if r["scenario"] == scen and r["insertion"] in (None, "all"))
         assert row["jacobian_rel_error_final_median"] == alone["jacobian_rel_error_final"]
         assert row["offset_error_lateral_final_m_median"] == alone["offset_error_lateral_final_m"]
+
+
+def test_compare_batches_single_episodes_with_the_rows_of_single_runs(tmp_path, monkeypatch):
+    """``kinadapt compare`` runs its single episodes (one insertion, no cell) in batches of the
+    same scenario, features and law (``runs.batch.run_episodes``), work cells as prefix groups; its
+    table is the single-episode path's to the last bit, but the wall times."""
+    import kinadapt_nn.runs.compare as C
+
+    jobs = C.compare_jobs(C.load_compare_config(None), tmp_path)
+    groups = C._batch_groups(jobs, C._prefix_groups(jobs))
+    batches = [g for g in groups if C._is_batch([jobs[i] for i in g])]
+    assert len(batches) == 3 and all(len(g) == 8 and {jobs[i][0] for i in g} == {"bore"} for g in batches)
+    assert sorted(i for g in groups for i in g) == list(range(len(jobs)))
+    short = ["run.duration_s=1.5", "start.lateral_jitter_m=0.0003"]
+    cfg = C.load_compare_config(None, ["features=['adjoint','neural']", "n_tools=2", "jobs=1",
+                                       f"scenarios={{one={short!r}}}"])
+    tables = {}
+    for mode in ("batch", "single"):
+        if mode == "single":
+            monkeypatch.setattr(C, "_batch_groups", lambda jobs, groups: groups)
+        out = tmp_path / mode
+        out.mkdir()
+        rows = C.run_compare(cfg, out, progress=False)
+        tables[mode] = [{k: v for k, v in r.items() if k != "wall_time_s_median"} for r in rows]
+    _same(tables["batch"], tables["single"])
+    assert len(tables["batch"]) == 4 and all(r["episodes"] == 2 for r in tables["batch"])
