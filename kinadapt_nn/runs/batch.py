@@ -41,7 +41,8 @@ from kinadapt_nn.config import ExperimentCfg
 from kinadapt_nn.controller.controller import Controller, core_consts, feature_consts, rank_margin, sensor_error_message
 from kinadapt_nn.controller.laws.base import law_state
 from kinadapt_nn.controller.core import RANK_GATE
-from kinadapt_nn.runs.episode import EpisodeLogs, EpisodeResult, episode_result, rank_breach_reason, warning_reason
+from kinadapt_nn.runs.episode import (EpisodeLogs, EpisodeResult, episode_result, rank_breach_reason, sensor_reason,
+                                      warning_reason)
 from kinadapt_nn.runs.monitor import SeatMonitor, classify_failure, seat_step
 from kinadapt_nn.runs.build import make_controller, make_features
 from kinadapt_nn.runs.build import one_blas_thread
@@ -319,7 +320,6 @@ def _run_batch(cfgs: list[ExperimentCfg], nthread: int, record_ctrl: bool, ctrls
         dbuf = mujoco.MjData(sims[0].model)  # one episode's whole MjData, copied out (contacts, warnings)
         data_of = [functools.partial(scene.get_data, b, dbuf) for b in range(B)]
         warn0 = np.array([int(scene.get_data(b, dbuf).warning.number.sum()) for b in range(B)])
-    sim_steps = 0
     n_sim = np.zeros(B, dtype=np.int64)  # physics steps per episode
     n_ctrl = np.zeros(B, dtype=np.int64)  # control steps per episode (a sample refused as diverged is one, as in run_episode)
     setup = time.perf_counter() - t_setup
@@ -379,13 +379,13 @@ def _run_batch(cfgs: list[ExperimentCfg], nthread: int, record_ctrl: bool, ctrls
         if st.k[:, core.K_ERROR].any():  # a dropout longer than max_dropout_s: divergence
             err = st.k[:, core.K_ERROR] != 0
             for b in np.flatnonzero(err & active):
-                reason[b] = "non-finite sensor sample: " + sensor_error_message(t, int(st.k[b, core.K_BAD_RUN]))
+                reason[b] = sensor_reason(sensor_error_message(t, int(st.k[b, core.K_BAD_RUN])))
             diverged |= err & active
             active &= ~err
             every_one = False
-            act = active
         monitor(t, out, i_s, i_w, i_rho, i_lam, lam_ext, lim, active, clock, stop_at, peaks, lam, breach)
         if logged:  # as run_episode logs a step (its truth before the physics step)
+            act = slice(None) if every_one else active
             lam_log[act, j] = lam[act, 0]
             lam[act, 0] = np.inf
             t_log[act, j] = t
@@ -412,12 +412,10 @@ def _run_batch(cfgs: list[ExperimentCfg], nthread: int, record_ctrl: bool, ctrls
                 socket_step(t, sims[b]._sock_st, sims[b]._sock_prm, *sock_views[b])
         if every_one:
             scene.step(None)
-            sim_steps += B
             n_sim += 1
         else:
             act_ids = np.flatnonzero(active)
             scene.step(act_ids)
-            sim_steps += len(act_ids)
             n_sim[act_ids] += 1
         t = t + dt
         if breach.any() or t >= stop_at.min():
@@ -433,6 +431,7 @@ def _run_batch(cfgs: list[ExperimentCfg], nthread: int, record_ctrl: bool, ctrls
             if not active.any():
                 break
     wall = time.perf_counter() - t0
+    sim_steps = int(n_sim.sum())
     theta = st.theta.copy()
     result = BatchResult([], k + 1, sim_steps, wall, setup, theta, None if ctrl_log is None else ctrl_log[: k + 1])
     if traces:

@@ -231,7 +231,7 @@ def _run_episode(cfg: ExperimentCfg, progress: bool, ctrl: Controller | None, ke
             ctrl.advance_input(t)
         except SensorError as exc:
             diverged = True
-            divergence_reason = f"non-finite sensor sample: {exc}"
+            divergence_reason = sensor_reason(str(exc))
             break
         sim.apply(q_ref, qdot_ref)
         if out[i_rho] > 0:  # seat monitor and the rank gate every step (paper Results, "A separate kinematic gate")
@@ -293,6 +293,12 @@ class EpisodeLogs(NamedTuple):
     tip: np.ndarray  #: (n_rec, 3) true tip, world [m] (truth side)
     truth: np.ndarray  #: (n_rec, 4) [depth (filled here), face, bore, normal force [N]] (truth side)
     lam: np.ndarray  #: (n_rec,) lambda_min(W J_hat J_hat^T W) minimum since the last logged step (inf: drive off)
+
+
+def sensor_reason(message: str) -> str:
+    """The divergence reason of an episode stopped by a dropout longer than ``max_dropout_s``
+    (``message``: the controller's, ``controller.sensor_error_message``)."""
+    return f"non-finite sensor sample: {message}"
 
 
 def rank_breach_reason(lam_min_all: float, t_s: float) -> str:
