@@ -60,7 +60,7 @@ def cell_setup(features: str, family: str, extra=()):
 
 
 def one(features: str, family: str, n: int) -> None:
-    from kinadapt_nn.runs.episode import run_insertion
+    from kinadapt_nn.runs.insertions import run_insertion
     from kinadapt_nn.runs.refit import Refit
 
     cfg, ctrl, cell = cell_setup(features, family)

@@ -66,7 +66,7 @@ def _cv_rank(rf) -> int:
 
 
 def one(features: str, family: str, variant: str, n: int, extra: tuple[str, ...] = ()) -> None:
-    from kinadapt_nn.runs.episode import run_insertion
+    from kinadapt_nn.runs.insertions import run_insertion
     from kinadapt_nn.runs.refit import Refit
 
     cfg, ctrl, cell = cell_setup(features, family, extra)

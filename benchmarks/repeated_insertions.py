@@ -24,7 +24,7 @@ ARM = ["arm.link_length_error_m=[0.0008,-0.0011,0.0004,0.0009,-0.0006,0.0012,-0.
 
 def _one(job):
     from kinadapt_nn.config import load_config
-    from kinadapt_nn.runs.episode import run_insertions
+    from kinadapt_nn.runs.insertions import run_insertions
 
     feats, fam, n, extra = job
     over = ["run.progress=false", "run.tensorboard=false", "run.figure=false", f"run.features={feats}",

@@ -186,7 +186,7 @@ def cmd_online(args: argparse.Namespace) -> int:
         figures = FigureWorker.start()
     try:
         from kinadapt_nn.controller.core import compile_record, kernels_cached
-        from kinadapt_nn.runs.episode import run_insertions
+        from kinadapt_nn.runs.insertions import run_insertions
 
         if not args.quiet and not cfg.run.progress and not kernels_cached():  # (with a bar: its own bar)
             print(f"kinadapt online: compiling the controller's kernels (the first run on this machine, "

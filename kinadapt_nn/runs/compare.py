@@ -109,7 +109,7 @@ def _job_config(job: tuple):
 
 def _prefix_groups(jobs: list[tuple]) -> list[list[int]]:
     """Job indices grouped where the jobs' configs differ in ``run.insertions`` only: a run of n
-    insertions holds every shorter one as its prefix (``runs.episode.run_insertion_prefixes``),
+    insertions holds every shorter one as its prefix (``runs.insertions.run_insertion_prefixes``),
     so a group is simulated once, its longest member's insertions. Order: first appearance."""
     groups: dict[str, list[int]] = {}
     for i, job in enumerate(jobs):
@@ -120,26 +120,22 @@ def _prefix_groups(jobs: list[tuple]) -> list[list[int]]:
 
 
 def _batch_groups(jobs: list[tuple], groups: list[list[int]]) -> list[list[int]]:
-    """The prefix groups of one episode each (one insertion, no work cell) merged where their
-    jobs differ only in the hidden truth (tool, arm errors): same scenario, features and law. Such
-    a group runs as one batch (``runs.batch.run_episodes``: the same traces and summaries as
-    single episodes). Work cells stay prefix groups. Order: first appearance."""
-    merged: dict[tuple, list[int]] = {}
+    """The prefix groups merged where their jobs differ only in the hidden truth (tool, arm
+    errors): the same scenarios, features and law. Such a group runs its tools' insertion i as one
+    batch (``runs.insertions.run_cells`` on ``runs.batch.run_episodes``: the same traces and
+    summaries as each tool alone). At most :data:`BATCH_MAX` tools per group. Order: first appearance."""
+    merged: dict[tuple, list[list[int]]] = {}
     for g in groups:
-        cfg = _job_config(jobs[g[0]])
-        if len(g) == 1 and cfg.run.insertions == 1 and not cfg.cell.bores_w_m:
-            scen, _fam, feat, _i, _over, _tb, law = jobs[g[0]]
-            merged.setdefault(("batch", scen, feat, law), []).extend(g)
-        else:
-            merged[("group", g[0])] = list(g)
+        _scen, _fam, feat, _i, _over, _tb, law = jobs[g[0]]
+        merged.setdefault((tuple(jobs[i][0] for i in g), feat, law), []).append(g)
     out = []
-    for key, g in merged.items():  # batches of at most BATCH_MAX: the workers' loads stay even
-        step = BATCH_MAX if key[0] == "batch" else len(g)
-        out += [g[i:i + step] for i in range(0, len(g), step)]
+    for tools in merged.values():  # batches of at most BATCH_MAX tools: the workers' loads stay even
+        for i in range(0, len(tools), BATCH_MAX):
+            out.append([j for g in tools[i:i + BATCH_MAX] for j in g])
     return out
 
 
-#: episodes per batch in ``kinadapt compare``. Measured on the 2-core VM, 2 workers, the bore
+#: tools per batch in ``kinadapt compare``. Measured on the 2-core VM, 2 workers, the bore
 #: scenario only: 24 episodes, 6.01 s with 8 per batch, 6.18 s with 4, 6.15-6.28 s as single
 #: episodes; 72 episodes, 16.72 s with 8 per batch, 17.6 s with 4, 16.6-16.9 s single. In one
 #: process, 8 adjoint episodes take 0.83 of their single-episode time batched, 8 RBF ones 0.99
@@ -148,20 +144,29 @@ def _batch_groups(jobs: list[tuple], groups: list[list[int]]) -> list[list[int]]
 BATCH_MAX = 8
 
 
+def _tools(group: list[tuple]) -> dict[tuple, list[int]]:
+    """(family, tool index) -> the positions in ``group`` of that tool's jobs, in order."""
+    tools: dict[tuple, list[int]] = {}
+    for pos, job in enumerate(group):
+        tools.setdefault((job[1], job[3]), []).append(pos)
+    return tools
+
+
 def _run_group(group: list[tuple]) -> list[dict]:
-    """The jobs of one group (:func:`_batch_groups`): a batch of single episodes, or a prefix group
-    (:func:`_prefix_groups`) simulated once. Their results in the group's order, each what the job
-    run alone gives (its own TensorBoard run)."""
-    from kinadapt_nn.runs.episode import run_insertion_prefixes
+    """The jobs of one group (:func:`_batch_groups`): each tool's jobs (a prefix group,
+    :func:`_prefix_groups`) simulated once, its longest, the tools' insertions stepped together.
+    Their results in the group's order, each what the job run alone gives (its own TensorBoard run)."""
+    from kinadapt_nn.runs.insertions import run_cells
 
     cfgs = [_job_config(job) for job in group]
-    if _is_batch(group):
-        from kinadapt_nn.runs.batch import run_episodes
-
-        return [_job_result(job, cfg, res) for job, cfg, res in zip(group, cfgs, run_episodes(cfgs))]
-    longest = max(cfgs, key=lambda c: c.run.insertions)
-    runs = run_insertion_prefixes(longest, [c.run.insertions for c in cfgs])
-    return [_job_result(job, cfg, runs[cfg.run.insertions]) for job, cfg in zip(group, cfgs)]
+    tools = list(_tools(group).values())
+    longest = [max((cfgs[p] for p in ps), key=lambda c: c.run.insertions) for ps in tools]
+    runs = run_cells(longest, [c.run.insertions for c in cfgs])
+    results: list[dict | None] = [None] * len(group)
+    for ps, run in zip(tools, runs):
+        for p in ps:
+            results[p] = _job_result(group[p], cfgs[p], run[cfgs[p].run.insertions])
+    return results
 
 
 def _job_result(job: tuple, cfg, res) -> dict:
@@ -202,16 +207,16 @@ def _job_cost(job: tuple) -> float:
 
 
 def _group_cost(group: list[tuple]) -> float:
-    """A group's expected cost: its longest job (a prefix group is simulated once) or, for a
-    batch, the sum of its episodes' (measured: a batch of 8 costs ~0.85 of its single episodes)."""
-    costs = [_job_cost(j) for j in group]
-    return 0.85 * sum(costs) if _is_batch(group) else max(costs)
+    """A group's expected cost: each tool's longest job (its prefixes come with it), summed over
+    the tools, times 0.85 for a batch (measured: a batch of 8 costs ~0.85 of its single episodes)."""
+    costs = [max(_job_cost(group[p]) for p in ps) for ps in _tools(group).values()]
+    return 0.85 * sum(costs) if _is_batch(group) else sum(costs)
 
 
 def _is_batch(group: list[tuple]) -> bool:
-    """Whether a group of :func:`_batch_groups` is a batch (one job per (family, tool)) rather than
-    a prefix group (one tool's jobs that differ in ``run.insertions`` or not at all)."""
-    return len(group) > 1 and len({(j[1], j[3]) for j in group}) == len(group)
+    """Whether a group of :func:`_batch_groups` steps several tools together (a batch) rather than
+    one tool's jobs (a prefix group)."""
+    return len(_tools(group)) > 1
 
 
 def _median(xs):

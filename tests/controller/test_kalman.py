@@ -12,7 +12,8 @@ from kinadapt_nn.config import AdaptationCfg, load_config
 from kinadapt_nn.controller.laws import LawParams
 from kinadapt_nn.controller.standalone import StandaloneLaw
 from kinadapt_nn.runs.build import make_features
-from kinadapt_nn.runs.episode import run_episode, run_insertions
+from kinadapt_nn.runs.episode import run_episode
+from kinadapt_nn.runs.insertions import run_insertions
 from tests.controller.law_reference import kalman_update, one_law_step
 
 QUIET = ["run.progress=false", "run.tensorboard=false", "run.figure=false"]

@@ -120,24 +120,6 @@ def test_run_episodes_equals_run_episode_to_the_last_bit(case):
         assert len(set(steps)) > 1
 
 
-def test_run_episodes_carries_controllers_as_a_work_cell_does():
-    """A second insertion from the controllers the first one left (theta and the law's state
-    carried, ``reset(carry_estimate=True)``) equals the single episodes' second insertion."""
-    from kinadapt_nn.runs.batch import run_episodes
-    from kinadapt_nn.runs.build import make_controller
-
-    cfgs = [load_config(None, ["run.progress=false", "run.duration_s=1.5", *tool_overrides(SweepCfg(), s),
-                               f"run.seed={s}"]) for s in range(2)]
-    kb, ks = [make_controller(c) for c in cfgs], [make_controller(c) for c in cfgs]
-    run_episodes(cfgs, ctrls=kb)
-    for c, k in zip(cfgs, ks):
-        run_episode(c, ctrl=k)
-    for k in (*kb, *ks):
-        k.reset(carry_estimate=True)
-    for r, c, k in zip(run_episodes(cfgs, ctrls=kb), cfgs, ks):
-        _assert_same_episode(r, run_episode(c, ctrl=k))
-
-
 def test_run_episodes_refuses_configs_that_cannot_share_a_batch():
     from kinadapt_nn.errors import ConfigError
     from kinadapt_nn.runs.batch import run_episodes

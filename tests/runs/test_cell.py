@@ -178,7 +178,7 @@ def test_sample_cell_with_one_path_is_sample_workspace_bit_for_bit():
 
 @pytest.fixture(scope="module")
 def cell_run():
-    from kinadapt_nn.runs.episode import run_insertions
+    from kinadapt_nn.runs.insertions import run_insertions
 
     cfg = load_config(None, ["run.progress=false", *SOCKET, BORES, "cell.order=[2,0]", "run.insertions=2",
                              "cell.heldout_per_bore=3", "cell.between=refit"])
@@ -199,7 +199,7 @@ def test_cell_run_visits_the_bores_in_order_and_reports_per_insertion(cell_run):
 
 
 def test_cell_run_is_reproducible(cell_run):
-    from kinadapt_nn.runs.episode import run_insertions
+    from kinadapt_nn.runs.insertions import run_insertions
 
     cfg, s = cell_run
     s2 = run_insertions(cfg).summary
@@ -249,7 +249,7 @@ def test_insertion_prefixes_are_the_shorter_runs(over):
     """run_insertion_prefixes(cfg, [1, 2]) gives, for each count, what run_insertions gives with
     run.insertions set to it: summary and trace to the last bit (RBF: its p x p BLAS work; a
     cell with a refit between insertions: the regressor rows kept, the cell error per insertion)."""
-    from kinadapt_nn.runs.episode import run_insertion_prefixes, run_insertions
+    from kinadapt_nn.runs.insertions import run_insertion_prefixes, run_insertions
 
     base = ["run.progress=false", *SOCKET, "run.duration_s=1.5", *over]
     both = run_insertion_prefixes(load_config(None, base), [2, 1])
@@ -261,11 +261,36 @@ def test_insertion_prefixes_are_the_shorter_runs(over):
     assert "insertions" in both[2].summary and len(both[2].summary["insertions"]) == 2
 
 
+def test_cells_stepped_together_equal_each_cell_alone():
+    """Work cells that differ only in the tool run insertion i as one batch (run_cells on
+    runs.batch.run_episodes, controllers carried between insertions, a refit in between): each
+    cell's prefixes equal run_insertion_prefixes of that cell alone, summary (its insertion rows
+    and cell errors) and trace to the last bit, but the wall times. Cells with other bores are
+    refused."""
+    from kinadapt_nn.runs.insertions import run_cells, run_insertion_prefixes
+    from kinadapt_nn.runs.sweep import SweepCfg, tool_overrides
+
+    base = ["run.progress=false", *SOCKET, "run.duration_s=1.5", "cell.between=refit", BORES,
+            "cell.heldout_per_bore=2"]
+    cfgs = [load_config(None, [*base, *tool_overrides(SweepCfg(), s)]) for s in range(3)]
+    together = run_cells(cfgs, [2, 1])
+    for cfg, both in zip(cfgs, together):
+        alone = run_insertion_prefixes(cfg, [1, 2])
+        assert sorted(both) == [1, 2]
+        for k in (1, 2):
+            _same(alone[k].summary, both[k].summary)
+            _same(dict(alone[k].trace.arrays), dict(both[k].trace.arrays))
+    assert len({tuple(r[2].summary["cell"]["jacobian_error_cell_median"]) for r in together}) == 3  # 3 tools
+    other = load_config(None, [*base, "cell.bores_w_m=[[0.45,0.0,0.30],[0.55,0.15,0.25]]"])
+    with pytest.raises(ConfigError, match="cell.bores_w_m"):
+        run_cells([cfgs[0], other], [1])
+
+
 def test_compare_simulates_runs_that_differ_in_insertions_once(tmp_path):
     """``kinadapt compare``: scenarios that differ only in run.insertions form one group (the
     default compare's 72 runs are 48 simulations); a scenario's row is what its runs alone give."""
     from kinadapt_nn.runs.compare import _prefix_groups, compare_jobs, draw_tools, load_compare_config, run_compare
-    from kinadapt_nn.runs.episode import run_insertions
+    from kinadapt_nn.runs.insertions import run_insertions
 
     jobs = compare_jobs(load_compare_config(None), tmp_path)
     groups = _prefix_groups(jobs)
@@ -286,19 +311,21 @@ def test_compare_simulates_runs_that_differ_in_insertions_once(tmp_path):
 
 
 def test_compare_batches_single_episodes_with_the_rows_of_single_runs(tmp_path, monkeypatch):
-    """``kinadapt compare`` runs its single episodes (one insertion, no cell) in batches of the
-    same scenario, features and law (``runs.batch.run_episodes``), work cells as prefix groups; its
-    table is the single-episode path's to the last bit, but the wall times."""
+    """``kinadapt compare`` steps the tools of the same scenarios, features and law together
+    (``runs.insertions.run_cells`` on ``runs.batch.run_episodes``), single episodes and each
+    tool's insertion prefixes alike; its table is the one-tool-at-a-time path's to the last bit,
+    but the wall times."""
     import kinadapt_nn.runs.compare as C
 
     jobs = C.compare_jobs(C.load_compare_config(None), tmp_path)
     groups = C._batch_groups(jobs, C._prefix_groups(jobs))
-    batches = [g for g in groups if C._is_batch([jobs[i] for i in g])]
-    assert len(batches) == 3 and all(len(g) == 8 and {jobs[i][0] for i in g} == {"bore"} for g in batches)
+    assert len(groups) == 6 and all(len(C._tools([jobs[i] for i in g])) == 8 for g in groups)
+    assert sorted(len(g) for g in groups) == [8] * 3 + [16] * 3  # bore: 8 tools; socket: 8 tools x (1, 3) insertions
+    assert all({jobs[i][0] for i in g} in ({"bore"}, {"socket_dither", "socket_dither_x3"}) for g in groups)
     assert sorted(i for g in groups for i in g) == list(range(len(jobs)))
     short = ["run.duration_s=1.5", "start.lateral_jitter_m=0.0003"]
     cfg = C.load_compare_config(None, ["features=['adjoint','neural']", "n_tools=2", "jobs=1",
-                                       f"scenarios={{one={short!r}}}"])
+                                       f"scenarios={{one={short!r},two={[*short, 'run.insertions=2']!r}}}"])
     tables = {}
     for mode in ("batch", "single"):
         if mode == "single":
@@ -308,4 +335,4 @@ def test_compare_batches_single_episodes_with_the_rows_of_single_runs(tmp_path, 
         rows = C.run_compare(cfg, out, progress=False)
         tables[mode] = [{k: v for k, v in r.items() if k != "wall_time_s_median"} for r in rows]
     _same(tables["batch"], tables["single"])
-    assert len(tables["batch"]) == 4 and all(r["episodes"] == 2 for r in tables["batch"])
+    assert len(tables["batch"]) == 4 + 4 * 4 and all(r["episodes"] == 2 for r in tables["batch"])  # two: all, 0, 1, 2
