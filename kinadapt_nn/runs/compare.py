@@ -171,14 +171,11 @@ def _run_group(group: list[tuple]) -> list[dict]:
 
 def _job_result(job: tuple, cfg, res) -> dict:
     """A job's row material from its run ``res``; writes its TensorBoard run."""
+    from kinadapt_nn.runs.insertions import judged_whole
     from kinadapt_nn.runs.tb import write_cell_tensorboard, write_tensorboard
 
     scenario, family, features, tool_i, _overrides, tb_dir, _law = job
-    s = res.summary
-    if "insertions" in s:  # a work cell: judged from the first insertion's start to the last one's end
-        rows = s["insertions"]
-        s = dict(s, success=all(r["success"] for r in rows),
-                 jacobian_rel_error_initial=rows[0]["jacobian_rel_error_initial"])
+    s = judged_whole(res.summary)  # several insertions: judged from the first one's start to the last one's end
     hp = {"features": features, "tool_family": family, "scenario": scenario, "tool": tool_i,
           "n_params": int(s["n_params"]), "law": s["law"]}
     write_tensorboard(Path(tb_dir), res.trace, s, hp)

@@ -93,6 +93,25 @@ def run_cells(cfgs: list[ExperimentCfg], counts, progress: bool = False) -> list
     return [cell.out for cell in cells]
 
 
+def judged_whole(summary: dict) -> dict:
+    """A run of several insertions judged from the first insertion's start to the last one's end
+    (``kinadapt compare``'s rows, ``kinadapt sweep``'s records): ``success`` only when every
+    insertion seated, ``failure`` the first failed insertion's class ("none" else),
+    ``jacobian_rel_error_initial`` the first insertion's, ``insertions_seated`` how many seated
+    and, for a work cell, ``jacobian_error_cell_median_final`` (after the last insertion); the
+    other fields are the last insertion's. A one-insertion summary is returned as it is."""
+    rows = summary.get("insertions")
+    if not rows:
+        return summary
+    failed = [r for r in rows if not r["success"]]
+    out = dict(summary, success=not failed, failure=failed[0]["failure"] if failed else "none",
+               jacobian_rel_error_initial=rows[0]["jacobian_rel_error_initial"],
+               insertions_seated=len(rows) - len(failed))
+    if summary.get("cell"):
+        out["jacobian_error_cell_median_final"] = summary["cell"]["jacobian_error_cell_median"][-1]
+    return out
+
+
 def run_insertion(cfg: ExperimentCfg, ctrl: Controller, i: int, progress: bool = False,
                   keep_regressor: bool = False) -> EpisodeResult:
     """Insertion ``i`` (0-based) of a work cell with the controller ``ctrl`` carried over: bore

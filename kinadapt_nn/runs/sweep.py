@@ -96,21 +96,35 @@ def episode_jobs(cfg: SweepCfg) -> list[dict]:
 
 
 def run_job(job: dict) -> dict:
-    """One episode -> a flat record (no files, so it can run anywhere: a local worker or Ray)."""
-    from kinadapt_nn.runs.episode import run_episode
+    """One episode, or ``run.insertions`` of them (a work cell) -> a flat record (no files, so it
+    can run anywhere: a local worker or Ray)."""
+    from kinadapt_nn.runs.insertions import run_insertions
 
-    return _record(job, run_episode(load_config(None, job["overrides"])).summary)
+    return _record(job, run_insertions(load_config(None, job["overrides"])).summary)
 
 
 def run_batch_job(jobs: list[dict]) -> list[dict]:
-    """Episodes of one group stepped together (``runs.batch``) -> their flat records, in order."""
+    """Episodes of one group stepped together (``runs.batch``) -> their flat records, in order.
+    Runs of several insertions or work cells step each insertion together
+    (``runs.insertions.run_cells``)."""
+    cfgs = [load_config(None, j["overrides"]) for j in jobs]
+    if any(c.run.insertions > 1 or c.cell.bores_w_m for c in cfgs):
+        from kinadapt_nn.runs.insertions import run_cells
+
+        runs = run_cells(cfgs, [c.run.insertions for c in cfgs])
+        return [_record(j, r[c.run.insertions].summary) for j, c, r in zip(jobs, cfgs, runs)]
     from kinadapt_nn.runs.batch import run_batch
 
-    res = run_batch([load_config(None, j["overrides"]) for j in jobs], nthread=1)
+    res = run_batch(cfgs, nthread=1)
     return [_record(j, s) for j, s in zip(jobs, res.summaries)]
 
 
 def _record(job: dict, s: dict) -> dict:
+    """A flat record of a run's summary: its scalars and short number lists; several insertions
+    are judged as a whole (``runs.insertions.judged_whole``)."""
+    from kinadapt_nn.runs.insertions import judged_whole
+
+    s = judged_whole(s)
     rec = {"id": job["id"], "group": job["group"], "seed": job["seed"], "overrides": " ".join(job["overrides"])}
     for k, v in s.items():
         if isinstance(v, (bool, int, float, str)) or v is None:

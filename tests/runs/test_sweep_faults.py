@@ -103,6 +103,31 @@ def test_batched_sweep_records_what_the_episode_by_episode_sweep_records(tmp_pat
     assert run_sweep(cfg, tmp_path / "bat", progress=False)["episodes"] == 6
 
 
+def test_sweep_of_repeated_insertions_runs_every_insertion_batched_or_not(tmp_path):
+    """``run.insertions = 2`` in a sweep: each record is the whole run judged from the first
+    insertion's start to the last one's end (both seated, insertions_seated = 2), what
+    run_insertions gives; ``batch = true`` steps the seeds' insertions together
+    (runs.insertions.run_cells) and records the same, to the last digit."""
+    import csv
+
+    from kinadapt_nn.runs.insertions import run_insertions
+    from kinadapt_nn.runs.sweep import episode_jobs
+
+    over = ["seeds=2", "jobs=1", "base=['run.stop_after_seat_s=0.05','start.lateral_jitter_m=0.0003',"
+            "'run.insertions=2']"]
+    one = run_sweep(load_sweep_config(None, over), tmp_path / "one", progress=False)
+    bat = run_sweep(load_sweep_config(None, [*over, "batch=true"]), tmp_path / "bat", progress=False)
+    rows = {n: {r["id"]: r for r in csv.DictReader(open(tmp_path / n / "sweep.csv"))} for n in ("one", "bat")}
+    cols = [c for c in next(iter(rows["one"].values())) if c != "wall_time_s"]
+    assert {"insertions_seated", "success", "failure", "seat_time_s"} <= set(cols)
+    assert all(rows["bat"][i][c] == rows["one"][i][c] for i in rows["one"] for c in cols)
+    assert one["total"] == bat["total"] and one["total"]["successes"] == 2
+    job = episode_jobs(load_sweep_config(None, over))[1]
+    alone = run_insertions(load_config(None, job["overrides"])).summary
+    assert len(alone["insertions"]) == 2 and rows["one"][job["id"]]["insertions_seated"] == "2"
+    assert float(rows["one"][job["id"]]["seat_time_s"]) == alone["seat_time_s"]  # the last insertion's
+
+
 def test_killed_sweep_completes_every_episode_exactly_once(tmp_path):
     """SIGINT mid-way, then the same command: every episode once, finished ones not rerun."""
     out = tmp_path / "kill"
