@@ -76,6 +76,11 @@ def run_cells(cfgs: list[ExperimentCfg], counts, progress: bool = False) -> list
         for k in ctrls:
             k.compile_kernels()
     cells = [_Cell(c, k) for c, k in zip(cfgs, ctrls)]
+    bar = None
+    if progress:  # the insertions' own bar above each episode's
+        from tqdm import tqdm
+
+        bar = tqdm(total=n, desc="insertions", unit="insertion", leave=False)
     for i in range(n):
         bore = layout[0][layout[1][i]]
         cfg_i = [_insertion_config(c, i, bore) for c in cfgs]
@@ -90,6 +95,10 @@ def run_cells(cfgs: list[ExperimentCfg], counts, progress: bool = False) -> list
             res = run_episodes(cfg_i, ctrls, keep_regressor=keep)
         for cell, r in zip(cells, res):
             cell.after(i, r, counts, is_cell)
+        if bar is not None:
+            bar.update(1)
+    if bar is not None:
+        bar.close()
     return [cell.out for cell in cells]
 
 
