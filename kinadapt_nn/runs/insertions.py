@@ -81,14 +81,9 @@ def run_cells(cfgs: list[ExperimentCfg], counts, progress: bool = False) -> list
         from tqdm import tqdm
 
         bar = tqdm(total=n, desc="insertions", unit="insertion", leave=False)
+    keep = cells[0].refit is not None  # a refit between insertions needs the regressor rows
     for i in range(n):
-        bore = layout[0][layout[1][i]]
-        cfg_i = [_insertion_config(c, i, bore) for c in cfgs]
-        for k in ctrls:
-            if i:
-                k.reset(carry_estimate=True)
-            k.set_bore(bore)
-        keep = cells[0].refit is not None
+        cfg_i = [_start_insertion(c, k, i) for c, k in zip(cfgs, ctrls)]
         if len(cfgs) == 1:
             res = [run_episode(cfg_i[0], progress, ctrl=ctrls[0], keep_regressor=keep)]
         else:
@@ -126,21 +121,23 @@ def run_insertion(cfg: ExperimentCfg, ctrl: Controller, i: int, progress: bool =
     """Insertion ``i`` (0-based) of a work cell with the controller ``ctrl`` carried over: bore
     ``cell.bore_of(i)``, seed ``run.seed + i``; theta and the law's state kept from insertion i - 1
     (``reset(carry_estimate=True)``). ``keep_regressor`` as for ``run_episode``."""
-    bore = tuple(cfg.cell.bores(cfg.scene)[cfg.cell.bore_of(i)])
-    if i:
-        ctrl.reset(carry_estimate=True)
-    ctrl.set_bore(bore)
-    return run_episode(_insertion_config(cfg, i, bore), progress, ctrl=ctrl, keep_regressor=keep_regressor)
+    return run_episode(_start_insertion(cfg, ctrl, i), progress, ctrl=ctrl, keep_regressor=keep_regressor)
 
 
 def _finite_or_none(x: float | None) -> float | None:
     return float(x) if x is not None and math.isfinite(x) else None
 
 
-def _insertion_config(cfg: ExperimentCfg, i: int, bore) -> ExperimentCfg:
-    """The config of insertion ``i`` (0-based): seed ``run.seed + i``, the scene's bore at ``bore``."""
+def _start_insertion(cfg: ExperimentCfg, ctrl: Controller, i: int) -> ExperimentCfg:
+    """Carry ``ctrl`` into insertion ``i`` (0-based) of ``cfg``'s cell: theta and the law's state
+    kept from insertion i - 1 (``reset(carry_estimate=True)``), aimed at bore ``cell.bore_of(i)``.
+    -> the insertion's config: seed ``run.seed + i``, the scene's bore there."""
+    bore = tuple(cfg.cell.bores(cfg.scene)[cfg.cell.bore_of(i)])
+    if i:
+        ctrl.reset(carry_estimate=True)
+    ctrl.set_bore(bore)
     return cfg.model_copy(update={"run": cfg.run.model_copy(update={"seed": (cfg.run.seed + i) % 2**32}),
-                                  "scene": cfg.scene.model_copy(update={"bore_entry_w_m": tuple(bore)})})
+                                  "scene": cfg.scene.model_copy(update={"bore_entry_w_m": bore})})
 
 
 class _Cell:
