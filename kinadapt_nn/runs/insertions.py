@@ -69,8 +69,7 @@ def run_cells(cfgs: list[ExperimentCfg], counts, progress: bool = False) -> list
                           "-- run them separately")
     is_cell = bool(cfgs[0].cell.bores_w_m)
     if n == 1 and not is_cell:
-        res = [run_episode(cfgs[0], progress)] if len(cfgs) == 1 else run_episodes(cfgs)
-        return [{1: r} for r in res]
+        return [{1: r} for r in _episodes(cfgs, [None] * len(cfgs), progress, keep_regressor=False)]
     with core.compiling(progress):  # a first run's one-time compile: its own bar
         ctrls = [make_controller(c) for c in cfgs]
         for k in ctrls:
@@ -84,11 +83,7 @@ def run_cells(cfgs: list[ExperimentCfg], counts, progress: bool = False) -> list
     keep = cells[0].refit is not None  # a refit between insertions needs the regressor rows
     for i in range(n):
         cfg_i = [_start_insertion(c, k, i) for c, k in zip(cfgs, ctrls)]
-        if len(cfgs) == 1:
-            res = [run_episode(cfg_i[0], progress, ctrl=ctrls[0], keep_regressor=keep)]
-        else:
-            res = run_episodes(cfg_i, ctrls, keep_regressor=keep)
-        for cell, r in zip(cells, res):
+        for cell, r in zip(cells, _episodes(cfg_i, ctrls, progress, keep)):
             cell.after(i, r, counts, is_cell)
         if bar is not None:
             bar.update(1)
@@ -114,6 +109,14 @@ def judged_whole(summary: dict) -> dict:
     if summary.get("cell"):
         out["jacobian_error_cell_median_final"] = summary["cell"]["jacobian_error_cell_median"][-1]
     return out
+
+
+def _episodes(cfgs: list[ExperimentCfg], ctrls: list, progress: bool, keep_regressor: bool) -> list[EpisodeResult]:
+    """One episode per (cfg, ctrl) (ctrl None: a new one): several as one batch (``run_episodes``),
+    one by ``run_episode`` with its progress bar; the results are the same either way."""
+    if len(cfgs) == 1:
+        return [run_episode(cfgs[0], progress, ctrl=ctrls[0], keep_regressor=keep_regressor)]
+    return run_episodes(cfgs, ctrls, keep_regressor=keep_regressor)
 
 
 def run_insertion(cfg: ExperimentCfg, ctrl: Controller, i: int, progress: bool = False,
