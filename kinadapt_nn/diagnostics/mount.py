@@ -33,12 +33,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from kinadapt_nn.diagnostics.setup import TORQUE_UNITS
-
 MAX_ROWS = 2000  #: samples used by the fit (evenly spaced subset)
 STEP_TOL_RAD = 1e-8  #: Gauss-Newton stops when the rotation update is this small
 MAX_FIRST_ORDER_DEG = 15.0
 COM_PLAUSIBLE_M = 0.5  #: [m] a tool's centre of mass farther from the sensor than this is not a tool
+MASS_PLAUSIBLE_FACTOR = 5.0  #: a fitted mass this many times the declared one is not the declared tool
+UNDETERMINED_DEG = 10.0  #: [deg] a mount angle with a larger sd is reported undetermined
+UNDETERMINED_MASS_REL = 0.2  #: a mass sd above this share of the mass: undetermined
+UNDETERMINED_COM_M = 0.02  #: [m] a centre-of-mass coordinate with a larger sd: undetermined
 SIGNIFICANT_SD = 3.0
 ROTATION_EXPLAINS = 0.9  #: a declared mount is contradicted only when the rotation removes this share of its misfit
 HUBER_K = 3.0  #: [noise sd] the robust loss is quadratic up to this weighted residual
@@ -203,6 +205,17 @@ def _linear_start(d: MountData) -> np.ndarray | None:
     return (sign * (U @ Vt)).T
 
 
+def _best_start(d: MountData, starts: list[np.ndarray], positive: bool = False):
+    """Gauss-Newton from each start; the lowest cost wins (``positive``: among positive masses).
+    -> (D, theta, cost)."""
+    D, theta, best = np.eye(3), np.zeros(10), np.inf
+    for D0 in starts:
+        Dk, thk, ck = _gauss_newton(d, D0)
+        if ck < best and (thk[0] > 0 or not positive):
+            D, theta, best = Dk, thk, ck
+    return D, theta, best
+
+
 def _rpy_deg(x: np.ndarray, R_fs_decl: np.ndarray) -> np.ndarray:
     return np.rad2deg(matrix_rpy(R_fs_decl @ rotvec_matrix(x[:3])))
 
@@ -236,11 +249,11 @@ def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: i
     lin = _linear_start(d)
     if lin is not None and np.all(np.isfinite(lin)):
         starts.append(lin)
-    D, theta, best = None, None, np.inf
-    for D0 in starts:
-        Dk, thk, ck = _gauss_newton(d, D0)
-        if ck < best:
-            D, theta, best = Dk, thk, ck
+    D, theta, best = _best_start(d, starts)
+    if theta[0] <= 0:  # a weakly turned sensor leaves a mirror branch (D turned by 180 deg, -m): a mass is positive
+        Dp, thp, cp = _best_start(d, [D0 @ rotvec_matrix(np.pi * e) for D0 in (*starts, D) for e in np.eye(3)], True)
+        if thp[0] > 0:
+            D, theta, best = Dp, thp, cp
     x = np.concatenate([Rotation.from_matrix(D).as_rotvec(), theta])
     cost_declared = _cost_at(np.eye(3), d)
     rot_explains = float(max(0.0, 1.0 - best / max(cost_declared, 1e-300)))
@@ -320,12 +333,30 @@ def predict(x: np.ndarray, s) -> np.ndarray:
     return _model(x, d)
 
 
+def fit_at(D: np.ndarray, d: MountData, iters: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """The best ``theta = [m, m c, b]`` (10,) at a fixed rotation ``D`` (3, 3) (robust IRLS, as the
+    fit) and the residual (n, 6) [N, N m] of ``d``'s samples."""
+    A, c = _linear_part(D, d)  # (n, 6, 10), (n, 6): built once, the weights change
+    y = d.r - c
+    rw = np.ones_like(d.r)
+    for _ in range(iters + 1):
+        sw = d.w * np.sqrt(rw)  # (n, 6)
+        theta = _normal_solve((A * sw[:, :, None]).reshape(-1, 10), (y * sw).reshape(-1))
+        res = y - np.einsum("nik,k->ni", A, theta)
+        rw = _huber((res * d.w).reshape(-1))
+    return theta, res
+
+
 def plausibility(fitm: "MountFit", setup) -> list[str]:
     """Why the calibration fit is not a physical tool on a physical sensor (empty: plausible)."""
     out = []
     m = float(fitm.x[3])
+    m_decl = float(setup.tool.mass_kg)
     if m <= 0:
         out.append(f"the fitted tool mass is {m:.3g} kg (not positive)")
+    elif m_decl > 0 and m > MASS_PLAUSIBLE_FACTOR * m_decl:
+        out.append(f"the fitted tool mass {m:.3g} kg is more than {MASS_PLAUSIBLE_FACTOR:g}x the declared "
+                   f"{m_decl:g} kg (not the declared tool: contact in the calibration samples, or [tool] mass_kg)")
     elif np.linalg.norm(fitm.x[4:7] / m) > COM_PLAUSIBLE_M:
         out.append(f"the fitted centre of mass is {np.linalg.norm(fitm.x[4:7] / m):.3g} m from the sensor")
     rf, rt = setup.sensor.range_force_N, setup.sensor.range_torque_Nm
@@ -384,31 +415,34 @@ def report(x, sd, rpy, rpy_sd, angle_deg, angle_sd, res, d: MountData, s, rot_ex
                   "and from the declared mount); sd = max(information, block jackknife)",
     }
     out["paste"] = "[sensor] rpy_flange_deg = [" + ", ".join(f"{v:.2f}" for v in rpy) + "]"
+    out["undetermined"] = undetermined(x, sd)
     return out
 
 
-def unit_warning(fitm: MountFit, setup) -> str | None:
-    """A plain warning when the torques (or forces) look like another unit than declared: the fit
-    needs the centre of mass far outside any tool (torque unit), or the mass is off from the
-    declared one by exactly a unit factor (force unit)."""
-    m = float(fitm.x[3])
-    if m <= 0:
-        return None
-    c = np.linalg.norm(fitm.x[4:7] / m)
-    if c > COM_PLAUSIBLE_M:
-        declared = TORQUE_UNITS[setup.log.torque_unit]
-        cands = []
-        for u, f in TORQUE_UNITS.items():
-            scale = f / declared
-            if u != setup.log.torque_unit and c * scale <= COM_PLAUSIBLE_M * 0.6:
-                cands.append((abs(np.log(scale)), u, c * scale))
-        txt = (f"the torques need the tool's centre of mass {c:.3g} m from the sensor, far outside any tool: "
-               f"[log] torque_unit = \"{setup.log.torque_unit}\" looks wrong")
-        if cands:
-            _, u, cc = min(cands)
-            txt += f" (as \"{u}\" the centre of mass would be {1000 * cc:.3g} mm away: set [log] torque_unit = \"{u}\")"
-        return txt
-    return None
+def undetermined(x: np.ndarray, sd: np.ndarray) -> list[dict]:
+    """The calibration parameters whose interval is too wide to call them estimated (``x``, ``sd``
+    (13,) as ``MountFit``): each with its sd and the motion that would pin it. The rest stand."""
+    out = []
+    axes = "xyz"
+    for k in range(3):
+        sd_deg = float(np.rad2deg(sd[k]))
+        if sd_deg > UNDETERMINED_DEG:
+            others = axes.replace(axes[k], "")
+            out.append({"parameter": f"mount rotation about the sensor's {axes[k]} axis", "sd": sd_deg, "unit": "deg",
+                        "to_pin": f"poses with gravity along several directions in the sensor's {others[0]}-{others[1]} "
+                                  f"plane (turn the wrist by 30 deg or more about an axis other than the sensor's "
+                                  f"{axes[k]} axis)"})
+    m = float(x[3])
+    if sd[3] > UNDETERMINED_MASS_REL * max(abs(m), 1e-9):
+        out.append({"parameter": "tool mass", "sd": float(sd[3]), "unit": "kg",
+                    "to_pin": "larger changes of the sensor's orientation against gravity in free space"})
+    elif abs(m) > 1e-9:
+        for i in range(3):
+            c_sd = float(np.hypot(sd[4 + i], abs(x[4 + i] / m) * sd[3]) / abs(m))
+            if c_sd > UNDETERMINED_COM_M:
+                out.append({"parameter": f"tool centre of mass, sensor {axes[i]}", "sd": c_sd, "unit": "m",
+                            "to_pin": f"turn the sensor so that gravity moves across its {axes[i]} axis in free space"})
+    return out
 
 
-__all__ = ["MountFit", "fit", "predict", "plausibility", "unit_warning", "matrix_rpy", "rotvec_matrix", "rotation_angle"]
+__all__ = ["MountFit", "fit", "predict", "plausibility", "fit_at", "matrix_rpy", "rotvec_matrix", "rotation_angle"]

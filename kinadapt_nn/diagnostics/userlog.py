@@ -18,12 +18,13 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
+from kinadapt_nn.diagnostics import segmentation
 from kinadapt_nn.diagnostics import selection as sel
 from kinadapt_nn.diagnostics import signals as sg
 from kinadapt_nn.diagnostics.builtin import BUILTINS, CONTACT_MODEL_EFFECTS
 from kinadapt_nn.diagnostics.contract import Effect, load_effect_files
 from kinadapt_nn.diagnostics.setup import SetupCfg
-from kinadapt_nn.errors import KinadaptError
+from kinadapt_nn.errors import KinadaptError, did_you_mean
 from kinadapt_nn.features.effect_library import moving_average
 
 FREE_CHANNELS = ("F_x", "F_y", "F_z", "M_x", "M_y", "M_z")  # sensor frame
@@ -44,11 +45,7 @@ class RowCfg(NamedTuple):
 
 def noise_sigma(r: np.ndarray, rc: RowCfg) -> np.ndarray:
     """Per-channel sample noise of the reading (6,) from second differences (robust MAD)."""
-    if len(r) < 5:
-        return np.array([rc.force_floor_N] * 3 + [rc.moment_floor_Nm] * 3)
-    d2 = r[2:] - 2 * r[1:-1] + r[:-2]
-    s = 1.4826 * np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0) / np.sqrt(6.0)
-    return np.maximum(s, [rc.force_floor_N] * 3 + [rc.moment_floor_Nm] * 3)
+    return np.maximum(sg.sample_noise(r), [rc.force_floor_N] * 3 + [rc.moment_floor_Nm] * 3)
 
 
 def static_sigma(s: sg.LogSignals, residual: np.ndarray, rc: RowCfg) -> tuple[np.ndarray, str]:
@@ -72,20 +69,24 @@ def static_sigma(s: sg.LogSignals, residual: np.ndarray, rc: RowCfg) -> tuple[np
     return np.maximum(mad, floor), "robust scale of the calibration fit's residual (no repeated poses)"
 
 
-def detect_contact(e: np.ndarray, t_s: np.ndarray, setup: SetupCfg, rc: RowCfg) -> tuple[np.ndarray, np.ndarray]:
+def detect_contact(e: np.ndarray, t_s: np.ndarray, setup: SetupCfg, rc: RowCfg,
+                   free: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Contact samples from the force the tool model does not explain (N, 6) -> (contact (N,)
-    bool, the offset taken out (6,)). The offset is the median of the residual (the free-space
-    value when most of the log is free); contact = |force - offset| > ``detect_force_N`` after a
-    20 ms average, gaps shorter than 2 ``margin_s`` filled, then widened by ``margin_s``."""
+    bool, the offset taken out (6,)). The offset is the median of the residual over ``free`` (n,)
+    bool, the samples known to be free space (``segmentation``; all samples when not given --
+    never the median of a log that may be mostly contact); contact = |force - offset| >
+    ``detect_force_N`` after a 20 ms average, gaps shorter than 2 ``margin_s`` filled, then
+    widened by ``margin_s``."""
     n = len(t_s)
+    ref = np.ones(n, bool) if free is None or not free.any() else free
     if setup.contact.mode == "none":
         return np.zeros(n, bool), np.zeros(6)
     if setup.log.static:  # poses at rest: each row on its own
-        off = np.median(e, axis=0)
+        off = np.median(e[ref], axis=0)
         return np.linalg.norm(e[:, :3] - off[:3], axis=1) > setup.contact.detect_force_N, off
     dt = float(np.median(np.diff(t_s)))
     es = moving_average(e, max(1, int(round(rc.smooth_s / dt))))
-    off = np.median(es, axis=0)
+    off = np.median(es[ref], axis=0)
     raw = np.linalg.norm(es[:, :3] - off[:3], axis=1) > setup.contact.detect_force_N
     k = int(round(setup.contact.margin_s / dt))
     if k > 0 and raw.any():
@@ -114,8 +115,10 @@ def judged(lib: dict[str, Effect], setup: SetupCfg) -> list[str]:
     for key in ("effects", "exclude_effects"):
         for n in getattr(setup.analysis, key):
             if n not in lib:
-                raise KinadaptError(f"[analysis] {key}: unknown effect '{n}' (choose from {', '.join(lib)}; your "
-                                    "own effects come with --effects FILE or [analysis] effects_files)")
+                hint = did_you_mean(n, lib)
+                raise KinadaptError(f"[analysis] {key}: unknown effect '{n}'{'; ' + hint if hint else ''} (choose from "
+                                    f"{', '.join(lib)}; your own effects come with --effects FILE or [analysis] "
+                                    "effects_files)")
     names = [n for n, e in lib.items() if e.applies is None or e.applies(setup)]
     if setup.analysis.effects:
         names = [n for n in names if n in setup.analysis.effects]
@@ -237,6 +240,17 @@ def sample_blocks(s: sg.LogSignals, rc: RowCfg) -> np.ndarray:
     return np.minimum((t / blen).astype(int), max(2, int(np.ceil(dur / blen))) - 1)
 
 
+def excluded_samples(s: sg.LogSignals, setup: SetupCfg) -> np.ndarray:
+    """(n,) bool: the samples ``[analysis] exclude_s`` leaves out (windows from the first sample)."""
+    out = np.zeros(s.n, bool)
+    if s.static and not s.has_time:
+        return out
+    t = s.t - s.t[0]
+    for a, b in setup.analysis.exclude_s:
+        out |= (t >= a) & (t <= b)
+    return out
+
+
 def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray, rc: RowCfg,
               progress: Callable[[str], None]) -> tuple:
     """The sensor-mount fit (``mount``) and what follows from it, before any effect is judged:
@@ -246,14 +260,16 @@ def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray, rc: Row
     was estimated)."""
     from kinadapt_nn.diagnostics import mount
 
-    progress("sensor mount: rotation, mass, centre of mass and offset fitted jointly")
+    progress("free space found from the data (segmentation)")
+    seg = segmentation.free_space(s, excluded_samples(s, setup))
+    progress("sensor mount: rotation, mass, centre of mass and offset fitted jointly on free space")
     blocks = sample_blocks(s, rc)
-    fit0 = mount.fit(s, np.ones(s.n, bool), blocks, sigma, max_blocks=0)  # the point only (no sd needed yet)
+    fit0 = mount.fit(s, seg.free, blocks, sigma, max_blocks=0)  # the point only (no sd needed yet)
     how = "second differences of the reading"
     if s.static:
         sigma, how = static_sigma(s, fit0.residual, rc)
     e_cal = s.wrench - mount.predict(fit0.x, s)
-    contact, _ = detect_contact(e_cal, s.t, setup, rc)
+    contact, _ = detect_contact(e_cal, s.t, setup, rc, seg.free)
     free = ~contact if (~contact).sum() > 20 else np.ones(s.n, bool)
     fitm = mount.fit(s, free, blocks, sigma)
     if not setup.sensor.mount_known:
@@ -262,7 +278,7 @@ def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray, rc: Row
         progress("kinematics again in the estimated sensor mount")
         s = sg.from_log(log, setup)
     off = np.median((s.wrench - s.w_nom)[~contact], axis=0) if (~contact).any() else np.zeros(6)
-    return fitm, s.with_contact(contact, off), setup, sigma, how
+    return fitm, s.with_contact(contact, off), setup, sigma, how, seg
 
 
 class Result(NamedTuple):
@@ -355,8 +371,9 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
     add, forced = _parse_add(add or [], lib)
     for a in add:
         if a not in lib:
-            raise KinadaptError(f"--add {a}: unknown effect for a user's log (choose from {', '.join(lib)}; your own "
-                                "effects come with --effects FILE)")
+            hint = did_you_mean(a, lib)
+            raise KinadaptError(f"--add {a}: unknown effect for a user's log{'; ' + hint if hint else ''} (choose from "
+                                f"{', '.join(lib)}; your own effects come with --effects FILE)")
         if a not in names:
             raise KinadaptError(f"--add {a}: this effect is left out for this set-up (see [analysis] and "
                                 f"[log] tared; judged: {', '.join(names)})")
@@ -366,16 +383,16 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
         if name not in (getattr(log, "extra", None) or {}):
             raise KinadaptError(f"[log] extra '{name}' was not read from the log (use a CSV, Parquet or ROS 2 bag log "
                                 "that has it)")
-    from kinadapt_nn.diagnostics import mount
+    from kinadapt_nn.diagnostics import mount, units
 
     declared = setup
     s = sg.from_log(log, setup, progress)
     sigma = noise_sigma(s.wrench, rc) if not s.static else np.array([1.0] * 3 + [0.1] * 3)
-    fitm, s, setup, sigma, sigma_how = calibrate(log, s, setup, sigma, rc, progress)
+    fitm, s, setup, sigma, sigma_how, seg = calibrate(log, s, setup, sigma, rc, progress)
     check = sign_check(fitm, s, setup)
     sensor_mount = dict(fitm.report)
     why_not = mount.plausibility(fitm, setup)
-    unit_msg = mount.unit_warning(fitm, setup)
+    unit_msg = units.check(fitm, s, setup, sigma).message
     if why_not:
         sensor_mount["plausible"] = False
         sensor_mount["warning"] = "physically impossible calibration, not a finding: " + "; ".join(why_not)
@@ -429,6 +446,7 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
         "library": {n: {"source": lib[n].source, "doc": lib[n].doc, "params": dict(zip(lib[n].params, lib[n].units)),
                         "judged": n in names} for n in lib},
         "contact": {"fraction": float(s.contact.mean()), "windows_s": _windows(s.contact, s.t), "rows": contact_rows},
+        "segmentation": seg.to_json(),
         "noise_sigma": dict(zip(FREE_CHANNELS, (float(v) for v in sigma))),
         "noise_sigma_method": sigma_how,
         "sensor_mount": sensor_mount,
@@ -482,8 +500,9 @@ def _parse_add(add: list[str], lib: dict[str, Effect]) -> tuple[list[str], dict[
             eff = lib[name]
             hits = [j for j, pn in enumerate(eff.params) if pn == which or pn.endswith("_" + which)]
             if not eff.one_of or len(hits) != 1:
-                raise KinadaptError(f"--add {a}: '{which}' is not one parameter of the one-of effect '{name}' "
-                                    f"(its parameters: {', '.join(eff.params)})")
+                hint = did_you_mean(which, eff.params) if not hits else ""
+                raise KinadaptError(f"--add {a}: '{which}' is not one parameter of the one-of effect '{name}'"
+                                    f"{'; ' + hint if hint else ''} (its parameters: {', '.join(eff.params)})")
             forced[name] = hits
         names.append(name)
     return list(dict.fromkeys(names)), forced
@@ -505,7 +524,7 @@ def _rank(s: sg.LogSignals, lib: dict, names: list[str], sigma: np.ndarray, rc: 
         fitted = np.zeros_like(s.wrench)
         for n, (c, p_phys, _) in result.present.items():
             fitted += cache[n][:, :, c] @ p_phys  # the columns this design was built from
-        new_contact, new_off = detect_contact(s.wrench - s.w_nom - fitted, s.t, setup, rc)
+        new_contact, new_off = detect_contact(s.wrench - s.w_nom - fitted, s.t, setup, rc, ~s.contact)
         if np.mean(new_contact != s.contact) < 0.005:
             break
         s = s.with_contact(new_contact, new_off)
@@ -573,6 +592,15 @@ def summary_text(rep: dict) -> str:
                      f"{sm['tool_mass_kg']:.4g} ± {sm['tool_mass_sd_kg']:.2g} kg"
                      + (", centre of mass [" + ", ".join(f"{1000 * v:.1f}" for v in com) + "] mm in the sensor frame"
                         if com[0] is not None else "") + ".")
+    if sm and sm.get("undetermined"):
+        parts.append("Undetermined by this log's motion (the rest stands): " + "; ".join(
+            f"{u['parameter']} (sd {u['sd']:.2g} {u['unit']}; to pin it: {u['to_pin']})" for u in sm["undetermined"])
+            + ".")
+    seg = rep.get("segmentation")
+    if seg and seg.get("contact_onsets_s"):
+        parts.append(f"Free space found from the data: {seg['free_span_s'][0]:.2f}–{seg['free_span_s'][1]:.2f} s "
+                     f"({seg['free_samples']} samples, the calibration's); contact from "
+                     + ", ".join(f"{v:.2f} s" for v in seg["contact_onsets_s"]) + ".")
     parts.append(completeness_text(rep))
     if not rep["tip_contact_check"]["ok"]:
         parts.append("WARNING: " + rep["tip_contact_check"]["message"] + ".")
@@ -594,7 +622,8 @@ def summary_text(rep: dict) -> str:
     if und:
         parts.append("Cannot decide: " + "; ".join(
             f"{e['effect']} ({e.get('reason') or ''}"
-            + (f"; indistinguishable from {', '.join(e['indistinguishable_from'])}" if e.get("indistinguishable_from") else "")
+            + (f"; {sel.tie_words(e['effect'], list(e.get('estimate', {})), e['indistinguishable_from'])}"
+               if e.get("indistinguishable_from") else "")
             + (f"; undecided: {', '.join(e['undecided_parameters'])}" if e.get("undecided_parameters")
                and not e.get("indistinguishable_from") else "")
             + ")" for e in und) + ".")

@@ -174,8 +174,17 @@ def test_standalone_law_is_the_controllers_step(law):
 @pytest.mark.parametrize("features", ["adjoint", "neural", "rbf"])
 def test_every_law_replays_the_pre_registry_code(features):
     """The sensor stream recorded at ed8ad81 (before the registry), replayed through Controller:
-    theta equals what the old code (law.py + the integer-dispatched kernel) gave, to 1e-12, for
-    every law -- the paper's composite law (kinadapt reproduce) included."""
+    theta equals what the old code (law.py + the integer-dispatched kernel) gave, for every law --
+    the paper's composite law (kinadapt reproduce) included.
+
+    The reference was written on one machine; this runs on any. The recursions are not bit-stable
+    across CPUs and BLAS/SIMD kernels (each of ~10^5 floating-point operations may round
+    differently), and they amplify a rounding: perturbing the stream by a relative 1e-14 moves
+    theta by up to 1e-12 relative to its largest entry (RBF kalman/composite, measured; a
+    100x gain). Another x86_64 machine gave 4.8e-10 absolute (RBF, |theta| up to 54). So the
+    tolerance is 1e-8 relative to the largest |theta| of the series: two orders above what
+    rounding gave, six below the law's own motion (checked > 1e-6 below), so a logic change still
+    fails it."""
     data = np.load(REPLAY)
     stream = data["stream"]
     for law in BUILT_IN:
@@ -186,6 +195,7 @@ def test_every_law_replays_the_pre_registry_code(features):
             ctrl.step(r[0], r[1:8], r[8:15], r[15:21])
             got.append(ctrl.theta.copy())
         got = np.array(got)[steps]
-        np.testing.assert_allclose(got, ref, rtol=0.0, atol=1e-12, err_msg=f"{features} {law}")
+        atol = 1e-8 * max(np.abs(ref).max(), 1e-12)  # rounding across machines, see the docstring
+        np.testing.assert_allclose(got, ref, rtol=0.0, atol=atol, err_msg=f"{features} {law}")
         if law not in ("frozen", "tracking"):
             assert np.abs(ref[-1] - ref[0]).max() > 1e-6  # the comparison is not vacuous
