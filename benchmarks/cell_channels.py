@@ -53,7 +53,7 @@ def cell_setup(features: str, family: str, extra=()):
     from kinadapt_nn.runs.cell import CellJacobianError
 
     cfg = load_config(None, ["run.progress=false", "scene.contact_model=socket", "control.dither_rad_s=[0.05,0.05,0.05]",
-                             TOOL, CELL, f"run.features={features}", "features.neural_checkpoint=neural_cell.pt",
+                             TOOL, CELL, f"run.features={features}", "features.neural_checkpoint=neural_cell.safetensors",
                              *(ARM if family == "arm_errors" else []), *extra])
     ctrl = make_controller(cfg)
     return cfg, ctrl, CellJacobianError(cfg, ctrl)

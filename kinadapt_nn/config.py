@@ -192,7 +192,7 @@ class FeaturesCfg(_Cfg):
     rbf_n_centres: int = Field(6, ge=1, le=64)  # K; p = 5 * 7 * K
     rbf_width_rad: float = Field(0.0, ge=0.0)  # [rad] Gaussian width (0 = mean nearest-centre distance)
     rbf_seed: int = Field(0, ge=0, le=2**32 - 1)  # seed of the sampled centres
-    neural_checkpoint: str = ""  # pretrained body ("" = the shipped models/neural_default.pt; a bare file name = a shipped model, e.g. "neural_cell.pt")
+    neural_checkpoint: str = ""  # pretrained body ("" = the shipped models/neural_default.safetensors; a bare file name = a shipped model, e.g. "neural_cell.safetensors")
     neural_prior: Literal["all_arms", "calibrated_arm"] = "all_arms"  # kalman: theta's prior = the heads of every training arm | only the nominal arm's (declare a calibrated arm)
 
 

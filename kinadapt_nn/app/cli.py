@@ -228,7 +228,7 @@ def cmd_pretrain(args: argparse.Namespace) -> int:
             f"arm errors {m['heldout_rel_jacobian_error_median_arm_errors']:.2e}); "
             f"adjoint best fit: nominal arm {m['adjoint_best_fit_rel_error_median_nominal_arm']:.1e}, "
             f"arm errors {m['adjoint_best_fit_rel_error_median_arm_errors']:.2e}\n"
-            f"  wrote {out}/model.pt, metrics.json, tb/"
+            f"  wrote {out}/model.safetensors, metrics.json, tb/"
         )
     return 0
 
@@ -481,7 +481,7 @@ _DESCRIPTIONS = {
     "online": "Run one simulated peg-in-hole insertion of the Panda by feel: the controller sees only the joint "
               "encoders and the wrist F/T sensor and adapts its tool estimate online. Writes a run folder "
               "(config.toml, summary.json, trace.npz, rollout.png, tb/). Exit 0 seated, 1 not seated.",
-    "pretrain": "Train the neural Jacobian basis offline on randomised tools and arms. Writes model.pt, "
+    "pretrain": "Train the neural Jacobian basis offline on randomised tools and arms. Writes model.safetensors, "
                 "metrics.json and tb/ into --out; an interrupted run resumes from train_state.pt when rerun with "
                 "the same command (--overwrite starts afresh).",
     "compare": "Compare the adjoint, RBF and neural features on the same held-out tools and arms "

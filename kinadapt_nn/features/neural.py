@@ -3,7 +3,8 @@
 ``J_hat(q) = K(q) + W^-1 Y(q) theta`` on rows 1..5 (``K`` the known nominal model -- the adjoint
 at the nominal offset, depth row included; ``W`` the channel metric the body was trained in).
 The per-step path is a hand-written numpy forward of the checkpoint's MLP (no torch, no
-autograd in the loop); ``tests/features/test_learned.py`` proves it equals the torch network.
+autograd in the loop; the weights read by ``safetensors.numpy``, ``kinadapt_nn.learning.weights``);
+``tests/features/test_learned.py`` proves it equals the torch network.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import numpy as np
 
 from kinadapt_nn.features.adjoint import AdjointFeatures
 from kinadapt_nn.features.base import Features, KinState, Regressor
-from kinadapt_nn.learning.weights import N_JOINTS, N_ROWS
+from kinadapt_nn.learning.weights import N_JOINTS, N_ROWS, load_checkpoint_arrays
 
 
 class NeuralFeatures(Features):
@@ -23,15 +24,7 @@ class NeuralFeatures(Features):
     name = "neural"
 
     def __init__(self, known: AdjointFeatures, prior_offset_f: np.ndarray, checkpoint: Path, W: np.ndarray) -> None:
-        from kinadapt_nn.learning.weights import LayoutNotRead, load_checkpoint_arrays
-
-        try:
-            sd, meta = load_checkpoint_arrays(checkpoint)  # (numpy; torch is not imported online)
-        except LayoutNotRead:  # a layout only torch reads (and reports on)
-            from kinadapt_nn.learning.checkpoint import load_checkpoint
-
-            net, meta = load_checkpoint(checkpoint)
-            sd = {k: v.detach().cpu().numpy().astype(np.float64) for k, v in net.state_dict().items()}
+        sd, meta = load_checkpoint_arrays(checkpoint)  # safetensors.numpy: torch is not imported online
         self.meta = meta
         self.checkpoint = Path(checkpoint)
         self.known = known

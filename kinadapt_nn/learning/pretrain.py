@@ -10,9 +10,10 @@ Held-out instances are drawn from the same distribution and never trained on.
 
 Training: closed-form per-instance least-squares heads on a support set, loss on a query set
 (the body learns a basis in which any tool/arm is a linear combination). Writes, into ``--out``:
-``model.pt`` (the checkpoint, atomically, with metadata and a content hash), ``metrics.json``,
-``tb/`` (TensorBoard: train loss, held-out Jacobian error), and ``train_state.pt`` while
-training (resume after an interruption gives the same result). The resume state holds only
+``model.safetensors`` (the checkpoint, atomically, with metadata and a content hash:
+``kinadapt_nn.learning.weights``), ``metrics.json``, ``tb/`` (TensorBoard: train loss, held-out
+Jacobian error), and ``train_state.pt`` while training (resume after an interruption gives the
+same result; torch's format, as it holds the optimiser's state). The resume state holds only
 tensors, plain dicts, lists, strings and numbers and is read with ``torch.load(...,
 weights_only=True)``: nothing in it is unpickled as code, so a planted file cannot run any.
 """
@@ -415,7 +416,7 @@ def pretrain(cfg: PretrainCfg, out: Path, progress: bool = True, stop_after: int
         "heldout_rel_jacobian_error_median": float(np.median(he)),
     }
     net_cpu = net.to("cpu")
-    save_checkpoint(out / "model.pt", net_cpu, theta_all.mean(axis=0), meta, theta_all.std(axis=0))
+    save_checkpoint(out / "model.safetensors", net_cpu, theta_all.mean(axis=0), meta, theta_all.std(axis=0))
     metrics = {
         "steps": step,
         "wall_time_s": time.perf_counter() - t0,

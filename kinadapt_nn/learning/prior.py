@@ -46,13 +46,15 @@ def head_statistics(checkpoint: Path, progress: bool = False) -> tuple[np.ndarra
 
 
 def add_head_statistics(checkpoint: Path, out: Path | None = None, progress: bool = False) -> Path:
-    """Write ``theta_cov`` (and ``theta_mean``/``theta_std`` recomputed) into the checkpoint's meta."""
+    """Write ``theta_cov`` (and ``theta_mean``/``theta_std`` recomputed) into the checkpoint's meta:
+    to ``out``, by default the checkpoint itself (a torch ``.pt`` one: the ``.safetensors`` beside it)."""
     from kinadapt_nn.learning.checkpoint import load_checkpoint, save_checkpoint
+    from kinadapt_nn.learning.weights import CHECKPOINT_SUFFIX
 
     net, meta = load_checkpoint(Path(checkpoint))
     mean, cov, n, calibrated = head_statistics(checkpoint, progress)
     meta = dict(meta, theta_cov=[[float(x) for x in row] for row in cov], theta_cov_heads=int(n), **calibrated)
-    out = Path(out or checkpoint)
+    out = Path(out) if out else Path(checkpoint).with_suffix(CHECKPOINT_SUFFIX)
     save_checkpoint(out, net, mean, meta, theta_std=np.sqrt(np.diag(cov)))  # weights as loaded (float64)
     return out
 

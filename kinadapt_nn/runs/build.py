@@ -120,9 +120,13 @@ def _base_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
         from kinadapt_nn.features.neural import NeuralFeatures
         from kinadapt_nn.robot import MODELS_DIR
 
-        ckpt = Path(cfg.features.neural_checkpoint) if cfg.features.neural_checkpoint else MODELS_DIR / "neural_default.pt"
-        if not ckpt.is_absolute() and not ckpt.exists() and (MODELS_DIR / ckpt.name).is_file():
-            ckpt = MODELS_DIR / ckpt.name  # a shipped model named by its file name (e.g. "neural_cell.pt")
+        name = cfg.features.neural_checkpoint
+        ckpt = Path(name) if name else MODELS_DIR / "neural_default.safetensors"
+        if not ckpt.is_absolute() and not ckpt.exists():  # a shipped model named by its file name ("neural_cell.safetensors")
+            shipped = MODELS_DIR / ckpt.name
+            if ckpt.suffix == ".pt":  # a shipped model's name before safetensors: its conversion, the same weights (test)
+                shipped = shipped.with_suffix(".safetensors")
+            ckpt = shipped if shipped.is_file() else ckpt
         feats = NeuralFeatures(adjoint, l_nom, ckpt, channel_metric(cfg.sensing))
         feats.P0 = feats.prior_cov(cfg.features.neural_prior)  # the pretraining heads' second moment about the nominal head
         return feats, np.zeros(feats.n_params)  # the head of the nominal tool (zero residual)

@@ -300,7 +300,7 @@ def test_a_damaged_resume_state_is_one_line_and_overwrite_starts_afresh(tmp_path
         return  # one full (tiny) training run is enough
     rc, _, err = run_cli(capsys, "pretrain", "--out", str(out), "--quiet", "--overwrite", *sets)
     assert rc == 0, err
-    assert (out / "model.pt").is_file() and not (out / "train_state.pt").exists()
+    assert (out / "model.safetensors").is_file() and not (out / "train_state.pt").exists()
 
 
 def test_the_resume_state_loads_weights_only(tmp_path):

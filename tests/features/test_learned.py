@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -13,10 +14,12 @@ from kinadapt_nn.config import load_config
 from kinadapt_nn.runs.build import make_controller, make_features
 from kinadapt_nn.runs.episode import run_episode
 from kinadapt_nn.errors import ModelFileError
+from kinadapt_nn.learning.weights import read_checkpoint_file
 from kinadapt_nn.robot import MODELS_DIR
 from tests.controller.law_reference import one_law_step
 
 Q0 = np.array([0.05, -0.55, 0.02, -2.45, 0.03, 1.95, 0.75])
+TEST_DATA = Path(__file__).resolve().parent.parent / "data"  # torch .pt checkpoints the shipped models were converted from
 
 
 def _kin_and_qdot(seed=0):
@@ -62,7 +65,7 @@ def test_neural_fast_path_equals_the_torch_network():
     """The numpy per-step body reproduces the checkpoint's torch network (Y(q) theta exactly)."""
     from kinadapt_nn.learning.checkpoint import load_checkpoint
 
-    ckpt = MODELS_DIR / "neural_default.pt"
+    ckpt = MODELS_DIR / "neural_default.safetensors"
     net, meta = load_checkpoint(ckpt)
     feats, theta0 = make_features(load_config(None, ["run.features=neural"]))
     rng = np.random.default_rng(3)
@@ -84,7 +87,7 @@ def test_body_is_bit_identical_after_an_online_run():
     ctrl = make_controller(cfg)
     feats = ctrl.features
     before = [a.copy() for a in (feats.W1, feats.b1, feats.W2, feats.b2, feats.W3, feats.b3)]
-    ckpt_before = {k: v.clone() for k, v in __import__("torch").load(feats.checkpoint, weights_only=True)["state_dict"].items()}
+    ckpt_before = read_checkpoint_file(feats.checkpoint).state
     from kinadapt_nn.sim.adapter import PegInHoleSim
 
     sim = PegInHoleSim(cfg)
@@ -96,72 +99,149 @@ def test_body_is_bit_identical_after_an_online_run():
         obs = sim.sense()
     after = (feats.W1, feats.b1, feats.W2, feats.b2, feats.W3, feats.b3)
     assert all(np.array_equal(a, b) for a, b in zip(before, after))
-    ckpt_after = __import__("torch").load(feats.checkpoint, weights_only=True)["state_dict"]
-    assert all(torch.equal(ckpt_before[k], ckpt_after[k]) for k in ckpt_before)
+    ckpt_after = read_checkpoint_file(feats.checkpoint).state
+    assert all(np.array_equal(ckpt_before[k], ckpt_after[k]) for k in ckpt_before)
     assert not np.array_equal(ctrl.theta, ctrl.theta0)  # ... while theta did move
 
 
-def test_checkpoint_round_trip_and_corruption(tmp_path):
-    from kinadapt_nn.app.cli import main
+def _copy_of_default(path):
+    """The shipped default checkpoint saved again by ``save_checkpoint`` (this torch, this code)."""
     from kinadapt_nn.learning.checkpoint import load_checkpoint, save_checkpoint
 
-    net, meta = load_checkpoint(MODELS_DIR / "neural_default.pt")
-    p = tmp_path / "copy.pt"
-    save_checkpoint(p, net, np.asarray(meta["theta_mean"]), {k: v for k, v in meta.items()
-                                                             if k not in ("format", "version", "theta_mean", "theta_std")},
+    net, meta = load_checkpoint(MODELS_DIR / "neural_default.safetensors")
+    save_checkpoint(path, net, np.asarray(meta["theta_mean"]),
+                    {k: v for k, v in meta.items() if k not in ("format", "version", "theta_mean", "theta_std")},
                     np.asarray(meta["theta_std"]))
+    return net, meta
+
+
+def test_checkpoint_round_trip(tmp_path):
+    from kinadapt_nn.learning.checkpoint import load_checkpoint
+
+    p = tmp_path / "copy.safetensors"
+    net, meta = _copy_of_default(p)
     net2, meta2 = load_checkpoint(p)
     assert all(torch.equal(a, b) for a, b in zip(net.state_dict().values(), net2.state_dict().values()))
-    assert meta2["theta_mean"] == meta["theta_mean"] and meta2["theta_std"] == meta["theta_std"]
-    # a flipped byte in the tensor data -> content hash fails; garbage -> not a torch file
-    raw = bytearray(p.read_bytes())
+    assert meta2 == meta
+    from safetensors.numpy import load_file
+
+    assert sorted(load_file(p)) == sorted(net.state_dict())  # a plain safetensors file, torch's names
+
+
+@pytest.mark.parametrize("name", ["neural_default", "neural_cell"])
+def test_converted_models_give_the_old_features_bit_for_bit(tmp_path, name):
+    """The shipped safetensors model holds torch.load's tensors and metadata of the .pt it was
+    converted from (tests/data), as the conversion writes them, and NeuralFeatures built from
+    either give the same Y(q) to the last bit."""
+    from kinadapt_nn.features.neural import NeuralFeatures
+    from kinadapt_nn.learning.checkpoint import convert_torch_checkpoint
+    from kinadapt_nn.sensing import channel_metric
+
+    old, new = TEST_DATA / f"{name}.pt", MODELS_DIR / f"{name}.safetensors"
+    blob = torch.load(old, map_location="cpu", weights_only=True)
+    state, meta = read_checkpoint_file(new)
+    assert meta == blob["meta"] and sorted(state) == sorted(blob["state_dict"])
+    for k, v in blob["state_dict"].items():
+        assert state[k].dtype == v.numpy().dtype and np.array_equal(state[k], v.numpy())
+    again = read_checkpoint_file(convert_torch_checkpoint(old, tmp_path / "c.safetensors"))  # what conversion writes
+    assert again.meta == meta and all(np.array_equal(again.state[k], v) for k, v in state.items())
+
+    cfg = load_config(None, ["run.features=neural"])
+    base, _ = make_features(cfg)
+    feats = {p: NeuralFeatures(base.known, base.prior, p, channel_metric(cfg.sensing)) for p in (old, new)}
+    rng = np.random.default_rng(7)
+    for q in [Q0, *(Q0 + 0.3 * rng.normal(size=(6, 7)))]:
+        y_old, y_new = feats[old].body(q), feats[new].body(q)
+        assert y_new.shape == y_old.shape and np.array_equal(y_new, y_old)
+    assert feats[old].meta == feats[new].meta
+
+
+def _damaged(tmp_path):
+    """A damaged safetensors checkpoint per way it can be wrong -> (path, what the message names)."""
+    from safetensors.numpy import save_file
+
+    from kinadapt_nn.learning.weights import content_hash
+
+    good = tmp_path / "good.safetensors"
+    _copy_of_default(good)
+    raw = good.read_bytes()
+    state, meta = read_checkpoint_file(good)
+
+    def header(tensors, meta):  # metadata with a correct hash: only the named fault remains
+        meta_json = json.dumps(meta, sort_keys=True)
+        return {"meta": meta_json, "sha256": content_hash(tensors, meta_json)}
+
+    renamed = {("l9.weight" if k == "l1.weight" else k): v for k, v in state.items()}
+    files = {"truncated": (raw[: len(raw) - 100], "not a readable safetensors"),
+             "flipped": (raw[:-1000] + bytes([raw[-1000] ^ 0xFF]) + raw[-999:], "content hash"),
+             "junk": (b"\x00" * 100, "not a readable safetensors"),
+             "empty": (b"", "not a readable safetensors")}
+    for what, (tensors, md, msg) in {
+        "no_metadata": (state, None, "not a kinadapt checkpoint"),
+        "no_json": (state, {"meta": "{not json", "sha256": "0"}, "not JSON"),
+        "wrong_keys": (renamed, header(renamed, meta), "l1.weight .*missing.*unexpected l9.weight"),
+        "wrong_format": (state, header(state, dict(meta, format="other")), "format 'other'"),
+    }.items():
+        p = tmp_path / f"{what}.safetensors"
+        save_file(tensors, p, metadata=md)
+        files[what] = (p.read_bytes(), msg)
+    return files
+
+
+def test_bad_checkpoints_are_one_line_errors(tmp_path):
+    """Truncated, flipped, junk, without metadata, wrong tensors, wrong format: a one-line
+    ModelFileError naming what is wrong, from the torch-free reader, the torch loader, the
+    features and the CLI (exit 2)."""
+    from kinadapt_nn.app.cli import main
+    from kinadapt_nn.learning.checkpoint import load_checkpoint
+    from kinadapt_nn.learning.legacy import torch_state_hash
+    from kinadapt_nn.learning.weights import load_checkpoint_arrays
+
+    files = _damaged(tmp_path)
+    for what, (data, msg) in files.items():
+        p = tmp_path / f"bad_{what}.safetensors"
+        p.write_bytes(data)
+        for load in (load_checkpoint_arrays, load_checkpoint):
+            with pytest.raises(ModelFileError, match=msg) as err:
+                load(p)
+            assert "\n" not in str(err.value), what
+    # a damaged or foreign torch .pt: the same, through torch.load(weights_only=True)
+    raw = bytearray((TEST_DATA / "neural_default.pt").read_bytes())
     raw[len(raw) // 2] ^= 0xFF
-    bad = tmp_path / "bad.pt"
-    bad.write_bytes(bytes(raw))
+    (tmp_path / "bad.pt").write_bytes(bytes(raw))
+    sd = {"w": torch.zeros(2)}
+    torch.save({"state_dict": sd, "meta": {"format": "x"}, "sha256": torch_state_hash(sd, {"format": "x"})},
+               tmp_path / "foreign.pt")
+    for p, msg in ((tmp_path / "bad.pt", "content hash|corrupt"), (tmp_path / "foreign.pt", "format 'x'")):
+        with pytest.raises(ModelFileError, match=msg):
+            load_checkpoint_arrays(p)
+    bad = tmp_path / "bad_truncated.safetensors"
     with pytest.raises(ModelFileError):
-        load_checkpoint(bad)
-    junk = tmp_path / "junk.pt"
-    junk.write_bytes(b"\x00" * 100)
-    with pytest.raises(ModelFileError, match="corrupt or not a torch file"):
-        load_checkpoint(junk)
+        make_features(load_config(None, ["run.features=neural", f"features.neural_checkpoint='{bad}'"]))
     out = tmp_path / "run"
     rc = main(["online", "--out", str(out), "--quiet", "--set", "run.features=neural",
-               "--set", f"features.neural_checkpoint='{junk}'"])
+               "--set", f"features.neural_checkpoint='{bad}'"])
     assert rc == 2 and not out.exists()
 
 
-@pytest.mark.parametrize("name", ["neural_default.pt", "neural_cell.pt", "copy"])
-def test_checkpoint_arrays_without_torch_equal_torch_load(tmp_path, name):
-    """The torch-free reader (kinadapt_nn.learning.weights) gives torch.load's tensors and metadata
-    exactly, verifies the content hash, and a damaged file is a one-line ModelFileError."""
-    from kinadapt_nn.learning.checkpoint import load_checkpoint, save_checkpoint
-    from kinadapt_nn.learning.weights import LayoutNotRead, load_checkpoint_arrays, read_torch_file
+def test_a_torch_checkpoint_without_torch_names_the_fix():
+    """A .pt checkpoint where torch is not installed: one line saying to install it or convert."""
+    import subprocess
+    import sys
 
-    path = MODELS_DIR / name
-    if name == "copy":  # written here by this torch: the reader follows the current format
-        net, meta = load_checkpoint(MODELS_DIR / "neural_default.pt")
-        path = tmp_path / "copy.pt"
-        save_checkpoint(path, net, np.asarray(meta["theta_mean"]),
-                        {k: v for k, v in meta.items() if k not in ("format", "version", "theta_mean", "theta_std")},
-                        np.asarray(meta["theta_std"]))
-    raw = read_torch_file(path)  # (no fallback to torch here: the file's own layout is read)
-    blob = torch.load(path, map_location="cpu", weights_only=True)
-    assert raw["sha256"] == blob["sha256"] and raw["meta"] == blob["meta"]
-    assert sorted(raw["state_dict"]) == sorted(blob["state_dict"])
-    for k, v in blob["state_dict"].items():
-        assert raw["state_dict"][k].dtype == v.numpy().dtype and np.array_equal(raw["state_dict"][k], v.numpy())
-    sd, meta = load_checkpoint_arrays(path)
-    net, meta_t = load_checkpoint(path)
-    assert meta == meta_t
-    assert all(np.array_equal(sd[k], v.double().numpy()) for k, v in net.state_dict().items())
-    data = bytearray(path.read_bytes())  # a flipped byte in the tensor data: refused, and the
-    data[len(data) // 2] ^= 0xFF  # features (which then ask torch) report a one-line ModelFileError
-    bad = tmp_path / "bad.pt"
-    bad.write_bytes(bytes(data))
-    with pytest.raises((ModelFileError, LayoutNotRead)):
-        load_checkpoint_arrays(bad)
-    with pytest.raises(ModelFileError):
-        make_features(load_config(None, ["run.features=neural", f"features.neural_checkpoint='{bad}'"]))
+    code = ("import sys; sys.modules['torch'] = None\n"
+            "from kinadapt_nn.errors import ModelFileError\n"
+            "from kinadapt_nn.learning.weights import load_checkpoint_arrays\n"
+            f"try: load_checkpoint_arrays({str(TEST_DATA / 'neural_default.pt')!r})\n"
+            "except ModelFileError as e: print(e)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.count("\n") == 1 and "torch is not installed" in out
+    assert "python -m kinadapt_nn.learning.checkpoint" in out
+
+
+def test_a_shipped_model_named_by_its_old_pt_name_is_its_conversion():
+    old, _ = make_features(load_config(None, ["run.features=neural", "features.neural_checkpoint=neural_cell.pt"]))
+    assert old.checkpoint == MODELS_DIR / "neural_cell.safetensors"
 
 
 def test_neural_features_are_built_without_importing_torch():
@@ -187,11 +267,11 @@ def test_pretraining_resume_equals_uninterrupted(tmp_path):
                                       "train.checkpoint_every=3", "net.hidden=16", "net.n_features=4"])
     a, b = tmp_path / "a", tmp_path / "b"
     m = pretrain(cfg, a, progress=False)
-    assert m["steps"] == 12 and (a / "model.pt").is_file() and not (a / "train_state.pt").exists()
+    assert m["steps"] == 12 and (a / "model.safetensors").is_file() and not (a / "train_state.pt").exists()
     partial = pretrain(cfg, b, progress=False, stop_after=6)
     assert partial == {"interrupted_at": 6} and (b / "train_state.pt").is_file()
     pretrain(cfg, b, progress=False)
-    assert checkpoint_bytes_equal(a / "model.pt", b / "model.pt")
+    assert checkpoint_bytes_equal(a / "model.safetensors", b / "model.safetensors")
     metrics = json.loads((a / "metrics.json").read_text())
     assert metrics["n_params_online"] == 4 and metrics["heldout_rel_jacobian_error_median"] < 1.0
 
@@ -303,9 +383,9 @@ def test_calibrated_arm_prior_spans_the_tools_of_a_nominal_arm_only():
 def test_calibrated_arm_prior_missing_from_a_checkpoint_is_a_one_line_error(tmp_path):
     from kinadapt_nn.learning.checkpoint import load_checkpoint, save_checkpoint
 
-    net, meta = load_checkpoint(MODELS_DIR / "neural_default.pt")
+    net, meta = load_checkpoint(MODELS_DIR / "neural_default.safetensors")
     meta = {k: v for k, v in meta.items() if not k.startswith("theta_moment_calibrated_arm")}
-    path = tmp_path / "old.pt"
+    path = tmp_path / "old.safetensors"
     save_checkpoint(path, net, np.asarray(meta["theta_mean"]), meta, np.asarray(meta["theta_std"]))
     cfg = load_config(None, ["run.features=neural", f"features.neural_checkpoint={path}",
                              "features.neural_prior=calibrated_arm"])
