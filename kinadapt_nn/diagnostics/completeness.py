@@ -33,6 +33,8 @@ WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")
 WRENCH_LABEL = ("F_x", "F_y", "F_z", "M_x", "M_y", "M_z")
 #: [rad/s] smoothing of sign(qdot) in the joint_velocity shape
 SIGN_EPS_RAD_S = 0.02
+#: [rad/s] smoothing of sign(omega) in the contact_moment shape (torsional friction)
+TORSION_EPS_RAD_S = 0.02
 #: the words of each shape (its physical readings)
 WORDS = {
     "sensor_constant": "a constant wrench in the sensor frame: an offset, a bias step",
@@ -44,6 +46,8 @@ WORDS = {
                       "tool joint",
     "joint_position": "per-joint position into the wrench: a cable whose pull depends on the pose",
     "extra": "a declared extra log column into the wrench: temperature, supply voltage, a second sensor",
+    "contact_moment": "a moment about the contact point while in contact: a face or line contact, a contact patch, "
+                      "torsional friction, a contact away from the declared tip",
 }
 #: the shape vocabulary (``unexplained.hints[i].shape``; ``extra`` stands for ``extra:<column>``)
 SHAPES = tuple(WORDS)
@@ -118,6 +122,32 @@ def _joint_position(s) -> np.ndarray:
     return _per_channel(s.q - s.q.mean(axis=0))
 
 
+def contact_moment_sources(s) -> np.ndarray:
+    """(n, 7) what a contact's own moment follows, zero in free space: 1 (a constant moment), the
+    contact force f_c (3, [N]: a lever, a shifted point), |f_c| tanh(omega / eps) (3, [N]:
+    torsional friction about each sensor axis)."""
+    c = np.asarray(s.contact, dtype=float)[:, None]
+    f = s.contact_force_s
+    tors = np.linalg.norm(f, axis=1, keepdims=True) * np.tanh(s.omega_s / TORSION_EPS_RAD_S)
+    return c * np.hstack([np.ones((s.n, 1)), f, tors])
+
+
+def _contact_moment(s) -> np.ndarray:
+    src = contact_moment_sources(s)
+    C = np.zeros((s.n, 6, 21))
+    for i in range(3):
+        C[:, 3 + i, 7 * i:7 * (i + 1)] = src
+    return C
+
+
+def _params_contact_moment(s):
+    names, units = [], []
+    for i in "xyz":
+        names += [f"t{i}_in_contact"] + [f"t{i}_from_fc{j}" for j in "xyz"] + [f"t{i}_torsion_{j}" for j in "xyz"]
+        units += ["N m"] + ["m"] * 6
+    return names, units
+
+
 def _names_per_channel(labels: list[str], units: list[str]) -> tuple[list[str], list[str]]:
     names, out_units = [], []
     for i in range(6):
@@ -165,6 +195,8 @@ def shapes(s, cc: CompCfg = CompCfg()) -> list[Shape]:
         Shape("joint_velocity", _joint_velocity, _params_joint_velocity, WORDS["joint_velocity"]),
         Shape("joint_position", _joint_position, _params_joint_position, WORDS["joint_position"]),
     ]
+    if getattr(s, "contact", None) is not None and np.any(s.contact) and s.setup.contact.mode == "tip":
+        out.append(Shape("contact_moment", _contact_moment, _params_contact_moment, WORDS["contact_moment"]))
     if not getattr(s, "has_time", True):  # a static log without time: no time axis to judge on
         out = [x for x in out if x.name != "time"]
     if getattr(s, "static", False):  # poses at rest: no velocities

@@ -99,6 +99,17 @@ def effect_file(h: dict, source: str) -> tuple[str, str]:
                                 f"source: qdot of joint 1..{dof}, then sign(qdot) of joint 1..{dof}"))
     elif shape == "joint_position":
         body = _entries_body(func, h, k // 6, "s.q - s.q.mean(axis=0)", "source: joint 1..dof position")
+    elif shape == "contact_moment":
+        entries = [(3 + c // 7, c % 7) for c in h["_cols"]]
+        body = ("TORSION_EPS_RAD_S = 0.02  # smoothing of sign(omega) for torsional friction\n"
+                f"ENTRIES = {entries}  # (moment channel 3..5 = tx ty tz, source: 0 in contact, 1..3 contact force "
+                "x y z, 4..6 |f| sign(omega) x y z)\n\n\n"
+                + _deco(h, h["_cols"], doc)
+                + f"def {func}(s):\n    c = np.asarray(s.contact, dtype=float)[:, None]\n    f = s.contact_force_s\n"
+                "    tors = np.linalg.norm(f, axis=1, keepdims=True) * np.tanh(s.omega_s / TORSION_EPS_RAD_S)\n"
+                "    src = c * np.hstack([np.ones((s.n, 1)), f, tors])\n"
+                "    C = np.zeros((s.n, 6, len(ENTRIES)))\n"
+                "    for k, (i, j) in enumerate(ENTRIES):\n        C[:, i, k] = src[:, j]\n    return C\n")
     elif shape.startswith("extra:"):
         col = shape.split(":", 1)[1]
         body = (_deco(h, range(6), f"the wrench follows the log column {col} (hint {shape})")

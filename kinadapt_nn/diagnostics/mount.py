@@ -333,6 +333,11 @@ def predict(x: np.ndarray, s) -> np.ndarray:
     return _model(x, d)
 
 
+def best_rotation(d: MountData, starts: list[np.ndarray]) -> np.ndarray:
+    """The rotation ``D`` (3, 3) of the lowest robust cost on ``d``, by Gauss-Newton from each start."""
+    return _best_start(d, starts)[0]
+
+
 def fit_at(D: np.ndarray, d: MountData, iters: int = 8) -> tuple[np.ndarray, np.ndarray]:
     """The best ``theta = [m, m c, b]`` (10,) at a fixed rotation ``D`` (3, 3) (robust IRLS, as the
     fit) and the residual (n, 6) [N, N m] of ``d``'s samples."""
@@ -445,4 +450,4 @@ def undetermined(x: np.ndarray, sd: np.ndarray) -> list[dict]:
     return out
 
 
-__all__ = ["MountFit", "fit", "predict", "plausibility", "fit_at", "matrix_rpy", "rotvec_matrix", "rotation_angle"]
+__all__ = ["MountFit", "fit", "predict", "plausibility", "fit_at", "best_rotation", "matrix_rpy", "rotvec_matrix", "rotation_angle"]

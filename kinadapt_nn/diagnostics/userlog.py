@@ -18,7 +18,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from kinadapt_nn.diagnostics import segmentation
+from kinadapt_nn.diagnostics import contact_point, segmentation
 from kinadapt_nn.diagnostics import selection as sel
 from kinadapt_nn.diagnostics import signals as sg
 from kinadapt_nn.diagnostics.builtin import BUILTINS, CONTACT_MODEL_EFFECTS
@@ -252,12 +252,12 @@ def excluded_samples(s: sg.LogSignals, setup: SetupCfg) -> np.ndarray:
 
 
 def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray, rc: RowCfg,
-              progress: Callable[[str], None]) -> tuple:
+              progress: Callable[[str], None]) -> "Calibration":
     """The sensor-mount fit (``mount``) and what follows from it, before any effect is judged:
     fit on every sample (robust loss), contact detected against the calibrated model, fit again on
     free space; a static log's noise from that fit; with ``[sensor] mount_known = false`` the
     signals in the estimated mount. -> (fit, signals with contact, setup used, sigma, how sigma
-    was estimated)."""
+    was estimated) as ``Calibration``; the contact point estimated from the contact wrench."""
     from kinadapt_nn.diagnostics import mount
 
     progress("free space found from the data (segmentation)")
@@ -270,15 +270,50 @@ def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray, rc: Row
         sigma, how = static_sigma(s, fit0.residual, rc)
     e_cal = s.wrench - mount.predict(fit0.x, s)
     contact, _ = detect_contact(e_cal, s.t, setup, rc, seg.free)
-    free = ~contact if (~contact).sum() > 20 else np.ones(s.n, bool)
+    excl = excluded_samples(s, setup)
+    free = ~contact & ~excl if (~contact & ~excl).sum() > 20 else ~excl
     fitm = mount.fit(s, free, blocks, sigma)
+    point = contact_point.estimate(s.wrench - mount.predict(fitm.x, s), contact & ~excl)
     if not setup.sensor.mount_known:
         setup = setup.model_copy(update={"sensor": setup.sensor.model_copy(
             update={"rpy_flange_deg": tuple(float(v) for v in fitm.rpy_deg)})})
         progress("kinematics again in the estimated sensor mount")
         s = sg.from_log(log, setup)
     off = np.median((s.wrench - s.w_nom)[~contact], axis=0) if (~contact).any() else np.zeros(6)
-    return fitm, s.with_contact(contact, off), setup, sigma, how, seg
+    return Calibration(fitm, s.with_contact(contact, off), setup, sigma, how, seg, point)
+
+
+class Calibration(NamedTuple):
+    """What ``calibrate`` found before any effect is judged."""
+
+    fit: object  #: ``mount.MountFit`` on free space
+    signals: sg.LogSignals  #: in the effective mount, with the contact mask
+    setup: SetupCfg  #: the effective set-up (the estimated mount where it was unknown)
+    sigma: np.ndarray  #: (6,) per-channel noise [N, N m]
+    sigma_how: str  #: how ``sigma`` was estimated
+    segmentation: segmentation.Segmentation  #: the free-space span found from the data
+    contact_point: contact_point.ContactPoint | None  #: where contacts act (None: too little contact)
+
+
+def effective_setup(declared: SetupCfg, used: SetupCfg, fitm, point) -> dict:
+    """The set-up the data say (beside the declared one): the mount used, the calibrated tool, and
+    where contacts act -- tested against the declared tip, not assumed."""
+    m = float(fitm.x[3])
+    out = {"sensor_rpy_flange_deg": [float(v) for v in used.sensor.rpy_flange_deg],
+           "mount": "estimated" if not declared.sensor.mount_known else "declared",
+           "tool_mass_kg": m, "tool_mass_sd_kg": float(fitm.sd[3]),
+           "tool_com_sensor_m": [float(v) for v in fitm.x[4:7] / m] if abs(m) > 1e-9 else None,
+           "contact_point": None if point is None else point.to_json()}
+    if point is not None:
+        tip = np.asarray(declared.tool.tip_sensor_m, dtype=float)
+        d = point.point_s_m - tip
+        if point.undetermined_along_s is not None:  # only the part across the line the data leave free
+            d = d - (d @ point.undetermined_along_s) * point.undetermined_along_s
+        z = float(np.linalg.norm(d) / max(np.linalg.norm(point.sd_m), 1e-9))
+        out["contact_point"]["declared_tip_sensor_m"] = [float(v) for v in tip]
+        out["contact_point"]["declared_tip_distance_m"] = float(np.linalg.norm(d))
+        out["contact_point"]["declared_tip_consistent"] = bool(z < 3.0 or np.linalg.norm(d) < 0.002)
+    return out
 
 
 class Result(NamedTuple):
@@ -388,7 +423,8 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
     declared = setup
     s = sg.from_log(log, setup, progress)
     sigma = noise_sigma(s.wrench, rc) if not s.static else np.array([1.0] * 3 + [0.1] * 3)
-    fitm, s, setup, sigma, sigma_how, seg = calibrate(log, s, setup, sigma, rc, progress)
+    cal = calibrate(log, s, setup, sigma, rc, progress)
+    fitm, s, setup, sigma, sigma_how, seg = cal.fit, cal.signals, cal.setup, cal.sigma, cal.sigma_how, cal.segmentation
     check = sign_check(fitm, s, setup)
     sensor_mount = dict(fitm.report)
     why_not = mount.plausibility(fitm, setup)
@@ -447,6 +483,7 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
                         "judged": n in names} for n in lib},
         "contact": {"fraction": float(s.contact.mean()), "windows_s": _windows(s.contact, s.t), "rows": contact_rows},
         "segmentation": seg.to_json(),
+        "effective_setup": effective_setup(declared, setup, fitm, cal.contact_point),
         "noise_sigma": dict(zip(FREE_CHANNELS, (float(v) for v in sigma))),
         "noise_sigma_method": sigma_how,
         "sensor_mount": sensor_mount,
@@ -601,6 +638,16 @@ def summary_text(rep: dict) -> str:
         parts.append(f"Free space found from the data: {seg['free_span_s'][0]:.2f}–{seg['free_span_s'][1]:.2f} s "
                      f"({seg['free_samples']} samples, the calibration's); contact from "
                      + ", ".join(f"{v:.2f} s" for v in seg["contact_onsets_s"]) + ".")
+    cpt = (rep.get("effective_setup") or {}).get("contact_point")
+    if cpt:
+        p, sd = cpt["point_sensor_m"], cpt["sd_m"]
+        parts.append("Contacts act at [" + ", ".join(f"{1000 * v:.1f}" for v in p) + "] ± ["
+                     + ", ".join(f"{1000 * v:.1g}" for v in sd) + "] mm in the sensor frame"
+                     + (" (along the force's line of action, direction [" + ", ".join(
+                         f"{v:.2f}" for v in cpt["undetermined_along_sensor"]) + "], undetermined: the force "
+                        "barely changed direction)" if cpt["undetermined_along_sensor"] else "")
+                     + ("" if cpt["declared_tip_consistent"] else
+                        f", {1000 * cpt['declared_tip_distance_m']:.0f} mm from the declared tip") + ".")
     parts.append(completeness_text(rep))
     if not rep["tip_contact_check"]["ok"]:
         parts.append("WARNING: " + rep["tip_contact_check"]["message"] + ".")

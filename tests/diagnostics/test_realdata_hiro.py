@@ -136,6 +136,9 @@ def _check(path: Path, tmp_path: Path) -> None:
     onsets = rep["segmentation"]["contact_onsets_s"]
     assert onsets and abs(onsets[0] - ind["onset_s"]) <= 0.1, (onsets, ind)
     assert rep["contact"]["windows_s"][0][0] > 1.0  # not "contact from t = 0"
+    cp = rep["effective_setup"]["contact_point"]  # where contacts act: estimated with its sd, not assumed
+    assert cp is not None and np.all(np.isfinite(cp["sd_m"])) and cp["samples"] > 500
+    assert np.linalg.norm(cp["point_sensor_m"]) < 0.3  # on a tool the hand holds
 
 
 @pytest.mark.parametrize("name", ["20160930-HIRO_ERROR-02", "20160930-HIRO_ERROR-06"])
