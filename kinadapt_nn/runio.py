@@ -12,14 +12,12 @@ import math
 import os
 import shutil
 import socket
-import struct
 import tempfile
 import time
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterator, Mapping
 
-import google_crc32c
 import numpy as np
 
 from kinadapt_nn.errors import OutputExistsError
@@ -83,61 +81,38 @@ def write_json(path: Path, obj: dict) -> None:
 
 #: bins of one histogram (TensorBoard)
 HIST_BINS = 30
-#: TensorBoard's HParams records: their tags and plugin-data version (``tensorboard.plugins.hparams.metadata``:
-#: EXPERIMENT_TAG, SESSION_START_INFO_TAG, SESSION_END_INFO_TAG, PLUGIN_DATA_VERSION)
-HPARAMS_TAGS = ("_hparams_/experiment", "_hparams_/session_start_info", "_hparams_/session_end_info")
-HPARAMS_PLUGIN_DATA_VERSION = 0
 
 
-def _masked_crc(data: bytes) -> int:
-    """TFRecord's masked CRC-32C of ``data``."""
-    crc = google_crc32c.value(data)
-    return (((crc >> 15) | (crc << 17)) + 0xA282EAD8) & 0xFFFFFFFF
-
-
-def _pb_varint(n: int) -> bytes:
-    """A protobuf varint (int64: a negative ``n`` as its 64-bit two's complement, 10 bytes)."""
-    if n < 0:
-        n += 1 << 64
-    out = bytearray()
-    while n > 0x7F:
-        out.append((n & 0x7F) | 0x80)
-        n >>= 7
-    out.append(n)
-    return bytes(out)
-
-
-def _pb_bytes(field: int, data: bytes) -> bytes:
-    """A length-delimited protobuf field (string, bytes or message)."""
-    return _pb_varint(field << 3 | 2) + _pb_varint(len(data)) + data
-
-
-def _pb_float(v: float) -> bytes:
-    """A protobuf ``float`` (32-bit little-endian), rounded from ``v`` as protobuf's C cast
-    rounds it: beyond the float range, +-inf (where ``struct`` would refuse)."""
-    try:
-        return struct.pack("<f", v)
-    except OverflowError:
-        return struct.pack("<f", math.copysign(math.inf, v))
+def _hparam_type(name: str, value) -> str:
+    """The HParams ``DataType`` name of a hyperparameter's value (bool before int: a bool is an int)."""
+    if isinstance(value, bool):
+        return "DATA_TYPE_BOOL"
+    if isinstance(value, (int, float)):
+        return "DATA_TYPE_FLOAT64"
+    if isinstance(value, str):
+        return "DATA_TYPE_STRING"
+    raise TypeError(f"hparam {name!r} is a {type(value).__name__}; use int, float, str or bool")
 
 
 class EventWriter:
     """A TensorBoard event file in ``log_dir``: scalars, histograms, PNG images, hparams.
 
-    A drop-in for the few ``SummaryWriter`` methods the package uses (``add_scalar``,
+    TensorBoard's protos, each framed as a record (length, CRCs) by its ``RecordWriter``, in a
+    file named as its ``EventFileWriter`` names one. Not ``EventFileWriter`` itself: its file
+    I/O goes through ``tensorboard.compat.tf``, which imports TensorFlow wherever TensorFlow is
+    installed. The few ``SummaryWriter`` methods the package uses (``add_scalar``,
     ``add_histogram``, ``add_hparams``) plus ``add_scalars_at`` (many tags in one event) and
-    ``add_png`` (an already encoded image). Use as a context manager (flushes and closes)."""
+    ``add_png`` (an already encoded image). Use as a context manager (closes the file)."""
 
     def __init__(self, log_dir: Path | str):
         from tensorboard.compat.proto import event_pb2, summary_pb2
+        from tensorboard.summary.writer.record_writer import RecordWriter
 
         Path(log_dir).mkdir(parents=True, exist_ok=True)
         self._ev, self._pb = event_pb2, summary_pb2
-        # TensorBoard's own file name pattern; one file per writer (a counter keeps two apart)
-        EventWriter._count += 1
-        name = f"events.out.tfevents.{time.time():010.0f}.{socket.gethostname()}.{os.getpid()}.{EventWriter._count}"
-        self._fh = open(Path(log_dir) / name, "wb")
-        self._tag_head: dict[str, bytes] = {}  # tag -> its Summary.value field's bytes before the value
+        EventWriter._count += 1  # one file per writer: the counter keeps two of one second apart
+        name = f"events.out.tfevents.{int(time.time()):010d}.{socket.gethostname()}.{os.getpid()}.{EventWriter._count}"
+        self._records = RecordWriter(open(Path(log_dir) / name, "wb"))
         self._write(self._ev.Event(wall_time=time.time(), file_version="brain.Event:2"))
 
     _count = 0
@@ -149,19 +124,11 @@ class EventWriter:
         self.close()
 
     def close(self) -> None:
-        if not self._fh.closed:
-            self._fh.close()
+        if not self._records.closed:
+            self._records.close()
 
     def _write(self, event) -> None:
-        """One TFRecord of the event proto ``event`` (:meth:`_write_bytes`)."""
-        self._write_bytes(event.SerializeToString())
-
-    def _write_bytes(self, data: bytes) -> None:
-        """One TFRecord: length, its masked CRC-32C, the serialised event ``data``, its masked
-        CRC-32C (CRC-32C in C, ``google_crc32c``: TensorBoard's pure-Python one was ~70 % of a
-        run's event writing)."""
-        header = struct.pack("<Q", len(data))
-        self._fh.write(header + struct.pack("<I", _masked_crc(header)) + data + struct.pack("<I", _masked_crc(data)))
+        self._records.write(event.SerializeToString())
 
     def _add(self, values: list, step: int, wall_time: float | None = None) -> None:
         ev = self._ev.Event(wall_time=time.time() if wall_time is None else wall_time, step=int(step),
@@ -172,28 +139,11 @@ class EventWriter:
         self._add([self._pb.Summary.Value(tag=tag, simple_value=float(value))], step)
 
     def add_scalars_at(self, step: int, values: Mapping[str, float], wall_time: float | None = None) -> None:
-        """Every (tag, value) of ``values`` at one step, in one event (non-finite values skipped).
-
-        The event is encoded here, byte for byte what ``Event(wall_time, step, summary=Summary(
-        value=[Summary.Value(tag, simple_value), ...])).SerializeToString()`` gives (tested): a
-        run's ~500 scalar events took 30 of its 36 ms of TensorBoard writing through the protos."""
-        parts = []
-        for k, v in values.items():
-            v = float(v)
-            if not math.isfinite(v):
-                continue
-            head = self._tag_head.get(k)
-            if head is None:  # Summary.value (1): a Summary.Value of tag (1) and simple_value (2, 32-bit)
-                tag = _pb_bytes(1, k.encode()) if k else b""
-                head = self._tag_head[k] = b"\x0a" + _pb_varint(len(tag) + 5) + tag + b"\x15"
-            parts.append(head + _pb_float(v))
-        if not parts:
-            return
-        summary = b"".join(parts)
-        step = int(step)
-        self._write_bytes(b"\x09" + struct.pack("<d", time.time() if wall_time is None else wall_time)  # wall_time (1)
-                          + (b"\x10" + _pb_varint(step) if step else b"")  # step (2), omitted at 0
-                          + b"\x2a" + _pb_varint(len(summary)) + summary)  # summary (5)
+        """Every (tag, value) of ``values`` at one step, in one event (non-finite values skipped)."""
+        floats = {k: float(v) for k, v in values.items()}
+        finite = [self._pb.Summary.Value(tag=k, simple_value=v) for k, v in floats.items() if math.isfinite(v)]
+        if finite:
+            self._add(finite, step, wall_time)
 
     def add_histogram(self, tag: str, values: np.ndarray, step: int, bins: int = HIST_BINS) -> None:
         """``values`` (any shape) as a histogram of ``bins`` equal bins over [min, max]."""
@@ -217,40 +167,24 @@ class EventWriter:
         img = self._pb.Summary.Image(height=int(height), width=int(width), colorspace=4, encoded_image_string=png)
         self._add([self._pb.Summary.Value(tag=tag, image=img)], step)
 
-    def _hparams_metadata(self, data):
-        """The ``SummaryMetadata`` of an ``HParamsPluginData`` record, as TensorBoard's
-        ``plugins.hparams.metadata.create_summary_metadata`` makes it (plugin "hparams", the record
-        at plugin-data version 0 as its content): written here because importing that module
-        costs ~0.13 s (it loads TensorBoard's TensorFlow stub and fsspec) for four lines."""
-        content = type(data)()
-        content.CopyFrom(data)
-        content.version = HPARAMS_PLUGIN_DATA_VERSION
-        meta = self._pb.SummaryMetadata
-        return meta(plugin_data=meta.PluginData(plugin_name="hparams", content=content.SerializeToString()))
-
     def add_hparams(self, hparams: Mapping[str, float | int | str | bool], metrics: Mapping[str, float]) -> None:
         """The run's hyperparameters and final metrics for TensorBoard's HParams tab (the
         experiment, session-start and session-end records, as ``SummaryWriter.add_hparams``
         writes them), and each metric as a scalar at step 0."""
-        from tensorboard.plugins.hparams import api_pb2, plugin_data_pb2
+        from tensorboard.plugins.hparams import api_pb2, metadata, plugin_data_pb2, summary_v2
 
-        ssi = plugin_data_pb2.SessionStartInfo()
-        infos = []
-        for k, v in hparams.items():
-            if isinstance(v, bool):
-                ssi.hparams[k].bool_value, kind = v, "DATA_TYPE_BOOL"
-            elif isinstance(v, (int, float)):
-                ssi.hparams[k].number_value, kind = float(v), "DATA_TYPE_FLOAT64"
-            elif isinstance(v, str):
-                ssi.hparams[k].string_value, kind = v, "DATA_TYPE_STRING"
-            else:
-                raise TypeError(f"hparam {k!r} is a {type(v).__name__}; use int, float, str or bool")
-            infos.append(api_pb2.HParamInfo(name=k, type=api_pb2.DataType.Value(kind)))
+        def record(tag: str, data: plugin_data_pb2.HParamsPluginData):
+            """The HParams plugin's record ``data`` under ``tag`` (as ``summary_v2`` writes one)."""
+            return self._pb.Summary.Value(tag=tag, metadata=metadata.create_summary_metadata(data),
+                                          tensor=metadata.NULL_TENSOR)
+
+        infos = [api_pb2.HParamInfo(name=k, type=api_pb2.DataType.Value(_hparam_type(k, v))) for k, v in hparams.items()]
         exp = api_pb2.Experiment(hparam_infos=infos,
                                  metric_infos=[api_pb2.MetricInfo(name=api_pb2.MetricName(tag=k)) for k in metrics])
-        sei = plugin_data_pb2.SessionEndInfo(status=api_pb2.Status.Value("STATUS_SUCCESS"))
-        for tag, data in ((HPARAMS_TAGS[0], plugin_data_pb2.HParamsPluginData(experiment=exp)),
-                          (HPARAMS_TAGS[1], plugin_data_pb2.HParamsPluginData(session_start_info=ssi)),
-                          (HPARAMS_TAGS[2], plugin_data_pb2.HParamsPluginData(session_end_info=sei))):
-            self._add([self._pb.Summary.Value(tag=tag, metadata=self._hparams_metadata(data))], 0)
+        self._add([record(metadata.EXPERIMENT_TAG, plugin_data_pb2.HParamsPluginData(experiment=exp))], 0)
+        # the session-start record; an empty group name (trial_id): each run is a group of its own
+        # in the HParams tab, not merged with others of equal hparams (summary_v2's default)
+        self._add(list(summary_v2.hparams_pb(dict(hparams), trial_id="").value), 0)
+        end = plugin_data_pb2.SessionEndInfo(status=api_pb2.STATUS_SUCCESS, end_time_secs=time.time())
+        self._add([record(metadata.SESSION_END_INFO_TAG, plugin_data_pb2.HParamsPluginData(session_end_info=end))], 0)
         self.add_scalars_at(0, metrics)

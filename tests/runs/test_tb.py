@@ -13,9 +13,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 
 #: modules the online path with adjoint features must not import (numba itself imports ``scipy``
-#: and, for np.linalg inside the controller's kernels, ``scipy.linalg.cython_blas/lapack``)
+#: and, for np.linalg inside the controller's kernels, ``scipy.linalg.cython_blas/lapack``;
+#: TensorBoard's writer loads its TensorFlow stub, not TensorFlow)
 NOT_IMPORTED = ("torch", "matplotlib", "scipy.stats", "scipy.optimize", "scipy.signal", "pyarrow", "rosbags",
-                "tensorflow", "tensorboard.compat.tensorflow_stub")
+                "tensorflow")
 
 _PROBE = """
 import sys
@@ -69,69 +70,98 @@ def test_online_adjoint_path_imports_no_torch_and_tensorboard_reads_it_back(tmp_
     assert img.width == 1680 and img.height == 1200
 
 
-def test_event_record_crc_is_tensorboards():
-    """The event records' masked CRC-32C (google_crc32c) equals TensorBoard's own pure-Python one."""
-    from tensorboard.compat.tensorflow_stub.pywrap_tensorflow import masked_crc32c
+def _events(log_dir: Path) -> list:
+    """The events of the one event file in ``log_dir`` as written, read by TensorBoard's own
+    loader (the legacy one: it leaves ``simple_value`` as it is, not migrated to a tensor)."""
+    from tensorboard.backend.event_processing.event_file_loader import LegacyEventFileLoader
 
-    from kinadapt_nn.runio import _masked_crc
-
-    rng = np.random.default_rng(0)
-    for n in (0, 1, 8, 33, 1000):
-        data = rng.integers(0, 256, n, dtype=np.uint8).tobytes()
-        assert _masked_crc(data) == masked_crc32c(data)
+    (path,) = log_dir.iterdir()
+    return list(LegacyEventFileLoader(str(path)).Load())
 
 
 def test_hparams_records_are_tensorboards(tmp_path):
-    """The three HParams records carry TensorBoard's own metadata (``create_summary_metadata``,
-    its tags) byte for byte, and TensorBoard's HParams plugin parses them back to the values."""
+    """The three HParams records under TensorBoard's tags, parsed back by its HParams plugin to
+    the values, their types and the metrics; the metrics also as scalars at step 0."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
-    from tensorboard.plugins.hparams import metadata, plugin_data_pb2
-
-    from kinadapt_nn.runio import HPARAMS_TAGS, EventWriter
-
-    assert HPARAMS_TAGS == (metadata.EXPERIMENT_TAG, metadata.SESSION_START_INFO_TAG, metadata.SESSION_END_INFO_TAG)
-    with EventWriter(tmp_path) as wr:
-        data = plugin_data_pb2.HParamsPluginData(session_start_info=plugin_data_pb2.SessionStartInfo())
-        data.session_start_info.hparams["law"].string_value = "kalman"
-        assert wr._hparams_metadata(data).SerializeToString() == metadata.create_summary_metadata(data).SerializeToString()
-        wr.add_hparams({"features": "rbf", "seed": 3, "fused": True}, {"summary/seat_time_s": 4.5})
-    ea = EventAccumulator(str(tmp_path))
-    ea.Reload()
-    start = metadata.parse_session_start_info_plugin_data(
-        ea.summary_metadata[metadata.SESSION_START_INFO_TAG].plugin_data.content)
-    assert start.hparams["features"].string_value == "rbf" and start.hparams["seed"].number_value == 3.0
-    assert start.hparams["fused"].bool_value is True
-    exp = metadata.parse_experiment_plugin_data(ea.summary_metadata[metadata.EXPERIMENT_TAG].plugin_data.content)
-    assert [m.name.tag for m in exp.metric_infos] == ["summary/seat_time_s"]
-    assert ea.Scalars("summary/seat_time_s")[0].value == 4.5
-
-
-def test_scalar_events_are_the_protos_bytes(tmp_path):
-    """``add_scalars_at`` encodes its event itself: the bytes equal the TensorBoard protos'
-    ``SerializeToString`` -- steps 0 (omitted), large and negative, empty and non-ASCII tags,
-    -0.0, values beyond float32 (inf), non-finite values (left out) -- and read back."""
-    from tensorboard.compat.proto import event_pb2, summary_pb2
+    from tensorboard.plugins.hparams import api_pb2, metadata
 
     from kinadapt_nn.runio import EventWriter
 
-    cases = [(0, {"a": 1.5}), (7, {"sensor/d": -0.0, "x": 1e300, "y": -1e300}), (2**40 + 3, {"é/ü": 3.25e-12}),
-             (-5, {"": 2.0, "b": float("nan"), "c": float("inf"), "d": np.float64(0.1)}), (300, {"q": 0.0})]
-    sent = []
     with EventWriter(tmp_path) as wr:
-        n0 = wr._fh.tell()
+        wr.add_hparams({"features": "rbf", "seed": 3, "fused": True, "gain": 0.5}, {"summary/seat_time_s": 4.5})
+    ea = EventAccumulator(str(tmp_path))
+    ea.Reload()
+    meta = ea.summary_metadata
+    assert {metadata.EXPERIMENT_TAG, metadata.SESSION_START_INFO_TAG, metadata.SESSION_END_INFO_TAG} <= set(meta)
+    assert all(meta[t].plugin_data.plugin_name == metadata.PLUGIN_NAME
+               for t in (metadata.EXPERIMENT_TAG, metadata.SESSION_START_INFO_TAG, metadata.SESSION_END_INFO_TAG))
+    start = metadata.parse_session_start_info_plugin_data(meta[metadata.SESSION_START_INFO_TAG].plugin_data.content)
+    assert start.hparams["features"].string_value == "rbf" and start.hparams["seed"].number_value == 3.0
+    assert start.hparams["fused"].bool_value is True and start.hparams["gain"].number_value == 0.5
+    assert start.group_name == ""  # each run its own group (TensorBoard groups by the session's name)
+    exp = metadata.parse_experiment_plugin_data(meta[metadata.EXPERIMENT_TAG].plugin_data.content)
+    assert [m.name.tag for m in exp.metric_infos] == ["summary/seat_time_s"]
+    assert {h.name: api_pb2.DataType.Name(h.type) for h in exp.hparam_infos} == {
+        "features": "DATA_TYPE_STRING", "seed": "DATA_TYPE_FLOAT64", "fused": "DATA_TYPE_BOOL",
+        "gain": "DATA_TYPE_FLOAT64"}
+    end = metadata.parse_session_end_info_plugin_data(meta[metadata.SESSION_END_INFO_TAG].plugin_data.content)
+    assert end.status == api_pb2.STATUS_SUCCESS
+    (seat,) = ea.Scalars("summary/seat_time_s")
+    assert (seat.step, seat.value) == (0, 4.5)
+
+
+def test_hparams_refuse_other_types(tmp_path):
+    import pytest
+
+    from kinadapt_nn.runio import EventWriter
+
+    with EventWriter(tmp_path) as wr, pytest.raises(TypeError, match="'shape' is a list; use int, float, str or bool"):
+        wr.add_hparams({"shape": [1, 2]}, {})
+
+
+def test_scalar_events_read_back(tmp_path):
+    """``add_scalars_at`` writes one event per step, read back by TensorBoard's loader with its
+    wall time, step and (tag, value)s -- steps 0, large and negative, empty and non-ASCII tags,
+    -0.0, values beyond float32 (inf), non-finite values (left out), a step with none (no event)."""
+    from kinadapt_nn.runio import EventWriter
+
+    cases = [(0, {"a": 1.5}), (7, {"sensor/d": -0.0, "x": 1e300, "y": -1e300}), (2**40 + 3, {"é/ü": 3.25e-12}),
+             (-5, {"": 2.0, "b": float("nan"), "c": float("inf"), "d": np.float64(0.1)}), (8, {"n": float("nan")}),
+             (300, {"q": 0.0})]
+    with EventWriter(tmp_path) as wr:
         for step, vals in cases:
             wr.add_scalars_at(step, vals, wall_time=1234.5)
-    written = next(tmp_path.iterdir()).read_bytes()
-    for step, vals in cases:
-        ev = event_pb2.Event(wall_time=1234.5, step=step, summary=summary_pb2.Summary(value=[
-            summary_pb2.Summary.Value(tag=k, simple_value=float(v)) for k, v in vals.items() if np.isfinite(v)]))
-        sent.append(ev.SerializeToString())
-    pos, got = n0, []
-    while pos < len(written):  # the TFRecords: length (8), its crc (4), data, the data's crc (4)
-        size = int.from_bytes(written[pos:pos + 8], "little")
-        got.append(written[pos + 12:pos + 12 + size])
-        pos += 16 + size
-    assert got == sent
-    back = event_pb2.Event.FromString(got[1])
-    assert [(v.tag, v.simple_value) for v in back.summary.value] == [("sensor/d", 0.0), ("x", float("inf")),
-                                                                      ("y", -float("inf"))]
+        wr.add_scalar("single", 2.5, 9)
+    first, *events = _events(tmp_path)
+    assert first.file_version == "brain.Event:2"
+    got = [(e.step, e.wall_time, [(v.tag, v.simple_value) for v in e.summary.value]) for e in events[:-1]]
+    f32 = [float(np.float32(v)) for v in (3.25e-12, 0.1)]
+    assert got == [(0, 1234.5, [("a", 1.5)]),
+                   (7, 1234.5, [("sensor/d", -0.0), ("x", float("inf")), ("y", -float("inf"))]),
+                   (2**40 + 3, 1234.5, [("é/ü", f32[0])]),
+                   (-5, 1234.5, [("", 2.0), ("d", f32[1])]),
+                   (300, 1234.5, [("q", 0.0)])]
+    assert np.signbit(events[1].summary.value[0].simple_value)  # -0.0 kept
+    assert (events[-1].step, [(v.tag, v.simple_value) for v in events[-1].summary.value]) == (9, [("single", 2.5)])
+
+
+def test_histogram_and_image_read_back(tmp_path):
+    """A histogram (counts, range, sums) and a PNG image read back by TensorBoard's accumulator."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from kinadapt_nn.runio import HIST_BINS, EventWriter
+
+    values = np.array([[0.0, 1.0, 2.0], [3.0, np.nan, 4.0]])
+    with EventWriter(tmp_path) as wr:
+        wr.add_histogram("learning/theta", values, 20)
+        wr.add_histogram("empty", np.array([np.nan]), 20)  # nothing finite: no event
+        wr.add_png("rollout", b"\x89PNG-bytes", height=3, width=4, step=2)
+    ea = EventAccumulator(str(tmp_path), size_guidance={"histograms": 0, "images": 0})
+    ea.Reload()
+    assert ea.Tags()["histograms"] == ["learning/theta"]
+    (h,) = ea.Histograms("learning/theta")
+    hv = h.histogram_value
+    assert h.step == 20 and (hv.min, hv.max, hv.num, hv.sum, hv.sum_squares) == (0.0, 4.0, 5.0, 10.0, 30.0)
+    assert len(hv.bucket_limit) == HIST_BINS + 1 and sum(hv.bucket) == 5 and hv.bucket[0] == 0.0
+    (img,) = ea.Images("rollout")
+    assert (img.step, img.height, img.width, img.encoded_image_string) == (2, 3, 4, b"\x89PNG-bytes")
