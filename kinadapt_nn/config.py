@@ -10,14 +10,15 @@ and what would be right. The fully resolved config is written beside every run
 from __future__ import annotations
 
 import math
+import re
 import tomllib
 from pathlib import Path
-from typing import Any, Literal, TypeVar
+from typing import Any, Literal, TypeVar, get_args
 
 import tomli_w
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from kinadapt_nn.errors import ConfigError
+from kinadapt_nn.errors import ConfigError, did_you_mean
 
 Vec2 = tuple[float, float]
 Vec3 = tuple[float, float, float]
@@ -474,15 +475,31 @@ def arm_mjcf_path(scene: SceneCfg) -> Path:
     return Path(scene.arm_mjcf) if scene.arm_mjcf else PANDA_MJCF
 
 
-def _format_validation_error(err: ValidationError) -> str:
+def _dotted_keys(model: type[BaseModel], prefix: str = "") -> list[str]:
+    """Every key of ``model`` as ``--set`` takes it, sections and their keys (``run``, ``run.seed``)."""
+    keys = []
+    for name, field in model.model_fields.items():
+        sub = [a for a in (field.annotation, *get_args(field.annotation))
+               if isinstance(a, type) and issubclass(a, BaseModel)]
+        keys += [f"{prefix}{name}", *(_dotted_keys(sub[0], f"{prefix}{name}.") if sub else [])]
+    return keys
+
+
+def _format_validation_error(err: ValidationError, model: type[BaseModel]) -> str:
     first = err.errors()[0]
     loc = "".join(f"[{x}]" if isinstance(x, int) else f".{x}" for x in first["loc"]).lstrip(".") or "<root>"
     kind = first["type"]
     if kind == "extra_forbidden":
+        hint = did_you_mean(loc, [k for k in _dotted_keys(model) if k.count(".") == loc.count(".")])
+        if hint:
+            return f"unknown config key '{loc}'; {hint} (see online/rollout.toml)"
         return f"unknown config key '{loc}' (check the spelling; see online/rollout.toml)"
     msg = " ".join(str(first["msg"]).split()).removeprefix("Value error, ")
     if kind == "finite_number":
         msg = "must be a finite number (not nan or inf)"
+    if kind == "literal_error" and isinstance(first.get("input"), str):  # a misspelt name (effect, law, ...)
+        hint = did_you_mean(first["input"], re.findall(r"'([^']*)'", str(first.get("ctx", {}).get("expected", ""))))
+        msg += f"; {hint}" if hint else ""
     got = repr(first.get("input"))
     return f"config key '{loc}': {msg} (got {got if len(got) <= 80 else got[:77] + '...'})"
 
@@ -557,7 +574,7 @@ def load_toml_model(
     try:
         cfg = model.model_validate(tree)
     except ValidationError as err:
-        raise ConfigError(_format_validation_error(err).replace("online/rollout.toml", example_file)) from None
+        raise ConfigError(_format_validation_error(err, model).replace("online/rollout.toml", example_file)) from None
     bad = _non_finite_key(cfg.model_dump())  # models not derived from _Cfg (sweep, compare, pretrain) too
     if bad is not None:
         raise ConfigError(f"config key '{bad}': must be a finite number (not nan or inf)")

@@ -1,5 +1,8 @@
 """One exception hierarchy; the CLI turns every ``KinadaptError`` into one line, exit 2."""
 
+import difflib
+from collections.abc import Iterable
+
 
 class KinadaptError(Exception):
     """Base class of every error the package raises on purpose."""
@@ -19,3 +22,10 @@ class OutputExistsError(KinadaptError):
 
 class SensorError(KinadaptError):
     """A sensor sample is not finite (NaN or inf) or has the wrong shape."""
+
+
+def did_you_mean(word: str, choices: Iterable[str]) -> str:
+    """``"did you mean 'run.seed'?"`` naming the choice closest to a misspelt ``word``
+    (``difflib.get_close_matches``), or ``""`` when none is close enough."""
+    close = difflib.get_close_matches(str(word), [str(c) for c in choices], n=1)
+    return f"did you mean '{close[0]}'?" if close else ""

@@ -17,6 +17,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.ticker import LogFormatterSciNotation, LogLocator, MaxNLocator, NullFormatter  # noqa: E402
 
 from kinadapt_nn.config import ExperimentCfg  # noqa: E402
 from kinadapt_nn.trace import Trace  # noqa: E402
@@ -119,6 +120,43 @@ def set_robust_ylim(ax, x: np.ndarray, ys: Sequence[np.ndarray], pct: tuple[floa
                     transform=ax.get_xaxis_transform(), clip_on=False, zorder=6, label=label)
             label = "_nolegend_"
     return lim
+
+
+class LabelledLogLocator(LogLocator):
+    """Major ticks of a log axis, at least ``n`` of them inside the view: the decades (every k-th on
+    a wide axis) when enough lie inside, else, in each decade, the sparsest of 1-2-5, 1-1.5-2-3-5-7
+    and 1-1.2-1.5-2-2.5-3-4-5-6-8 that gives ``n``, else evenly spaced values (an axis narrower
+    than about a factor of two)."""
+
+    SUBS = ((1.0, 2.0, 5.0), (1.0, 1.5, 2.0, 3.0, 5.0, 7.0), (1.0, 1.2, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0))
+
+    def __init__(self, n: int = 3) -> None:
+        super().__init__(base=10.0)
+        self.n = n
+
+    def tick_values(self, vmin: float, vmax: float) -> np.ndarray:
+        lo, hi = sorted((vmin, vmax))
+        ticks = super().tick_values(lo, hi)  # the decades
+        if lo <= 0 or ((ticks >= lo) & (ticks <= hi)).sum() >= self.n:
+            return ticks
+        decades = 10.0 ** np.arange(np.floor(np.log10(lo)), np.ceil(np.log10(hi)) + 1)
+        for subs in self.SUBS:
+            ticks = np.outer(decades, subs).ravel()
+            if ((ticks >= lo) & (ticks <= hi)).sum() >= self.n:
+                return ticks
+        return MaxNLocator(nbins=self.n + 1, steps=[1, 2, 2.5, 5, 10], min_n_ticks=self.n).tick_values(lo, hi)
+
+
+def labelled_ticks(axis, n: int = 3) -> None:
+    """At least ``n`` labelled major ticks on ``axis`` (``ax.xaxis`` or ``ax.yaxis``), log or linear;
+    call after the scale is set. A log axis spanning under a few decades otherwise labels one
+    decade or none."""
+    if axis.get_scale() == "log":
+        axis.set_major_locator(LabelledLogLocator(n))
+        axis.set_major_formatter(LogFormatterSciNotation(labelOnlyBase=False, minor_thresholds=(np.inf, np.inf)))
+        axis.set_minor_formatter(NullFormatter())  # the labels are on the major ticks
+    else:
+        axis.set_major_locator(MaxNLocator(nbins="auto", steps=[1, 2, 2.5, 5, 10], min_n_ticks=n))
 
 
 def shade(ax, x: np.ndarray, mask: np.ndarray, color: str, label: str, alpha: float = 1.0) -> None:
@@ -423,12 +461,20 @@ def cell_learning_figure(results: Sequence[dict]) -> plt.Figure:
             for c in arr:
                 ax.semilogy(x, c, color=f"C{k}", lw=0.6, alpha=0.35)
             ax.semilogy(x, np.median(arr, axis=0), "o-", color=f"C{k}", lw=2.0, ms=3.5,
-                        label=f"{feat} (median of {len(arr)} tools)")
-        nb = len(recs[0]["cell"]["bores_w_m"])
-        how = {"refit": "theta refitted", "carry": "theta and P carried"}.get(recs[0]["cell"].get("between"), "")
-        ax.set_title(f"{fam.replace('_', ' ')} family: {nb} bores, {how} between insertions")
+                        label=f"{feat} (median of {plural(len(arr), 'tool')})")
+        ax.set_title(f"{fam.replace('_', ' ')} family")
         ax.set_xlabel("insertion (0 = before the first)")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # insertions are whole: no tick at 0.5
+        labelled_ticks(ax.yaxis)
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=8)
     axes[0, 0].set_ylabel("cell Jacobian error |W(J_hat - J_true)| / |W J_true|\n(median over held-out configurations)")
+    nb = len(recs[0]["cell"]["bores_w_m"])
+    how = {"refit": "theta refitted", "carry": "theta and P carried"}.get(recs[0]["cell"].get("between"), "")
+    fig.suptitle(f"work cell: {plural(nb, 'bore')}" + (f", {how} between insertions" if how else ""))
     return fig
+
+
+def plural(n: int, noun: str) -> str:
+    """``"1 bore"``, ``"6 bores"``."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"

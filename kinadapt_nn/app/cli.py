@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import NoReturn
 
 from kinadapt_nn import __version__
-from kinadapt_nn.errors import KinadaptError, OutputExistsError
+from kinadapt_nn.errors import KinadaptError, OutputExistsError, did_you_mean
 
 log = logging.getLogger("kinadapt")
 
@@ -45,6 +45,17 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         self.exit(EXIT_BAD_INPUT, f"kinadapt: error: {message} (see {self.prog} --help)\n")
+
+    def _check_value(self, action: argparse.Action, value) -> None:
+        """argparse's check of a choice (a subcommand, ``--executor``), naming the closest valid one."""
+        try:
+            super()._check_value(action, value)
+        except argparse.ArgumentError:
+            hint = did_you_mean(value, action.choices) if isinstance(value, str) else ""
+            if not hint:
+                raise
+            raise argparse.ArgumentError(action, f"invalid choice: {value!r}; {hint} (choose from "
+                                                 f"{', '.join(map(repr, action.choices))})") from None
 
 
 def _int_in(lo: int, hi: int):
@@ -244,7 +255,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
         run_compare(cfg, stage, progress=not args.quiet)
     if not args.quiet:
         print((out / "comparison.md").read_text())
-        print(f"wrote {out}/ (comparison.csv, comparison.md, jacobian_error.png, tb/)")
+        wrote = [f for f in ("comparison.csv", "comparison.md", "jacobian_error.png", "cell_learning.png")
+                 if (out / f).is_file()]
+        print(f"wrote {out}/ ({', '.join(wrote)}, tb/)")
     return 0
 
 

@@ -14,7 +14,8 @@ from kinadapt_nn.diagnostics import ranking as rk
 from kinadapt_nn.diagnostics.effects import build_signals
 from kinadapt_nn.features.effect_library import LIBRARY, Signals
 from kinadapt_nn.diagnostics.residual import load_log, replay
-from kinadapt_nn.errors import KinadaptError
+from kinadapt_nn.diagnostics.selection import tie_words
+from kinadapt_nn.errors import KinadaptError, did_you_mean
 from kinadapt_nn.runio import atomic_write
 from kinadapt_nn.sensing import channel_metric
 
@@ -53,7 +54,9 @@ def save_calibration(path: Path, program: str, calib: dict, source: str) -> None
 def check_effect_names(names: list[str]) -> None:
     for a in names:
         if a not in LIBRARY:
-            raise KinadaptError(f"--add {a}: unknown effect (choose from {', '.join(LIBRARY)})")
+            hint = did_you_mean(a, LIBRARY)
+            raise KinadaptError(f"--add {a}: unknown effect{'; ' + hint if hint else ''} "
+                                f"(choose from {', '.join(LIBRARY)})")
 
 
 def choose_calibration(src: Path, cfg: ExperimentCfg, rc: rk.RankCfg, baseline: Path | None, calibration: Path | None,
@@ -196,8 +199,9 @@ def summary_sentence(res: dict) -> str:
                + "; then ".join(parts) + ".")
     if undecided:
         txt += " Cannot decide: " + "; ".join(
-            f"{r['effect']} ({r['reason']}" + (f": {', '.join(r['indistinguishable_from'])}" if r.get("indistinguishable_from")
-                                               else "") + ")" for r in undecided) + "."
+            f"{r['effect']} ({r['reason']}"
+            + (f"; {tie_words(r['effect'], r.get('columns_used', []), r['indistinguishable_from'])}"
+               if r.get("indistinguishable_from") else "") + ")" for r in undecided) + "."
     weak = [r["effect"] for r in res["ranking"] if not r["excitation"]["enough"]]
     if weak:
         txt += f" Not excited enough to decide: {', '.join(weak)} (see 'to_excite')."

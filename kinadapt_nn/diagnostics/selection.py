@@ -450,6 +450,16 @@ def des_param(des: Design, name: str, col: int, hints: dict) -> str:
     return params[col] if params else f"col{col}"
 
 
+def tie_words(effect: str, own: list[str], ties: list[str]) -> str:
+    """A near-tie in words. A tie with another column of the same one-of effect (the label
+    ``effect:param``) names the two parameters (``offset_joint3 indistinguishable from
+    offset_joint4``), never the effect as indistinguishable from itself."""
+    same = [t.partition(":")[2] for t in ties if t.startswith(f"{effect}:")]
+    rest = [t for t in ties if not t.startswith(f"{effect}:")]
+    subject = f"{' / '.join(own)} " if same and own else ""
+    return f"{subject}indistinguishable from {', '.join(same + rest)}"
+
+
 def refit(des: Design, names: list[str], rc: SelCfg = SelCfg(), cols: dict | None = None
           ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Fit the nuisance alone and with ``names`` (a one-of effect keeps the column ``cols[name]``

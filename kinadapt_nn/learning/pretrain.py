@@ -352,7 +352,8 @@ def pretrain(cfg: PretrainCfg, out: Path, progress: bool = True, stop_after: int
         from tqdm import tqdm
 
         bar = tqdm(total=cfg.train.steps, initial=step, desc="pretrain", unit="step")
-    hist = []
+    # metrics.json's "history": one named list per column, one entry per evaluation (eval_every steps)
+    hist: dict[str, list] = {"step": [], "train_rel_jacobian_error_rms": [], "heldout_rel_jacobian_error_median": []}
     with EventWriter(out / "tb") as tb:
         while step < cfg.train.steps:
             idx = torch.as_tensor(rng.choice(nt, cfg.train.batch_instances, replace=False), device=dev)
@@ -375,7 +376,9 @@ def pretrain(cfg: PretrainCfg, out: Path, progress: bool = True, stop_after: int
                 tb.add_scalar("pretrain/heldout_rel_jacobian_error_median", float(np.median(he)), step)
                 tb.add_scalar("pretrain/heldout_rel_jacobian_error_arm_errors_median", float(np.median(he[held_arm])) if held_arm.any() else 0.0, step)
                 tb.add_scalar("pretrain/adjoint_heldout_rel_jacobian_error_median", float(np.median(adj_err)), step)
-                hist.append((step, float(torch.sqrt(loss.detach())), float(np.median(he))))
+                hist["step"].append(step)
+                hist["train_rel_jacobian_error_rms"].append(float(torch.sqrt(loss.detach())))
+                hist["heldout_rel_jacobian_error_median"].append(float(np.median(he)))
             if step % cfg.train.checkpoint_every == 0 or step == cfg.train.steps:
                 atomic_torch_save(
                     {"format": TRAIN_STATE_FORMAT, "version": TRAIN_STATE_VERSION, "net": net.state_dict(),

@@ -344,14 +344,14 @@ def _markdown(rows: list[dict], cols: list[str]) -> str:
 
 #: the figure's grid [in]: left (y tick labels + y label), right, top (title), bottom (x label),
 #: between columns (the next panel's y labels) and rows (x labels + the next title)
-_GRID_IN = dict(left=0.95, right=0.2, top=0.4, bottom=0.6, wgap=1.05, hgap=0.95)
+_GRID_IN = dict(left=1.2, right=0.2, top=0.4, bottom=0.6, wgap=1.3, hgap=0.95)
 
 
 def _figure(results: list[dict], cfg: CompareCfg, path: Path) -> None:
     """Jacobian error vs time, one panel per (scenario, family), one colour per features type.
     Fixed margins (``_GRID_IN``) rather than constrained_layout: its solver measured half of the
     figure's drawing time (it draws every tick label to size them, then the figure again)."""
-    from kinadapt_nn.figures import plt
+    from kinadapt_nn.figures import labelled_ticks, plt
 
     scen = list(cfg.scenarios)
     fams = list(cfg.families)
@@ -365,14 +365,18 @@ def _figure(results: list[dict], cfg: CompareCfg, path: Path) -> None:
     for a, sc in enumerate(scen):
         for b, fam in enumerate(fams):
             ax = axes[a, b]
+            n_ins = 1
             for k, feat in enumerate(cfg.features):
                 for r in results:
                     if (r["scenario"], r["tool_family"], r["features"]) == (sc, fam, feat):
                         ax.semilogy(r["t"], r["jac_err"], color=f"C{k}", lw=0.8, alpha=0.8,
                                     label=feat if r["tool"] == 0 else None)
-            ax.set_title(f"{sc} / {fam}")
-            ax.set_xlabel("time [s]")
+                        n_ins = len(r["insertions"] or [None])
+            # several insertions: the trace is the last one's (its own clock from 0)
+            ax.set_title(f"{sc} / {fam}" + (f": insertion {n_ins} of {n_ins}" if n_ins > 1 else ""))
+            ax.set_xlabel("time [s]" if n_ins == 1 else f"time in insertion {n_ins} [s]")
             ax.set_ylabel("|W(J_hat - J_true)| / |W J_true|")
+            labelled_ticks(ax.yaxis)
             ax.legend(fontsize=8)
     fig.savefig(path, dpi=120)
     plt.close(fig)

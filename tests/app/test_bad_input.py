@@ -207,6 +207,32 @@ def test_bad_options_exit_2_with_one_line(cwd, capsys, argv):
     assert list(cwd.iterdir()) == []
 
 
+@pytest.mark.parametrize(
+    ("argv", "fragment"),
+    [(["online", "--set", "run.sede=3"], "unknown config key 'run.sede'; did you mean 'run.seed'?"),
+     (["online", "--set", "effects.tool_gravity.enabeld=true"], "did you mean 'effects.tool_gravity.enabled'?"),
+     (["online", "--set", "model.effects=['contact_stifness']"], "did you mean 'contact_stiffness'?"),
+     (["compare", "--set", "n_tool=2"], "unknown config key 'n_tool'; did you mean 'n_tools'?"),
+     (["pretrain", "--set", "train.setps=2"], "did you mean 'train.steps'?"),
+     (["onlin"], "invalid choice: 'onlin'; did you mean 'online'?"),
+     (["sweep", "--executor", "loacl"], "did you mean 'local'?"),
+     (["diagnose", "LOG", "--add", "tool_gravty"], "unknown effect; did you mean 'tool_gravity'?")],
+)
+def test_a_misspelt_name_gets_the_closest_valid_one(cwd, capsys, argv, fragment):
+    """A misspelt config key, effect name or subcommand: one line naming the closest valid one."""
+    rc, out, err = run_cli(capsys, *argv)
+    assert_one_line_bad_input(rc, err, fragment)
+    assert out == "" and list(cwd.iterdir()) == []
+
+
+def test_nothing_close_means_no_guess(capsys):
+    with pytest.raises(ConfigError) as exc:
+        load_config(None, ["tool.zzz=1"])
+    assert "did you mean" not in str(exc.value) and "check the spelling" in str(exc.value)
+    rc, _, err = run_cli(capsys, "xyzzy")
+    assert rc == 2 and "did you mean" not in err
+
+
 def test_bad_option_values_seen_by_the_commands(cwd, capsys):
     rc, _, err = run_cli(capsys, "reproduce", "--only", "everything", "--out", "r")
     assert_one_line_bad_input(rc, err, "--only")

@@ -1,0 +1,73 @@
+"""What the diagnosis says to a person: a misspelt setup key or effect name gets the closest valid
+one, and a near-tie inside one one-of effect names its two parameters, not the effect twice."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kinadapt_nn.diagnostics import library, selection, userlog
+from kinadapt_nn.diagnostics.setup import load_setup
+from kinadapt_nn.errors import ConfigError, KinadaptError
+
+
+@pytest.mark.parametrize(
+    ("override", "fragment"),
+    [("log.tiem=t", "did you mean 'log.time'?"), ("sensr.rpy_flange_deg=[0, 0, 0]", "did you mean 'sensor'?"),
+     ("analysis.exclude_efects=[]", "did you mean 'analysis.exclude_effects'?")],
+)
+def test_a_misspelt_setup_key_names_the_closest_key(override, fragment):
+    with pytest.raises(ConfigError) as exc:
+        load_setup(None, [override])
+    assert fragment in str(exc.value) and "\n" not in str(exc.value)
+
+
+def test_a_misspelt_effect_name_names_the_closest_effect():
+    with pytest.raises(KinadaptError, match=r"--add tool_gravty: unknown effect; did you mean 'tool_gravity'\?"):
+        library.check_effect_names(["tool_gravty"])
+    setup = load_setup(None, ["analysis.exclude_effects=['encoder_ofset']"])
+    with pytest.raises(KinadaptError, match=r"unknown effect 'encoder_ofset'; did you mean 'encoder_offset'\?"):
+        userlog.judged(userlog.library(setup), setup)
+    with pytest.raises(KinadaptError, match=r"did you mean 'offset_joint4'\?"):
+        userlog._parse_add(["encoder_offset:offset_jiont4"], userlog.library(load_setup(None)))
+    with pytest.raises(KinadaptError) as exc:  # nothing close: no guess
+        library.check_effect_names(["xyz"])
+    assert "did you mean" not in str(exc.value)
+
+
+def test_a_tie_inside_a_one_of_effect_names_the_two_parameters():
+    rng = np.random.default_rng(4)
+    R = 4000
+    x = np.sin(2 * np.pi * np.linspace(0, 3, R))
+    y = 3.0 * x + rng.normal(0, 0.3, R)  # both estimates above the relevant size 1
+    X = {"enc": np.stack([x, 2.0 * x], axis=1)}  # two columns that fit the data equally well
+    des = selection.Design(y, X, np.zeros((R, 0)), np.minimum(np.arange(R) * 20 // R, 19), 20, {"enc": np.ones(2)},
+                           {"enc": True}, np.ones(R), np.zeros(R, int), ("y",), np.arange(R) * 0.01)
+    entry = selection.select(des, hints={"_params": {"enc": ["offset_joint3", "offset_joint4"]}}).entries[0]
+    own = [["offset_joint3", "offset_joint4"][c] for c in entry["columns_used"]]
+    other = {"offset_joint3": "offset_joint4", "offset_joint4": "offset_joint3"}[own[0]]
+    assert entry["verdict"] == "cannot_decide" and entry["indistinguishable_from"] == [f"enc:{other}"]
+    assert selection.tie_words("enc", own, entry["indistinguishable_from"]) == \
+        f"{own[0]} indistinguishable from {other}"
+    assert selection.tie_words("a", ["p"], ["b"]) == "indistinguishable from b"  # another effect: as before
+
+
+def test_the_summary_sentence_never_calls_an_effect_indistinguishable_from_itself():
+    r = {"effect": "encoder_offset", "verdict": "cannot_decide", "significant": False, "selected": True,
+         "reason": "a near-tie: another explanation fits the data as well", "columns_used": ["offset_joint3"],
+         "indistinguishable_from": ["encoder_offset:offset_joint4"], "explained_fraction": 0.4,
+         "excitation": {"enough": True}}
+    txt = library.summary_sentence({"ranking": [r]})
+    assert "Cannot decide: encoder_offset (a near-tie: another explanation fits the data as well; offset_joint3 " \
+           "indistinguishable from offset_joint4)" in txt
+    assert "encoder_offset:" not in txt
+
+
+def test_the_user_log_summary_names_the_two_joints():
+    e = {"effect": "encoder_offset", "verdict": "cannot_decide", "judged": True,
+         "reason": "a near-tie: another explanation fits the data as well",
+         "indistinguishable_from": ["encoder_offset:offset_joint4", "tool_tilt"],
+         "estimate": {"offset_joint3": {"value": 0.5, "sd": 0.1, "unit": "deg"}}}
+    txt = userlog.summary_text({"sign_check": {"ok": True}, "tip_contact_check": {"ok": True}, "ranking": [e]})
+    assert "Cannot decide: encoder_offset (a near-tie: another explanation fits the data as well; offset_joint3 " \
+           "indistinguishable from offset_joint4, tool_tilt)." in txt
