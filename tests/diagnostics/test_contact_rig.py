@@ -1,0 +1,60 @@
+"""The contact-task rig (``examples/contact_rig.py``): a 10 s, 200 Hz, tared UR5e log that is 70 %
+contact, with 18 deg of free-space rotation about one axis, the mount unknown, a guessed tool and
+no tip declared (issue 38, "your rig's version of the same"). The diagnosis must still calibrate
+on the free-space part (mass within 5 %, plausible), find the contact onset within 0.1 s and the
+contact point on the tool within 5 mm."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from tests.diagnostics.example_scripts import load_example
+
+rig = load_example("contact_rig")
+
+
+@pytest.fixture(scope="module")
+def point_case(tmp_path_factory):
+    """(report, truth) of the ``point`` case, diagnosed as a user would (hints off: faster)."""
+    from kinadapt_nn.diagnostics import readers
+    from kinadapt_nn.diagnostics.setup import load_setup
+    from kinadapt_nn.diagnostics.userlog import diagnose
+
+    case = rig.make_case("point", tmp_path_factory.mktemp("contact_rig"), seed=0)
+    setup = load_setup(case / "setup.toml")
+    report = diagnose(readers.read_log(case / "log.csv", setup), setup, hints=False).report
+    return report, json.loads((case / "truth.json").read_text())
+
+
+def test_rig_log_is_mostly_contact(point_case):
+    _, truth = point_case
+    assert 0.68 < truth["contact_fraction"] < 0.72 and truth["contact_onset_s"] == pytest.approx(3.0)
+
+
+def test_point_contact_calibrates_on_free_space(point_case):
+    report, truth = point_case
+    sm = report["sensor_mount"]
+    assert sm["plausible"], sm.get("warning")
+    assert abs(sm["tool_mass_kg"] - truth["tool_mass_kg"]) <= 0.05 * truth["tool_mass_kg"], sm["tool_mass_kg"]
+    onsets = report["segmentation"]["contact_onsets_s"]
+    assert onsets and abs(onsets[0] - truth["contact_onset_s"]) <= 0.1, onsets
+    cp = report["effective_setup"]["contact_point"]
+    assert cp is not None
+    err = np.linalg.norm(np.subtract(cp["point_sensor_m"], truth["contact_point_sensor_m"]))
+    assert err <= 0.005, (cp["point_sensor_m"], err)
+
+
+@pytest.mark.xfail(strict=True, reason="mount.fit's Gauss-Newton stops at its 40-iteration cap while still crawling "
+                                       "along the weakly turned direction (61.7 deg from the truth, sd 2.2 deg); "
+                                       "continued it reaches the truth (0.6 deg)")
+def test_point_contact_mount_within_its_interval(point_case):
+    """The estimated mount agrees with the true one within 3 sd (or 5 deg), or the angle is named undetermined."""
+    report, truth = point_case
+    sm = report["sensor_mount"]
+    R_fit, R_true = rig.rpy_matrix_deg(sm["rpy_flange_deg"]), rig.rpy_matrix_deg(truth["sensor_rpy_flange_deg"])
+    err_deg = float(np.rad2deg(np.linalg.norm(rig.matrix_rotvec(R_fit.T @ R_true))))
+    named = [u for u in sm["undetermined"] if u["parameter"].startswith("mount rotation")]
+    assert named or err_deg <= max(3 * sm["rotation_sd_deg"], 5.0), (err_deg, sm["rotation_sd_deg"])
