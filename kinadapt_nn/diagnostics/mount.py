@@ -43,6 +43,8 @@ UNDETERMINED_MASS_REL = 0.2  #: a mass sd above this share of the mass: undeterm
 UNDETERMINED_COM_M = 0.02  #: [m] a centre-of-mass coordinate with a larger sd: undetermined
 SIGNIFICANT_SD = 3.0
 ROTATION_EXPLAINS = 0.9  #: a declared mount is contradicted only when the rotation removes this share of its misfit
+GN_ITERS = 300  #: Gauss-Newton iterations at most (a weakly turned sensor's curved valley takes ~100; 40 stopped 60 deg short)
+WEAK_SCANS = 4  #: scans along the least-determined rotation axis, each followed by Gauss-Newton
 HUBER_K = 3.0  #: [noise sd] the robust loss is quadratic up to this weighted residual
 
 
@@ -144,7 +146,7 @@ def _huber(e: np.ndarray, k: float = HUBER_K) -> np.ndarray:
     return np.where(a <= k, 1.0, k / np.maximum(a, 1e-300)).reshape(-1, 6)
 
 
-def _gauss_newton(d: MountData, D0: np.ndarray, iters: int = 40) -> tuple[np.ndarray, np.ndarray, float]:
+def _gauss_newton(d: MountData, D0: np.ndarray, iters: int = GN_ITERS) -> tuple[np.ndarray, np.ndarray, float]:
     """Variable projection: Gauss-Newton over the rotation (local updates ``D exp([delta])``),
     ``theta`` solved in closed form at every step, Huber IRLS weights. -> (D, theta, robust cost)."""
     D = D0
@@ -205,6 +207,27 @@ def _linear_start(d: MountData) -> np.ndarray | None:
     return (sign * (U @ Vt)).T
 
 
+def _scan_weak_axis(d: MountData, D: np.ndarray, step_deg: float = 10.0) -> np.ndarray | None:
+    """The rotation about the least-determined axis at ``D`` (the smallest eigenvalue of the
+    variable-projection J^T J) scanned over a full turn by the robust cost; -> the best rotation
+    on that circle when it beats ``D``, else None. A sensor turned about one axis leaves a long,
+    curved valley in which local steps creep (observed: 40 iterations ending 60 deg short)."""
+    rw = _huber(_project(D, d, np.ones_like(d.r))[1])
+    _, e0 = _project(D, d, rw)
+    sq = np.sqrt(rw.reshape(-1))
+    J = np.empty((len(e0), 3))
+    for k in range(3):
+        dv = np.zeros(3)
+        dv[k] = 1e-6
+        J[:, k] = (_project(D @ rotvec_matrix(dv), d, rw)[1] - e0) * sq / 1e-6
+    lam, V = np.linalg.eigh(J.T @ J)
+    axis = V[:, 0]
+    angles = np.deg2rad(np.arange(step_deg, 360.0, step_deg))
+    costs = [_cost_at(D @ rotvec_matrix(a * axis), d, iters=4) for a in angles]
+    i = int(np.argmin(costs))
+    return D @ rotvec_matrix(angles[i] * axis) if costs[i] < _cost_at(D, d, iters=4) else None
+
+
 def _best_start(d: MountData, starts: list[np.ndarray], positive: bool = False):
     """Gauss-Newton from each start; the lowest cost wins (``positive``: among positive masses).
     -> (D, theta, cost)."""
@@ -250,6 +273,14 @@ def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: i
     if lin is not None and np.all(np.isfinite(lin)):
         starts.append(lin)
     D, theta, best = _best_start(d, starts)
+    for _ in range(WEAK_SCANS):  # a weakly turned sensor: Gauss-Newton creeps along its flat, curved valley
+        Dw = _scan_weak_axis(d, D)
+        if Dw is None:
+            break
+        Dk, thk, ck = _gauss_newton(d, Dw)
+        if not (ck < best and (thk[0] > 0 or theta[0] <= 0)):
+            break
+        D, theta, best = Dk, thk, ck
     if theta[0] <= 0:  # a weakly turned sensor leaves a mirror branch (D turned by 180 deg, -m): a mass is positive
         Dp, thp, cp = _best_start(d, [D0 @ rotvec_matrix(np.pi * e) for D0 in (*starts, D) for e in np.eye(3)], True)
         if thp[0] > 0:
@@ -333,9 +364,12 @@ def predict(x: np.ndarray, s) -> np.ndarray:
     return _model(x, d)
 
 
-def best_rotation(d: MountData, starts: list[np.ndarray]) -> np.ndarray:
-    """The rotation ``D`` (3, 3) of the lowest robust cost on ``d``, by Gauss-Newton from each start."""
-    return _best_start(d, starts)[0]
+def refine_rotation(d: MountData, starts: list[np.ndarray], iters: int = 8) -> np.ndarray:
+    """The rotation ``D`` (3, 3) of the fit on ``d``: Gauss-Newton (as the fit, ``iters`` steps)
+    from each start and from the closed-form start of the forces; the lowest robust cost wins."""
+    lin = _linear_start(d)
+    starts = [*starts, *([lin] if lin is not None and np.all(np.isfinite(lin)) else [])]
+    return min((_gauss_newton(d, D0, iters) for D0 in starts), key=lambda r: r[2])[0]
 
 
 def fit_at(D: np.ndarray, d: MountData, iters: int = 8) -> tuple[np.ndarray, np.ndarray]:
@@ -450,4 +484,4 @@ def undetermined(x: np.ndarray, sd: np.ndarray) -> list[dict]:
     return out
 
 
-__all__ = ["MountFit", "fit", "predict", "plausibility", "fit_at", "best_rotation", "matrix_rpy", "rotvec_matrix", "rotation_angle"]
+__all__ = ["MountFit", "fit", "predict", "plausibility", "fit_at", "refine_rotation", "matrix_rpy", "rotvec_matrix", "rotation_angle"]

@@ -47,14 +47,14 @@ def test_point_contact_calibrates_on_free_space(point_case):
     assert err <= 0.005, (cp["point_sensor_m"], err)
 
 
-@pytest.mark.xfail(strict=True, reason="mount.fit's Gauss-Newton stops at its 40-iteration cap while still crawling "
-                                       "along the weakly turned direction (61.7 deg from the truth, sd 2.2 deg); "
-                                       "continued it reaches the truth (0.6 deg)")
 def test_point_contact_mount_within_its_interval(point_case):
-    """The estimated mount agrees with the true one within 3 sd (or 5 deg), or the angle is named undetermined."""
+    """The estimated mount agrees with the true one within 3 sd per roll/pitch/yaw angle (a 0.5 deg
+    floor), or the angle is named undetermined. (The sd of the rotation's magnitude,
+    ``rotation_sd_deg``, is not the test: an error across the rotation axis barely changes the
+    magnitude.) Gauss-Newton stopped at 40 iterations 61.7 deg short of the minimum on this log
+    before the cap was raised and the weak axis scanned."""
     report, truth = point_case
     sm = report["sensor_mount"]
-    R_fit, R_true = rig.rpy_matrix_deg(sm["rpy_flange_deg"]), rig.rpy_matrix_deg(truth["sensor_rpy_flange_deg"])
-    err_deg = float(np.rad2deg(np.linalg.norm(rig.matrix_rotvec(R_fit.T @ R_true))))
+    d = (np.asarray(sm["rpy_flange_deg"]) - np.asarray(truth["sensor_rpy_flange_deg"]) + 180.0) % 360.0 - 180.0
     named = [u for u in sm["undetermined"] if u["parameter"].startswith("mount rotation")]
-    assert named or err_deg <= max(3 * sm["rotation_sd_deg"], 5.0), (err_deg, sm["rotation_sd_deg"])
+    assert named or np.all(np.abs(d) <= np.maximum(3 * np.asarray(sm["sd_deg"]), 0.5)), (d, sm["sd_deg"])
