@@ -13,9 +13,8 @@ from kinadapt_nn.config import ExperimentCfg
 from kinadapt_nn.controller.controller import Controller, rank_margin
 from kinadapt_nn.controller.core import RANK_GATE  # the paper's kinematic gate (1e-6)
 from kinadapt_nn.features import AdjointFeatures
-from kinadapt_nn.sensing import CHANNEL_NAMES
+from kinadapt_nn.sensing import CHANNEL_NAMES, CHANNEL_UNITS
 from kinadapt_nn.trace import Trace
-from kinadapt_nn.runs.build import law_name
 from kinadapt_nn.runs.monitor import SeatMonitor, classify_failure
 
 FAILURES = ("none", "timeout", "jam", "block_face", "divergence")
@@ -51,7 +50,7 @@ def identification_words(ctrl: Controller, cfg: ExperimentCfg) -> dict:
     movement = f"theta moved by {moved:.3g}{unit} from its start; {n_bound} of {p} components at the bounds of Omega"
     out = {"identified": None, "of": p, "contact_steps": ctrl.contact_steps, "theta_moved": moved,
            "at_omega_bounds": n_bound}
-    if cfg.run.features == "oracle" or law.name == "frozen":
+    if law.name == "frozen":  # (the oracle runs it: Features.fixed_law)
         return {**out, "text": "theta held fixed (frozen / oracle): nothing to identify"}
     if ctrl.contact_steps == 0:  # the gate never opened: no law adapts in free space
         return {**out, "identified": 0 if law.has_covariance else None,
@@ -132,7 +131,7 @@ def certificate_check(cfg: ExperimentCfg, trace: Trace, ctrl: Controller, window
         [cfg.control.gain_trans] * 3 + [cfg.control.gain_ang] * 3
     )
     diss = ad.gamma_d * np.sum(D * xi**2, axis=1)
-    pred_on = (trace["phi_norm2"] > 0) & (law_name(cfg) in ("composite", "prediction"))
+    pred_on = (trace["phi_norm2"] > 0) & (ctrl.law.name in ("composite", "prediction"))
     kappa = np.where(pred_on, ad.eta / (dt * ad.gamma * (trace["phi_norm2"] + ad.eps_norm)), 0.0)
     b2 = np.nan_to_num(np.sum(trace["truth_bias_w"] ** 2, axis=1))
     bound_rate = -diss + 0.25 * kappa * b2
@@ -214,6 +213,27 @@ def identification_report(trace: Trace, ctrl: Controller, true_offset: np.ndarra
     return out
 
 
+def contact_quality(t_s: np.ndarray, contact_force_N: np.ndarray) -> dict:
+    """How the peg touches (evaluation only, from the simulator's truth): ``t_s`` (T,) [s] and the
+    total normal contact force (T,) [N]. From the first contact to the end of the log:
+    ``contact_transitions_per_s`` (on/off changes per second -- a peg bouncing off a wall at
+    tens of Hz, or a continuous slide near 0), ``longest_contact_span_s`` [s] and
+    ``contact_fraction`` (of that span's time in contact). None where there is no contact."""
+    on = np.asarray(contact_force_N) > 0.0
+    if not on.any():
+        return {"contact_transitions_per_s": None, "longest_contact_span_s": None, "contact_fraction": None}
+    i0 = int(np.argmax(on))
+    on, t = on[i0:], np.asarray(t_s)[i0:]
+    dur = float(t[-1] - t[0]) if len(t) > 1 else 0.0
+    edges = np.flatnonzero(np.diff(np.r_[0, on.astype(int), 0]))
+    starts, ends = edges[::2], edges[1::2]
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    longest = float(max(t[min(e, len(t)) - 1] - t[a] + dt for a, e in zip(starts, ends)))
+    transitions = int(np.count_nonzero(np.diff(on.astype(int))))
+    return {"contact_transitions_per_s": transitions / dur if dur > 0 else 0.0, "longest_contact_span_s": longest,
+            "contact_fraction": float(on.mean())}
+
+
 def summarize(
     cfg: ExperimentCfg,
     trace: Trace,
@@ -288,9 +308,11 @@ def summarize(
         "jacobian_rel_error_final": jac_err,
         "pred_error_rms": pred_rms,
         "pred_error_rms_contact": pred_rms_contact,
+        "pred_error_rms_units": {n: u + "/s" for n, u in zip(CHANNEL_NAMES, CHANNEL_UNITS)},
         "offset_error_lateral_initial_m": float(np.hypot(*(off0[:2] - true_off[:2]))),
         "offset_error_lateral_final_m": float(np.hypot(*(off_T[:2] - true_off[:2]))),
         **ident,
+        **contact_quality(t, trace["truth_contact_force_N"]),
         "lateral_drift_free_space_m": float(drift[: max(first_touch, 1)].max()),
         "lateral_drift_max_m": float(drift.max()),
         "truth_touched_block_face": bool(trace["truth_contact_face"].any()),
@@ -298,7 +320,7 @@ def summarize(
         "features": cfg.run.features,
         "program": cfg.control.program,
         "hidden_effects": cfg.effects.enabled(),
-        "law": law_name(cfg),
+        "law": ctrl.law.name,
         "n_params": int(ctrl.features.n_params),
         "model_effects": list(cfg.model.effects),
         "model_effect_params": [float(x) for x in theta[getattr(ctrl.features, "p0", len(theta)):]],

@@ -66,3 +66,33 @@ def test_no_contact_is_said_only_without_contact(law):
     ident = res.summary["identification"]
     assert not res.trace["adapt_gate"].any() and ident["theta_moved"] == 0.0
     assert ("held fixed" in ident["text"]) if law == "frozen" else ("no contact was sensed" in ident["text"])
+
+
+def test_contact_quality_counts_a_chattering_and_a_continuous_contact():
+    """contact_quality against hand counts: a contact that toggles every 5 ms of a 1 kHz log from
+    1 s on (100 on/off changes per second after the first touch, longest span 5 ms) and one that
+    stays on (0 changes, the whole span)."""
+    from kinadapt_nn.runs.evaluate import contact_quality
+
+    i = np.arange(3000)
+    t = i * 1e-3
+    chat = np.where((i >= 1000) & (((i - 1000) // 5) % 2 == 0), 2.5, 0.0)
+    q = contact_quality(t, chat)
+    span = t[-1] - 1.0
+    n_changes = int(np.count_nonzero(np.diff(chat[t >= 1.0] > 0)))
+    assert q["contact_transitions_per_s"] == pytest.approx(n_changes / span) and 190 < n_changes / span < 210
+    assert q["longest_contact_span_s"] == pytest.approx(0.005, abs=1e-9) and q["contact_fraction"] == pytest.approx(0.5, abs=0.01)
+    q = contact_quality(t, np.where(t >= 0.5, 1.0, 0.0))
+    assert q["contact_transitions_per_s"] == 0.0 and q["longest_contact_span_s"] == pytest.approx(2.5, abs=2e-3)
+    assert contact_quality(t, np.zeros_like(t))["contact_transitions_per_s"] is None
+
+
+def test_summary_reports_contact_quality_and_channel_units():
+    """The default bore run's summary carries its contact quality (from the truth's contact force)
+    and the units of pred_error_rms."""
+    from kinadapt_nn.runs.evaluate import contact_quality
+
+    res = run_episode(load_config(None, [*QUIET, "run.duration_s=2.0"]))
+    s, tr = res.summary, res.trace
+    assert s["contact_transitions_per_s"] == contact_quality(tr["t_s"], tr["truth_contact_force_N"])["contact_transitions_per_s"]
+    assert s["pred_error_rms_units"]["F_lat_x"] == "N/s" and s["pred_error_rms_units"]["d"] == "m/s"
