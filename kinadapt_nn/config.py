@@ -388,7 +388,7 @@ class RunCfg(_Cfg):
     seed: int = Field(0, ge=0, le=2**32 - 1)  # [-] seeds every random draw of the run
     duration_s: float = Field(8.0, gt=0.0, le=600.0)  # [s] simulated time limit (timeout)
     dt_s: float = Field(0.001, gt=0.0, le=0.01)  # [s] control and physics timestep
-    features: Literal["adjoint", "rbf", "neural", "oracle"] = "adjoint"  # Y(q); oracle = true offset
+    features: str = "adjoint"  # Y(q): a registered features type, kinadapt_nn.features.FEATURES (oracle = the true offset, held)
     stop_after_seat_s: float = Field(0.5, ge=0.0)  # [s] keep simulating this long after seating
     log_every: int = Field(1, ge=1)  # [steps] trace decimation
     insertions: int = Field(1, ge=1, le=1000)  # [-] consecutive insertions of the same tool; theta (and P) carried over

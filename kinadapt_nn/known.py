@@ -45,8 +45,8 @@ class KnownCfg:
     excite: ExciteCfg  #: the scripted excitation program
     success: SuccessCfg  #: the sensor-side seat check
     model_effects: tuple[str, ...]  #: library effects whose columns are adapted online
-    features_kind: str  #: "adjoint" | "rbf" | "neural" | "oracle"
-    law: str  #: the law actually run ("frozen" for the oracle baseline)
+    features_kind: str  #: the features type, a name in ``kinadapt_nn.features.FEATURES``
+    law: str  #: the configured law (features may fix their own: the oracle's is frozen, ``Features.fixed_law``)
     dt_s: float  #: control period [s]
     settle_s: float  #: hold still this long at the start (tare at its end) [s]
     arm_mjcf: Path  #: the bare arm's model (no tool): the controller's kinematics
@@ -65,7 +65,7 @@ class KnownCfg:
             success=cfg.success,
             model_effects=tuple(cfg.model.effects),
             features_kind=cfg.run.features,
-            law="frozen" if cfg.run.features == "oracle" else cfg.adaptation.mode,
+            law=cfg.adaptation.mode,
             dt_s=cfg.run.dt_s,
             settle_s=cfg.start.settle_s,
             arm_mjcf=arm_mjcf_path(cfg.scene),

@@ -78,8 +78,19 @@ def _split_unit(comment: str) -> tuple[str, str]:
     return (m.group(1), m.group(2)) if m else ("", comment)
 
 
+def _registered(key: str) -> list[str] | None:
+    """The names a key takes from a registry, read from it (``run.features``: the features
+    types), else None."""
+    if key == "run.features":
+        from kinadapt_nn.features import FEATURES
+
+        return list(FEATURES)
+    return None
+
+
 def describe(cfg: BaseModel, prefix: str = "") -> list[KeyDoc]:
-    """Every leaf key of ``cfg`` (nested sections recursed), in declaration order."""
+    """Every leaf key of ``cfg`` (nested sections recursed), in declaration order; a key that
+    names a registry entry lists the registered names."""
     cls = type(cfg)
     comments = field_comments(cls)
     doc_line = inspect.cleandoc(cls.__dict__.get("__doc__") or "").split("\n")[0]  # its own, not BaseModel's
@@ -92,7 +103,9 @@ def describe(cfg: BaseModel, prefix: str = "") -> list[KeyDoc]:
             continue
         unit, meaning = _split_unit(info.description or comments.get(name, ""))
         text = json.dumps(cfg.model_dump(mode="json")[name])
-        rows.append(KeyDoc(key, text, unit, meaning or doc_line))
+        names = _registered(key)
+        meaning = f"{meaning or doc_line} (one of: {', '.join(names)})" if names else meaning or doc_line
+        rows.append(KeyDoc(key, text, unit, meaning))
     return rows
 
 

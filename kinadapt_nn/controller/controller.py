@@ -138,8 +138,14 @@ def feature_consts(features: Features) -> np.ndarray:
     return np.zeros(1)
 
 
+def run_law(known: KnownCfg, features: Features) -> str:
+    """The law a controller of ``features`` runs: the features' own (``Features.fixed_law``: the
+    oracle's is frozen), else the configured ``known.law``."""
+    return features.fixed_law or known.law
+
+
 def core_consts(known: KnownCfg, features: Features, law_address: bool = True) -> tuple[core.CoreConsts, LawSpec]:
-    """The kernels' constants from the known config and the features, for the law ``known.law``
+    """The kernels' constants from the known config and the features, for the law :func:`run_law`
     (a registered law, ``controller.laws.LAWS``). ``law_address``: False leaves ``law_fn`` at 0
     for the caller to set (``spec.address()``) before the first kernel call. -> (CoreConsts, the
     law's LawSpec)."""
@@ -155,7 +161,7 @@ def core_consts(known: KnownCfg, features: Features, law_address: bool = True) -
     M_virt = tau / gain  # [kg | kg m^2] virtual inertia per twist channel
     D_virt = (1.0 + beta) / gain  # [N s/m | N m s/rad] damping (I + beta) / g
     theta_nominal, half = features.omega()  # Omega: the features' own box (the adjoint's about l_nom)
-    spec = law_spec(known.law)
+    spec = law_spec(run_law(known, features))
     p = features.n_params
     # the law's constants; theta's prior covariance: the features' (make_features), else Omega/3
     lc = spec.constants(LawParams.of(ad, dt, prior_cov_of(features)), S.shape[0], p)
@@ -213,7 +219,8 @@ class Controller:
 
     Built from the known constants only (``KnownCfg``: sensing, control, adaptation, the bore
     pose, the arm model); ``features`` and ``theta0`` define ``J_hat``; ``theta`` is adapted by
-    the registered law ``known.law`` (``controller.laws``). All filter and law state is one
+    the registered law :func:`run_law` (``known.law`` unless the features fix their own;
+    ``controller.laws``). All filter and law state is one
     ``controller/core.py: ControllerState``; :attr:`law` is the law's own view of its state.
     """
 
@@ -222,7 +229,7 @@ class Controller:
         sc = known.sensing
         self.dt = known.dt_s
         self.features = features
-        self.mode = known.law
+        self.mode = run_law(known, features)  # the law's name
         self.kin = ArmKinematics(known.arm_mjcf)
         self.kin_n = n = self.kin.model.nq
         #: longest run of non-finite samples bridged by holding the last valid one [steps]

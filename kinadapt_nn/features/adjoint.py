@@ -18,7 +18,10 @@ from __future__ import annotations
 import numpy as np
 
 from kinadapt_nn.features.base import Features, KinState, Regressor
+from kinadapt_nn.features.registry import Built, FeaturesContext, FeaturesSpec
 from kinadapt_nn.geometry import skew
+from kinadapt_nn.known import KnownCfg
+from kinadapt_nn.sensing import nominal_sensor_map
 
 
 class AdjointFeatures(Features):
@@ -125,3 +128,26 @@ class AdjointFeatures(Features):
             g[4] + (a2 * u0 - a0 * u2) + (l2 * m0 - l0 * m2),
             g[5] + (a0 * u1 - a1 * u0) + (l0 * m1 - l1 * m0),
         ]
+
+
+def nominal_adjoint(known: KnownCfg, prior: bool = True) -> AdjointFeatures:
+    """The adjoint on the known nominal map S and the nominal (CAD) offset, with the law's box
+    Omega (``adaptation.omega_*``); ``prior``: with the declared tool tolerance as theta's prior
+    ``P0`` (``adaptation.prior_sd_*``). The learned types build on it as their known part."""
+    ad = known.adaptation
+    S = nominal_sensor_map(known.sensing, known.n_axis)
+    l_nom = np.asarray(known.sensing.nominal_offset_f_m, dtype=float)
+    adjoint = AdjointFeatures(S, l_nom, np.array([ad.omega_lateral_m, ad.omega_lateral_m, ad.omega_axial_m]))
+    if prior:
+        adjoint.P0 = np.diag([ad.prior_sd_lateral_m**2, ad.prior_sd_lateral_m**2, ad.prior_sd_axial_m**2])
+    return adjoint
+
+
+def build(ctx: FeaturesContext) -> Built:
+    """The adjoint from the initial offset estimate (experiment design: the true offset + the
+    configured error)."""
+    return Built(nominal_adjoint(ctx.known), np.asarray(ctx.offset_estimate_f_m, dtype=float))
+
+
+SPEC = FeaturesSpec(name="adjoint", doc="analytic adjoint of the wrist-to-tip offset (p = 3, theta in m)",
+                    build=build, theta0_per_episode=True, cost=1.0)

@@ -47,6 +47,12 @@ class Features(abc.ABC):
     #: True where theta is the physical wrist-to-tip offset in f [m] (the adjoint): the run then
     #: reports theta's error against the true tool; learned features' theta has no such meaning
     theta_is_offset: bool = False
+    #: theta's prior covariance (p, p) where the features declare one (the kalman law's P0);
+    #: ``None``: the controller takes a third of Omega's half widths as the prior sd
+    P0: np.ndarray | None = None
+    #: the law these features always run, whatever ``adaptation.mode`` says (the oracle holds
+    #: the true offset: "frozen"); ``None``: the configured law
+    fixed_law: str | None = None
 
     @property
     def kernel(self) -> str | None:
@@ -57,6 +63,12 @@ class Features(abc.ABC):
     def twist_jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray | None:
         """``J_hat_xi`` (m, 6) with ``J_hat = J_hat_xi J_arm`` where the parameterisation
         factors through the wrist twist (the adjoint does); ``None`` otherwise."""
+        return None
+
+    def per_entry_row_norm2(self, kin: KinState, qdot: np.ndarray) -> float | None:
+        """``|Phi_i|^2``, the one squared norm of every adapted row of ``Phi``, where the features
+        have the paper's per-entry block structure (rows mutually orthogonal with equal norms: the
+        prediction step is eq. ident_qp_solution literally); ``None`` otherwise."""
         return None
 
     def omega(self) -> tuple[np.ndarray, np.ndarray]:

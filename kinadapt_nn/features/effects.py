@@ -37,6 +37,7 @@ class EffectFeatures(Features):
         self.k = sum(e.k for e in self.effects)
         self.n_params = self.p0 + self.k
         self.name = base.name + "+" + "+".join(effects)
+        self.fixed_law = base.fixed_law  # (the oracle's frozen law holds its effect columns too)
         self.S = S
         self._P = projector(S)  # lateral projector (2, 3)
         self._n = S[0, :3]  # bore axis

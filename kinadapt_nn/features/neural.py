@@ -13,9 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
-from kinadapt_nn.features.adjoint import AdjointFeatures
+from kinadapt_nn.features.adjoint import AdjointFeatures, nominal_adjoint
 from kinadapt_nn.features.base import Features, KinState, Regressor
+from kinadapt_nn.features.registry import Built, FeaturesContext, FeaturesSpec
 from kinadapt_nn.learning.weights import N_JOINTS, N_ROWS, load_checkpoint_arrays
+from kinadapt_nn.robot import MODELS_DIR
+from kinadapt_nn.sensing import channel_metric
 
 
 class NeuralFeatures(Features):
@@ -134,3 +137,30 @@ class NeuralFeatures(Features):
             for i in range(N_ROWS):
                 Phi[1 + i, i * w : (i + 1) * w] = block * self.inv_w[i, 0, 0]
         return Regressor(known=known, Phi=Phi)
+
+
+def checkpoint_path(name: str) -> Path:
+    """The checkpoint ``features.neural_checkpoint`` names: "" the shipped default; a path; or a
+    shipped model by its file name ("neural_cell.safetensors"; a shipped model's name before
+    safetensors, "neural_cell.pt", means its conversion: the same weights, tested)."""
+    ckpt = Path(name) if name else MODELS_DIR / "neural_default.safetensors"
+    if not ckpt.is_absolute() and not ckpt.exists():
+        shipped = MODELS_DIR / ckpt.name
+        if ckpt.suffix == ".pt":
+            shipped = shipped.with_suffix(".safetensors")
+        ckpt = shipped if shipped.is_file() else ckpt
+    return ckpt
+
+
+def build(ctx: FeaturesContext) -> Built:
+    """The pretrained body on the nominal adjoint; theta0 = 0, the head of the nominal tool (zero
+    residual); theta's prior: the pretraining heads' second moment about it (``features.neural_prior``)."""
+    known = ctx.known
+    feats = NeuralFeatures(nominal_adjoint(known), np.asarray(known.sensing.nominal_offset_f_m, dtype=float),
+                           checkpoint_path(known.features.neural_checkpoint), channel_metric(known.sensing))
+    feats.P0 = feats.prior_cov(known.features.neural_prior)
+    return Built(feats, np.zeros(feats.n_params))
+
+
+SPEC = FeaturesSpec(name="neural", doc="a pretrained network's Jacobian basis, only its output weights adapt "
+                    "(features.neural_checkpoint)", build=build, cost=1.8)

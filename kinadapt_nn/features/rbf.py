@@ -14,8 +14,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from kinadapt_nn.features.adjoint import AdjointFeatures
+from kinadapt_nn.config import FeaturesCfg
+from kinadapt_nn.features.adjoint import AdjointFeatures, nominal_adjoint
 from kinadapt_nn.features.base import Features, KinState, Regressor
+from kinadapt_nn.features.registry import Built, FeaturesContext, FeaturesSpec, Workspace
+from kinadapt_nn.robot import ArmKinematics
 
 N_ROWS = 5  # adapted rows: F_lat (2) and M (3)
 
@@ -74,6 +77,11 @@ class RBFFeatures(Features):
         C = A @ P_adj @ A.T
         return C + floor * float(np.trace(C)) / len(C) * np.eye(len(C))
 
+    def per_entry_row_norm2(self, kin: KinState, qdot: np.ndarray) -> float:
+        """``|psi(q)|^2 |qdot|^2``: every adapted row of ``Phi`` holds ``qdot_j psi_k`` in its own block."""
+        psi = self.psi(kin.q_rad)
+        return (psi @ psi) * (qdot @ qdot)
+
     def jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray:
         J = self.known.jacobian(kin, self.prior)
         J[1:] += theta.reshape(N_ROWS, self.n, self.K) @ self.psi(kin.q_rad)
@@ -97,3 +105,41 @@ def auto_width(centres: np.ndarray) -> float:
     d = np.linalg.norm(centres[:, None, :] - centres[None, :, :], axis=2)
     np.fill_diagonal(d, np.inf)
     return float(np.mean(d.min(axis=1)))
+
+
+def centres(fc: FeaturesCfg, workspace: Workspace) -> np.ndarray:
+    """The K = ``rbf_n_centres`` centres: on the nominal insertion path (evenly in depth) or sampled
+    about it (``rbf_centres``, ``rbf_seed``); in a work cell shared out over its bores in turn
+    (bore b gets ``K // nb`` plus one of the remainder, at least one). -> (K', 7), K' = max(K, nb)."""
+    k, rng = fc.rbf_n_centres, np.random.default_rng(fc.rbf_seed)
+    if workspace.n_bores == 1 and fc.rbf_centres == "path":
+        return workspace.paths(k)[0]
+    paths = workspace.paths(12)
+    nb = len(paths)
+    if nb == 1:
+        return workspace.sample(paths[0], k, 0.03, rng)
+    out = []
+    for b, path in enumerate(paths):
+        kb = max(1, k // nb + (1 if b < k % nb else 0))
+        if fc.rbf_centres == "path":
+            idx = np.round(np.linspace(0, len(path) - 1, kb + 2)[1:-1]).astype(int)
+            out.append(path[idx])
+        else:
+            out.append(workspace.sample(path, kb, 0.03, rng))
+    return np.concatenate(out)
+
+
+def build(ctx: FeaturesContext) -> Built:
+    """RBFs on the nominal adjoint (the prior offset = the nominal one), theta0 = 0 (the nominal
+    tool); theta's prior: the adjoint's pushed through the RBF fit (:meth:`RBFFeatures.prior_from_adjoint`)."""
+    known = ctx.known
+    adjoint = nominal_adjoint(known)
+    c = centres(known.features, ctx.workspace)
+    feats = RBFFeatures(adjoint, np.asarray(known.sensing.nominal_offset_f_m, dtype=float), c,
+                        known.features.rbf_width_rad or auto_width(c))
+    feats.P0 = feats.prior_from_adjoint(ArmKinematics(known.arm_mjcf), adjoint.P0, known.adaptation.rbf_prior_floor)
+    return Built(feats, np.zeros(feats.n_params))
+
+
+SPEC = FeaturesSpec(name="rbf", doc="Gaussian RBFs in joint space, the paper's per-entry blocks (p = 5 x 7 x K)",
+                    build=build, cost=5.0)

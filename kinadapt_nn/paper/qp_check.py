@@ -46,11 +46,11 @@ def check_features(name: str, feats, kin, qdot: np.ndarray, theta: np.ndarray, W
     closed = np.linalg.solve(G, kappa * Phi.T @ eps)
     err_matrix = float(np.max(np.abs(qp - closed)))
     err_scalar = None
-    if name == "rbf":  # per-entry features, unscaled rows: eq. ident_qp_solution literally
+    row2 = feats.per_entry_row_norm2(kin, qdot)
+    if row2 is not None:  # per-entry features, unscaled rows: eq. ident_qp_solution literally
         Praw = feats.regressor(kin, qdot).Phi
-        psi = feats.psi(kin.q_rad)
         qp_iso = _solve(np.eye(p) / gamma + kappa * Praw.T @ Praw, kappa * Praw.T @ eps)
-        scalar = Praw.T @ eps / ((psi @ psi) * (qdot @ qdot) + 1.0 / (kappa * gamma))
+        scalar = Praw.T @ eps / (row2 + 1.0 / (kappa * gamma))
         err_scalar = float(np.max(np.abs(qp_iso - scalar)))
     # QPaug: variables z = [qdot (n); thetadot (p)]; equality J_hat qdot = xdot_d
     J = feats.jacobian(kin, theta)
@@ -74,8 +74,10 @@ def check_features(name: str, feats, kin, qdot: np.ndarray, theta: np.ndarray, W
 
 
 def run_qp_checks(seed: int = 0) -> list[QPCheck]:
-    """All features types at a random state near the insertion start."""
+    """Every compared features type (``features.compared_types``) at a random state near the
+    insertion start."""
     from kinadapt_nn.config import load_config
+    from kinadapt_nn.features import compared_types
     from kinadapt_nn.runs.build import make_controller, make_features
 
     rng = np.random.default_rng(seed)
@@ -87,7 +89,7 @@ def run_qp_checks(seed: int = 0) -> list[QPCheck]:
     kin = ctrl.kin(q)
     qdot = 0.2 * rng.normal(size=7)
     out = []
-    for name in ("adjoint", "rbf", "neural"):
+    for name in compared_types():
         feats, theta0 = make_features(load_config(None, [f"run.features={name}"]))
         out.append(check_features(name, feats, kin, qdot, theta0, ctrl.W, rng))
     return out

@@ -39,10 +39,11 @@ def _plt():
 # ------------------------------------------------------------------------------------ rollout
 def part_rollout(out: Path, ex) -> dict:
     from kinadapt_nn.config import load_config
+    from kinadapt_nn.features import compared_types
     from kinadapt_nn.figures import rollout_figure, save_figure
 
     res = {}
-    feats = ("adjoint", "rbf", "neural")
+    feats = compared_types()
     runs = list(ex.map(_episode, [[f"run.features={f}"] for f in feats]))
     for f, (s, tr) in zip(feats, runs):
         cfg_f = load_config(None, ["adaptation.mode=composite", f"run.features={f}"])  # as _episode ran it

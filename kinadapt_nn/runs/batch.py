@@ -47,6 +47,7 @@ from kinadapt_nn.runs.monitor import SeatMonitor, classify_failure, seat_step
 from kinadapt_nn.runs.build import make_controller, make_features
 from kinadapt_nn.runs.build import one_blas_thread
 from kinadapt_nn.errors import ConfigError
+from kinadapt_nn.features import features_spec
 from kinadapt_nn.features.base import KinState
 from kinadapt_nn.known import KnownCfg
 from kinadapt_nn.sensing import channel_metric
@@ -201,7 +202,7 @@ def _controllers(cfgs: list[ExperimentCfg], ctrls: list) -> list[Controller]:
         a, b = k.consts, k0.consts
         same = all(np.array_equal(x, y) for x, y in ((a.c, b.c), (a.mats, b.mats), (a.pv, b.pv), (a.lc, b.lc),
                                                      (a.seg, b.seg), (feature_consts(k.features), fx0)))
-        if not same or k.layout.arr.tolist() != k0.layout.arr.tolist() or k.known.law != k0.known.law:
+        if not same or k.layout.arr.tolist() != k0.layout.arr.tolist() or k.mode != k0.mode:
             raise ConfigError("these controllers differ in a constant the batched kernels share (features, law, "
                               "bore, gains) -- run them as separate batches")
     return ctrls
@@ -241,7 +242,7 @@ def _run_batch(cfgs: list[ExperimentCfg], nthread: int, record_ctrl: bool, ctrls
         chain = core.arm_chain(arm_model, site)
         # the controllers: one ControllerState for B, the same kernels as Controller.step
         feats, theta_c0 = make_features(c0)  # the known side is shared; theta0 is per episode (experiment design)
-        per_episode = known.features_kind in ("adjoint", "oracle") or bool(known.model_effects)
+        per_episode = features_spec(known.features_kind).theta0_per_episode or bool(known.model_effects)
         built = [make_features(c) if per_episode else (feats, theta_c0) for c in cfgs]
         theta0 = np.array([th for _f, th in built])
         # effect columns keep per-episode state (what the last step observed): one features object each
@@ -467,7 +468,7 @@ def _run_batch(cfgs: list[ExperimentCfg], nthread: int, record_ctrl: bool, ctrls
             "success": bool(success), "failure": failure, "seat_time_s": float(seat[b]) if success else None,
             "max_force_N": float(peaks[b, 0]), "max_lateral_force_N": float(peaks[b, 1]), "max_moment_Nm": float(peaks[b, 2]),
             "offset_error_final_m": err.tolist(), "offset_error_lateral_final_m": float(math.hypot(err[0], err[1])),
-            "seed": cfgs[b].run.seed, "law": known.law, "steps": int(n_ctrl[b]),
+            "seed": cfgs[b].run.seed, "law": law.name, "steps": int(n_ctrl[b]),
         })
     return result
 

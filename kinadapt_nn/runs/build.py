@@ -1,25 +1,22 @@
 """What a run builds from an experiment config: the features and theta0, and the controller.
 
 This is where the truth firewall is cut: ``make_controller`` hands the controller
-``KnownCfg.of(cfg)`` (what a real robot knows) and nothing else. The only declared uses of the
-truth are experiment design: ``oracle`` (the true offset) and the adjoint's initial estimate
-(true offset + the configured error).
+``KnownCfg.of(cfg)`` (what a real robot knows) and nothing else, and the registered features
+type's builder gets the same plus the nominal workspace and the two declared uses of the truth,
+both experiment design (:func:`features_context`): the initial offset estimate (true offset + the
+configured error) and the true offset (the oracle baseline's).
 """
 
 from __future__ import annotations
 
-
-from pathlib import Path
-
 import numpy as np
 
-from kinadapt_nn.config import ExperimentCfg, arm_mjcf_path
+from kinadapt_nn.config import ExperimentCfg
 from kinadapt_nn.controller.controller import Controller
-from kinadapt_nn.features import AdjointFeatures
+from kinadapt_nn.features import FeaturesContext, features_spec
 from kinadapt_nn.features.base import Features
-from kinadapt_nn.known import KnownCfg
-from kinadapt_nn.sensing import channel_metric, nominal_sensor_map
-from kinadapt_nn.known import BORE_AXIS_W
+from kinadapt_nn.known import BORE_AXIS_W, KnownCfg
+from kinadapt_nn.sensing import nominal_sensor_map
 
 FAILURES = ("none", "timeout", "jam", "block_face", "divergence")
 
@@ -64,15 +61,16 @@ def initial_estimate(cfg: ExperimentCfg) -> np.ndarray:
 
 
 def make_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
-    """``_base_features`` plus, with ``model.effects``, the library effects' columns
-    (``kinadapt_nn.features.effects``; their parameters start at 0). BLAS at one thread meanwhile
-    (:func:`one_blas_thread`: the same roundings wherever it is called from)."""
+    """The features and theta0 of the registered type ``run.features`` (``features.FEATURES``; an
+    unregistered name is a one-line ConfigError) plus, with ``model.effects``, the library effects'
+    columns (``kinadapt_nn.features.effects``; their parameters start at 0). BLAS at one thread
+    meanwhile (:func:`one_blas_thread`: the same roundings wherever it is called from)."""
     with one_blas_thread():
         return _make_features(cfg)
 
 
 def _make_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
-    feats, theta0 = _base_features(cfg)
+    feats, theta0 = features_spec(cfg.run.features).build(features_context(cfg))
     if cfg.model.effects:
         from kinadapt_nn.features.effects import EffectFeatures
 
@@ -81,80 +79,33 @@ def _make_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
     return feats, theta0
 
 
-def _base_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
-    """Features object and the initial parameters for ``run.features``.
-
-    Nothing here uses the truth except the two declared cases: ``oracle`` (the true offset) and
-    the adjoint's initial estimate (true offset + the configured error, experiment design)."""
-    S = nominal_sensor_map(cfg.sensing, BORE_AXIS_W)
-    l_nom = np.asarray(cfg.sensing.nominal_offset_f_m, dtype=float)
-    ad = cfg.adaptation
-    adjoint = AdjointFeatures(S, l_nom, np.array([ad.omega_lateral_m, ad.omega_lateral_m, ad.omega_axial_m]))
-    kind = cfg.run.features
-    if kind == "oracle":
-        return adjoint, np.asarray(cfg.tool.offset_f_m, dtype=float)
-    adjoint.P0 = np.diag([ad.prior_sd_lateral_m**2, ad.prior_sd_lateral_m**2, ad.prior_sd_axial_m**2])
-    if kind == "adjoint":
-        return adjoint, initial_estimate(cfg)
-    if kind == "rbf":
-        from kinadapt_nn.features.rbf import RBFFeatures, auto_width
-        from kinadapt_nn.sim.workspace import insertion_path, sample_workspace
-
-        fc = cfg.features
-        nominal = cfg.model_copy(update={"tool": cfg.tool.model_copy(update={"offset_f_m": tuple(l_nom), "tilt_deg": (0.0, 0.0)}),
-                                         "arm": type(cfg.arm)()})
-        if len(cfg.cell.bores(cfg.scene)) > 1:  # a work cell: the K centres shared out over its bores
-            centres = _cell_centres(nominal, fc.rbf_n_centres, fc.rbf_centres, fc.rbf_seed)
-        elif fc.rbf_centres == "path":
-            centres = insertion_path(nominal, n=fc.rbf_n_centres)
-        else:
-            path = insertion_path(nominal)
-            centres = sample_workspace(path, fc.rbf_n_centres, 0.03, np.random.default_rng(fc.rbf_seed))
-        width = fc.rbf_width_rad or auto_width(centres)
-        feats = RBFFeatures(adjoint, l_nom, centres, width)
-        from kinadapt_nn.controller.controller import ArmKinematics
-
-        feats.P0 = feats.prior_from_adjoint(ArmKinematics(arm_mjcf_path(cfg.scene)), adjoint.P0, ad.rbf_prior_floor)
-        return feats, np.zeros(feats.n_params)
-    if kind == "neural":
-        from kinadapt_nn.features.neural import NeuralFeatures
-        from kinadapt_nn.robot import MODELS_DIR
-
-        name = cfg.features.neural_checkpoint
-        ckpt = Path(name) if name else MODELS_DIR / "neural_default.safetensors"
-        if not ckpt.is_absolute() and not ckpt.exists():  # a shipped model named by its file name ("neural_cell.safetensors")
-            shipped = MODELS_DIR / ckpt.name
-            if ckpt.suffix == ".pt":  # a shipped model's name before safetensors: its conversion, the same weights (test)
-                shipped = shipped.with_suffix(".safetensors")
-            ckpt = shipped if shipped.is_file() else ckpt
-        feats = NeuralFeatures(adjoint, l_nom, ckpt, channel_metric(cfg.sensing))
-        feats.P0 = feats.prior_cov(cfg.features.neural_prior)  # the pretraining heads' second moment about the nominal head
-        return feats, np.zeros(feats.n_params)  # the head of the nominal tool (zero residual)
-    raise ValueError(f"unknown features {kind!r}")  # pragma: no cover (validated by the config)
+def features_context(cfg: ExperimentCfg) -> FeaturesContext:
+    """What the builder of ``run.features`` is given: the known side (``KnownCfg.of``), the nominal
+    workspace and the two declared uses of the truth -- the initial offset estimate (true offset
+    + the configured error, experiment design) and the true offset (the oracle baseline's)."""
+    return FeaturesContext(known=KnownCfg.of(cfg), workspace=NominalWorkspace(cfg),
+                           offset_estimate_f_m=initial_estimate(cfg),
+                           true_offset_f_m=np.asarray(cfg.tool.offset_f_m, dtype=float))
 
 
-def _cell_centres(nominal: ExperimentCfg, k: int, how: str, seed: int) -> np.ndarray:
-    """RBF centres over a work cell: ``k`` in all, shared out over the bores in turn (bore b gets
-    ``k // nb`` plus one of the remainder), on each bore's insertion path (evenly in depth) or
-    sampled about it. -> (k', 7) with k' = max(k, number of bores)."""
-    from kinadapt_nn.sim.workspace import cell_paths, sample_workspace
+class NominalWorkspace:
+    """``features.Workspace`` on the known model: the nominal (CAD) tool, untilted, on the nominal
+    arm at the cell's known bores (``sim.workspace``'s IK; set-up only)."""
 
-    paths = cell_paths(nominal, n=12)
-    nb = len(paths)
-    rng = np.random.default_rng(seed)
-    out = []
-    for b, path in enumerate(paths):
-        kb = max(1, k // nb + (1 if b < k % nb else 0))
-        if how == "path":
-            idx = np.round(np.linspace(0, len(path) - 1, kb + 2)[1:-1]).astype(int)
-            out.append(path[idx])
-        else:
-            out.append(sample_workspace(path, kb, 0.03, rng))
-    return np.concatenate(out)
+    def __init__(self, cfg: ExperimentCfg) -> None:
+        tool = cfg.tool.model_copy(update={"offset_f_m": tuple(cfg.sensing.nominal_offset_f_m), "tilt_deg": (0.0, 0.0)})
+        self._nominal = cfg.model_copy(update={"tool": tool, "arm": type(cfg.arm)()})
+        self.n_bores = len(cfg.cell.bores(cfg.scene))
 
+    def paths(self, n: int) -> list[np.ndarray]:
+        from kinadapt_nn.sim.workspace import cell_paths, insertion_path
 
-def law_name(cfg: ExperimentCfg) -> str:
-    return "frozen" if cfg.run.features == "oracle" else cfg.adaptation.mode
+        return cell_paths(self._nominal, n=n) if self.n_bores > 1 else [insertion_path(self._nominal, n=n)]
+
+    def sample(self, path: np.ndarray, n: int, sigma_rad: float, rng: np.random.Generator) -> np.ndarray:
+        from kinadapt_nn.sim.workspace import sample_workspace
+
+        return sample_workspace(path, n, sigma_rad, rng)
 
 
 def make_controller(cfg: ExperimentCfg) -> Controller:

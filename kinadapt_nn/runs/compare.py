@@ -31,15 +31,15 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from kinadapt_nn.config import load_toml_model
 from kinadapt_nn.errors import ConfigError
+from kinadapt_nn.features import FEATURES, compared_types, features_spec
 
-FEATURES = ("adjoint", "rbf", "neural")
 FAMILIES = ("nominal", "arm_errors")
 
 
 class CompareCfg(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    features: list[str] = list(FEATURES)  # features types to compare
+    features: list[str] = Field(default_factory=compared_types)  # features types to compare (default: all but the oracle)
     families: list[str] = list(FAMILIES)  # tool families
     n_tools: int = Field(4, ge=1, le=200)  # tools per family
     seed: int = Field(1000, ge=0)  # draws the tools and arm errors (not the pretraining seed)
@@ -60,8 +60,7 @@ class CompareCfg(BaseModel):
 def load_compare_config(path: Path | None, overrides=()) -> CompareCfg:
     cfg = load_toml_model(CompareCfg, path, overrides, "online/compare.toml")
     for f in cfg.features:
-        if f not in FEATURES:
-            raise ConfigError(f"compare: unknown features {f!r} (choose from {', '.join(FEATURES)})")
+        features_spec(f, key="features")
     from kinadapt_nn.controller.laws import LAWS as MODES
 
     for law in cfg.laws:
@@ -191,16 +190,13 @@ def _job_result(job: tuple, cfg, res) -> dict:
     }
 
 
-#: relative cost of one insertion per features type (measured per step on the 2-core VM: the RBF's
-#: p = 210 covariance update dominates), for the order the jobs are started in
-_FEATURE_COST = {"rbf": 5.0, "neural": 1.8, "adjoint": 1.0}
-
-
 def _job_cost(job: tuple) -> float:
-    """A job's expected cost: features type x insertions (for the longest-first order)."""
+    """A job's expected cost: the features type's (``FeaturesSpec.cost``) x insertions (for the
+    longest-first order)."""
     overrides = job[4]
     ins = [o.split("=", 1)[1] for o in overrides if o.startswith("run.insertions=")]
-    return _FEATURE_COST.get(job[2], 1.0) * (int(ins[-1]) if ins and ins[-1].isdigit() else 1)
+    spec = FEATURES.get(job[2])
+    return (spec.cost if spec else 1.0) * (int(ins[-1]) if ins and ins[-1].isdigit() else 1)
 
 
 def _group_cost(group: list[tuple]) -> float:
@@ -287,6 +283,8 @@ def run_compare(cfg: CompareCfg, out: Path, progress: bool = True) -> list[dict]
             "pred_error_rms_median": _median([g["pred_error_rms_contact_w"] for g in grp]),
             "offset_error_lateral_final_m_median": _median([g["offset_error_lateral_final_m"] for g in grp]),
             "min_lambda_JJt_median": _median([g["min_lambda_JJt"] for g in grp]),
+            "contact_transitions_per_s_median": _median([g.get("contact_transitions_per_s") for g in grp]),
+            "longest_contact_span_s_median": _median([g.get("longest_contact_span_s") for g in grp]),
             "n_params": grp[0]["n_params"],
             "wall_time_s_median": _median([g["wall_time_s"] for g in grp]),
             "insertion": None,

@@ -33,6 +33,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from kinadapt_nn.config import load_config, load_toml_model
 from kinadapt_nn.errors import ConfigError, KinadaptError
+from kinadapt_nn.features import features_spec
 from kinadapt_nn.runio import write_text_atomic
 
 
@@ -56,7 +57,7 @@ def load_sweep_config(path: Path | None, overrides=()) -> SweepCfg:
     cfg = load_toml_model(SweepCfg, path, overrides, "online/sweep.toml")
     # every group's overrides must make a valid online config (fail before running anything)
     for name, over in expand_groups(cfg).items():
-        load_config(None, [*cfg.base, *over])
+        features_spec(load_config(None, [*cfg.base, *over]).run.features)  # a registered features type
         if not re.fullmatch(r"[A-Za-z0-9_.=+\-, \[\]]+", name):
             raise ConfigError(f"sweep group name {name!r}: use letters, digits, spaces and _ . = + - , [ ]")
     return cfg

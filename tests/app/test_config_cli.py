@@ -26,7 +26,6 @@ REPO = Path(__file__).resolve().parents[2]
         (["tool.side_m=0.03"], "tool.side_m"),
         (["tool.offset_f_m=[0.0, 0.1]"], "tool.offset_f_m"),
         (["sensing.channel_scale=[0.01, 10, 10, 1, 1, 0]"], "channel_scale"),
-        (["run.features=neural_net"], "run.features"),
         (["novalue"], "expected key=value"),
     ],
 )
