@@ -4,7 +4,7 @@ Standalone on purpose, like ``examples/foreign_rig.py``: this file imports nothi
 ``kinadapt_nn`` (only MuJoCo, NumPy, SciPy and the standard library); the only shared input is the
 arm model ``examples/arms/ur5e.urdf``. ::
 
-    python examples/contact_rig.py --out DIR [--case NAME ...] [--seed N] [--self-test]
+    python examples/contact_rig.py --out DIR [--case NAME ...] [--seed N] [--mount-known] [--self-test]
 
 What a real contact-task log looks like (issue 38): mostly contact, weakly excited. 10 s at 200 Hz
 (2001 samples) of a UR5e, the wrench tared at the first pose, ~3 s of guarded approach in free
@@ -51,14 +51,21 @@ hidden F/T crosstalk: the sensor reports ``Fx + 0.04 Fz``; the user's effect fil
 ``examples/effects/crosstalk_fx_fz.py``). To first order that crosstalk does to the force what a
 mount rotation of 0.04 rad about s_y does, and in contact what a tool tilt about s_y does to the
 moment about the tip: with this weak free-space motion it separates from them only through the
-moment about s_z and the small changes of Fz in free space. Pipeline: physics -> crosstalk
+moment about s_z and the small changes of Fz in free space. ``flat_face_rich`` is ``flat_face``
+after a rich free-space phase that separates them (``RICH_TARGETS``, 7.7 s, so the log is 17.7 s,
+3541 samples, 40 % contact, touch-down at 10.7 s): from the start pose (held 0.5 s: the tare) six
+min-jerk moves with short holds, the tool tilted 25-35 deg about world x, world y and both, turned
+about its own axis by up to 60 deg (rotations along the geodesic, the tip moved by a few cm), back
+to the start pose; then the flat_face experiment unchanged (same q and contact wrench, delayed).
+Pipeline: physics -> crosstalk
 ``(I + E) w`` -> tare (minus the noise-free reading at the first pose) -> noise N(0, 0.05 N /
 0.003 N m) -> text with 6 decimals (q to 1 urad).
 
 Per case ``DIR/<case>/``: ``log.csv`` (``t`` [s], ``q1..q6`` [rad], ``fx fy fz tx ty tz`` [N, N m]
 the tool-on-sensor wrench in ``s``), ``setup.toml`` (the set-up as a user would declare it: the
-URDF, tared, the mount unknown with a zero first guess, a guessed 0.5 kg tool with its centre of mass
-on the axis; ``point`` declares no tip, ``flat_face`` the face centre) and ``truth.json``.
+URDF, tared, the mount unknown with a zero first guess -- or with ``--mount-known`` the true mount
+declared known --, a guessed 0.5 kg tool with its centre of mass on the axis; ``point`` declares no
+tip, the flat cases the face centre) and ``truth.json``.
 """
 
 from __future__ import annotations
@@ -122,18 +129,46 @@ FLAT_SLIDES = ((3.5, 5.0, 0.020, 20.0, 15.0), (5.3, 6.8, 0.018, 130.0, -25.0), (
 T_PUSH_S, PUSH_FRACTION, PUSH_DIR_DEG = (9.1, 9.5), 0.3, 200.0  # point: final sideways push
 COP_LEAD_M, COP_WANDER_M = 0.0035, 0.0015  # flat: pressure-centre shift towards the leading edge, wander
 TWIST_SMOOTH_RAD_S = 0.02  # [rad/s] torsional friction smoothing
+# rich free motion (``flat_face_rich``), before the experiment above: from the start pose, min-jerk
+# moves (IK of the tip, 6D) to (tilt rotation vector about world axes [deg], turn about the tool
+# axis s_z [deg], tip displacement in w [m], move [s], hold after it [s]); the last returns to the
+# start pose. Tilts of 25-35 deg about world x, y and both; turns about s_z of up to 60 deg.
+RICH_START_HOLD_S = 0.5  # [s] the tare pose, held first
+RICH_TARGETS = (
+    ((30.0, 0.0, 0.0), 0.0, (0.0, 0.03, 0.02), 0.9, 0.3),
+    ((0.0, 30.0, 0.0), 0.0, (0.04, 0.0, 0.0), 0.9, 0.3),
+    ((-25.0, 0.0, 0.0), 60.0, (0.0, -0.04, 0.03), 1.0, 0.3),
+    ((0.0, -35.0, 0.0), 20.0, (-0.03, 0.02, 0.04), 1.0, 0.3),
+    ((25.0, 20.0, 0.0), -30.0, (0.02, 0.03, 0.0), 1.0, 0.3),
+    ((0.0, 0.0, 0.0), 0.0, (0.0, 0.0, 0.0), 0.9, 0.0),
+)
+T_RICH_S = RICH_START_HOLD_S + sum(mv + hold for *_, mv, hold in RICH_TARGETS)  # [s] the experiment's delay
 
 # --- noise -----------------------------------------------------------------------------------------
 SIGMA_FORCE_N = 0.05
 SIGMA_TORQUE_NM = 0.003
 
-CASES: dict[str, str] = {
-    "point": "a point contact at the tip (0.03, -0.015, 0.12) m of the sensor frame, not declared; pivot, "
-             "sideways pushes and slides change the force's direction",
-    "flat_face": "a 20 x 20 mm box-peg face pressed, slid and twisted on the table (a moment about the face "
-                 "centre: pressure shift + torsional friction) and a hidden crosstalk Fx += 0.04 Fz",
+
+@dataclass(frozen=True)
+class Case:
+    """One log of the rig."""
+
+    description: str
+    contact: str  # "point": a point contact at the tip; "flat": the box peg's face
+    free_motion: str  # "turn": the 18 deg approach turn only; "rich": RICH_TARGETS first
+    crosstalk_fx_from_fz: float  # [-] the sensor reports Fx + this Fz
+    declares_tip: bool  # the set-up declares the tip (the face centre)
+
+
+_FLAT = ("a 20 x 20 mm box-peg face pressed, slid and twisted on the table (a moment about the face centre: "
+         "pressure shift + torsional friction) and a hidden crosstalk Fx += 0.04 Fz")
+CASES: dict[str, Case] = {
+    "point": Case("a point contact at the tip (0.03, -0.015, 0.12) m of the sensor frame, not declared; pivot, "
+                  "sideways pushes and slides change the force's direction", "point", "turn", 0.0, False),
+    "flat_face": Case(_FLAT, "flat", "turn", CROSSTALK_FX_FROM_FZ, True),
+    "flat_face_rich": Case(_FLAT + "; first a rich free-space phase (tilts of 25-35 deg about two axes, turns "
+                           "about the tool axis)", "flat", "rich", CROSSTALK_FX_FROM_FZ, True),
 }
-_KIND = {"point": "point", "flat_face": "flat"}
 Q_COLS = tuple(f"q{j}" for j in range(1, 7))
 WRENCH_COLS = ("fx", "fy", "fz", "tx", "ty", "tz")
 
@@ -289,8 +324,48 @@ class Path6:
     rotvec_w: np.ndarray
 
 
-def tip_path(kind: str, t: np.ndarray, p0_w: np.ndarray) -> Path6:
-    """The tip's pose at ``t`` (N,) [s] for ``kind`` ("point" or "flat"); ``p0_w`` the touch-down point."""
+def _rich_path(t: np.ndarray, tip_start_w: np.ndarray) -> Path6:
+    """The rich free motion at ``t`` (N,) [s] in [0, T_RICH_S]: holds and min-jerk moves through
+    ``RICH_TARGETS`` from the start pose (tip ``tip_start_w`` (3,) [m]) back to it; the rotation
+    between targets along the geodesic. Rotations are kept as ``R_ws R_c^T``; the tool axis s_z is
+    -z (world) in the contact orientation ``R_c``, so a turn about it is one about -z before the start turn."""
+    r_start = rotvec_matrix(math.radians(APPROACH_TURN_DEG) * np.asarray(APPROACH_AXIS_W))  # R_ws R_c^T
+    poses = [(np.zeros(3), r_start)]  # (tip displacement [m], R_ws R_c^T)
+    for tilt_deg, turn_deg, dp, _, _ in RICH_TARGETS:
+        turn = rotvec_matrix(np.deg2rad([0.0, 0.0, -turn_deg]))  # R_c Rz(turn) R_c^T
+        poses.append((np.asarray(dp, dtype=float), rotvec_matrix(np.deg2rad(tilt_deg)) @ r_start @ turn))
+    disp, rot = np.zeros((len(t), 3)), np.empty((len(t), 3))
+    rot[:] = matrix_rotvec(r_start)
+    t0 = RICH_START_HOLD_S
+    for (dp_a, r_a), (dp_b, r_b), (*_, t_move, t_hold) in zip(poses[:-1], poses[1:], RICH_TARGETS):
+        s = _minjerk((t - t0) / t_move)
+        on = t >= t0
+        step = matrix_rotvec(r_a.T @ r_b)
+        disp[on] = dp_a + s[on, None] * (dp_b - dp_a)
+        rot[on] = [matrix_rotvec(r_a @ rotvec_matrix(si * step)) for si in s[on]]
+        t0 += t_move + t_hold
+    return Path6(tip_start_w + disp, rot)
+
+
+def tip_path(case: Case, t: np.ndarray, p0_w: np.ndarray) -> Path6:
+    """The tip's pose at ``t`` (N,) [s] for ``case``; ``p0_w`` the touch-down point. A rich free
+    motion comes first and delays the rest by ``T_RICH_S``."""
+    path = _experiment_path(case.contact, t - experiment_delay_s(case), p0_w)
+    if case.free_motion == "rich":
+        early = t < T_RICH_S
+        rich = _rich_path(t[early], path.tip_w[0])
+        path.tip_w[early], path.rotvec_w[early] = rich.tip_w, rich.rotvec_w
+    return path
+
+
+def experiment_delay_s(case: Case) -> float:
+    """[s] the time the approach-and-contact experiment starts after the first sample."""
+    return T_RICH_S if case.free_motion == "rich" else 0.0
+
+
+def _experiment_path(kind: str, t: np.ndarray, p0_w: np.ndarray) -> Path6:
+    """The approach-and-contact experiment's tip pose at ``t`` (N,) [s from its start] for ``kind``
+    ("point" or "flat"); ``p0_w`` the touch-down point; before 0 the start pose."""
     axis = np.asarray(APPROACH_AXIS_W)
     s = _minjerk((t - T_APPROACH_S[0]) / (T_APPROACH_S[1] - T_APPROACH_S[0]))
     descent = GUARD_SPEED_M_S * (_ramp_distance(t, T_GUARD_S, GUARD_RAMP_S) - _ramp_distance(t, T_TOUCH_S, STOP_S))
@@ -403,16 +478,18 @@ def _contact_wrench(kind: str, t: np.ndarray, fn: np.ndarray, vel: np.ndarray, w
     return fn[:, None] * n + fric, np.cross(cop, fn[:, None] * n) + torsion[:, None] * n
 
 
-@functools.lru_cache(maxsize=2)
-def trajectory(kind: str) -> Trajectory:
-    """The 10 s experiment of ``kind`` ("point" or "flat"), see the module docstring."""
+@functools.lru_cache(maxsize=3)
+def trajectory(case: Case) -> Trajectory:
+    """The experiment of ``case`` (10 s, plus ``T_RICH_S`` for a rich free motion first), see the
+    module docstring."""
     m = build_model()
-    t = np.arange(N_SAMPLES) / RATE_HZ
+    delay = experiment_delay_s(case)
+    t = np.arange(N_SAMPLES + round(delay * RATE_HZ)) / RATE_HZ
     r_c, p0 = contact_orientation(m)
-    q, qd, qdd = _joint_motion(m, t, tip_path(kind, t, p0), r_c)
+    q, qd, qdd = _joint_motion(m, t, tip_path(case, t, p0), r_c)
     tip, vel, r_ws, wz = _kinematics(m, q, qd)
-    fn = _normal_force(t)
-    f_w, m_w = _contact_wrench(kind, t, fn, vel, wz)
+    fn = _normal_force(t - delay)
+    f_w, m_w = _contact_wrench(case.contact, t - delay, fn, vel, wz)
     arrays = (t, q, qd, qdd, f_w, m_w, tip, r_ws, fn)
     for a in arrays:
         a.setflags(write=False)
@@ -425,8 +502,7 @@ def trajectory(kind: str) -> Trajectory:
 def crosstalk_matrix(name: str) -> np.ndarray:
     """(6, 6) ``I + E``: what the sensor reports of the true wrench (rows/cols Fx Fy Fz Tx Ty Tz)."""
     e = np.eye(6)
-    if name == "flat_face":
-        e[0, 2] += CROSSTALK_FX_FROM_FZ
+    e[0, 2] += CASES[name].crosstalk_fx_from_fz
     return e
 
 
@@ -436,7 +512,7 @@ def case_signals(name: str, seed: int = 0, noise: bool = True) -> dict[str, np.n
     crosstalk, tare and noise, ``tare`` (6,) the reading subtracted, ``f_w`` (N, 3) the contact force."""
     if name not in CASES:
         raise KeyError(f"unknown case '{name}' (choose from {', '.join(CASES)})")
-    tr = trajectory(_KIND[name])
+    tr = trajectory(CASES[name])
     m = build_model()
     w_true = inverse_dynamics_wrench(m, tr.q, tr.qd, tr.qdd, tr.f_w, tr.m_w)
     reported = w_true @ crosstalk_matrix(name).T
@@ -458,15 +534,17 @@ def _toml_value(v) -> str:
     return "[" + ", ".join(_toml_value(x) for x in v) + "]"
 
 
-def setup_toml(name: str) -> str:
+def setup_toml(name: str, mount_known: bool = False) -> str:
     """The set-up a user of this rig declares: the URDF, tared, the mount's rotation unknown (zero
-    first guess), a guessed tool; ``point`` declares no tip, ``flat_face`` the face centre."""
+    first guess; ``mount_known``: the true rotation, declared known), a guessed tool; ``point``
+    declares no tip, the flat cases the face centre."""
     tool = {"mass_kg": DECLARED_MASS_KG, "com_sensor_m": DECLARED_COM_S_M}
-    if name == "flat_face":
+    if CASES[name].declares_tip:
         tool["tip_sensor_m"] = TIP_S_M
+    rpy = SENSOR_RPY_F_DEG if mount_known else (0.0, 0.0, 0.0)
     sections = {
         "log": {"time": "t", "q": Q_COLS, "wrench": WRENCH_COLS, "wrench_acts": "tool_on_sensor", "tared": True},
-        "sensor": {"position_flange_m": SENSOR_POS_F_M, "rpy_flange_deg": (0.0, 0.0, 0.0), "mount_known": False},
+        "sensor": {"position_flange_m": SENSOR_POS_F_M, "rpy_flange_deg": rpy, "mount_known": mount_known},
         "tool": tool,
         "arm": {"urdf": str(UR5E_URDF)},
     }
@@ -476,42 +554,45 @@ def setup_toml(name: str) -> str:
     return "\n".join(lines)
 
 
-def truth(name: str, sig: dict[str, np.ndarray], seed: int) -> dict:
+def truth(name: str, sig: dict[str, np.ndarray], seed: int, mount_known: bool = False) -> dict:
     """What the log hides (SI units, sensor frame unless named)."""
+    case = CASES[name]
     in_contact = np.linalg.norm(sig["f_w"], axis=1) > 0.0
     onset = float(sig["t"][np.argmax(in_contact)])
-    out = {"case": name, "description": CASES[name], "seed": int(seed),
+    out = {"case": name, "description": case.description, "seed": int(seed),
            "tool_mass_kg": TOOL_MASS_KG, "tool_com_sensor_m": list(TOOL_COM_S_M),
            "tool_inertia_com_kg_m2": list(TOOL_INERTIA_COM_KG_M2),
            "sensor_rpy_flange_deg": list(SENSOR_RPY_F_DEG), "sensor_position_flange_m": list(SENSOR_POS_F_M),
-           "contact_point_sensor_m": list(TIP_S_M), "contact_onset_s": T_TOUCH_S,
+           "contact_point_sensor_m": list(TIP_S_M), "contact_onset_s": T_TOUCH_S + experiment_delay_s(case),
            "first_contact_sample_s": onset, "contact_fraction": float(in_contact.mean()),
            "tare_wrench": [float(v) for v in sig["tare"]],
            "noise": {"force_N": SIGMA_FORCE_N, "torque_Nm": SIGMA_TORQUE_NM},
            "declared": {"tool_mass_kg": DECLARED_MASS_KG, "tool_com_sensor_m": list(DECLARED_COM_S_M),
-                        "mount_known": False, "tip_sensor_m": list(TIP_S_M) if name == "flat_face" else None}}
-    if name == "flat_face":
-        tr = trajectory("flat")
+                        "mount_known": mount_known, "tip_sensor_m": list(TIP_S_M) if case.declares_tip else None}}
+    if case.contact == "flat":
+        tr = trajectory(case)
         m_s = np.einsum("nji,nj->ni", tr.r_ws, tr.m_w)[in_contact]
         out["face"] = {"side_m": FACE_SIDE_M, "mu": MU,
                        "moment_about_tip_rms_Nm": float(np.sqrt(np.mean(np.sum(m_s**2, axis=1)))),
                        "moment_about_tip_max_Nm": float(np.linalg.norm(m_s, axis=1).max())}
-        out["crosstalk"] = {"fx_from_fz": CROSSTALK_FX_FROM_FZ,
-                            "reads": f"Fx + {CROSSTALK_FX_FROM_FZ} Fz (tool-on-sensor, before the tare)",
+    if case.crosstalk_fx_from_fz:
+        k = case.crosstalk_fx_from_fz
+        out["crosstalk"] = {"fx_from_fz": k, "reads": f"Fx + {k} Fz (tool-on-sensor, before the tare)",
                             "effect_file": "examples/effects/crosstalk_fx_fz.py"}
     return out
 
 
-def make_case(name: str, out_dir: Path, seed: int = 0) -> Path:
-    """Write case ``name`` into ``out_dir/name/`` (log.csv, setup.toml, truth.json); return the folder."""
+def make_case(name: str, out_dir: Path, seed: int = 0, mount_known: bool = False) -> Path:
+    """Write case ``name`` into ``out_dir/name/`` (log.csv, setup.toml, truth.json); return the folder.
+    ``mount_known``: the set-up declares the true mount, known."""
     sig = case_signals(name, seed)
     case_dir = Path(out_dir) / name
     case_dir.mkdir(parents=True, exist_ok=True)
     data = np.c_[sig["t"], sig["q"], sig["wrench"]]
     np.savetxt(case_dir / "log.csv", data, delimiter=",", fmt=["%.3f"] + ["%.6f"] * 12,
                header=",".join(("t", *Q_COLS, *WRENCH_COLS)), comments="")
-    (case_dir / "setup.toml").write_text(setup_toml(name))
-    (case_dir / "truth.json").write_text(json.dumps(truth(name, sig, seed), indent=2) + "\n")
+    (case_dir / "setup.toml").write_text(setup_toml(name, mount_known))
+    (case_dir / "truth.json").write_text(json.dumps(truth(name, sig, seed, mount_known), indent=2) + "\n")
     return case_dir
 
 
@@ -538,7 +619,7 @@ def self_test(seed: int = 0) -> dict[str, float]:
     m = build_model()
     d = mujoco.MjData(m)
     ids = _Ids(m)
-    tr = trajectory("point")
+    tr = trajectory(CASES["point"])
     out = {}
     for i in (0, 600, 1500):  # poses of the log, at rest
         w = inverse_dynamics_wrench(m, tr.q[i:i + 1], tr.qd[i:i + 1] * 0, tr.qdd[i:i + 1] * 0, np.zeros((1, 3)),
@@ -570,13 +651,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, required=True, help="output folder (one subfolder per case)")
     p.add_argument("--case", nargs="+", default=list(CASES), choices=list(CASES), help="cases (default: all)")
     p.add_argument("--seed", type=int, default=0, help="noise seed")
+    p.add_argument("--mount-known", action="store_true",
+                   help="the set-up declares the true mount rotation, known (default: unknown, zero first guess)")
     p.add_argument("--self-test", action="store_true", help="check the rig's physics and timing first")
     a = p.parse_args(argv)
     if a.self_test:
         print("self-test:", {k: f"{v:.3g}" for k, v in self_test(a.seed).items()})
     for name in a.case:
         t0 = time.perf_counter()
-        d = make_case(name, a.out, a.seed)
+        d = make_case(name, a.out, a.seed, a.mount_known)
         print(f"{d}: {', '.join(sorted(x.name for x in d.iterdir()))} ({time.perf_counter() - t0:.2f} s)")
     return 0
 

@@ -58,3 +58,20 @@ def test_point_contact_mount_within_its_interval(point_case):
     d = (np.asarray(sm["rpy_flange_deg"]) - np.asarray(truth["sensor_rpy_flange_deg"]) + 180.0) % 360.0 - 180.0
     named = [u for u in sm["undetermined"] if u["parameter"].startswith("mount rotation")]
     assert named or np.all(np.abs(d) <= np.maximum(3 * np.asarray(sm["sd_deg"]), 0.5)), (d, sm["sd_deg"])
+
+
+def test_rich_free_motion_before_the_same_face_contact():
+    """``flat_face_rich``: a free-space phase that turns the wrist >= 25 deg about world x and world
+    y and >= 45 deg about the tool axis, all in free space, then exactly the ``flat_face``
+    experiment (same joint motion and contact wrench, delayed by ``T_RICH_S``)."""
+    rich, flat = rig.trajectory(rig.CASES["flat_face_rich"]), rig.trajectory(rig.CASES["flat_face"])
+    n0 = round(rig.T_RICH_S * rig.RATE_HZ)
+    assert np.allclose(rich.q[n0:], flat.q, atol=1e-9) and np.allclose(rich.f_w[n0:], flat.f_w, atol=1e-9)
+    assert np.allclose(rich.m_w[n0:], flat.m_w, atol=1e-12) and not rich.normal_n[:n0].any()
+    r0 = rich.r_ws[0]
+    tilt_w = np.rad2deg([rig.matrix_rotvec(r @ r0.T) for r in rich.r_ws[:n0]])  # (n0, 3) [deg]
+    rel_s = np.einsum("ji,njk->nik", r0, rich.r_ws[:n0])  # R_s0^T R_s(t)
+    turn = np.rad2deg(np.arctan2(rel_s[:, 1, 0] - rel_s[:, 0, 1], rel_s[:, 0, 0] + rel_s[:, 1, 1]))
+    assert np.abs(tilt_w[:, 0]).max() >= 25.0 and np.abs(tilt_w[:, 1]).max() >= 25.0, np.abs(tilt_w).max(0)
+    assert np.abs(turn).max() >= 45.0, np.abs(turn).max()
+    assert np.abs(rich.qd[0]).max() < 1e-9  # at rest at the tare
