@@ -5,12 +5,17 @@ and a legend or title that names every colour and shading; y-limits come from th
 percentiles of the plotted data (``robust_limits``), so a few spikes do not flatten the bulk --
 samples beyond the axis are marked by red triangles at its edge (``set_robust_ylim``); panels and
 reference lines that do not apply to the run (e.g. the seat-depth target of the ``excite``
-program) are not drawn."""
+program) are not drawn. A series is drawn at most at the pixel width of its panel (``decimate``,
+``envelope``: each pixel column's minimum and maximum, so spikes stay); one that chatters faster
+than that is drawn as its range with a sliding mean through it (``band_and_mean``), and a boolean
+channel as the fraction of a sliding window it is true (``fraction_lanes``), never as a barcode."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import NamedTuple
 
 import matplotlib
 
@@ -46,17 +51,6 @@ def decimate(x: np.ndarray, y: np.ndarray, max_points: int = MAX_LINE_POINTS) ->
     idx = np.concatenate([start + lo.argmin(axis=1), start + hi.argmax(axis=1), np.flatnonzero(~fin), [0, n - 1]])
     idx = np.unique(idx[idx < n])
     return x[idx], y[idx]
-
-
-def changes(x: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(x, v) kept only where ``v`` changes (and at both ends): exact for a step drawn with
-    ``where='post'`` or a shaded mask, however long the record."""
-    x, v = np.asarray(x), np.asarray(v)
-    if len(v) < 3:
-        return x, v
-    d = np.flatnonzero(v[1:] != v[:-1])
-    idx = np.unique(np.concatenate([[0, len(v) - 1], d, d + 1]))
-    return x[idx], v[idx]
 
 
 def robust_limits(ys: Sequence[np.ndarray], pct: tuple[float, float] = ROBUST_PCT, margin: float = 0.08,
@@ -159,12 +153,79 @@ def labelled_ticks(axis, n: int = 3) -> None:
         axis.set_major_locator(MaxNLocator(nbins="auto", steps=[1, 2, 2.5, 5, 10], min_n_ticks=n))
 
 
-def shade(ax, x: np.ndarray, mask: np.ndarray, color: str, label: str, alpha: float = 1.0) -> None:
-    """Shade the full height of ``ax`` where ``mask`` (labelled for the legend); nothing if never."""
-    mask = np.asarray(mask, dtype=bool)
-    if mask.any():
-        ax.fill_between(x, 0, 1, where=mask, color=color, alpha=alpha, lw=0, step="post",
-                        transform=ax.get_xaxis_transform(), label=label, zorder=0)
+class Envelope(NamedTuple):
+    """A series reduced to one (min, max) pair per pixel column (``envelope``)."""
+
+    x: np.ndarray  # (C,) middle of each column's samples [x units]
+    lo: np.ndarray  # (C,) smallest finite sample of the column (NaN: none)
+    hi: np.ndarray  # (C,) largest finite sample of the column (NaN: none)
+
+
+def envelope(x: np.ndarray, y: np.ndarray, columns: int) -> Envelope:
+    """(x, y) reduced to at most ``columns`` equal-width columns of x (x non-decreasing): each
+    column's minimum and maximum, so a band drawn between them keeps every spike and a series
+    that chatters faster than a pixel shows as its range, not as a zigzag. Columns without a
+    sample are left out; a column whose samples are all NaN gives NaN (a gap)."""
+    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    if not len(x):
+        return Envelope(x, y, y)
+    span = x[-1] - x[0]
+    col = (np.minimum((x - x[0]) * (columns / span), columns - 1).astype(int) if span > 0
+           else np.zeros(len(x), int))
+    start = np.flatnonzero(np.r_[True, col[1:] != col[:-1]])
+    stop = np.r_[start[1:], len(x)]
+    with np.errstate(invalid="ignore"):  # (an all-NaN column)
+        lo, hi = np.fmin.reduceat(y, start), np.fmax.reduceat(y, start)
+    return Envelope(0.5 * (x[start] + x[stop - 1]), lo, hi)
+
+
+def sliding_mean(y: np.ndarray, n: int) -> np.ndarray:
+    """The mean of ``y`` over a centred window of ``n`` samples (shortened at the ends; NaN samples
+    left out, NaN where the window has none). Of a boolean channel: the fraction of the window it
+    is true. (N,) -> (N,)."""
+    y = np.asarray(y, dtype=float)
+    if n <= 1 or not len(y):
+        return y.copy()
+    fin = np.isfinite(y)
+    total = np.r_[0.0, np.cumsum(np.where(fin, y, 0.0))]
+    count = np.r_[0, np.cumsum(fin)]
+    i = np.arange(len(y))
+    lo, hi = np.clip(i - n // 2, 0, len(y)), np.clip(i - n // 2 + n, 0, len(y))
+    k = count[hi] - count[lo]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(k > 0, (total[hi] - total[lo]) / k, np.nan)
+
+
+def pixel_columns(a) -> int:
+    """The width of axes ``a`` in pixels of the saved PNG (``SAVE_DPI``): the most columns a
+    series drawn there can show."""
+    return max(1, int(np.ceil(a.get_position().width * a.get_figure().get_figwidth() * SAVE_DPI)))
+
+
+def band_and_mean(a, t: np.ndarray, y: np.ndarray, window: int, color: str, label: str) -> None:
+    """A dense, maybe chattering series: its range per pixel column as a faint band (spikes kept)
+    and its ``window``-sample sliding mean as the line (labelled)."""
+    cols = pixel_columns(a)
+    env = envelope(t, y, cols)
+    a.fill_between(env.x, env.lo, env.hi, color=color, alpha=0.25, lw=0)
+    a.plot(*decimate(t, sliding_mean(y, window), 2 * cols), color=color, lw=0.9, label=label)
+
+
+def fraction_lanes(a, t: np.ndarray, lanes: Sequence[tuple[str, np.ndarray]], window: int) -> None:
+    """Boolean channels stacked as lanes, each drawn as the fraction of a sliding ``window``
+    (samples) it is true, from 0 (never) to 1 (throughout): readable however fast a channel
+    switches, where spans of it would be a barcode. Each lane has labelled 0 % / 100 % ticks."""
+    ticks, labels = [], []
+    cols = pixel_columns(a)
+    for off, (name, v) in enumerate(lanes):
+        base = 1.5 * off
+        tt, ff = decimate(t, sliding_mean(np.asarray(v, dtype=float), window), 2 * cols)
+        a.fill_between(tt, base, base + ff, color=f"C{off}", alpha=0.3, lw=0)
+        a.plot(tt, base + ff, color=f"C{off}", lw=1.0)
+        ticks += [base, base + 1]
+        labels += [f"{name}: 0 %", "100 %"]
+    a.set_yticks(ticks, labels, fontsize=7)
+    a.set_ylim(-0.3, 1.5 * (len(lanes) - 1) + 1.3)
 
 
 def reference_line(ax, value: float, lim: tuple[float, float] | None, label: str, color: str = "r",
@@ -178,184 +239,264 @@ def reference_line(ax, value: float, lim: tuple[float, float] | None, label: str
         ax.plot([], [], color=color, lw=0.9, ls=ls, label=f"{label} ({where} the axis)")
 
 
-def bool_channels(ax, t: np.ndarray, channels: Sequence[tuple[str, np.ndarray]]) -> None:
-    """Boolean channels stacked as steps, each with its own labelled 'no'/'yes' ticks."""
-    ticks, labels = [], []
-    for off, (name, v) in enumerate(channels):
-        base = 1.5 * off
-        tt, vv = changes(t, np.asarray(v, dtype=float))
-        ax.step(tt, vv + base, where="post", color=f"C{off}", label=name)
-        ticks += [base, base + 1]
-        labels += [f"{name}: no", "yes"]
-    ax.set_yticks(ticks, labels, fontsize=7)
-    ax.set_ylim(-0.3, 1.5 * (len(channels) - 1) + 1.3)
+def plain_log_ticks(a) -> None:
+    """Plain-text tick labels on a log y axis ('1e-06', '100'): matplotlib's default writes each
+    as mathtext, which costs a parse per label."""
+    from matplotlib.ticker import LogFormatter
+
+    a.yaxis.set_major_formatter(LogFormatter())
+    a.yaxis.set_minor_formatter(LogFormatter(labelOnlyBase=False, minor_thresholds=(1, 0.4)))
 
 
-def rollout_figure(trace: Trace, summary: dict, cfg: ExperimentCfg) -> plt.Figure:
-    """Nine panels: depth (sensor vs truth), lateral force, moment, axial force, the success
-    channels (insert program; the contact channels for ``excite``), lambda_min of the estimated
-    Jacobian, and the identification row (offset estimate vs truth) -- or, where theta is held
-    fixed or is not an offset, the W-scaled prediction error. Time axis in seconds."""
-    t = trace["t_s"]
-    s = trace["s"]
-    w = trace["w_env_w"]
-    sc = cfg.success
-    insert = cfg.control.program != "excite"  # the seat criteria (depth target, limits) apply
-    gate = trace["adapt_gate"] > 0
-    held = cfg.run.features == "oracle" or cfg.adaptation.mode == "frozen"
-    theta = trace["theta"]
-    offset_row = theta.shape[1] == 3 and not held
-    fig, ax = plt.subplots(3, 3, figsize=ROLLOUT_SIZE_IN)
-    for a in ax.ravel()[1:]:
-        if a is not ax[2, 2] or not held:  # held: the last panel is a bar chart, not a time series
-            a.sharex(ax[0, 0])
-
-    a = ax[0, 0]
-    a.plot(*decimate(t, 1e3 * s[:, 0]), label="sensor depth d (encoders)")
-    a.plot(*decimate(t, 1e3 * trace["truth_tip_depth_m"]), "--", label="true tip depth (truth)")
-    if insert:
-        a.axhline(1e3 * sc.depth_m, color="k", lw=0.8, ls=":",
-                  label=f"target {1e3 * sc.depth_m:.0f} mm (seated: d >= {1e3 * (sc.depth_m - sc.depth_tol_m):.1f})")
-    a.set_ylabel("depth below the entrance [mm]")
-    a.legend(fontsize=8)
-    a.set_title("insertion depth" if insert else "tip depth (excite program: no seat target)")
-
-    a = ax[0, 1]
-    flat = np.hypot(s[:, 1], s[:, 2])
-    a.plot(*decimate(t, s[:, 1]), lw=0.8, label="F_lat x")
-    a.plot(*decimate(t, s[:, 2]), lw=0.8, label="F_lat y")
-    a.plot(*decimate(t, flat), "k", lw=0.8, label="|F_lat|")
-    lim = set_robust_ylim(a, t, [s[:, 1], s[:, 2], flat], unit="N", headroom=0.45)
-    if insert:
-        reference_line(a, sc.max_lateral_force_N, lim, f"seat limit |F_lat| < {sc.max_lateral_force_N:g} N")
-    a.set_ylabel("force [N]")
-    a.legend(fontsize=7, loc="upper left", ncol=2)
-    a.set_title("lateral contact force")
-
-    a = ax[0, 2]
-    mnorm = np.linalg.norm(s[:, 3:], axis=1)
-    for i, n in enumerate("xyz"):
-        a.plot(*decimate(t, s[:, 3 + i]), lw=0.8, label=f"M {n}")
-    a.plot(*decimate(t, mnorm), "k", lw=0.8, label="|M|")
-    lim = set_robust_ylim(a, t, [s[:, 3], s[:, 4], s[:, 5], mnorm], unit="N m", headroom=0.45)
-    if insert:
-        reference_line(a, sc.max_moment_Nm, lim, f"seat limit |M| < {sc.max_moment_Nm:g} N m")
-    a.set_ylabel("moment about O [N m]")
-    a.legend(fontsize=7, loc="upper left", ncol=2)
-    a.set_title("wrist moment")
-
-    a = ax[1, 0]
-    a.plot(*decimate(t, trace["truth_contact_force_N"]), color="C1", lw=0.6, alpha=0.8, label="total normal contact (truth)")
-    a.plot(*decimate(t, -w[:, 2]), color="C0", lw=1.0, label="axial force on tool (sensor)")
-    set_robust_ylim(a, t, [-w[:, 2], trace["truth_contact_force_N"]], unit="N", headroom=0.25)
-    a.set_ylabel("force [N]")
-    a.legend(fontsize=8, loc="upper left")
-    a.set_title("axial / contact force")
-
-    a = ax[1, 1]
-    if insert:
-        bool_channels(a, t, [(n, trace[n]) for n in ("depth_ok", "force_ok", "moment_ok")])
-        title = "success channels (sensor side)"
-        if summary.get("seat_time_s") is not None:
-            a.axvline(summary["seat_time_s"], color="k", ls="--", lw=1.0)
-            title += f"\ndashed: seated at {summary['seat_time_s']:.2f} s (all ok for {sc.hold_s:g} s)"
-        a.set_title(title, fontsize=10)
-    else:
-        bool_channels(a, t, [("sensed contact", gate), ("truth: bore/socket", trace["truth_contact_bore"]),
-                             ("truth: block face", trace["truth_contact_face"])])
-        a.set_title("contact (sensor gate vs truth)")
-
-    a = ax[1, 2]
-    act = trace["drive_scale"] > 0
-    a.semilogy(*decimate(t[act], trace["lambda_min"][act]), label="lambda_min (drive on)")
-    a.axhline(1e-6, color="r", lw=0.8, ls=":", label="rank gate 1e-6")
-    a.set_ylabel("lambda_min(W J_hat J_hat^T W)")
-    a.legend(fontsize=8)
-    a.set_title("stability margin")
-
-    true = np.asarray(trace.meta.get("truth_offset_f_m", [np.nan] * 3))
-    if offset_row:
-        a = ax[2, 0]
-        for i, (n, col) in enumerate(zip("xy", ("C0", "C1"))):
-            a.plot(*decimate(t, 1e3 * theta[:, i]), col, label=f"estimate {n}_f")
-            a.axhline(1e3 * true[i], color=col, ls="--", lw=0.8, label=f"true {n}_f")
-        a.set_ylabel("lateral offset [mm]")
-        a.legend(fontsize=7, ncol=2)
-        a.set_title("offset estimate vs truth (flange frame)")
-        a = ax[2, 1]
-        a.plot(*decimate(t, 1e3 * theta[:, 2]), "C2", label="estimate z_f")
-        a.axhline(1e3 * true[2], color="C2", ls="--", lw=0.8, label="true z_f (length)")
-        a.set_ylabel("axial offset [mm]")
-        a.legend(fontsize=7)
-        a.set_title("tool length estimate vs truth")
-        a = ax[2, 2]
-        err = 1e3 * np.hypot(theta[:, 0] - true[0], theta[:, 1] - true[1])
-        floor = 1e-3
-        a.semilogy(*decimate(t, np.maximum(err, floor)), "k",
-                   label="|lateral error|" + (f" (floored at {floor:g} mm)" if (err < floor).any() else ""))
-        a.axhline(1.0, color="r", ls=":", lw=0.8, label="1 mm")
-        shade(a, t, gate, "C1", "adapting (sensed contact)", alpha=0.15)
-        a.set_ylabel("lateral offset error [mm]")
-        a.legend(fontsize=7, loc="lower left")
-        a.set_title("identification")
-    else:
-        eps = trace["eps_w"]
-        why = "theta held fixed" if held else f"{cfg.run.features} features"
-        for a, chans, title in ((ax[2, 0], (0, 1, 2), "depth and force"), (ax[2, 1], (3, 4, 5), "moment")):
-            shade(a, t, gate, "#ffe6cc", "sensed contact")
-            for c in chans:
-                a.plot(*decimate(t, eps[:, c]), lw=0.7, color=f"C{c}", label=("d", "F_lat x", "F_lat y", "M x", "M y", "M z")[c])
-            set_robust_ylim(a, t, [eps[:, c] for c in chans], headroom=0.45)
-            a.set_ylabel("W-scaled rate error [-]")
-            a.legend(fontsize=7, ncol=2, loc="upper left")
-            a.set_title(f"prediction error, {title} (W-scaled; {why})", fontsize=10)
-        a = ax[2, 2]
-        if held:
-            _rms_bars(a, eps[act & ~gate], eps[act & gate])
-        else:
-            shade(a, t, gate, "C1", "adapting (sensed contact)", alpha=0.15)
-            a.semilogy(*decimate(t, np.maximum(trace["truth_jacobian_rel_error"], 1e-6)), "k", label="|J_hat - J| / |J| (truth)")
-            a.set_ylabel("Jacobian relative error")
-            a.legend(fontsize=7)
-            a.set_title("identification")
-    for a in ax.ravel():
-        if a is not ax[2, 2] or not held:
-            a.set_xlabel("time [s]")
-    done = "COMPLETED" if summary.get("program") == "excite" else "SEATED"
-    status = done if summary["success"] else f"FAILED ({summary['failure']})"
-    extra = ""
-    if held and theta.shape[1] == 3 and len(theta):
-        extra = (f"\ntheta held fixed at ({', '.join(f'{1e3 * v:.1f}' for v in theta[-1])}) mm, "
-                 f"true offset ({', '.join(f'{1e3 * v:.1f}' for v in true)}) mm")
-    fig.suptitle(f"kinadapt online - program={cfg.control.program}, features={summary['features']}, "
-                 f"law={summary['law']}, seed={summary['seed']}: {status}{extra}")
-    ident = (summary.get("identification") or {}).get("text")
-    ident_lines = 0
-    if ident:  # what was and was not identified, and why, in plain words (the summary's line)
-        import textwrap
-
-        lines = textwrap.wrap("identification: " + ident, 190)
-        ident_lines = len(lines)
-        fig.text(0.01, 0.004, "\n".join(lines), fontsize=8, va="bottom", ha="left", color="0.25")
-    _fixed_margins(fig, title_lines=1 + extra.count("\n"), footer_lines=ident_lines)
-    return fig
-
-
+#: window of the rollout figure's sliding means and contact fractions [s]
+WINDOW_S = 0.05
+#: legend title of the panels drawn by ``band_and_mean``
+BAND_NOTE = f"lines: {1e3 * WINDOW_S:.0f} ms means, bands: range"
 #: size of the rollout figure [in] (width, height)
 ROLLOUT_SIZE_IN = (14.0, 10.0)
 
 
-def _fixed_margins(fig: plt.Figure, title_lines: int, footer_lines: int) -> None:
+@dataclass(frozen=True)
+class _Rollout:
+    """What the rollout figure's panels read: the run and what is derived from it once."""
+
+    trace: Trace
+    summary: dict
+    cfg: ExperimentCfg
+    insert: bool  # the insert program: the seat criteria (depth target, limits) apply
+    held: bool  # theta held fixed (oracle features or a frozen model)
+    offset_row: bool  # theta is the tool offset and adapts: the bottom row identifies it
+    gate: np.ndarray  # (N,) bool, sensed contact (the law adapts)
+    window: int  # samples in WINDOW_S
+
+    @property
+    def t(self) -> np.ndarray:
+        return self.trace["t_s"]
+
+    @property
+    def true_offset(self) -> np.ndarray:
+        return np.asarray(self.trace.meta.get("truth_offset_f_m", [np.nan] * 3))
+
+
+def _rollout(trace: Trace, summary: dict, cfg: ExperimentCfg) -> _Rollout:
+    t = trace["t_s"]
+    held = cfg.run.features == "oracle" or cfg.adaptation.mode == "frozen"
+    dt_s = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    return _Rollout(trace=trace, summary=summary, cfg=cfg, insert=cfg.control.program != "excite", held=held,
+                    offset_row=trace["theta"].shape[1] == 3 and not held, gate=trace["adapt_gate"] > 0,
+                    window=max(1, round(WINDOW_S / dt_s)))
+
+
+def rollout_figure(trace: Trace, summary: dict, cfg: ExperimentCfg) -> plt.Figure:
+    """Nine panels: depth (sensor vs truth), lateral force, moment, axial force, the success
+    channels with sensed contact (insert program; the contact channels for ``excite``) as
+    fractions of a 50 ms window, lambda_min of the estimated Jacobian, and the identification
+    row (offset estimate vs truth) -- or, where theta is held fixed or is not an offset, the
+    W-scaled prediction error. Time axis in seconds. Dense series are drawn at the PNG's pixel
+    width: forces, moments and errors as a 50 ms mean over their range (``band_and_mean``)."""
+    r = _rollout(trace, summary, cfg)
+    title, footer = _rollout_texts(r)
+    fig, ax = _rollout_axes(r.held, title_lines=title.count("\n") + 1, footer_lines=footer.count("\n") + 1)
+    _depth_panel(ax[0, 0], r)
+    _lateral_panel(ax[0, 1], r)
+    _moment_panel(ax[0, 2], r)
+    _axial_panel(ax[1, 0], r)
+    _channels_panel(ax[1, 1], r)
+    _margin_panel(ax[1, 2], r)
+    (_offset_row if r.offset_row else _prediction_row)(ax[2], r)
+    fig.suptitle(title)
+    fig.text(0.01, 0.004, footer, fontsize=8, va="bottom", ha="left", color="0.25")
+    return fig
+
+
+def _rollout_texts(r: _Rollout) -> tuple[str, str]:
+    """The suptitle and the footer (sensed contact's share and switching rate; what was and was
+    not identified, and why, in plain words: the summary's line)."""
+    import textwrap
+
+    s = r.summary
+    done = "COMPLETED" if s.get("program") == "excite" else "SEATED"
+    status = done if s["success"] else f"FAILED ({s['failure']})"
+    title = (f"kinadapt online - program={r.cfg.control.program}, features={s['features']}, law={s['law']}, "
+             f"seed={s['seed']}: {status}")
+    theta = r.trace["theta"]
+    if r.held and theta.shape[1] == 3 and len(theta):
+        title += (f"\ntheta held fixed at ({', '.join(f'{1e3 * v:.1f}' for v in theta[-1])}) mm, "
+                  f"true offset ({', '.join(f'{1e3 * v:.1f}' for v in r.true_offset)}) mm")
+    t, g = r.t, r.gate
+    duration_s = float(t[-1] - t[0]) if len(t) > 1 else 0.0
+    switches = int(np.count_nonzero(g[1:] != g[:-1]))
+    rate = switches / duration_s if duration_s else 0.0
+    share = 100 * g.mean() if len(g) else 0.0
+    what = "sensed contact" if r.held else "sensed contact (the law adapts)"
+    lines = [f"{what}: {share:.0f} % of the run, {switches} on/off switches ({rate:.3g} per s)"]
+    ident = (s.get("identification") or {}).get("text")
+    if ident:
+        lines += textwrap.wrap("identification: " + ident, 190)
+    return title, "\n".join(lines)
+
+
+def _rollout_axes(held: bool, title_lines: int, footer_lines: int) -> tuple[plt.Figure, np.ndarray]:
+    """The 3x3 grid with fixed margins, x shared by the time panels (all but a held run's bar
+    chart) and labelled only where no time panel is below: text is most of the figure's cost,
+    so the time tick labels are drawn once per column, not three times."""
+    fig, ax = plt.subplots(3, 3, figsize=ROLLOUT_SIZE_IN)
+    time_axes = [a for a in ax.ravel() if a is not ax[2, 2] or not held]
+    for i, j in np.ndindex(ax.shape):
+        a = ax[i, j]
+        if a not in time_axes:
+            continue
+        if a is not ax[0, 0]:
+            a.sharex(ax[0, 0])
+        if i < 2 and ax[i + 1, j] in time_axes:
+            a.tick_params(labelbottom=False)
+        else:
+            a.set_xlabel("time [s]")
+    _fixed_margins(fig, title_lines, footer_lines, hgap=0.95 if held else 0.55)
+    return fig, ax
+
+
+def _depth_panel(a, r: _Rollout) -> None:
+    t, sc, cols = r.t, r.cfg.success, 2 * pixel_columns(a)
+    a.plot(*decimate(t, 1e3 * r.trace["s"][:, 0], cols), label="sensor depth d (encoders)")
+    a.plot(*decimate(t, 1e3 * r.trace["truth_tip_depth_m"], cols), "--", label="true tip depth (truth)")
+    if r.insert:
+        a.axhline(1e3 * sc.depth_m, color="k", lw=0.8, ls=":",
+                  label=f"target {1e3 * sc.depth_m:.0f} mm (seated: d >= {1e3 * (sc.depth_m - sc.depth_tol_m):.1f})")
+    a.set_ylabel("depth below the entrance [mm]")
+    a.legend(fontsize=8)
+    a.set_title("insertion depth" if r.insert else "tip depth (excite program: no seat target)")
+
+
+def _dense_panel(a, r: _Rollout, series: Sequence[tuple[str, np.ndarray, str]], unit: str,
+                 limit: tuple[float, str] | None = None, headroom: float = 0.45, ncol: int = 2) -> None:
+    """``band_and_mean`` of each (label, (N,) values, colour), robust y-limits over the samples,
+    ``limit`` (value, label) as a reference line, and a legend of ``ncol`` columns."""
+    for label, y, color in series:
+        band_and_mean(a, r.t, y, r.window, color, label)
+    lim = set_robust_ylim(a, r.t, [y for _, y, _ in series], unit=unit, headroom=headroom)
+    if limit is not None:
+        reference_line(a, limit[0], lim, limit[1])
+    a.legend(fontsize=7, loc="upper left", ncol=ncol, title=BAND_NOTE, title_fontsize=7)
+
+
+def _lateral_panel(a, r: _Rollout) -> None:
+    s, sc = r.trace["s"], r.cfg.success
+    limit = (sc.max_lateral_force_N, f"seat limit |F_lat| < {sc.max_lateral_force_N:g} N") if r.insert else None
+    _dense_panel(a, r, [("F_lat x", s[:, 1], "C0"), ("F_lat y", s[:, 2], "C1"),
+                        ("|F_lat|", np.hypot(s[:, 1], s[:, 2]), "k")], "N", limit)
+    a.set_ylabel("force [N]")
+    a.set_title("lateral contact force")
+
+
+def _moment_panel(a, r: _Rollout) -> None:
+    s, sc = r.trace["s"], r.cfg.success
+    limit = (sc.max_moment_Nm, f"seat limit |M| < {sc.max_moment_Nm:g} N m") if r.insert else None
+    _dense_panel(a, r, [*((f"M {n}", s[:, 3 + i], f"C{i}") for i, n in enumerate("xyz")),
+                        ("|M|", np.linalg.norm(s[:, 3:], axis=1), "k")], "N m", limit)
+    a.set_ylabel("moment about O [N m]")
+    a.set_title("wrist moment")
+
+
+def _axial_panel(a, r: _Rollout) -> None:
+    _dense_panel(a, r, [("total normal contact (truth)", r.trace["truth_contact_force_N"], "C1"),
+                        ("axial force on tool (sensor)", -r.trace["w_env_w"][:, 2], "C0")], "N", headroom=0.6,
+                ncol=1)
+    a.set_ylabel("force [N]")
+    a.set_title("axial / contact force")
+
+
+def _channels_panel(a, r: _Rollout) -> None:
+    """Insert: sensed contact and the success channels; excite: sensed contact against the truth's
+    contacts. Each as the fraction of a 50 ms window it is true (``fraction_lanes``)."""
+    tr, s = r.trace, r.summary
+    how = f"fraction true per {1e3 * WINDOW_S:.0f} ms"
+    if r.insert:
+        fraction_lanes(a, r.t, [("sensed contact", r.gate), *((n, tr[n]) for n in ("depth_ok", "force_ok", "moment_ok"))],
+                       r.window)
+        title = f"success channels (sensor side), {how}"
+        if s.get("seat_time_s") is not None:
+            a.axvline(s["seat_time_s"], color="k", ls="--", lw=1.0)
+            title += f"\ndashed: seated at {s['seat_time_s']:.2f} s (all ok for {r.cfg.success.hold_s:g} s)"
+    else:
+        fraction_lanes(a, r.t, [("sensed contact", r.gate), ("truth: bore/socket", tr["truth_contact_bore"]),
+                                ("truth: block face", tr["truth_contact_face"])], r.window)
+        title = f"contact (sensor gate vs truth),\n{how}"
+    a.set_title(title, fontsize=10)
+
+
+def _margin_panel(a, r: _Rollout) -> None:
+    act = r.trace["drive_scale"] > 0
+    a.semilogy(*decimate(r.t[act], r.trace["lambda_min"][act], 2 * pixel_columns(a)), label="lambda_min (drive on)")
+    a.axhline(1e-6, color="r", lw=0.8, ls=":", label="rank gate 1e-6")
+    plain_log_ticks(a)
+    a.set_ylabel("lambda_min(W J_hat J_hat^T W)")
+    a.legend(fontsize=8)
+    a.set_title("stability margin")
+
+
+def _offset_row(ax: np.ndarray, r: _Rollout) -> None:
+    """The adapting offset: lateral and axial estimates against the truth, the lateral error."""
+    t, theta, true, cols = r.t, r.trace["theta"], r.true_offset, 2 * pixel_columns(ax[0])
+    a = ax[0]
+    for i, (n, col) in enumerate(zip("xy", ("C0", "C1"))):
+        a.plot(*decimate(t, 1e3 * theta[:, i], cols), col, label=f"estimate {n}_f")
+        a.axhline(1e3 * true[i], color=col, ls="--", lw=0.8, label=f"true {n}_f")
+    a.set_ylabel("lateral offset [mm]")
+    a.legend(fontsize=7, ncol=2)
+    a.set_title("offset estimate vs truth (flange frame)")
+    a = ax[1]
+    a.plot(*decimate(t, 1e3 * theta[:, 2], cols), "C2", label="estimate z_f")
+    a.axhline(1e3 * true[2], color="C2", ls="--", lw=0.8, label="true z_f (length)")
+    a.set_ylabel("axial offset [mm]")
+    a.legend(fontsize=7)
+    a.set_title("tool length estimate vs truth")
+    a = ax[2]
+    err = 1e3 * np.hypot(theta[:, 0] - true[0], theta[:, 1] - true[1])
+    floor = 1e-3
+    a.semilogy(*decimate(t, np.maximum(err, floor), cols), "k",
+               label="|lateral error|" + (f" (floored at {floor:g} mm)" if (err < floor).any() else ""))
+    a.axhline(1.0, color="r", ls=":", lw=0.8, label="1 mm")
+    plain_log_ticks(a)
+    a.set_ylabel("lateral offset error [mm]")
+    a.legend(fontsize=7, loc="lower left")
+    a.set_title("identification")
+
+
+def _prediction_row(ax: np.ndarray, r: _Rollout) -> None:
+    """Theta held fixed or not an offset: the W-scaled prediction error over time, and by contact
+    state (held) or the Jacobian's error against the truth (adapting)."""
+    eps = r.trace["eps_w"]
+    names = ("d", "F_lat x", "F_lat y", "M x", "M y", "M z")
+    why = "theta held fixed" if r.held else f"{r.cfg.run.features} features"
+    for a, chans, title in ((ax[0], (0, 1, 2), "depth and force"), (ax[1], (3, 4, 5), "moment")):
+        _dense_panel(a, r, [(names[c], eps[:, c], f"C{c}") for c in chans], "")
+        a.set_ylabel("W-scaled rate error [-]")
+        a.set_title(f"prediction error, {title} (W-scaled; {why})", fontsize=10)
+    a = ax[2]
+    act = r.trace["drive_scale"] > 0
+    if r.held:
+        _rms_bars(a, eps[act & ~r.gate], eps[act & r.gate])
+    else:
+        a.semilogy(*decimate(r.t, np.maximum(r.trace["truth_jacobian_rel_error"], 1e-6), 2 * pixel_columns(a)), "k",
+                   label="|J_hat - J| / |J| (truth)")
+        plain_log_ticks(a)
+        a.set_ylabel("Jacobian relative error")
+        a.legend(fontsize=7)
+        a.set_title("identification")
+
+
+def _fixed_margins(fig: plt.Figure, title_lines: int, footer_lines: int, hgap: float = 0.95) -> None:
     """Place the 3x3 grid with fixed margins [in], sized for the widest content the rollout
-    figure draws (two-line titles, 'truth: bore/socket: no' tick labels, log-axis labels and a
+    figure draws (two-line titles, 'truth: bore/socket: 0 %' tick labels, log-axis labels and a
     rotated y label left of each panel). Fixed rather than ``constrained_layout``: that solver
     measures every text object and, on ``savefig``, draws the whole figure a second time -- about
-    half of the figure's cost."""
+    half of the figure's cost. ``hgap``: between rows [in]; 0.95 holds x tick labels, the x label
+    and a two-line title, 0.55 the title alone."""
     w, h = fig.get_size_inches()
     left, right, wgap = 0.85, 0.12, 1.3  # y tick labels + y label of the panel to the right
     top = 0.75 + 0.22 * (title_lines - 1)  # the suptitle (0.2 in below the edge) and the first row's titles
     bottom = 0.55 + (0.14 * footer_lines + 0.12 if footer_lines else 0.0)  # x labels (+ the footer)
-    hgap = 0.95  # x tick labels, x label, a two-line title
     aw = (w - left - right - 2 * wgap) / 3
     ah = (h - top - bottom - 2 * hgap) / 3
     fig.subplots_adjust(left=left / w, right=1 - right / w, bottom=bottom / h, top=1 - top / h,
@@ -371,6 +512,7 @@ def _rms_bars(a, free: np.ndarray, contact: np.ndarray) -> None:
         a.bar(xx + (k - 0.5) * 0.4, rms, width=0.4, color=col, label=f"{lab} ({len(e)} samples)")
     a.set_xticks(xx, names, fontsize=8)
     a.set_yscale("log")
+    plain_log_ticks(a)
     a.set_ylim(top=a.get_ylim()[1] * 30)  # room for the legend above the bars
     a.set_ylabel("RMS of the W-scaled rate error [-]")
     a.legend(fontsize=7, loc="upper left")

@@ -142,17 +142,11 @@ def _cell_lines(summary: dict) -> list[str]:
             f"(median over {cell['heldout_configurations']} held-out configurations)"]
 
 
-def _write_online(stage: Path, cfg, result, figures=None) -> None:
-    """The run folder contents (config, summary, trace, figure, TensorBoard) into ``stage``.
-
-    ``figures``: a started ``FigureWorker`` (the figure is drawn there, beside this process's
-    writing); without one, or if it fails, the figure is drawn here."""
+def _write_online(stage: Path, cfg, result) -> None:
+    """The run folder contents (config, summary, trace, figure, TensorBoard) into ``stage``."""
     from kinadapt_nn.config import config_to_toml
     from kinadapt_nn.runio import write_json
 
-    png = stage / "rollout.png"
-    if figures is not None:
-        figures.submit(result.trace, result.summary, cfg, png)
     (stage / "config.toml").write_text(config_to_toml(cfg))
     write_json(stage / "summary.json", result.summary)
     result.trace.save(stage / "trace.npz")
@@ -164,19 +158,10 @@ def _write_online(stage: Path, cfg, result, figures=None) -> None:
         write_cell_tensorboard(stage / "tb", result.summary)  # a work cell: error vs insertion
     if not cfg.run.figure:
         return
-    drawn = False
-    if figures is not None:
-        from kinadapt_nn.app.figure_worker import FigureWorkerError
+    from kinadapt_nn.figures import rollout_figure, save_figure  # (matplotlib only when a figure is wanted)
 
-        try:
-            figures.wait()
-            drawn = True
-        except FigureWorkerError as exc:
-            log.warning("%s; drawing the figure here instead", exc)
-    if not drawn:  # (matplotlib is imported only when a figure is wanted)
-        from kinadapt_nn.figures import rollout_figure, save_figure
-
-        save_figure(rollout_figure(result.trace, result.summary, cfg), png)
+    png = stage / "rollout.png"
+    save_figure(rollout_figure(result.trace, result.summary, cfg), png)
     if cfg.run.tensorboard:
         from kinadapt_nn.runs.tb import write_tensorboard_figure
 
@@ -190,24 +175,15 @@ def cmd_online(args: argparse.Namespace) -> int:
     cfg = load_config(Path(args.config) if args.config else None, args.set or [])
     out = args.run_dir = Path(args.out) if args.out else _default_out("online")
     check_output_dir(out, args.overwrite)
-    figures = None
-    if cfg.run.figure:  # matplotlib warms up in a second process while the episode runs
-        from kinadapt_nn.app.figure_worker import FigureWorker
+    from kinadapt_nn.controller.core import compile_record, kernels_cached
+    from kinadapt_nn.runs.insertions import run_insertions
 
-        figures = FigureWorker.start()
-    try:
-        from kinadapt_nn.controller.core import compile_record, kernels_cached
-        from kinadapt_nn.runs.insertions import run_insertions
-
-        if not args.quiet and not cfg.run.progress and not kernels_cached():  # (with a bar: its own bar)
-            print(f"kinadapt online: compiling the controller's kernels (the first run on this machine, "
-                  f"~{compile_record():.0f} s, once)", file=sys.stderr, flush=True)
-        result = run_insertions(cfg, progress=cfg.run.progress and not args.quiet)
-        with staged_output(out, args.overwrite) as stage:
-            _write_online(stage, cfg, result, figures)
-    finally:
-        if figures is not None:
-            figures.close()
+    if not args.quiet and not cfg.run.progress and not kernels_cached():  # (with a bar: its own bar)
+        print(f"kinadapt online: compiling the controller's kernels (the first run on this machine, "
+              f"~{compile_record():.0f} s, once)", file=sys.stderr, flush=True)
+    result = run_insertions(cfg, progress=cfg.run.progress and not args.quiet)
+    with staged_output(out, args.overwrite) as stage:
+        _write_online(stage, cfg, result)
     if not args.quiet:
         print("\n".join(_summary_lines(result.summary, out)))
     return 0 if result.summary["success"] else 1
