@@ -41,7 +41,8 @@ offset; the ur5e's declares g = 9.80665), ``tool_gravity``, ``ft_frame_rotation`
 ``encoder_offset`` (a joint gravity sees; on the ur5e joint 3, parallel to joints 2 and 4, so that the
 offset is seen but not attributable: "cannot_decide" with that tie is right), ``encoder_offset_wrist``
 (a wrist joint with no parallel neighbour), ``encoder_offset_joint1`` (invisible),
-``torque_unit_wrong`` (N mm logged, N m declared). truth.json holds, beside the truth, the rig's own
+``torque_unit_wrong`` (N mm logged, N m declared), ``torque_unit_wrong_nm`` (N m logged, N mm declared),
+``force_unit_wrong`` (forces logged in lbf, N declared). truth.json holds, beside the truth, the rig's own
 calibration of the log (``calibrate``: linear least squares, nearest rotation, Levenberg-Marquardt).
 
 (B) Moving logs (``MOVING_CASES``; ur5e only): 12.55 s at 500 Hz (6276 samples; ``timestamp`` [s],
@@ -193,6 +194,8 @@ class Case:
     mass_guess: float = 1.0  # declared tool mass / true tool mass
     torque_unit: str = "N m"  # in the log
     declared_torque_unit: str | None = None  # None: as logged
+    force_unit: str = "N"  # in the log
+    declared_force_unit: str | None = None  # None: as logged
     gravity_mps2: float = G_STD
     arm_file: str = "dh"  # "dh" (inline table) or "urdf" (examples/arms/ur5e.urdf; ur5e only)
     detectable: bool = True
@@ -249,6 +252,10 @@ def static_cases(arm: str) -> dict[str, Case]:
                                       detectable=False),
         "torque_unit_wrong": Case("torques logged in N mm but declared N m (the likely unit: N mm)",
                                   torque_unit="N mm", declared_torque_unit="N m"),
+        "torque_unit_wrong_nm": Case("torques logged in N m but declared N mm (the likely unit: N m)",
+                                     declared_torque_unit="N mm"),
+        "force_unit_wrong": Case("forces logged in lbf but declared N (the likely unit: lbf)", force_unit="lbf",
+                                 declared_force_unit="N"),
     }
 
 
@@ -702,6 +709,7 @@ def calibrate(R_wf: np.ndarray, wrench: np.ndarray, g_mps2: float) -> Calibratio
 # a case's signals
 # ==================================================================================================
 TORQUE_PER_NM = {"N m": 1.0, "N mm": 1000.0}  # log units per N m
+FORCE_PER_N = {"N": 1.0, "lbf": 1.0 / 4.4482216152605}  # log units per N (1 lbf = 4.448... N)
 
 
 def _mount(case: Case, rig: Rig) -> tuple[np.ndarray, np.ndarray]:
@@ -849,7 +857,8 @@ def setup_toml(arm: Arm, name: str) -> str:
         log = {"time": MOVING_TIME_COL, "time_scale_s": 1.0, "q": rig.q_cols, "qdot": MOVING_QDOT_COLS}
     else:
         log = {"time": "", "static": True, "q": rig.q_cols}
-    log.update({"angle_unit": rig.angle_unit, "wrench": rig.wrench_cols, "force_unit": "N",
+    log.update({"angle_unit": rig.angle_unit, "wrench": rig.wrench_cols,
+                "force_unit": case.declared_force_unit or case.force_unit,
                 "torque_unit": case.declared_torque_unit or case.torque_unit, "wrench_acts": "tool_on_sensor",
                 "tared": True})
     decl_rpy = case.declared_rpy_deg if case.declared_rpy_deg is not None else (
@@ -879,7 +888,7 @@ def _write_static_log(path: Path, arm: Arm, case: Case, sig: dict) -> None:
     rig = STATIC_RIGS[arm.name]
     deg = rig.angle_unit == "deg"
     q = np.rad2deg(sig["q"]) if deg else sig["q"]
-    w = sig["wrench"] * np.array([1.0] * 3 + [TORQUE_PER_NM[case.torque_unit]] * 3)
+    w = sig["wrench"] * np.array([FORCE_PER_N[case.force_unit]] * 3 + [TORQUE_PER_NM[case.torque_unit]] * 3)
     tfmt = "%.3f" if case.torque_unit == "N mm" else "%.6f"
     _write_csv(path, [*rig.q_cols, *rig.wrench_cols], [q, w], ["%.7f" if deg else "%.9f"] * arm.n + ["%.5f"] * 3
                + [tfmt] * 3)
@@ -963,7 +972,9 @@ def truth_dict(arm: Arm, name: str, seed: int, sig: dict) -> dict:
         "case": name, "arm": arm.name, "kind": "moving" if moving else "static", "description": case.description,
         "effects": eff, "expected_verdicts": expected, "detectable": case.detectable,
         "seed": int(seed), "gravity_mps2": case.gravity_mps2, "tared": True,
-        "units": {"force_unit": "N", "torque_unit_logged": case.torque_unit,
+        "units": {"force_unit_logged": case.force_unit,
+                  "force_unit_declared": case.declared_force_unit or case.force_unit,
+                  "likely_force_unit": case.force_unit, "torque_unit_logged": case.torque_unit,
                   "torque_unit_declared": case.declared_torque_unit or case.torque_unit,
                   "likely_torque_unit": case.torque_unit},
         "sensor_mount": _mount_truth(case, rig),

@@ -29,7 +29,8 @@ Formats, chosen by the path:
   the tool, i.e. ``wrench_acts = "sensor_on_tool"``); the setup's column names and units are not used.
 
 A static log (``log.static = true``, F/T calibration: each row is a pose at rest) needs no time
-column (``log.time = ""``: ``UserLog.t_s`` is None); a time column it has is read (finite, [s] from
+column (``log.time = ""``, or left at its default ``"t"`` with no such column: ``UserLog.t_s`` is
+None); a time column it has is read (finite, [s] from
 the earliest row) but need not increase and may have gaps, as the rows' order carries no meaning.
 It needs ``MIN_POSES`` rows. A ROS 2 bag's streams are checked as above even when static.
 
@@ -211,7 +212,9 @@ def _build(path: Path, time: np.ndarray | None, scale: float, cols: np.ndarray, 
 # --------------------------------------------------------------------------------------------- dispatch
 
 
-def _format(path: Path) -> str:
+def log_format(path: Path) -> str:
+    """"csv", "parquet", "bag" or "trace" by the name (a folder: by what it holds); one-line error
+    naming the supported formats otherwise."""
     if not path.exists():
         raise KinadaptError(f"log '{path}' not found; give a log file or folder ({SUPPORTED})")
     if path.is_dir():
@@ -237,7 +240,7 @@ def _format(path: Path) -> str:
 def read_log(path: str | Path, setup: SetupCfg) -> UserLog:
     """Read and validate a user's log (module docstring); one-line ``KinadaptError`` otherwise."""
     path = Path(path)
-    kind = _format(path)
+    kind = log_format(path)
     if kind == "csv":
         return _read_csv(path, setup.log)
     if kind == "parquet":
@@ -301,7 +304,11 @@ def _numbers(path: Path, col: pa.ChunkedArray, name: str, label: Label, time: bo
 
 def _from_table(path: Path, table: pa.Table, log: LogCfg, label: Label, unit: str) -> UserLog:
     """Pick the setup's columns out of a table (CSV or Parquet) and validate them."""
+    from kinadapt_nn.diagnostics.setup import LogCfg
+
     header = [str(c).strip() for c in table.column_names]
+    if log.static and log.time == LogCfg.model_fields["time"].default and log.time not in header:
+        log = log.model_copy(update={"time": ""})  # a static log's time is optional: the default column absent
     fields = ([("time", log.time)] if log.time else []) + [("q", c) for c in log.q] + \
         [("qdot", c) for c in log.qdot] + [("wrench", c) for c in log.wrench] + [("extra", c) for c in log.extra]
     for field, c in fields:

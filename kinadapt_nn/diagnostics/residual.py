@@ -47,20 +47,32 @@ class Replay(NamedTuple):
     active: np.ndarray  #: (N,) bool: after the tare (drive on)
 
 
+#: what a robot's own log needs (``kinadapt diagnose`` without ``--setup`` reads only this package's runs)
+NEEDS_SETUP = ("pass --setup SETUP.toml (a commented template: kinadapt setup-template --out SETUP.toml; complete "
+               "ones in examples/setups/)")
+
+
 def load_log(path: Path) -> RawLog:
-    """A run folder, a ``trace.npz`` or a CSV (``kinadapt_nn.diagnostics.importers``). A trace obeys
+    """A run folder, a ``trace.npz`` or a CSV (``kinadapt_nn.diagnostics.importers``); a robot's own
+    log (another CSV, Parquet, a ROS 2 bag) is a one-line error saying to pass ``--setup``. A trace obeys
     the log readers' rules (``kinadapt_nn.diagnostics.readers``): finite raw channels, strictly
     increasing time, no gaps, enough samples -- each a one-line ``KinadaptError`` naming the file."""
     from kinadapt_nn.diagnostics import readers
     from kinadapt_nn.trace import Trace
 
     path = Path(path)
+    kind = readers.log_format(path)  # not found, an unknown suffix: one line naming the formats
+    if kind == "csv" and path.name.lower().endswith(".csv"):
+        try:
+            return read_csv_log(path)
+        except KinadaptError as exc:
+            raise KinadaptError(f"{exc}; for your robot's own CSV log, {NEEDS_SETUP}") from None
+    if kind != "trace":
+        what = {"csv": "a CSV", "parquet": "a Parquet", "bag": "a ROS 2 bag"}[kind]
+        raise KinadaptError(f"log '{path}' is {what} log, not a run of this package; for your robot's own log, "
+                            f"{NEEDS_SETUP}")
     if path.is_dir():
         path = path / "trace.npz"
-    if not path.exists():
-        raise KinadaptError(f"log '{path}' not found (give a run folder, a trace.npz or a .csv)")
-    if path.suffix.lower() == ".csv":
-        return read_csv_log(path)
     tr = Trace.load(path)
     readers.check_trace(tr, path)  # the same checks as every user log
     theta = tr["theta"][-1] if "theta" in tr.arrays and len(tr) else None

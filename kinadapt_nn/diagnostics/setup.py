@@ -14,14 +14,15 @@ tool is everything distal of the sensor, described in ``s``. Template (every key
 default; ``examples/setups/`` has complete ones)::
 
     [log]
-    time = "t"                 # column names in the user's file (ROS 2 bag: see the topics); "" = none (static logs only)
+    time = "t"                 # column names in the user's file (ROS 2 bag: see the topics); "" = none (static logs only;
+                               # a static log without a column "t" may leave time out)
     time_scale_s = 1.0         # seconds per unit of the time column (1e-9 for nanosecond stamps)
     static = false             # true: each row is a pose at rest (F/T calibration); time and qdot optional
     q = ["q1", "q2", "q3", "q4", "q5", "q6", "q7"]   # one name per arm joint (any number)
     qdot = []                  # optional: one name per joint; empty = differentiate q (zero for a static log)
     angle_unit = "rad"         # or "deg" (q and qdot)
     wrench = ["fx", "fy", "fz", "tx", "ty", "tz"]   # sensor frame, about its origin
-    force_unit = "N"           # or "kN", "lbf"
+    force_unit = "N"           # or "kN", "mN", "lbf", "kgf" (a unit the data do not fit is named)
     torque_unit = "N m"        # or "N mm", "N cm", "lbf in", "lbf ft"
     wrench_acts = "tool_on_sensor"                  # or "sensor_on_tool"
     tared = false              # true: zeroed at an unknown pose (offset estimated jointly)
@@ -102,7 +103,7 @@ def _finite(v, name: str):
 
 
 #: SI value of one unit of the log's force / torque columns
-FORCE_UNITS = {"N": 1.0, "kN": 1000.0, "lbf": 4.4482216152605}
+FORCE_UNITS = {"N": 1.0, "kN": 1000.0, "mN": 1e-3, "lbf": 4.4482216152605, "kgf": 9.80665}
 TORQUE_UNITS = {"N m": 1.0, "N mm": 1e-3, "N cm": 1e-2, "lbf in": 0.1129848290276167, "lbf ft": 1.3558179483314004}
 MAX_JOINTS = 12
 
@@ -110,14 +111,14 @@ MAX_JOINTS = 12
 class LogCfg(_Cfg):
     """Where each quantity is in the user's file, and its conventions."""
 
-    time: str = "t"  # column name of the time stamps ("" = none: static logs only)
+    time: str = "t"  # column name of the time stamps ("" = none: static logs only; static, default, no such column: none)
     time_scale_s: float = Field(1.0, gt=0.0)  # [s per unit] of the time column
     static: bool = False  # each row is a pose at rest (no derivatives taken; time optional)
     q: tuple[str, ...] = ("q1", "q2", "q3", "q4", "q5", "q6", "q7")  # joint positions, one per arm joint
     qdot: tuple[str, ...] = ()  # joint velocities (one per joint) or empty: differentiate q
     angle_unit: Literal["rad", "deg"] = "rad"  # unit of q and qdot (per s)
     wrench: tuple[str, str, str, str, str, str] = ("fx", "fy", "fz", "tx", "ty", "tz")  # sensor frame
-    force_unit: Literal["N", "kN", "lbf"] = "N"  # unit of the three force columns
+    force_unit: Literal["N", "kN", "mN", "lbf", "kgf"] = "N"  # unit of the three force columns
     torque_unit: Literal["N m", "N mm", "N cm", "lbf in", "lbf ft"] = "N m"  # unit of the three torque columns
     wrench_acts: Literal["tool_on_sensor", "sensor_on_tool"] = "tool_on_sensor"  # which body's wrench on which
     tared: bool = False  # true: zeroed at an unknown pose before/while logging

@@ -16,6 +16,15 @@ import numpy as np
 from kinadapt_nn.diagnostics import physical as ph
 
 
+def sample_noise(r: np.ndarray) -> np.ndarray:
+    """Per-channel sample noise (6,) of a reading (n, 6) sampled in time: the robust scale (MAD) of
+    its second differences (a smooth signal's cancel), no floor; zeros for fewer than 5 samples."""
+    if len(r) < 5:
+        return np.zeros(r.shape[1])
+    d2 = r[2:] - 2 * r[1:-1] + r[:-2]
+    return 1.4826 * np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0) / np.sqrt(6.0)
+
+
 @dataclass(frozen=True, eq=False)
 class LogSignals:
     """The signals of one log (n samples, dof joints); the ``s`` of an effect function."""

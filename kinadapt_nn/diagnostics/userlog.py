@@ -401,6 +401,8 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
     from kinadapt_nn.diagnostics import completeness as cp
 
     progress = progress or (lambda msg: None)
+    if log.t_s is None and setup.log.time:  # a static log read without its optional time column
+        setup = setup.model_copy(update={"log": setup.log.model_copy(update={"time": ""})})
     lib = library(setup, effects_files)
     names = judged(lib, setup)
     add, forced = _parse_add(add or [], lib)

@@ -277,6 +277,25 @@ def test_diagnose_applies_the_log_readers_rules_to_traces(cwd, capsys, edit, fra
     assert sorted(p.name for p in cwd.iterdir()) == ["trace.npz"]
 
 
+@pytest.mark.parametrize("name", ["robot.csv", "robot.csv.gz", "robot.parquet", "robot_bag"])
+def test_a_robot_log_without_setup_is_told_to_pass_one(cwd, capsys, name):
+    """A user's own log given without --setup: one line saying to pass one (and where a template
+    comes from), never a complaint about an .npz archive."""
+    from kinadapt_nn.diagnostics.readers import write_log
+    from kinadapt_nn.diagnostics.setup import LogCfg
+
+    if name.endswith("_bag"):
+        (cwd / name).mkdir()
+        (cwd / name / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
+    else:
+        t = np.arange(100) * 0.01
+        write_log(cwd / name, t, np.zeros((100, 7)), None, np.ones((100, 6)), LogCfg())
+    rc, _, err = run_cli(capsys, "diagnose", name, "--out", "d", "--quiet")
+    assert_one_line_bad_input(rc, err, name, "pass --setup SETUP.toml", "kinadapt setup-template")
+    assert "npz" not in err
+    assert sorted(p.name for p in cwd.iterdir()) == [name]
+
+
 def test_trace_load_refuses_time_going_back_and_pickles(tmp_path):
     arrays = _trace()
     arrays["t_s"][10] = 0.0

@@ -18,7 +18,7 @@ from tests.diagnostics.test_calibration_rig import cr
 
 SEED = 11
 CASES = {"iiwa14": ("mount_unknown", "mount_unknown_general", "mount_wrong_known", "tool_gravity", "encoder_offset",
-                    "torque_unit_wrong"),
+                    "torque_unit_wrong", "torque_unit_wrong_nm", "force_unit_wrong"),
          "ur5e": ("mount_unknown", "encoder_offset_wrist", "ft_frame_rotation", "encoder_offset_joint1",
                   "moving_tool_gravity")}
 
@@ -90,15 +90,36 @@ def test_wrong_mount_declared_known_blocks_every_verdict(runs):
     assert "rpy_flange_deg = [" in rep["summary"] and "off by" in rep["summary"]
 
 
-def test_wrong_torque_unit_is_named(runs):
-    _, truth, rep, _, _ = runs[("iiwa14", "torque_unit_wrong")]
-    assert any('"N mm"' in w for w in rep["warnings"]) and truth["units"]["likely_torque_unit"] == "N mm"
-    assert "present" not in _verdicts(rep).values()
-    assert rep["sensor_mount"]["plausible"] is False  # a 60 m centre of mass is flagged, never a finding
+@pytest.mark.parametrize("name", ["torque_unit_wrong", "torque_unit_wrong_nm", "force_unit_wrong"])
+def test_wrong_unit_is_named_with_the_unit_that_fits(runs, name):
+    """N mm logged as N m (a 60 m centre of mass), N m logged as N mm (0.09 mm: the finding the issue
+    saw), lbf logged as N: a warning naming the unit that fits, and no verdict."""
+    _, truth, rep, _, _ = runs[("iiwa14", name)]
+    u = truth["units"]
+    for key in ("force_unit", "torque_unit"):
+        if u[f"{key}_declared"] != u[f"{key}_logged"]:
+            assert any(f'set [log] {key} = "{u[f"likely_{key}"]}"' in w for w in rep["warnings"]), rep["warnings"]
+    assert rep["blocked"] and "present" not in _verdicts(rep).values()
+    if name == "torque_unit_wrong":
+        assert rep["sensor_mount"]["plausible"] is False  # a 60 m centre of mass is flagged, never a finding
+
+
+def test_a_static_log_may_leave_the_time_key_out(runs, tmp_path):
+    """The setup without its time key (the log has no column 't'): no time axis, no drift judged,
+    the same verdicts."""
+    d, _, rep, _, _ = runs[("ur5e", "encoder_offset_wrist")]
+    text = "\n".join(ln for ln in (d / "setup.toml").read_text().splitlines() if not ln.startswith("time = "))
+    (tmp_path / "setup.toml").write_text(text)
+    setup = load_setup(tmp_path / "setup.toml")
+    assert setup.log.time == "t" and setup.log.static
+    rep2 = diagnose(read_log(d / "log.csv", setup), setup).report
+    assert not rep2["log"]["time_column"] and "ft_bias_drift" not in _verdicts(rep2)
+    assert _verdicts(rep2) == _verdicts(rep)
 
 
 @pytest.mark.parametrize("arm,name", [(a, n) for a, ns in CASES.items() for n in ns
-                                      if n not in ("mount_wrong_known", "torque_unit_wrong")])
+                                      if n not in ("mount_wrong_known", "torque_unit_wrong", "torque_unit_wrong_nm",
+                                                   "force_unit_wrong")])
 def test_verdicts_match_the_truth(runs, arm, name):
     """The same table of verdicts as the Panda's foreign rig, on a 6-axis and another 7-axis arm."""
     _, truth, rep, _, _ = runs[(arm, name)]

@@ -63,7 +63,8 @@ def test_independent_calibration_recovers_the_truth(out_dir, arm, case):
     header, data = _read_csv(d / "log.csv")
     n = cr.ARMS[arm].n
     q = np.deg2rad(data[:, :n]) if cr.STATIC_RIGS[arm].angle_unit == "deg" else data[:, :n]
-    w = data[:, n:] / np.array([1.0] * 3 + [cr.TORQUE_PER_NM[truth["units"]["torque_unit_logged"]]] * 3)
+    w = data[:, n:] / np.array([cr.FORCE_PER_N[truth["units"]["force_unit_logged"]]] * 3
+                               + [cr.TORQUE_PER_NM[truth["units"]["torque_unit_logged"]]] * 3)
     cal = cr.calibrate(cr.frames(cr.ARMS[arm], q)[:, -1, :3, :3], w, truth["gravity_mps2"])
     tr = truth["calibration"]["truth"]
     assert abs(cal.mass_kg / tr["tool_mass_kg"] - 1) < 0.01
@@ -85,6 +86,7 @@ def test_truth_and_setups_agree(out_dir):
             s = load_setup(d / "setup.toml")
             assert s.log.static and s.log.time == "" and s.log.tared and s.contact.mode == "none"
             assert s.log.torque_unit == truth["units"]["torque_unit_declared"]
+            assert s.log.force_unit == truth["units"]["force_unit_declared"]
             assert s.sensor.mount_known == truth["sensor_mount"]["mount_known"]
             assert s.world.gravity_mps2 == truth["gravity_mps2"]
             assert len(s.log.q) == cr.ARMS[arm].n
@@ -96,8 +98,14 @@ def test_truth_and_setups_agree(out_dir):
             assert angle == pytest.approx(truth["sensor_mount"]["rotation_from_declared_deg"], abs=1e-9)
             assert set(truth["expected_verdicts"]) == set(truth["effects"])
     t = json.loads((out_dir / "ur5e" / "torque_unit_wrong" / "truth.json").read_text())
-    assert t["units"] == {"force_unit": "N", "torque_unit_logged": "N mm", "torque_unit_declared": "N m",
-                          "likely_torque_unit": "N mm"}
+    assert t["units"] == {"force_unit_logged": "N", "force_unit_declared": "N", "likely_force_unit": "N",
+                          "torque_unit_logged": "N mm", "torque_unit_declared": "N m", "likely_torque_unit": "N mm"}
+    t = json.loads((out_dir / "ur5e" / "force_unit_wrong" / "truth.json").read_text())
+    assert (t["units"]["force_unit_logged"], t["units"]["force_unit_declared"]) == ("lbf", "N")
+    _, data = _read_csv(out_dir / "ur5e" / "force_unit_wrong" / "log.csv")
+    _, data_n = _read_csv(out_dir / "ur5e" / "torque_unit_wrong_nm" / "log.csv")  # the same draws, in N
+    assert np.allclose(data[:, 6:9] * 4.4482216152605, data_n[:, 6:9], atol=5e-5)
+    assert np.array_equal(data[:, 9:], data_n[:, 9:])
     t = json.loads((out_dir / "ur5e" / "mount_wrong_known" / "truth.json").read_text())
     assert t["sensor_mount"]["declared_consistent"] is False
     assert json.loads((out_dir / "ur5e" / "mount_declared" / "truth.json").read_text())["gravity_mps2"] == 9.80665

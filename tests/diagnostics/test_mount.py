@@ -20,7 +20,7 @@ MASS, COM = 1.05, np.array([0.004, -0.003, 0.062])
 BIAS = np.array([1.2, -0.8, 2.5, 0.05, 0.03, -0.04])
 
 
-def _signals(rpy_true_deg, overrides=(), n=200, seed=0, sign=1.0, torque_factor=1.0):
+def _signals(rpy_true_deg, overrides=(), n=200, seed=0, sign=1.0):
     """Static poses: the declared sensor frame is the flange (rpy 0 unless overridden); the true
     sensor axes are turned by ``rpy_true_deg`` (setup convention) from the flange."""
     rng = np.random.default_rng(seed)
@@ -32,7 +32,6 @@ def _signals(rpy_true_deg, overrides=(), n=200, seed=0, sign=1.0, torque_factor=
     g_true = np.einsum("nji,j->ni", R_wf @ R_true, [0.0, 0.0, -9.81])
     F = MASS * g_true
     w = np.concatenate([F, np.cross(COM, F)], axis=1) + BIAS + rng.normal(0.0, SIGMA, (n, 6))
-    w[:, 3:] *= torque_factor
     z = np.zeros((n, 3))
     return SimpleNamespace(g_s=g_decl, a_s=z, omega_s=z, alpha_s=z, wrench=sign * w, setup=setup, n=n)
 
@@ -67,16 +66,6 @@ def test_flipped_convention_gives_a_negative_mass():
     f = mount.fit(s, np.ones(s.n, bool), np.arange(s.n) % 20, SIGMA)
     assert f.x[3] + 3 * f.sd[3] < 0  # no proper rotation undoes a negated wrench
     assert mount.plausibility(f, s.setup)
-
-
-def test_torque_unit_warning_names_the_unit():
-    s = _signals((0.0, 0.0, 30.0), torque_factor=1000.0)  # N mm logged, N m declared
-    f = mount.fit(s, np.ones(s.n, bool), np.arange(s.n) % 20, SIGMA * [1, 1, 1, 1000, 1000, 1000])
-    msg = mount.unit_warning(f, s.setup)
-    assert msg is not None and '"N mm"' in msg
-    s_ok = _signals((0.0, 0.0, 30.0))
-    f_ok = mount.fit(s_ok, np.ones(s_ok.n, bool), np.arange(s_ok.n) % 20, SIGMA)
-    assert mount.unit_warning(f_ok, s_ok.setup) is None and not mount.plausibility(f_ok, s_ok.setup)
 
 
 def test_offset_beyond_declared_range_is_impossible():

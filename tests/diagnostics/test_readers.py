@@ -225,6 +225,19 @@ def test_static_log_without_a_time_column(tmp_path, suffix):
         write_log(path, None, q, None, w, DEFAULT.log)  # the columns name a time column
 
 
+def test_static_log_may_leave_the_time_key_out(tmp_path):
+    """``static = true`` with no time key and no column 't': no time column (the key's default names
+    one only if it is there); a moving log, or a time column named on purpose, still needs it."""
+    q, w = poses()
+    path = tmp_path / "poses.csv"
+    write_log(path, None, q, None, w, STATIC.log)
+    log = read_log(path, setup_of(static=True))
+    assert log.t_s is None and log.static
+    np.testing.assert_array_equal(log.wrench_log, w)
+    assert "has no column 't'" in err(path, DEFAULT)
+    assert "has no column 'stamp'" in err(path, setup_of(static=True, time="stamp"))
+
+
 def test_static_log_time_may_be_in_any_order(tmp_path):
     """Rows are poses: repeated, shuffled and far-apart times are read (from the earliest row),
     where a moving log would be refused; a non-finite time is still an error."""

@@ -188,6 +188,20 @@ def test_flipped_sign_is_caught_not_diagnosed(cases, tmp_path, capsys):
     assert set(_verdicts(rep).values()) == {"cannot_decide"}
 
 
+def test_torques_in_n_m_declared_n_mm_are_named_not_diagnosed(cases, tmp_path, capsys):
+    """The moving log in N m declared N mm: the fit left a 2.8 mm centre of mass (declared 55 mm)
+    and a tool_gravity finding; the declared inertia's moments, thousands of times the noise under
+    N mm, name N m, and no verdict is given (exit 0: a warning, not an error)."""
+    d, _, _ = cases["none"]
+    out = tmp_path / "nmm"
+    assert main(["diagnose", str(d / "log.csv.gz"), "--setup", str(d / "setup_csv.toml"), "--out", str(out),
+                 "--set", 'log.torque_unit="N mm"']) == 0
+    assert 'set [log] torque_unit = "N m"' in capsys.readouterr().err
+    rep = json.loads((out / "diagnosis.json").read_text())
+    assert rep["blocked"].startswith("the wrench units look wrong")
+    assert "present" not in _verdicts(rep).values()
+
+
 def test_wrong_tip_is_flagged_and_contact_left_out(cases, tmp_path, capsys):
     d, _, _ = cases["tool_gravity"]
     out = tmp_path / "tip"

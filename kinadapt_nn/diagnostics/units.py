@@ -1,0 +1,194 @@
+"""The wrench units, checked against the data: a force or torque unit the log does not fit is named.
+
+A unit cannot be read off a rigid tool's statics alone: scaling the torques by ``k`` scales the
+fitted first moment ``m c`` by ``k``, scaling the forces scales the mass. What pins the unit is what
+a tool on a sensor can be. Every pair of units (``FORCE_UNITS`` x ``TORQUE_UNITS``) is tried on the
+free-space samples: the wrench rescaled (SI at the candidate = ``k`` x SI as declared), the
+calibration's linear part ``theta = [m, m c, b]`` refitted at the calibrated sensor rotation
+(``mount.fit_at``; a moving log's rotation is refitted per torque unit, ``mount.refine_rotation``,
+as the declared unit's inertia misfit may have turned it), and the pair scored by how many decades what it implies lies outside what is
+plausible (``score``, the sum of):
+
+* the tool's mass within a factor ``DECLARED_FACTOR`` of ``[tool] mass_kg`` (not declared:
+  within ``MASS_RANGE_KG``);
+* its centre of mass within ``DECLARED_FACTOR`` of ``|[tool] com_sensor_m|`` (not declared: within
+  ``COM_RANGE_M``), where the log pins it (``|m c|`` beyond ``SIGNIFICANT_SD`` sd);
+* a moving log: the free-space wrench fitted within ``MISFIT_OK`` times the smallest rms misfit
+  any pair leaves, or the log's own sample noise (second differences, ``signals.sample_noise``,
+  scaled with the unit) if larger. The declared inertia's moments ``I_O alpha + omega x I_O omega``
+  do not scale with a unit: under a wrong torque unit they are left unexplained, thousands of times
+  the noise, while a unit cannot remove what the model lacks (an inertia declared wrong);
+* every reading within ``RANGE_FACTOR`` times the sensor's rated range, where declared.
+
+The declared units are called wrong when they score at least ``WRONG_DECADES`` and another pair
+at most ``FITS_DECADES`` (a plain warning; the diagnosis blocks every verdict). The pair named is the
+one nearest the declared tool (``UnitCandidate.distance``), then nearest the declared units.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from kinadapt_nn.diagnostics import mount
+from kinadapt_nn.diagnostics.physical import nominal_inertials
+from kinadapt_nn.diagnostics.setup import FORCE_UNITS, TORQUE_UNITS, rpy_matrix
+from kinadapt_nn.diagnostics.signals import sample_noise
+
+DECLARED_FACTOR = 2.0  #: a declared mass / centre of mass is trusted to this factor either way
+MASS_RANGE_KG = (1e-3, 1000.0)  #: [kg] a tool's mass when none is declared
+COM_RANGE_M = (0.002, mount.COM_PLAUSIBLE_M)  #: [m] a tool's centre of mass from the sensor, none declared
+MISFIT_OK = 10.0  #: a moving log's free-space rms misfit may be this many times the smallest (or the noise)
+RANGE_FACTOR = 2.0  #: a reading beyond this many times the rated range is not a reading of that sensor
+SIGNIFICANT_SD = 3.0
+WRONG_DECADES = 0.5  #: the declared units score this many decades outside the plausible: wrong
+FITS_DECADES = 0.1  #: ... and another pair scores at most this: the pair that fits
+MAX_ROWS = 1000  #: free-space samples refitted (evenly spaced subset; the decision is in decades)
+
+
+class UnitCandidate(NamedTuple):
+    """One pair of units, as the data see it."""
+
+    force_unit: str
+    torque_unit: str
+    mass_kg: float  #: the refitted tool mass
+    com_m: float | None  #: [m] |c| of the refitted centre of mass; None where the log does not pin it
+    misfit: float | None  #: [noise sd] rms free-space misfit (moving logs), None for a static log
+    score: float  #: decades outside the plausible (module docstring); inf for a non-positive mass
+    distance: float  #: decades from the declared tool (mass, centre of mass) and from a noise-level fit
+
+
+class UnitCheck(NamedTuple):
+    """The units check of one log (module docstring)."""
+
+    declared: UnitCandidate
+    likely: UnitCandidate  #: the best pair (the declared one when nothing fits better)
+    message: str | None  #: the warning, None when the declared units fit
+
+
+def _outside(v: float, lo: float, hi: float) -> float:
+    """Decades by which ``v`` > 0 lies outside ``[lo, hi]`` (0 inside)."""
+    return max(0.0, math.log10(lo / v), math.log10(v / hi))
+
+
+def _band(declared: float, default: tuple[float, float]) -> tuple[float, float]:
+    return (declared / DECLARED_FACTOR, declared * DECLARED_FACTOR) if declared > 0 else default
+
+
+def _free_data(s, setup, sigma: np.ndarray) -> mount.MountData:
+    """The free-space samples in ``mount``'s form, weighted by the log's own noise (6,) [N, N m]."""
+    free = ~np.asarray(s.contact, bool)
+    if free.sum() < 20:
+        free = np.ones(s.n, bool)
+    idx = np.flatnonzero(free)
+    if len(idx) > MAX_ROWS:
+        idx = idx[np.linspace(0, len(idx) - 1, MAX_ROWS).round().astype(int)]
+    _, _, I_O = nominal_inertials(setup)
+    return mount.MountData(s.g_s[idx] - s.a_s[idx], s.omega_s[idx], s.alpha_s[idx], s.wrench[idx], 1.0 / sigma,
+                           I_O, np.zeros(len(idx), int))
+
+
+def _scale(fu: str, tu: str, setup) -> np.ndarray:
+    """(6,) SI at the units ``fu``, ``tu`` per SI as declared."""
+    kf = FORCE_UNITS[fu] / FORCE_UNITS[setup.log.force_unit]
+    kt = TORQUE_UNITS[tu] / TORQUE_UNITS[setup.log.torque_unit]
+    return np.array([kf] * 3 + [kt] * 3)
+
+
+def _candidate(fu: str, tu: str, d: mount.MountData, D: np.ndarray, s, setup, pinned: bool) -> UnitCandidate:
+    k = _scale(fu, tu, setup)
+    dk = d._replace(r=d.r * k, w=d.w / k)
+    theta, res = mount.fit_at(D, dk, iters=5)
+    m = float(theta[0])
+    misfit = None if s.static else float(np.sqrt(np.mean((res * dk.w) ** 2)))
+    if m <= 0:
+        return UnitCandidate(fu, tu, m, None, misfit, math.inf, math.inf)
+    m_decl, c_decl = float(setup.tool.mass_kg), float(np.linalg.norm(setup.tool.com_sensor_m))
+    lo, hi = _band(m_decl, MASS_RANGE_KG)
+    score, dist = _outside(m, lo, hi), abs(math.log10(m / math.sqrt(lo * hi)))
+    com = float(np.linalg.norm(theta[1:4]) / m) if pinned else None
+    if com is not None:
+        lo, hi = _band(c_decl, COM_RANGE_M)
+        score += _outside(max(com, 1e-12), lo, hi)
+        dist += abs(math.log10(max(com, 1e-12) / math.sqrt(lo * hi)))
+    rated = (setup.sensor.range_force_N, setup.sensor.range_torque_Nm)
+    for j, rng in enumerate(rated):
+        peak = float(np.max(np.abs(s.wrench[:, 3 * j:3 * j + 3]))) * k[3 * j]
+        if rng > 0 and peak > 0:
+            score += max(0.0, math.log10(peak / (RANGE_FACTOR * rng)))
+    return UnitCandidate(fu, tu, m, com, misfit, score, dist)
+
+
+def _with_misfit(cands: list[UnitCandidate]) -> list[UnitCandidate]:
+    """A moving log's misfit, against the smallest any unit leaves (a unit cannot remove physics the
+    model lacks, e.g. a tool's inertia declared wrong): decades beyond ``MISFIT_OK`` times that."""
+    best = max(min(c.misfit for c in cands), 1e-300)
+    ref = max(MISFIT_OK, best)
+    return [c._replace(score=c.score + max(0.0, math.log10(max(c.misfit, 1e-300) / ref)),
+                       distance=c.distance + math.log10(max(c.misfit, best) / best)) for c in cands]
+
+
+def check(fitm: mount.MountFit, s, setup, sigma: np.ndarray) -> UnitCheck:
+    """The declared units against every pair (module docstring). ``fitm`` the calibration fit,
+    ``s`` the ``LogSignals`` in the setup ``setup`` (its contact mask marks what is not free
+    space), ``sigma`` (6,) [N, N m] the noise used when the log's own (moving logs) is zero."""
+    # the calibrated rotation relative to the frame the signals are in
+    D = setup.sensor.R_fs().T @ rpy_matrix(np.deg2rad(fitm.rpy_deg))
+    noise = np.asarray(sigma, dtype=float) if s.static else sample_noise(s.wrench)
+    noise = np.where(noise > 0, noise, sigma)
+    d = _free_data(s, setup, noise)
+    mc_sd = float(np.linalg.norm(fitm.sd[4:7]))
+    pinned = float(np.linalg.norm(fitm.x[4:7])) > SIGNIFICANT_SD * mc_sd
+    cands = []
+    for tu in TORQUE_UNITS:
+        Dt = D
+        if not s.static and tu != setup.log.torque_unit:
+            # a moving log's rotation was fitted with the declared torques and their inertia misfit:
+            # fitted again for this unit (a static log's fit does not depend on a unit)
+            k = _scale(setup.log.force_unit, tu, setup)
+            Dt = mount.refine_rotation(d._replace(r=d.r * k, w=d.w / k), [D, np.eye(3)])
+        cands += [_candidate(fu, tu, d, Dt, s, setup, pinned) for fu in FORCE_UNITS]
+    if not s.static:
+        cands = _with_misfit(cands)
+    lf, lt = setup.log.force_unit, setup.log.torque_unit
+    declared = next(c for c in cands if (c.force_unit, c.torque_unit) == (lf, lt))
+    fits = [c for c in cands if c.score <= FITS_DECADES and c is not declared]
+    if declared.score < WRONG_DECADES or not fits or not math.isfinite(declared.mass_kg) or declared.mass_kg <= 0:
+        return UnitCheck(declared, declared, None)
+
+    def away(c: UnitCandidate) -> float:  # decades from the declared units
+        return abs(math.log10(FORCE_UNITS[c.force_unit] / FORCE_UNITS[lf])) + \
+            abs(math.log10(TORQUE_UNITS[c.torque_unit] / TORQUE_UNITS[lt]))
+
+    likely = min(fits, key=lambda c: (c.distance, away(c)))
+    return UnitCheck(declared, likely, _message(declared, likely, setup))
+
+
+def _length(x_m: float) -> str:
+    return f"{1000 * x_m:.3g} mm" if x_m < 1.0 else f"{x_m:.3g} m"
+
+
+def _describe(c: UnitCandidate) -> str:
+    parts = [f"tool mass {c.mass_kg:.3g} kg"]
+    if c.com_m is not None:
+        parts.append(f"centre of mass {_length(c.com_m)} from the sensor")
+    if c.misfit is not None:
+        parts.append(f"free-space misfit {c.misfit:.3g}x the noise")
+    return ", ".join(parts)
+
+
+def _message(declared: UnitCandidate, likely: UnitCandidate, setup) -> str:
+    tool = setup.tool
+    decl = ([f"{tool.mass_kg:g} kg"] if tool.mass_kg > 0 else []) + \
+        ([_length(float(np.linalg.norm(tool.com_sensor_m)))] if np.any(tool.com_sensor_m) else [])
+    fix = [f'{k} = "{v}"' for k, v, was in (("force_unit", likely.force_unit, declared.force_unit),
+                                             ("torque_unit", likely.torque_unit, declared.torque_unit)) if v != was]
+    return (f'[log] force_unit = "{declared.force_unit}", torque_unit = "{declared.torque_unit}" do not fit the data: '
+            f"as declared, {_describe(declared)}{' (declared: ' + ', '.join(decl) + ')' if decl else ''}; as "
+            f'"{likely.force_unit}" and "{likely.torque_unit}", {_describe(likely)}. The unit that fits: set [log] '
+            + " and ".join(fix))
+
+
+__all__ = ["UnitCandidate", "UnitCheck", "check"]
