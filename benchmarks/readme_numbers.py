@@ -79,7 +79,7 @@ def headline_default(tmp: Path, jobs: int) -> list[str]:
         raise RuntimeError(f"kinadapt online failed: {p.stderr.strip()}")
     s = _summary(out)
     err = np.asarray(s["offset_error_final_m"]) * 1e3
-    lines = ["[1] kinadapt online  (default config: adjoint, kalman law, the paper's bore setting)",
+    lines = ["[1] kinadapt online  (default config: adjoint, kalman law, the bore with its rattle-free contact)",
              f"    seated={s['success']} seat_time_s={s['seat_time_s']:.3f} max|F|={s['max_force_N']:.2f} N "
              f"max|F_lat|={s['max_lateral_force_N']:.2f} N max|M|={s['max_moment_Nm']:.2f} N m "
              f"min_lambda_JJt={s['min_lambda_JJt']:.1f}",

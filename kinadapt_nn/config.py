@@ -79,6 +79,9 @@ class SceneCfg(_Cfg):
     friction: float = Field(0.3, ge=0.0, le=2.0)  # [-] Coulomb friction peg <-> block
     contact_timeconst_s: float = Field(0.02, gt=0.0)  # [s] MuJoCo solref time constant
     contact_dampratio: float = Field(1.0, gt=0.0)  # [-] MuJoCo solref damping ratio
+    # [s] MuJoCo solreffriction time constant of the bore's friction rows (elliptic cone); 0 = the normal's solref,
+    # pyramidal cone (`kinadapt reproduce`), whose sliding peg rattles at ~90 Hz (docs/paper_results.md, "The bore rattle")
+    contact_friction_timeconst_s: float = Field(2.0, ge=0.0)
     contact_model: Literal["bore", "socket"] = "bore"  # bore block | low-bias tip "socket" spring
     socket_k_lat_N_per_m: float = Field(2.0e4, gt=0.0)  # [N/m] socket: lateral spring at the tip
     socket_k_rot_Nm_per_rad: float = Field(20.0, ge=0.0)  # [N m/rad] socket: angular spring

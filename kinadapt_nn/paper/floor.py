@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from kinadapt_nn.paper import PAPER_SETTING
+
 LADDER: list[tuple[str, list[str]]] = [
     ("bore, no dither (paper setting)", []),
     ("bore, dither 0.05 rad/s", ["control.dither_rad_s=[0.05,0.05,0.05]"]),
@@ -32,7 +34,7 @@ def measure(item: tuple[str, list[str]]) -> dict:
     from kinadapt_nn.runs.episode import run_episode
 
     name, over = item
-    base = ["run.progress=false", "run.stop_after_seat_s=1.5", "adaptation.mode=composite"]  # the paper's law
+    base = ["run.progress=false", "run.stop_after_seat_s=1.5", *PAPER_SETTING]  # the paper's law and bore contact
     oracle = run_episode(load_config(None, base + over + ["run.features=oracle"])).summary
     comp = run_episode(load_config(None, base + over))
     cfg = load_config(None, base + over)

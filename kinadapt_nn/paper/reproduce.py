@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from kinadapt_nn.paper import PAPER_SETTING
+
 PARTS = ("rollout", "observability", "gain_sweep", "ablations", "qp", "video")
 AXES = ("x_f", "y_f", "z_f")
 
@@ -22,8 +24,8 @@ def _episode(over: list[str]):
     from kinadapt_nn.config import load_config
     from kinadapt_nn.runs.episode import run_episode
 
-    # the paper's claims are about the paper's law: composite unless a part says otherwise
-    r = run_episode(load_config(None, ["run.progress=false", "adaptation.mode=composite", *over]))
+    # the paper's claims are about the paper's law and bore contact (PAPER_SETTING) unless a part says otherwise
+    r = run_episode(load_config(None, ["run.progress=false", *PAPER_SETTING, *over]))
     return r.summary, r.trace
 
 
@@ -46,7 +48,7 @@ def part_rollout(out: Path, ex) -> dict:
     feats = compared_types()
     runs = list(ex.map(_episode, [[f"run.features={f}"] for f in feats]))
     for f, (s, tr) in zip(feats, runs):
-        cfg_f = load_config(None, ["adaptation.mode=composite", f"run.features={f}"])  # as _episode ran it
+        cfg_f = load_config(None, [*PAPER_SETTING, f"run.features={f}"])  # as _episode ran it
         save_figure(rollout_figure(tr, s, cfg_f), out / f"rollout_{f}.png")
         res[f] = {k: s[k] for k in ("success", "failure", "seat_time_s", "max_lateral_force_N", "max_moment_Nm",
                                      "min_lambda_JJt", "final_depth_m", "true_final_depth_m",

@@ -84,7 +84,12 @@ def batch_scene(cfgs: list[ExperimentCfg], nthread: int = 1, persistent: bool | 
     buffers."""
     sims = [PegInHoleSim(c) for c in cfgs]
     scene = mujoco.batch.Batch(sims[0].model, len(cfgs), nthread, nthread > 1 if persistent is None else persistent)
-    scene.set_models([s.model for s in sims])
+    try:
+        scene.set_models([s.model for s in sims])
+    except mujoco.FatalError as exc:
+        raise ConfigError("a batch shares the scene's structure (contact model, chamfer, the friction reference "
+                          "scene.contact_friction_timeconst_s on or off, hidden effects); these configs differ in it -- "
+                          f"run them as separate batches ({exc})") from None
     ids = sims[0].ids
     qpos, qvel, ctrl_b = scene.bind("qpos"), scene.bind("qvel"), scene.bind("ctrl")
     q0 = np.array([s.q_start for s in sims])

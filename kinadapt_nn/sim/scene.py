@@ -166,6 +166,36 @@ def _add_block(spec: mujoco.MjSpec, scene: SceneCfg) -> None:
     )
 
 
+def friction_reference_pairs(spec: mujoco.MjSpec, timeconst_s: float) -> None:
+    """The peg <-> block contacts as explicit pairs whose friction rows have their own reference
+    (``solreffriction = [timeconst_s, 1]``, elliptic cone), everything else as the global override
+    set it (normal solref and solimp, friction, margin, condim).
+
+    Why (docs/paper_results.md, "The bore rattle"): in MuJoCo's convex contact model a sliding
+    contact's friction rows ask for the reference deceleration ``-b v_t``, ``b = 2 / (0.99 t)``,
+    which the friction cone cannot deliver; the solution trades the shortfall against the normal
+    row and pushes the bodies apart at about ``mu b v_t`` (MuJoCo's documentation: "the only way to
+    initiate slip is to generate some motion in the normal direction"). With the normal's 20 ms
+    that is 0.5 m/s^2 for the peg sliding down the bore edge at 15 mm/s: the peg is thrown off the
+    wall every few steps (88 Hz, 209 contact transitions per s). A friction reference of 2 s
+    (b = 1/s) removes the push; what it costs is a weaker arrest of slip inside the cone (a free
+    body that should stick creeps; the docs give the numbers). Pair parameters are not overridden
+    only when the override flag is off, so it is cleared and the pairs carry the override's values;
+    the peg's own contype is cleared so that no dynamic contact duplicates a pair (the peg and the
+    block are the only colliding geoms). ``spec``: the scene with its peg (``PEG_GEOM``) and block
+    geoms."""
+    o = spec.option
+    o.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_OVERRIDE)
+    o.cone = mujoco.mjtCone.mjCONE_ELLIPTIC  # solreffriction applies to elliptic friction rows only
+    peg = spec.geom(PEG_GEOM)
+    for g in spec.geoms:
+        if g.name.startswith(BLOCK_TOP_GEOMS_PREFIX):
+            spec.add_pair(geomname1=PEG_GEOM, geomname2=g.name, condim=peg.condim, friction=list(o.o_friction),
+                          solref=list(o.o_solref), solimp=list(o.o_solimp), margin=o.o_margin,
+                          solreffriction=[timeconst_s, 1.0])
+    peg.contype, peg.conaffinity = 0, 0
+
+
 def build_spec(
     tool: ToolCfg, scene: SceneCfg, mjcf_path: Path | None = None, arm: ArmCfg | None = None,
     effects: EffectsCfg | None = None,
@@ -189,6 +219,8 @@ def build_spec(
     _add_tool(spec, tool, effects)
     if scene.contact_model == "bore":
         _add_block(spec, scene)
+        if scene.contact_friction_timeconst_s > 0.0:
+            friction_reference_pairs(spec, scene.contact_friction_timeconst_s)
     spec.add_sensor(
         name=FORCE_SENSOR, type=mujoco.mjtSensor.mjSENS_FORCE, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=FT_SITE
     )

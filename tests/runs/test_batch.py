@@ -128,3 +128,5 @@ def test_run_episodes_refuses_configs_that_cannot_share_a_batch():
         run_episodes([load_config(None, ["run.progress=false"]), load_config(None, ["run.progress=false", "run.log_every=2"])])
     with pytest.raises(ConfigError, match="KNOWN"):
         run_episodes([load_config(None, []), load_config(None, ["control.gain_trans=2.0"])])
+    with pytest.raises(ConfigError, match="scene's structure"):  # the paper's contact: no pairs, pyramidal cone
+        run_episodes([load_config(None, []), load_config(None, ["scene.contact_friction_timeconst_s=0"])])

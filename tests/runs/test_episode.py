@@ -29,6 +29,23 @@ def test_default_oracle_run_seats_inside_the_limits(default_episode):
     assert s["lateral_drift_free_space_m"] < 0.2e-3
 
 
+def test_default_bore_run_slides_along_the_wall_without_rattling(default_episode):
+    """Issue 40: the default contact (the friction rows' own reference, 2 s) keeps the peg on the bore
+    wall: <= 5 contact transitions per s (measured 0.5: one break in 4 s) where the paper's contact
+    setting bounces off it at 88 Hz (docs/paper_results.md, "The bore rattle")."""
+    s = default_episode.summary
+    assert s["contact_transitions_per_s"] <= 5.0
+    assert s["longest_contact_span_s"] > 1.0 and s["contact_fraction"] > 0.95
+
+
+def test_paper_contact_setting_rattles():
+    """``kinadapt reproduce`` keeps the paper's contact setting, and with it the rattle."""
+    from kinadapt_nn.paper import PAPER_SETTING
+
+    s = run_episode(load_config(None, ["run.progress=false", "run.duration_s=3.0", *PAPER_SETTING])).summary
+    assert s["contact_transitions_per_s"] > 100.0 and s["longest_contact_span_s"] < 0.05
+
+
 def test_trace_has_every_channel_and_truth_is_separate(default_episode):
     """Every documented channel is present with the documented per-sample shape."""
     from kinadapt_nn.trace import CHANNELS
