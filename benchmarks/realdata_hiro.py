@@ -24,7 +24,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tests.diagnostics.test_realdata_hiro import REAL, SETUP, TRIALS, URDF, independent_fit  # noqa: E402
+from tests.diagnostics.test_realdata_hiro import REAL, SETUP, TRIALS, URDF, independent_fit
 
 
 def main() -> int:

@@ -325,14 +325,18 @@ def cmd_diagnose_setup(args: argparse.Namespace) -> int:
     check_output_dir(out, args.overwrite)
     t0 = time.perf_counter()
     progress = _progress(args, "diagnose")
-
-    progress(f"reading {args.log}")
-    log = read_log(Path(args.log), setup)
-    res = diagnose(log, setup, list(args.add or []), progress=progress, effects_files=list(args.effects or []))
+    logs = [Path(p) for p in args.logs]
+    stems = _log_names(logs)
+    results = []
+    for i, path in enumerate(logs):
+        progress(f"reading {path}" + (f" (log {i + 1} of {len(logs)})" if len(logs) > 1 else ""))
+        log = read_log(path, setup)
+        res = diagnose(log, setup, list(args.add or []), progress=progress, effects_files=list(args.effects or []))
+        results.append((stems[i], log, res))
     progress("writing figures")
-    files = res.hint_files or {}
-    with staged_output(out, args.overwrite) as stage:
-        for name, text in files.items():
+
+    def write_one(stage: Path, log, res) -> None:
+        for name, text in (res.hint_files or {}).items():
             (stage / name).write_text(text)
         (stage / "setup.toml").write_text(setup_to_toml(setup))
         write_json(stage / "diagnosis.json", {"format": "kinadapt-diagnosis", "version": 4, "kind": "user_log",
@@ -342,12 +346,52 @@ def cmd_diagnose_setup(args: argparse.Namespace) -> int:
                                                "wall_time_s": time.perf_counter() - t0})
         uf.model_vs_measurement(res, setup, stage / "residual.png")
         uf.effects_figure(res, stage / "effects.png")
+
+    pooled = None
+    with staged_output(out, args.overwrite) as stage:
+        if len(results) == 1:
+            write_one(stage, results[0][1], results[0][2])
+        else:
+            from kinadapt_nn.diagnostics.pooled import pool, summary_text
+
+            for name, log, res in results:
+                (stage / name).mkdir()
+                write_one(stage / name, log, res)
+            pooled = pool([(name, res.report) for name, _, res in results])
+            pooled["summary"] = summary_text(pooled)
+            write_json(stage / "diagnosis.json", {"format": "kinadapt-diagnosis", "version": 4, "kind": "pooled_logs",
+                                                   "setup_file": str(args.setup), "summary": pooled["summary"],
+                                                   "pooled": pooled, "logs": {
+                                                       name: {"source": log.source, "folder": name,
+                                                              "summary": res.report["summary"]}
+                                                       for name, log, res in results},
+                                                   "wall_time_s": time.perf_counter() - t0})
     if not args.quiet:
-        for w in res.report["warnings"]:
-            print(f"kinadapt: warning: {w}", file=sys.stderr)
-        print(res.report["summary"])
-        print(f"wrote {out}/ (diagnosis.json, setup.toml, residual.png, effects.png{''.join(', ' + f for f in files)})")
+        for name, _, res in results:
+            for w in res.report["warnings"]:
+                print(f"kinadapt: warning: {name + ': ' if pooled else ''}{w}", file=sys.stderr)
+        if pooled:
+            print(pooled["summary"])
+            print(f"wrote {out}/ (diagnosis.json; one folder per log: {', '.join(n for n, _, _ in results)})")
+        else:
+            res = results[0][2]
+            files = res.hint_files or {}
+            print(res.report["summary"])
+            print(f"wrote {out}/ (diagnosis.json, setup.toml, residual.png, effects.png"
+                  f"{''.join(', ' + f for f in files)})")
     return 0
+
+
+def _log_names(paths: list[Path]) -> list[str]:
+    """A folder name per log: its file name without the extensions, made unique."""
+    out: list[str] = []
+    for p in paths:
+        base = p.name.split(".")[0] or "log"
+        name, k = base, 2
+        while name in out:
+            name, k = f"{base}_{k}", k + 1
+        out.append(name)
+    return out
 
 
 def cmd_setup_template(args: argparse.Namespace) -> int:
@@ -402,7 +446,10 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from kinadapt_nn.diagnostics.report import residual_figure, write_tb
     from kinadapt_nn.runio import check_output_dir, staged_output, write_json
 
-    src = Path(args.log)
+    if len(args.logs) > 1:
+        raise KinadaptError(f"{len(args.logs)} logs given: several logs are pooled only with --setup SETUP.toml (a "
+                            "package run is diagnosed one at a time)")
+    src = Path(args.logs[0])
     cfg_path = Path(args.config) if args.config else (src / "config.toml" if (src / "config.toml").is_file() else None)
     cfg = load_config(cfg_path, args.set or [])
     theta = None
@@ -531,8 +578,10 @@ def build_parser() -> argparse.ArgumentParser:
                      "online/sweep.toml", "seeds=5", cmd_sweep, d["sweep"])
     dg = sub.add_parser("diagnose", help="model vs measurement: which physical effect is missing (your robot's log "
                         "with --setup, or a run of this package)", description=d["diagnose"])
-    dg.add_argument("log", help="with --setup: .csv, .csv.gz, .parquet, a ROS 2 bag or a trace.npz; without: a run "
-                    "folder, a trace.npz, or a CSV in this package's format (kinadapt_nn/diagnostics/importers.py)")
+    dg.add_argument("logs", nargs="+", metavar="LOG", help="with --setup: .csv, .csv.gz, .parquet, a ROS 2 bag or a "
+                    "trace.npz -- several logs of one set-up are pooled (one tool and mount; the logs that "
+                    "contradict the others named); without: a run folder, a trace.npz, or a CSV in this package's "
+                    "format (kinadapt_nn/diagnostics/importers.py)")
     dg.add_argument("--setup", metavar="SETUP.toml", help="your set-up: columns, wrench convention, sensor mount, tool "
                     "(template: kinadapt setup-template; examples: examples/setups/)")
     dg.add_argument("--config", help="the known model (default: the run's config.toml, else built-in defaults)")

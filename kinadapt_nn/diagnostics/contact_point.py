@@ -85,7 +85,7 @@ def estimate(w_contact_s: np.ndarray, contact: np.ndarray) -> ContactPoint | Non
     sd = np.maximum(np.sqrt(np.maximum(np.diag(cov), 0.0)), sd_jk)
     lam, vec = np.linalg.eigh(cov + cov_jk)
     und = vec[:, -1] if np.sqrt(max(lam[-1], 0.0)) > UNDETERMINED_M else None
-    return ContactPoint(p, sd, und, int(len(idx)), float(np.sqrt(np.mean(r.reshape(-1, 3) ** 2) * 3)),
+    return ContactPoint(p, sd, und, len(idx), float(np.sqrt(np.mean(r.reshape(-1, 3) ** 2) * 3)),
                         float(np.sqrt(np.mean(np.sum(f**2, axis=1)))))
 
 

@@ -44,6 +44,7 @@ UNDETERMINED_COM_M = 0.02  #: [m] a centre-of-mass coordinate with a larger sd: 
 SIGNIFICANT_SD = 3.0
 ROTATION_EXPLAINS = 0.9  #: a declared mount is contradicted only when the rotation removes this share of its misfit
 GN_ITERS = 300  #: Gauss-Newton iterations at most (a weakly turned sensor's curved valley takes ~100; 40 stopped 60 deg short)
+MIRROR_COST = 4.5  #: robust cost (half chi^2) a positive-mass mirror fit may exceed the negative one by (3 sd)
 WEAK_SCANS = 4  #: scans along the least-determined rotation axis, each followed by Gauss-Newton
 HUBER_K = 3.0  #: [noise sd] the robust loss is quadratic up to this weighted residual
 
@@ -207,6 +208,21 @@ def _linear_start(d: MountData) -> np.ndarray | None:
     return (sign * (U @ Vt)).T
 
 
+def _refine(d: MountData, D: np.ndarray, theta: np.ndarray, best: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """A weakly turned sensor: Gauss-Newton creeps along its flat, curved valley; scan along the
+    least-determined axis and start again from the best point there, while that lowers the cost
+    and keeps the mass's sign."""
+    for _ in range(WEAK_SCANS):
+        Dw = _scan_weak_axis(d, D)
+        if Dw is None:
+            break
+        Dk, thk, ck = _gauss_newton(d, Dw)
+        if not (ck < best and (thk[0] > 0) == (theta[0] > 0)):
+            break
+        D, theta, best = Dk, thk, ck
+    return D, theta, best
+
+
 def _scan_weak_axis(d: MountData, D: np.ndarray, step_deg: float = 10.0) -> np.ndarray | None:
     """The rotation about the least-determined axis at ``D`` (the smallest eigenvalue of the
     variable-projection J^T J) scanned over a full turn by the robust cost; -> the best rotation
@@ -220,8 +236,8 @@ def _scan_weak_axis(d: MountData, D: np.ndarray, step_deg: float = 10.0) -> np.n
         dv = np.zeros(3)
         dv[k] = 1e-6
         J[:, k] = (_project(D @ rotvec_matrix(dv), d, rw)[1] - e0) * sq / 1e-6
-    lam, V = np.linalg.eigh(J.T @ J)
-    axis = V[:, 0]
+    _, V = np.linalg.eigh(J.T @ J)
+    axis = V[:, 0]  # the smallest eigenvalue's direction
     angles = np.deg2rad(np.arange(step_deg, 360.0, step_deg))
     costs = [_cost_at(D @ rotvec_matrix(a * axis), d, iters=4) for a in angles]
     i = int(np.argmin(costs))
@@ -272,18 +288,13 @@ def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: i
     lin = _linear_start(d)
     if lin is not None and np.all(np.isfinite(lin)):
         starts.append(lin)
-    D, theta, best = _best_start(d, starts)
-    for _ in range(WEAK_SCANS):  # a weakly turned sensor: Gauss-Newton creeps along its flat, curved valley
-        Dw = _scan_weak_axis(d, D)
-        if Dw is None:
-            break
-        Dk, thk, ck = _gauss_newton(d, Dw)
-        if not (ck < best and (thk[0] > 0 or theta[0] <= 0)):
-            break
-        D, theta, best = Dk, thk, ck
+    D, theta, best = _refine(d, *_best_start(d, starts))
     if theta[0] <= 0:  # a weakly turned sensor leaves a mirror branch (D turned by 180 deg, -m): a mass is positive
         Dp, thp, cp = _best_start(d, [D0 @ rotvec_matrix(np.pi * e) for D0 in (*starts, D) for e in np.eye(3)], True)
         if thp[0] > 0:
+            Dp, thp, cp = _refine(d, Dp, thp, cp)
+        misfit = max(1.0, 2.0 * best / max(d.r.size - 13, 1))  # the fit's reduced chi^2: model error scales the test
+        if thp[0] > 0 and cp <= best + MIRROR_COST * misfit:  # as good a fit: the data cannot tell them, physics can
             D, theta, best = Dp, thp, cp
     x = np.concatenate([Rotation.from_matrix(D).as_rotvec(), theta])
     cost_declared = _cost_at(np.eye(3), d)
@@ -484,4 +495,5 @@ def undetermined(x: np.ndarray, sd: np.ndarray) -> list[dict]:
     return out
 
 
-__all__ = ["MountFit", "fit", "predict", "plausibility", "fit_at", "refine_rotation", "matrix_rpy", "rotvec_matrix", "rotation_angle"]
+__all__ = ["MountFit", "fit", "fit_at", "matrix_rpy", "plausibility", "predict", "refine_rotation", "rotation_angle",
+           "rotvec_matrix"]

@@ -47,7 +47,7 @@ class LogCalibration:
     mount_sd_deg: float  #: combined sd of the mount's angles
 
     @classmethod
-    def of(cls, name: str, report: dict) -> "LogCalibration":
+    def of(cls, name: str, report: dict) -> LogCalibration:
         sm = report["sensor_mount"]
         com = sm["tool_com_sensor_m"]
         ok = com[0] is not None
@@ -152,4 +152,4 @@ def summary_text(p: dict) -> str:
     return " ".join(parts)
 
 
-__all__ = ["pool", "summary_text", "LogCalibration"]
+__all__ = ["LogCalibration", "pool", "summary_text"]

@@ -165,4 +165,4 @@ def free_space(s, excluded: np.ndarray | None = None) -> Segmentation:
                         "the free-space wrench (affine in the sensor's gravity direction)")
 
 
-__all__ = ["Segmentation", "free_space", "everything"]
+__all__ = ["Segmentation", "everything", "free_space"]

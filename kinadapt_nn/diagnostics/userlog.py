@@ -295,6 +295,33 @@ class Calibration(NamedTuple):
     contact_point: contact_point.ContactPoint | None  #: where contacts act (None: too little contact)
 
 
+def _tip_consistent(declared: SetupCfg, point) -> tuple[bool, float]:
+    """Is the estimated contact point the declared tip (within 3 sd or 2 mm, across the line the
+    data leave free)? -> (consistent, distance [m])."""
+    tip = np.asarray(declared.tool.tip_sensor_m, dtype=float)
+    d = point.point_s_m - tip
+    if point.undetermined_along_s is not None:  # only the part across the line the data leave free
+        d = d - (d @ point.undetermined_along_s) * point.undetermined_along_s
+    z = float(np.linalg.norm(d) / max(np.linalg.norm(point.sd_m), 1e-9))
+    return bool(z < 3.0 or np.linalg.norm(d) < 0.002), float(np.linalg.norm(d))
+
+
+def _effective_tip(s: sg.LogSignals, declared: SetupCfg, point) -> tuple[sg.LogSignals, SetupCfg]:
+    """The tip the contact rows use: the declared one; where none is declared ([tool] tip_sensor_m
+    left at 0) and the contact wrench pins a point (every direction determined), that point
+    (``effective_setup.tip_used``), and the tip check tests it."""
+    setup = s.setup
+    if point is None or point.undetermined_along_s is not None or setup.contact.mode != "tip":
+        return s, setup
+    if any(declared.tool.tip_sensor_m):  # a declared tip is kept (and tested): the point is estimated
+        return s, setup  # before any effect, so it would absorb an effect that acts in contact (crosstalk)
+    from kinadapt_nn.diagnostics.physical import tip_moment_map
+
+    tip = tuple(float(v) for v in point.point_s_m)
+    setup = setup.model_copy(update={"tool": setup.tool.model_copy(update={"tip_sensor_m": tip})})
+    return dataclasses.replace(s, setup=setup, tip_map=tip_moment_map(np.asarray(tip))), setup
+
+
 def effective_setup(declared: SetupCfg, used: SetupCfg, fitm, point) -> dict:
     """The set-up the data say (beside the declared one): the mount used, the calibrated tool, and
     where contacts act -- tested against the declared tip, not assumed."""
@@ -305,14 +332,13 @@ def effective_setup(declared: SetupCfg, used: SetupCfg, fitm, point) -> dict:
            "tool_com_sensor_m": [float(v) for v in fitm.x[4:7] / m] if abs(m) > 1e-9 else None,
            "contact_point": None if point is None else point.to_json()}
     if point is not None:
-        tip = np.asarray(declared.tool.tip_sensor_m, dtype=float)
-        d = point.point_s_m - tip
-        if point.undetermined_along_s is not None:  # only the part across the line the data leave free
-            d = d - (d @ point.undetermined_along_s) * point.undetermined_along_s
-        z = float(np.linalg.norm(d) / max(np.linalg.norm(point.sd_m), 1e-9))
-        out["contact_point"]["declared_tip_sensor_m"] = [float(v) for v in tip]
-        out["contact_point"]["declared_tip_distance_m"] = float(np.linalg.norm(d))
-        out["contact_point"]["declared_tip_consistent"] = bool(z < 3.0 or np.linalg.norm(d) < 0.002)
+        ok, dist = _tip_consistent(declared, point)
+        out["contact_point"]["declared_tip_sensor_m"] = [float(v) for v in declared.tool.tip_sensor_m]
+        out["contact_point"]["declared_tip_distance_m"] = dist
+        out["contact_point"]["declared_tip_consistent"] = ok
+    out["tip_used_sensor_m"] = [float(v) for v in used.tool.tip_sensor_m]
+    out["tip_used"] = ("the declared tip" if tuple(used.tool.tip_sensor_m) == tuple(declared.tool.tip_sensor_m)
+                       else "the estimated contact point (the declared tip contradicts it)")
     return out
 
 
@@ -427,6 +453,7 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
     sigma = noise_sigma(s.wrench, rc) if not s.static else np.array([1.0] * 3 + [0.1] * 3)
     cal = calibrate(log, s, setup, sigma, rc, progress)
     fitm, s, setup, sigma, sigma_how, seg = cal.fit, cal.signals, cal.setup, cal.sigma, cal.sigma_how, cal.segmentation
+    s, setup = _effective_tip(s, declared, cal.contact_point)
     check = sign_check(fitm, s, setup)
     sensor_mount = dict(fitm.report)
     why_not = mount.plausibility(fitm, setup)
@@ -631,6 +658,9 @@ def summary_text(rep: dict) -> str:
                      f"{sm['tool_mass_kg']:.4g} ± {sm['tool_mass_sd_kg']:.2g} kg"
                      + (", centre of mass [" + ", ".join(f"{1000 * v:.1f}" for v in com) + "] mm in the sensor frame"
                         if com[0] is not None else "") + ".")
+    parts.append(completeness_text(rep))
+    if not rep["tip_contact_check"]["ok"]:
+        parts.append("WARNING: " + rep["tip_contact_check"]["message"] + ".")
     if sm and sm.get("undetermined"):
         parts.append("Undetermined by this log's motion (the rest stands): " + "; ".join(
             f"{u['parameter']} (sd {u['sd']:.2g} {u['unit']}; to pin it: {u['to_pin']})" for u in sm["undetermined"])
@@ -650,9 +680,6 @@ def summary_text(rep: dict) -> str:
                         "barely changed direction)" if cpt["undetermined_along_sensor"] else "")
                      + ("" if cpt["declared_tip_consistent"] else
                         f", {1000 * cpt['declared_tip_distance_m']:.0f} mm from the declared tip") + ".")
-    parts.append(completeness_text(rep))
-    if not rep["tip_contact_check"]["ok"]:
-        parts.append("WARNING: " + rep["tip_contact_check"]["message"] + ".")
     pres = [e for e in rep["ranking"] if e["verdict"] == "present"]
     und = [e for e in rep["ranking"] if e["verdict"] == "cannot_decide" and e.get("judged", True)]
     if pres:

@@ -305,7 +305,12 @@ def run_compare(cfg: CompareCfg, out: Path, progress: bool = True) -> list[dict]
                     "pred_error_rms_median": None,
                     "offset_error_lateral_final_m_median": (_median([r["offset_error_lateral_final_m"] for r in ins])
                                                             if ins else None),
-                    "min_lambda_JJt_median": None, "n_params": grp[0]["n_params"], "wall_time_s_median": None,
+                    "min_lambda_JJt_median": None,
+                    "contact_transitions_per_s_median": (_median([r.get("contact_transitions_per_s") for r in ins])
+                                                         if ins else None),
+                    "longest_contact_span_s_median": (_median([r.get("longest_contact_span_s") for r in ins])
+                                                      if ins else None),
+                    "n_params": grp[0]["n_params"], "wall_time_s_median": None,
                     "insertion": k,
                     "jacobian_error_cell_median": _median([c["jacobian_error_cell_median"][k] for c in cells]),
                 })

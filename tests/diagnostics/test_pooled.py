@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from kinadapt_nn.diagnostics.pooled import _rpy_matrix, pool, summary_text
 from kinadapt_nn.diagnostics.mount import matrix_rpy
+from kinadapt_nn.diagnostics.pooled import _rpy_matrix, pool, summary_text
 
 MASS, COM, RPY = 0.44, np.array([0.024, 0.002, -0.038]), np.array([-67.0, 62.0, -79.0])
 
