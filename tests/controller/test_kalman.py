@@ -151,9 +151,11 @@ def test_every_features_type_has_a_psd_prior(features):
 
 
 def test_rank_gate_is_checked_every_step_and_a_breach_is_a_failure():
-    """The RBF run with the paper's composite law dips below the 1e-6 gate for ~25 ms (a 10 Hz
-    watch missed it): now it is caught and classified."""
-    s = run_episode(load_config(None, ["run.features=rbf", "adaptation.mode=composite", *QUIET])).summary
+    """The RBF run with the paper's composite law on the paper's contact dips below the 1e-6 gate
+    for ~25 ms (a 10 Hz watch missed it): now it is caught and classified. (The rattle-free default
+    contact keeps this run above the gate, 5.2e-3: the dip came with the bore rattle's impacts.)"""
+    s = run_episode(load_config(None, ["run.features=rbf", "adaptation.mode=composite",
+                                       "scene.contact_friction_timeconst_s=0", *QUIET])).summary
     assert s["min_lambda_JJt"] < 1e-6
     assert not s["success"] and s["failure"] == "rank_gate" and s["rank_gate"]["breach_t_s"] is not None
     # the composite law has no covariance: the summary must not claim "no contact was sensed" (it was)
