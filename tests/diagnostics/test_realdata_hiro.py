@@ -172,3 +172,27 @@ def test_all_trials_pooled_name_the_ones_that_do_not_fit(tmp_path):
     assert {c["log"] for c in p["contradicting"]} == NOISY
     ind = [independent_fit(t)["mass_kg"] for t in TRIALS if t.stem not in NOISY]
     assert min(ind) <= p["pooled"]["tool_mass_kg"] <= max(ind)
+
+
+def test_cli_pools_several_logs_and_names_the_odd_one(tmp_path):
+    """``kinadapt diagnose LOG1 LOG2 LOG3 --setup``: a folder per log, one pooled diagnosis.json;
+    trial 02 (another mount and mass by its own calibration) is named, not averaged in, and with
+    only two agreeing logs the pool is theirs."""
+    import json
+    import subprocess
+    import sys
+
+    setup = tmp_path / "hiro.toml"
+    setup.write_text(SETUP.format(urdf=URDF.as_posix()))
+    logs = [REAL / "logs" / f"20160930-HIRO_ERROR-{k}.csv" for k in ("02", "06", "10")]
+    out = tmp_path / "pooled"
+    r = subprocess.run([sys.executable, "-m", "kinadapt_nn.app.cli", "diagnose", *map(str, logs), "--setup", str(setup),
+                        "--out", str(out), "--quiet"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    rep = json.loads((out / "diagnosis.json").read_text())
+    assert rep["kind"] == "pooled_logs" and set(rep["logs"]) == {p.stem for p in logs}
+    assert all((out / p.stem / "diagnosis.json").is_file() for p in logs)
+    p = rep["pooled"]
+    assert [c["log"] for c in p["contradicting"]] == ["20160930-HIRO_ERROR-02"]
+    assert sorted(p["agreeing"]) == ["20160930-HIRO_ERROR-06", "20160930-HIRO_ERROR-10"]
+    assert 0.40 < p["pooled"]["tool_mass_kg"] < 0.48
