@@ -1,7 +1,7 @@
 """Coverage of the diagnosis's 95 % intervals over re-noised logs of the independent rigs (issue 38, "Honest
 numbers"): does ``estimate ± 1.96 sd`` contain the truth in 95 % of the draws?
 
-    python benchmarks/coverage.py [--seeds 50] [--cases A:tool_gravity contact:point ...] [--seed0 100]
+    python benchmarks/interval_coverage.py [--seeds 50] [--cases A:tool_gravity contact:point ...] [--seed0 100]
                                   [--jobs 1] [--out coverage.json] [--oracle-inertia]
 
 A case is ``RIG:CASE`` of the standalone generators (they import nothing from the package; ``--cases list``
