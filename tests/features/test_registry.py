@@ -78,7 +78,8 @@ def test_a_features_type_registered_in_a_test_module_runs_an_episode(adjoint_mm)
     assert s["features"] == "adjoint_mm" and s["law"] == "kalman" and s["n_params"] == 3
     th_mm, th_ref = mm.trace["theta"], ref.trace["theta"]
     assert np.all(np.isfinite(th_mm))
-    assert np.max(np.abs(th_ref[-1] - th_ref[0])) > 1e-4  # the estimate moved: the comparison means something
+    # the estimate moved (6.7e-5 m on the rattle-free default contact), far above the 1e-9 m compared below
+    assert np.max(np.abs(th_ref[-1] - th_ref[0])) > 1e-5
     # rounding only (measured 1e-16 m here); 1e-9 m, 1e-9 rad leave room for other BLAS builds
     np.testing.assert_allclose(th_mm / MM, th_ref, rtol=0, atol=1e-9)  # [m]
     np.testing.assert_allclose(mm.trace["q_rad"], ref.trace["q_rad"], rtol=0, atol=1e-9)
