@@ -11,7 +11,7 @@ from kinadapt_nn.config import load_config
 from kinadapt_nn.paper import PAPER_SETTING
 from kinadapt_nn.runs.build import make_controller
 from kinadapt_nn.sim.adapter import PegInHoleSim
-from kinadapt_nn.sim.scene import BLOCK_TOP_GEOMS_PREFIX, PEG_GEOM, build_model, friction_reference_pairs
+from kinadapt_nn.sim.scene import BLOCK_TOP_GEOMS_PREFIX, PEG_GEOM, build_model
 
 OVERRIDE = int(mujoco.mjtEnableBit.mjENBL_OVERRIDE)
 
@@ -82,30 +82,18 @@ def test_sliding_contact_is_pushed_off_the_wall_by_the_normals_friction_referenc
 
 def _incline_creep(timeconst_s: float, impratio: float = 1.0) -> float:
     """Creep speed over 3-4 s [m/s] of a 0.1 kg box at rest on a 10-deg incline (tan 10 deg < mu 0.3: it
-    should stick) with the scene's global contact parameters, and the friction reference pairs (with
-    MuJoCo's ``impratio``) when ``timeconst_s > 0`` (as benchmarks/bore_rattle.py measures it)."""
-    spec = mujoco.MjSpec()
-    o = spec.option
-    o.timestep, o.integrator = 1e-3, mujoco.mjtIntegrator.mjINT_IMPLICITFAST  # as the scene's
-    o.enableflags |= OVERRIDE
-    o.o_solref, o.o_solimp, o.o_friction = [0.02, 1.0], [0.95, 0.99, 0.001, 0.5, 2.0], [0.3, 0.3, 0.005, 1e-4, 1e-4]
-    q = np.zeros(4)
-    mujoco.mju_euler2Quat(q, np.deg2rad([0.0, 10.0, 0.0]), "xyz")
-    spec.worldbody.add_geom(name=f"{BLOCK_TOP_GEOMS_PREFIX}incline", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[1, 1, 0.1],
-                            quat=list(q))
-    box = spec.worldbody.add_body(pos=list(0.00999 * np.array([np.sin(np.deg2rad(10)), 0, np.cos(np.deg2rad(10))])),
-                                  quat=list(q))
-    box.add_freejoint()
-    box.add_geom(name=PEG_GEOM, type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.01] * 3, mass=0.1)
-    if timeconst_s > 0.0:
-        friction_reference_pairs(spec, timeconst_s)
-        o.impratio = impratio
-    m = spec.compile()
-    d = mujoco.MjData(m)
-    mujoco.mj_step(m, d, 3000)
-    x3 = d.qpos[:3].copy()
-    mujoco.mj_step(m, d, 1000)
-    return float(np.linalg.norm(d.qpos[:3] - x3))
+    should stick): the scene ``benchmarks/bore_rattle.py`` measures (its ``incline_creep``), loaded by path."""
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "bore_rattle.py"
+    mod = sys.modules.get("bore_rattle")
+    if mod is None:  # (its dataclasses look their module up in sys.modules while it loads)
+        spec = importlib.util.spec_from_file_location("bore_rattle", path)
+        mod = sys.modules["bore_rattle"] = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+    return mod.incline_creep(timeconst_s, impratio)["creep_m_s"]
 
 
 def test_what_the_friction_reference_costs_a_free_body_that_should_stick():
