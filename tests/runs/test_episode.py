@@ -218,6 +218,13 @@ def test_precompile_builds_one_controller_per_features_and_law(monkeypatch):
     cfgs.append(load_config(None, ["adaptation.mode=composite"]))
     ep.precompile(cfgs)
     assert sorted(c.known.law for c in built) == ["composite", "kalman"]
+    import numba
+
+    if numba.config.OPT == 0:
+        # Unoptimised code keeps the laws' first-class function addresses as "dynamic globals",
+        # which numba refuses to cache ("Cannot cache compiled function ... as it uses dynamic
+        # globals"; measured with NUMBA_OPT=0 on numba 0.68.0 and 0.68.1): nothing to find there.
+        pytest.skip("NUMBA_OPT=0: numba cannot cache kernels that hold function addresses")
     assert all(core.calls_cached(c.kernel_calls(), c.law_spec) for c in built)
     assert ep.precompile(cfgs) == 0.0  # all cached: nothing loaded in the parent
 
