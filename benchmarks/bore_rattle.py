@@ -1,6 +1,6 @@
 """The bore rattle (issue 40): which element of the loop throws the sliding peg off the bore wall.
 
-    python benchmarks/bore_rattle.py [--jobs 1] [--only table,static,creep,bound,seeds,figure] [--png PATH] [--json PATH]
+    python benchmarks/bore_rattle.py [--jobs 1] [--only table,static,creep,bound,seeds,gain,figure] [--png PATH] [--json PATH]
 
 From the paper's setting (``kinadapt_nn.paper.PAPER_SETTING``: composite law, MuJoCo's friction
 reference = the normal's), one parameter at a time, each row one insertion; per row, from the
@@ -19,7 +19,9 @@ set-points, low-passed, drive a fresh simulator with no controller). ``static``:
 contact state, MuJoCo's constrained normal acceleration of the peg's contact point for several
 friction coefficients and the two friction references. ``creep``: what the fix costs where a
 contact should stick (a box at rest on an incline, and a wedged peg), with MuJoCo's impratio.
-``seeds``: the default run from 6 jittered starts, both contacts. ``bound``: the paper's
+``seeds``: the default run from 6 jittered starts, both contacts. ``gain``: the paper's gain sweep
+(``kinadapt reproduce --only gain_sweep``'s bore half: Gamma 100 and 8000, composite and
+prediction-only) with the paper's contact and with the rattle-free default. ``bound``: the paper's
 sampled-data virtual-mass bound (Remark cp_ceiling, eq. cp_mass) for our admittance
 discretisation, with the contact stiffness MuJoCo actually has and with the joint servo's in series.
 Outputs of a run: benchmarks/results/bore_rattle.{txt,json}, docs/figures/bore_rattle.png.
@@ -455,6 +457,39 @@ def _part_seeds(ex) -> list[dict]:
     return rows
 
 
+def gain_row(job: tuple[float, str, str]) -> dict:
+    """One bore episode of the paper's gain sweep (``paper.reproduce.part_gain_sweep``): the paper's
+    law setting with ``adaptation.gamma`` = Gamma and ``adaptation.mode`` = law, on the contact named
+    (``paper``: MuJoCo's friction reference = the normal's; ``default``: the rattle-free one).
+    ``final_V_aug`` = gamma_d V + |theta - theta_true|^2 / (2 Gamma) at the end, as the paper's figure."""
+    from kinadapt_nn.config import load_config
+    from kinadapt_nn.runs.episode import run_episode
+
+    gamma, law, contact = job
+    over = [] if contact == "paper" else ["scene.contact_friction_timeconst_s=2.0"]
+    cfg = load_config(None, ["run.progress=false", "run.figure=false", "run.tensorboard=false", *PAPER_SETTING,
+                             *over, f"adaptation.gamma={gamma}", f"adaptation.mode={law}"])
+    r = run_episode(cfg)
+    s, tr = r.summary, r.trace
+    true = np.asarray(tr.meta["truth_offset_f_m"])
+    gd = cfg.adaptation.gamma_d
+    v_aug = gd * tr["V"][-1] + 0.5 * float(np.sum((tr["theta"][-1] - true) ** 2)) / gamma
+    return {"gamma": gamma, "law": law, "contact": contact, "final_V_aug": float(v_aug),
+            **{k: s[k] for k in ("seat_time_s", "contact_transitions_per_s", "max_force_N",
+                                 "offset_error_lateral_final_m")}}
+
+
+def _part_gain(ex) -> list[dict]:
+    jobs = [(g, law, c) for c in ("paper", "default") for g in (100.0, 8000.0) for law in ("composite", "prediction")]
+    rows = list(ex.map(gain_row, jobs))
+    for r in rows:
+        print(f"gain sweep, bore, {r['contact']:7s} contact, Gamma {r['gamma']:6g}, {r['law']:10s}: seat "
+              f"{r['seat_time_s'] or float('nan'):.3f} s, {r['contact_transitions_per_s']:6.1f} transitions/s, max|F| "
+              f"{r['max_force_N']:.2f} N, lateral offset error {1e3 * r['offset_error_lateral_final_m']:.2f} mm, "
+              f"final V_aug {r['final_V_aug']:.3e}")
+    return rows
+
+
 def _part_creep(ex) -> dict:
     creep = [incline_creep(tc, imp) for tc, imp in ((0.0, 1.0), (2.0, 1.0), (2.0, 10.0), (2.0, 100.0))]
     for r in creep:
@@ -477,7 +512,7 @@ def _part_bound(ex) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--jobs", type=int, default=1)
-    ap.add_argument("--only", default="table,static,creep,bound,seeds,figure")
+    ap.add_argument("--only", default="table,static,creep,bound,seeds,gain,figure")
     ap.add_argument("--png", default="docs/figures/bore_rattle.png")
     ap.add_argument("--json", default=None)
     a = ap.parse_args()
@@ -489,7 +524,7 @@ def main() -> None:
             res["rows"] = list(ex.map(run_row, ROWS))
             print_table(res["rows"])
         for name, part in (("static", _part_static), ("seeds", _part_seeds), ("creep", _part_creep),
-                           ("bound", _part_bound)):
+                           ("bound", _part_bound), ("gain", _part_gain)):
             if name in parts:
                 res[name] = part(ex)
         if "figure" in parts:
