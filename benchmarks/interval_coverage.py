@@ -272,6 +272,19 @@ def oracle_inertia(setup, truth: Truth) -> list[float]:
     return [float(v) for v in (I_c[0, 0], I_c[1, 1], I_c[2, 2], I_c[0, 1], I_c[0, 2], I_c[1, 2])]
 
 
+def with_inertia(truth: Truth, setup) -> Truth:
+    """The truth of ``tool_inertia``: the true tool's inertia about the sensor origin minus the declared one
+    (``physical.nominal_inertials``), where some entry is at least a tenth of its relevant size."""
+    from kinadapt_nn.diagnostics.builtin.tool_inertia import ENTRIES, RELEVANT_INERTIA_KG_M2
+    from kinadapt_nn.diagnostics.physical import nominal_inertials
+
+    dI = truth.inertia_o - nominal_inertials(setup)[2]
+    if np.max(np.abs(dI)) < 0.1 * RELEVANT_INERTIA_KG_M2:
+        return truth
+    hidden = {n: float(dI[cells[0]]) for n, cells in ENTRIES.items()}
+    return truth._replace(effects={**truth.effects, "tool_inertia": hidden})
+
+
 def draw(case: str, seed: int, oracle: bool = False) -> Outcome:
     """Write ``case`` with noise ``seed`` into a temporary folder, diagnose it, compare with the truth
     (``oracle``: declare the true tool's inertia, ``oracle_inertia``)."""
@@ -289,6 +302,7 @@ def draw(case: str, seed: int, oracle: bool = False) -> Outcome:
         setup = load_setup(setup_path)
         if oracle:
             setup = load_setup(setup_path, [f"tool.inertia_com_kg_m2={oracle_inertia(setup, truth)}"])
+        truth = with_inertia(truth, setup)
         t0 = time.perf_counter()
         try:
             rep = diagnose(readers.read_log(log, setup), setup, hints=False).report
