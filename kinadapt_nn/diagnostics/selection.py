@@ -464,7 +464,8 @@ def refit(des: Design, names: list[str], rc: SelCfg = SelCfg(), cols: dict | Non
           ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Fit the nuisance alone and with ``names`` (a one-of effect keeps the column ``cols[name]``
     when given -- the one the selection named -- else its best column on all rows) on all rows. -> (residual rows before (R,), after (R,), {effect: (cols, params physical (k,), sd
-    physical (k,))}); the sd is the larger of the block-jackknife and the least-squares one (finite)."""
+    physical (k,))}); the sd is the largest of the block-jackknife, the least-squares and the block-robust
+    (sandwich, ``intervals.honest_sd``) one (finite)."""
     st = Stats(des)
     base = st.z_idx
     p0 = st.fit(base, rc.ridge)
@@ -494,7 +495,9 @@ def refit(des: Design, names: list[str], rc: SelCfg = SelCfg(), cols: dict | Non
     s2 = float(after @ after) / max(len(after) - len(ii), 1)
     lam = rc.ridge * (np.trace(G) / max(len(G), 1)) + st.ridge_abs
     var_ls = s2 * np.diag(np.linalg.pinv(G + lam * np.eye(len(G)))) if len(G) else np.zeros(0)
-    sd_all = np.sqrt(np.maximum(var_j, var_ls))
+    from kinadapt_nn.diagnostics.intervals import honest_sd  # white noise vs block-robust (sandwich)
+    var_h = honest_sd(st.G[:, ii][:, :, ii], st.h[:, ii], st.yy, p, len(after)) ** 2 if len(ii) else np.zeros(0)
+    sd_all = np.sqrt(np.maximum.reduce([var_j, var_ls, var_h]))
     out, i = {}, len(base)
     for n in names:
         c = chosen[n]

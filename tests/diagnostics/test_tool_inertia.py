@@ -72,13 +72,12 @@ def test_selected_where_the_payload_turns_and_not_on_a_static_log(tmp_path):
     """Rig A's hidden payload (a point mass at c: dI = dm (|c|^2 1 - c c^T)) turned by the wrist: tool_inertia
     is present and its dI_xx / dI_yy intervals hold the truth; the same kind of payload on a static calibration
     log (no rotation at all): not present."""
-    from tests.diagnostics.example_scripts import load_example
+    import json
 
     from kinadapt_nn.diagnostics import readers
     from kinadapt_nn.diagnostics.setup import load_setup
     from kinadapt_nn.diagnostics.userlog import diagnose
-
-    import json
+    from tests.diagnostics.example_scripts import load_example
 
     fr = load_example("foreign_rig")
     d = fr.make_case("tool_gravity", tmp_path / "a", seed=0, rig="A")
