@@ -274,6 +274,8 @@ def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray, rc: Row
     free = ~contact & ~excl if (~contact & ~excl).sum() > 20 else ~excl
     fitm = mount.fit(s, free, blocks, sigma)
     point = contact_point.estimate(s.wrench - mount.predict(fitm.x, s), contact & ~excl)
+    point = contact_point.with_calibration(point, s.wrench, lambda dx: mount.predict(mount.shifted(fitm.x, dx), s),
+                                           contact & ~excl, fitm.cov)
     if not setup.sensor.mount_known:
         setup = setup.model_copy(update={"sensor": setup.sensor.model_copy(
             update={"rpy_flange_deg": tuple(float(v) for v in fitm.rpy_deg)})})
