@@ -84,3 +84,18 @@ def honest_sd(G_blocks: np.ndarray, h_blocks: np.ndarray, yy_blocks: np.ndarray,
 
 
 __all__ = ["block_scores", "honest_sd", "sandwich_cov", "white_cov"]
+
+
+def given_significant(cv, sel_idx: np.ndarray, extra_idx: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The selected columns' joint estimate and block-jackknife covariance with the columns of effects that are
+    significant but not selected (``extra_idx``) fitted beside them: what such an effect (below the share of
+    the residual that makes it a finding, say) would bias is then not in the selected effects' estimates, and
+    their sd carries its uncertainty. ``cv(idx) -> (held-out SSE (B,), leave-one-block-out estimates (B, k),
+    estimate (k,))`` (``selection.Stats.cv``); -> (estimate (len(sel_idx),), covariance (len, len))."""
+    idx = np.concatenate([sel_idx, *extra_idx])
+    _, reps, p = cv(idx)
+    k = len(sel_idx)
+    reps = reps[:, :k]
+    B = len(reps)
+    dev = reps - reps.mean(axis=0)
+    return p[:k], (B - 1) / max(B, 1) * dev.T @ dev
