@@ -18,7 +18,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from kinadapt_nn.diagnostics import contact_point, segmentation
+from kinadapt_nn.diagnostics import contact_point, nonlinear, segmentation
 from kinadapt_nn.diagnostics import selection as sel
 from kinadapt_nn.diagnostics import signals as sg
 from kinadapt_nn.diagnostics.builtin import BUILTINS, CONTACT_MODEL_EFFECTS
@@ -498,6 +498,7 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
         des, rm, result, s = _rank(s, lib, names, sigma, rc, sc, excite, block, cache, progress)
         fit_check["action"] = "contact rows left out; verdicts from free space alone"
         contact_rows = "left out (tip check failed)"
+    result = nonlinear.refine(result, des, rm.apply, s, lib, cache, sc)  # first-order effects made exact
     entries = [_entry_report(e, lib[e["effect"]], setup) for e in result.entries]
     dt = None if s.static else float(np.median(np.diff(s.t)))
     report = {
