@@ -2,7 +2,8 @@
 numbers"): does ``estimate ± 1.96 sd`` contain the truth in 95 % of the draws?
 
     python benchmarks/interval_coverage.py [--seeds 50] [--cases A:tool_gravity contact:point ...] [--seed0 100]
-                                  [--jobs 1] [--out coverage.json] [--oracle-inertia]
+                                  [--jobs 1] [--out coverage.json] [--log draws.jsonl] [--oracle-inertia]
+    python benchmarks/interval_coverage.py --table-from draws.jsonl [more.jsonl ...]
 
 A case is ``RIG:CASE`` of the standalone generators (they import nothing from the package; ``--cases list``
 names them): ``A:*`` and ``B:*`` from ``examples/foreign_rig.py`` (rig A's csv.gz log; rig B),
@@ -25,7 +26,9 @@ error / its standard error, ``scat/sd`` = sd of the errors / mean reported sd, t
 ``sd small``: the errors scatter more than 1.25x the reported sd). ``--oracle-inertia`` is a control: the
 setup declares the true tool's inertia (read from the truth), so that what the effects leave out of the
 inertia (``tool_gravity`` moves m and m c only) is no longer missing. ``--out`` writes every draw, the table
-and the options as JSON. Run with ``OMP_NUM_THREADS=1`` on a shared machine.
+and the options as JSON; ``--log`` appends each diagnosis's outcome as a JSON line as it comes, so that runs
+split over cases or seed ranges (or cut short) are merged into one table by ``--table-from``. Run with
+``OMP_NUM_THREADS=1`` on a shared machine.
 """
 
 from __future__ import annotations
@@ -272,6 +275,19 @@ def oracle_inertia(setup, truth: Truth) -> list[float]:
     return [float(v) for v in (I_c[0, 0], I_c[1, 1], I_c[2, 2], I_c[0, 1], I_c[0, 2], I_c[1, 2])]
 
 
+def with_inertia(truth: Truth, setup) -> Truth:
+    """The truth of ``tool_inertia``: the true tool's inertia about the sensor origin minus the declared one
+    (``physical.nominal_inertials``), where some entry is at least a tenth of its relevant size."""
+    from kinadapt_nn.diagnostics.builtin.tool_inertia import ENTRIES, RELEVANT_INERTIA_KG_M2
+    from kinadapt_nn.diagnostics.physical import nominal_inertials
+
+    dI = truth.inertia_o - nominal_inertials(setup)[2]
+    if np.max(np.abs(dI)) < 0.1 * RELEVANT_INERTIA_KG_M2:
+        return truth
+    hidden = {n: float(dI[cells[0]]) for n, cells in ENTRIES.items()}
+    return truth._replace(effects={**truth.effects, "tool_inertia": hidden})
+
+
 def draw(case: str, seed: int, oracle: bool = False) -> Outcome:
     """Write ``case`` with noise ``seed`` into a temporary folder, diagnose it, compare with the truth
     (``oracle``: declare the true tool's inertia, ``oracle_inertia``)."""
@@ -289,6 +305,7 @@ def draw(case: str, seed: int, oracle: bool = False) -> Outcome:
         setup = load_setup(setup_path)
         if oracle:
             setup = load_setup(setup_path, [f"tool.inertia_com_kg_m2={oracle_inertia(setup, truth)}"])
+        truth = with_inertia(truth, setup)
         t0 = time.perf_counter()
         try:
             rep = diagnose(readers.read_log(log, setup), setup, hints=False).report
@@ -365,7 +382,10 @@ def format_table(rows: list[Row]) -> str:
 
 
 # ==================================================================================================
-def _run(cases: list[str], seeds: list[int], jobs: int, oracle: bool) -> dict[tuple[str, int], Outcome]:
+def _run(cases: list[str], seeds: list[int], jobs: int, oracle: bool, log: Path | None = None
+         ) -> dict[tuple[str, int], Outcome]:
+    """Every (case, seed) diagnosed; ``log``: each outcome appended as one JSON line as it comes (a run cut
+    short keeps what it did: ``--table-from``)."""
     tasks = [(c, s, oracle) for s in seeds for c in cases]
     out: dict[tuple[str, int], Outcome] = {}
     t0 = time.perf_counter()
@@ -375,6 +395,11 @@ def _run(cases: list[str], seeds: list[int], jobs: int, oracle: bool) -> dict[tu
         status = o.error or f"{o.wall_s:.1f} s"
         print(f"[{len(out)}/{len(tasks)} {time.perf_counter() - t0:7.0f} s] {case} seed {seed}: {status}",
               file=sys.stderr, flush=True)
+        if log is not None:
+            with log.open("a") as fh:
+                fh.write(json.dumps({"case": case, "seed": seed, "oracle": oracle, "wall_s": o.wall_s,
+                                     "false_alarms": o.false_alarms, "error": o.error,
+                                     "draws": [d._asdict() for d in o.draws]}) + "\n")
 
     if jobs <= 1:
         for t in tasks:
@@ -386,7 +411,40 @@ def _run(cases: list[str], seeds: list[int], jobs: int, oracle: bool) -> dict[tu
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
+def read_logs(paths: list[Path]) -> dict[tuple[str, int], Outcome]:
+    """The outcomes of ``--log`` files (JSON lines; a later line of the same case and seed wins)."""
+    out: dict[tuple[str, int], Outcome] = {}
+    for p in paths:
+        for line in p.read_text().splitlines():
+            if not line.strip():
+                continue
+            r = json.loads(line)
+            out[(r["case"], r["seed"])] = Outcome([Draw(**d) for d in r["draws"]], r["false_alarms"], r["wall_s"],
+                                                  r["error"])
+    return out
+
+
+def summary(res: dict[tuple[str, int], Outcome]) -> tuple[list[Row], str]:
+    """The table's rows and the per-case lines (diagnosed, wall, false alarms) of the outcomes ``res``."""
+    cases = list(dict.fromkeys(c for c, _ in res))
+    seeds = {c: sorted(s for cc, s in res if cc == c) for c in cases}
+    draws = [d for c in cases for s in seeds[c] for d in res[(c, s)].draws]
+    n_seeds = {c: sum(res[(c, s)].error is None for s in seeds[c]) for c in cases}
+    lines = []
+    for c in cases:
+        w = np.array([res[(c, s)].wall_s for s in seeds[c]])
+        fa: dict[str, int] = {}
+        for s in seeds[c]:
+            for e in res[(c, s)].false_alarms:
+                fa[e] = fa.get(e, 0) + 1
+        errs = [res[(c, s)].error for s in seeds[c] if res[(c, s)].error]
+        lines.append(f"{c}: {n_seeds[c]}/{len(seeds[c])} diagnosed (seeds {seeds[c][0]}-{seeds[c][-1]}), diagnosis "
+                     f"{np.median(w):.1f} s median ({w.max():.1f} max); present though not hidden: {fa or 'none'}"
+                     + (f"; failed: {errs[0]} ..." if errs else ""))
+    return table(draws, n_seeds), "\n".join(lines)
+
+
+def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description="Coverage of the diagnosis's 95 % intervals over re-noised logs of the "
                                              "independent rigs (module docstring).")
     ap.add_argument("--seeds", type=int, default=50, help="re-noised logs per case (default 50)")
@@ -395,8 +453,16 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"default: {' '.join(DEFAULT_CASES)}; 'list' prints the choices")
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (default 1: a shared machine)")
     ap.add_argument("--out", type=Path, help="JSON of every draw, the table and these options")
+    ap.add_argument("--log", type=Path, help="append each diagnosis's outcome to this JSON-lines file as it comes")
+    ap.add_argument("--table-from", type=Path, nargs="+", metavar="LOG",
+                    help="diagnose nothing: the table of these --log files (several runs' outcomes merged)")
     ap.add_argument("--oracle-inertia", action="store_true",
                     help="control: declare the true tool's inertia (read from the truth) in the setup")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = _parser()
     a = ap.parse_args(argv)
     choices = all_cases()
     if a.cases == ["list"]:
@@ -405,32 +471,26 @@ def main(argv: list[str] | None = None) -> int:
     bad = [c for c in a.cases if c not in choices]
     if bad:
         ap.error(f"unknown case(s) {', '.join(bad)} (choose from {', '.join(choices)})")
-    seeds = list(range(a.seed0, a.seed0 + a.seeds))
     t0 = time.perf_counter()
-    res = _run(a.cases, seeds, a.jobs, a.oracle_inertia)
+    if a.table_from:
+        res = read_logs(a.table_from)
+    else:
+        res = _run(a.cases, list(range(a.seed0, a.seed0 + a.seeds)), a.jobs, a.oracle_inertia, a.log)
     wall = time.perf_counter() - t0
-    draws = [d for s in seeds for c in a.cases for d in res[(c, s)].draws]
-    n_seeds = {c: sum(res[(c, s)].error is None for s in seeds) for c in a.cases}
-    rows = table(draws, n_seeds)
+    rows, lines = summary(res)
     print(format_table(rows))
     print()
-    for c in a.cases:
-        w = np.array([res[(c, s)].wall_s for s in seeds])
-        fa: dict[str, int] = {}
-        for s in seeds:
-            for e in res[(c, s)].false_alarms:
-                fa[e] = fa.get(e, 0) + 1
-        errs = [res[(c, s)].error for s in seeds if res[(c, s)].error]
-        print(f"{c}: {n_seeds[c]}/{len(seeds)} diagnosed, diagnosis {np.median(w):.1f} s median ({w.max():.1f} max); "
-              f"present though not hidden: {fa or 'none'}" + (f"; failed: {errs[0]} ..." if errs else ""))
-    print(f"{len(res)} diagnoses in {wall:.0f} s wall, {a.jobs} job(s)"
-          + ("; the true tool's inertia declared (--oracle-inertia)" if a.oracle_inertia else ""))
+    print(lines)
+    if not a.table_from:
+        print(f"{len(res)} diagnoses in {wall:.0f} s wall, {a.jobs} job(s)"
+              + ("; the true tool's inertia declared (--oracle-inertia)" if a.oracle_inertia else ""))
     if a.out:
         a.out.parent.mkdir(parents=True, exist_ok=True)
         a.out.write_text(json.dumps({
             "options": {"seeds": a.seeds, "seed0": a.seed0, "cases": a.cases, "jobs": a.jobs,
-                        "oracle_inertia": a.oracle_inertia}, "wall_s": wall,
-            "table": [r._asdict() for r in rows], "draws": [d._asdict() for d in draws],
+                        "oracle_inertia": a.oracle_inertia, "table_from": [str(p) for p in a.table_from or []]},
+            "wall_s": wall, "table": [r._asdict() for r in rows],
+            "draws": [d._asdict() for o in res.values() for d in o.draws],
             "runs": [{"case": c, "seed": s, "wall_s": o.wall_s, "false_alarms": o.false_alarms, "error": o.error}
                      for (c, s), o in res.items()]}, indent=1) + "\n")
     return 0

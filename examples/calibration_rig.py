@@ -956,12 +956,24 @@ def _mount_truth(case: Case, rig: Rig) -> dict:
             "declared_consistent": None if not case.mount_known else bool(angle < 15.0)}
 
 
+def payload_inertia_truth(mass: float, com) -> dict[str, float]:
+    """The point-mass payload's inertia about the sensor origin, ``m (|c|^2 1 - c c^T)`` [kg m^2], as the six
+    entries ``dI_xx, dI_yy, dI_zz, dI_xy, dI_xz, dI_yz`` (the ten-parameter payload's inertia part)."""
+    c = np.asarray(com, dtype=float)
+    I = mass * (float(c @ c) * np.eye(3) - np.outer(c, c))
+    return {"dI_xx": float(I[0, 0]), "dI_yy": float(I[1, 1]), "dI_zz": float(I[2, 2]), "dI_xy": float(I[0, 1]),
+            "dI_xz": float(I[0, 2]), "dI_yz": float(I[1, 2])}
+
+
 def truth_dict(arm: Arm, name: str, seed: int, sig: dict) -> dict:
     case = cases(arm.name)[name]
     moving = name in MOVING_CASES
     rig = MOVING_RIG if moving else STATIC_RIGS[arm.name]
     eff = _effects_truth(case, rig)
     expected = {k: ["present"] if case.detectable else ["absent", "cannot_decide"] for k in eff}
+    if moving and case.payload is not None:  # a moving payload's second moment: seen where the motion turns it
+        eff["tool_inertia"] = payload_inertia_truth(*case.payload)
+        expected["tool_inertia"] = ["present", "cannot_decide"]
     if case.ties and case.detectable:
         expected["encoder_offset"] = ["present", "cannot_decide"]
     if case.mount_known and _mount_truth(case, rig)["declared_consistent"] is False:

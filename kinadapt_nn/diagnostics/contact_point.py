@@ -9,14 +9,15 @@ in ``p``::
 so ``p`` is a least-squares fit over the contact samples. Along the force's line of action ``p``
 is not seen by one sample; the force's direction changes pin it. Its sd is the larger of the
 information sd and a delete-one-block jackknife over the contact's time blocks (a moving contact
-gives correlated residuals). A component whose sd stays above ``UNDETERMINED_M`` is reported as
+gives correlated residuals), with the calibration's covariance added (``with_calibration``: the
+point moves with the tool model it is fitted after). A component whose sd stays above ``UNDETERMINED_M`` is reported as
 undetermined with the direction it lies along. The moment this point leaves unexplained
 (``residual_moment_rms_Nm``) tells a point contact from a face or line contact.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -44,7 +45,7 @@ class ContactPoint:
                 "samples": self.samples, "residual_moment_rms_Nm": self.residual_moment_rms_Nm,
                 "contact_force_rms_N": self.force_rms_N,
                 "method": "least squares of m_c = p x f over the contact samples (calibrated tool model taken out); "
-                          "sd = max(information, block jackknife)"}
+                          "sd = max(information, block jackknife), with the calibration's covariance added"}
 
 
 def _skews(f: np.ndarray) -> np.ndarray:
@@ -89,4 +90,27 @@ def estimate(w_contact_s: np.ndarray, contact: np.ndarray) -> ContactPoint | Non
                         float(np.sqrt(np.mean(np.sum(f**2, axis=1)))))
 
 
-__all__ = ["ContactPoint", "estimate"]
+def with_calibration(point: ContactPoint | None, w_meas_s: np.ndarray, model_at, contact: np.ndarray,
+                     cov_x: np.ndarray | None) -> ContactPoint | None:
+    """The point with the calibration's covariance added to its sd: the point is fitted to the measured
+    wrench ``w_meas_s`` (n, 6) minus the calibrated tool model, ``model_at(dx)`` (n, 6) the model with its
+    parameters moved by ``dx`` (k,) (``dx = 0``: as fitted), ``cov_x`` (k, k) their covariance. The point's
+    derivative in each parameter by central differences of one sd; ``sd^2 = sd_point^2 + diag(J cov_x J^T)``
+    (the calibration is fitted on free space, the point on contact: independent noise)."""
+    if point is None or cov_x is None:
+        return point
+    w0 = w_meas_s - model_at(np.zeros(len(cov_x)))
+    idx = np.flatnonzero(contact & (np.linalg.norm(w0[:, :3], axis=1) > MIN_FORCE_N))
+    sd_x = np.sqrt(np.clip(np.diag(cov_x), 0.0, None))
+    J = np.zeros((3, len(cov_x)))
+    for j in np.flatnonzero(sd_x > 0):
+        dx = np.zeros(len(cov_x))
+        dx[j] = sd_x[j]
+        pp, pm = (_solve(w[:, :3], w[:, 3:])[0] for w in (w_meas_s[idx] - model_at(dx)[idx],
+                                                          w_meas_s[idx] - model_at(-dx)[idx]))
+        J[:, j] = (pp - pm) / (2.0 * sd_x[j])
+    sd = np.sqrt(point.sd_m**2 + np.clip(np.diag(J @ cov_x @ J.T), 0.0, None))
+    return replace(point, sd_m=sd)
+
+
+__all__ = ["ContactPoint", "estimate", "with_calibration"]

@@ -73,6 +73,7 @@ class Effect:
     applies: Callable | None = None  #: setup -> bool: judged for this set-up
     uses_contact: bool = True  #: the columns depend on the contact mask (recomputed when it changes)
     params_for: Callable | None = None  #: setup -> (params {name: unit}, relevant (k,)); ``for_setup``
+    exact: Callable | None = None  #: (s, p (k,)) -> (n, 6) the exact change where the columns are first order
 
     @property
     def k(self) -> int:
@@ -142,10 +143,11 @@ class Effect:
 def effect(params: dict[str, str] | None = None, relevant=None, doc: str = "", excite: str = "",
            one_of: bool = False, *, report: Callable | None = None, plausible: Callable | None = None,
            applies: Callable | None = None, uses_contact: bool = True,
-           params_for: Callable | None = None) -> Callable[[Callable], Effect]:
+           params_for: Callable | None = None, exact: Callable | None = None) -> Callable[[Callable], Effect]:
     """Decorator: a function ``f(s) -> (n, 6, k)`` becomes an ``Effect`` named ``f.__name__``
     (module docstring). ``params_for(setup) -> (params, relevant)``: parameters that depend on the
-    set-up (``Effect.for_setup``). Bad arguments raise a one-line ``KinadaptError``."""
+    set-up (``Effect.for_setup``). ``exact(s, p) -> (n, 6)``: the exact change where the columns are a
+    first-order model (``diagnostics.nonlinear``). Bad arguments raise a one-line ``KinadaptError``."""
     def wrap(fn: Callable) -> Effect:
         name = getattr(fn, "__name__", "")
         src = _source_of(fn)
@@ -168,7 +170,7 @@ def effect(params: dict[str, str] | None = None, relevant=None, doc: str = "", e
         if not isinstance(doc, str) or not doc.strip():
             raise KinadaptError(f"{where}: doc must be a one-line description")
         return Effect(name, names, units, rel, doc.strip().splitlines()[0], fn, str(excite), bool(one_of), src,
-                      report, plausible, applies, bool(uses_contact), params_for)
+                      report, plausible, applies, bool(uses_contact), params_for, exact)
     return wrap
 
 

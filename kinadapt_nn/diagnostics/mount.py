@@ -268,6 +268,16 @@ class MountFit(NamedTuple):
     angle_sd_deg: float
     residual: np.ndarray  #: (n, 6) [N, N m] measured - fitted on the free samples, SI
     report: dict  #: diagnosis.json "sensor_mount"
+    cov: np.ndarray | None = None  #: (13, 13) of (local rotation, theta): the information correlation at ``sd``
+
+
+def shifted(x: np.ndarray, dx: np.ndarray) -> np.ndarray:
+    """The fit's ``x`` (13,) moved by ``dx`` (13,) in ``MountFit.cov``'s coordinates (the first three a local
+    rotation about the fitted sensor axes [rad], the rest added)."""
+    from scipy.spatial.transform import Rotation
+
+    D = rotvec_matrix(x[:3]) @ rotvec_matrix(dx[:3])
+    return np.concatenate([Rotation.from_matrix(D).as_rotvec(), x[3:] + dx[3:]])
 
 
 def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: int = 20) -> MountFit:
@@ -358,7 +368,8 @@ def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: i
                       block=block[free])
     res = dall.r - _model(x, dall)
     rep = report(x, sd, rpy, rpy_sd, float(np.rad2deg(th)), ang_sd, res, dall, s, rot_explains)
-    return MountFit(x, sd, rpy, rpy_sd, float(np.rad2deg(th)), ang_sd, res, rep)
+    corr = cov / np.sqrt(np.maximum(np.outer(np.diag(cov), np.diag(cov)), 1e-300))
+    return MountFit(x, sd, rpy, rpy_sd, float(np.rad2deg(th)), ang_sd, res, rep, corr * np.outer(sd, sd))
 
 
 def _resid_at(D: np.ndarray, theta: np.ndarray, d: MountData) -> np.ndarray:

@@ -37,6 +37,8 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
+from kinadapt_nn.diagnostics import intervals
+
 
 class SelCfg(NamedTuple):
     alpha: float = 0.01  #: false-discovery level of each round's tests
@@ -296,6 +298,10 @@ def select(des: Design, rc: SelCfg = SelCfg(), plausible: Callable[[str, np.ndar
     sel_idx = np.concatenate([base, *[st.idx[s][c] for s, c in selected]]) if selected else base
     sse_fin, reps, p_all = st.cv(sel_idx, rc.ridge)
     cov_all = jackknife_cov(reps)
+    chosen = {s for s, _ in selected}  # significant effects left out: fitted beside the selected (intervals.py)
+    extra = [st.idx[n][last[n].cols] for n in names if n not in chosen and last[n].p_adjusted < rc.alpha]
+    if selected and extra:
+        p_all, cov_all = intervals.given_significant(lambda ii: st.cv(ii, rc.ridge), sel_idx, extra)
     present: dict[str, tuple] = {}
     joint: dict[str, tuple] = {}
     i = len(base)
@@ -464,7 +470,8 @@ def refit(des: Design, names: list[str], rc: SelCfg = SelCfg(), cols: dict | Non
           ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Fit the nuisance alone and with ``names`` (a one-of effect keeps the column ``cols[name]``
     when given -- the one the selection named -- else its best column on all rows) on all rows. -> (residual rows before (R,), after (R,), {effect: (cols, params physical (k,), sd
-    physical (k,))}); the sd is the larger of the block-jackknife and the least-squares one (finite)."""
+    physical (k,))}); the sd is the largest of the block-jackknife, the least-squares and the block-robust
+    (sandwich, ``intervals.honest_sd``) one (finite)."""
     st = Stats(des)
     base = st.z_idx
     p0 = st.fit(base, rc.ridge)
@@ -494,7 +501,8 @@ def refit(des: Design, names: list[str], rc: SelCfg = SelCfg(), cols: dict | Non
     s2 = float(after @ after) / max(len(after) - len(ii), 1)
     lam = rc.ridge * (np.trace(G) / max(len(G), 1)) + st.ridge_abs
     var_ls = s2 * np.diag(np.linalg.pinv(G + lam * np.eye(len(G)))) if len(G) else np.zeros(0)
-    sd_all = np.sqrt(np.maximum(var_j, var_ls))
+    var_h = intervals.honest_sd(st.G[:, ii][:, :, ii], st.h[:, ii], st.yy, p, len(after)) ** 2 if len(ii) else np.zeros(0)
+    sd_all = np.sqrt(np.maximum.reduce([var_j, var_ls, var_h]))
     out, i = {}, len(base)
     for n in names:
         c = chosen[n]

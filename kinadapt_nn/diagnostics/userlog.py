@@ -18,7 +18,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from kinadapt_nn.diagnostics import contact_point, segmentation
+from kinadapt_nn.diagnostics import contact_point, nonlinear, segmentation
 from kinadapt_nn.diagnostics import selection as sel
 from kinadapt_nn.diagnostics import signals as sg
 from kinadapt_nn.diagnostics.builtin import BUILTINS, CONTACT_MODEL_EFFECTS
@@ -274,6 +274,8 @@ def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray, rc: Row
     free = ~contact & ~excl if (~contact & ~excl).sum() > 20 else ~excl
     fitm = mount.fit(s, free, blocks, sigma)
     point = contact_point.estimate(s.wrench - mount.predict(fitm.x, s), contact & ~excl)
+    point = contact_point.with_calibration(point, s.wrench, lambda dx: mount.predict(mount.shifted(fitm.x, dx), s),
+                                           contact & ~excl, fitm.cov)
     if not setup.sensor.mount_known:
         setup = setup.model_copy(update={"sensor": setup.sensor.model_copy(
             update={"rpy_flange_deg": tuple(float(v) for v in fitm.rpy_deg)})})
@@ -496,6 +498,7 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
         des, rm, result, s = _rank(s, lib, names, sigma, rc, sc, excite, block, cache, progress)
         fit_check["action"] = "contact rows left out; verdicts from free space alone"
         contact_rows = "left out (tip check failed)"
+    result = nonlinear.refine(result, des, rm.apply, s, lib, cache, sc)  # first-order effects made exact
     entries = [_entry_report(e, lib[e["effect"]], setup) for e in result.entries]
     dt = None if s.static else float(np.median(np.diff(s.t)))
     report = {

@@ -5,10 +5,10 @@ read their names from; add a module here and list it in ``_MODULES``."""
 from __future__ import annotations
 
 from kinadapt_nn.diagnostics.builtin import (encoder_offset, ft_bias_drift, ft_frame_rotation, ft_offset, tool_gravity,
-                                             tool_tilt)
+                                             tool_inertia, tool_tilt)
 from kinadapt_nn.diagnostics.contract import Effect, effects_of_module
 
-_MODULES = (tool_gravity, ft_bias_drift, ft_frame_rotation, encoder_offset, tool_tilt, ft_offset)
+_MODULES = (tool_gravity, tool_inertia, ft_bias_drift, ft_frame_rotation, encoder_offset, tool_tilt, ft_offset)
 
 #: name -> Effect, in the order the report lists them
 BUILTINS: dict[str, Effect] = {n: e for mod in _MODULES for n, e in effects_of_module(mod).items()}

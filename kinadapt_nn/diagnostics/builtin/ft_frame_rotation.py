@@ -1,4 +1,5 @@
-"""The sensor's axes are rotated from their declared mounting (first order in the rotation).
+"""The sensor's axes are rotated from their declared mounting (columns first order in the rotation; once
+selected, re-estimated exactly: ``exact_rotation``, ``diagnostics.nonlinear``).
 
 ``r_meas = R(delta)^T r = r + r x delta``: the measured wrench stands for the true one, whatever
 loads the sensor (the tool, an undeclared mass, a contact). A tared log's missing
@@ -28,11 +29,22 @@ def plausible_small_angle(p, setup) -> str | None:
     return None
 
 
+def exact_rotation(s, p) -> np.ndarray:
+    """(n, 6) the exact change ``r_meas - R(delta) r_meas`` of the measured wrench's forces and moments for the
+    rotation vector ``delta = p`` (3,) [rad] (the columns are its first-order part ``r_meas x delta``)."""
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_rotvec(np.asarray(p, float)).as_matrix()
+    r = s.wrench
+    return np.concatenate([r[:, :3] - r[:, :3] @ R.T, r[:, 3:] - r[:, 3:] @ R.T], axis=1)
+
+
 @effect(params={"rot_x": "rad", "rot_y": "rad", "rot_z": "rad"}, relevant=[np.deg2rad(1.0)] * 3,
         doc="the sensor's axes are rotated from their declared mounting",
         excite="reorient in free space (gravity along several sensor axes) and push in contact in two directions",
         report=report_deg(("rot_x", "rot_y", "rot_z")), plausible=plausible_small_angle, uses_contact=False,
-        applies=lambda setup: setup.sensor.mount_known)  # an unknown mount is estimated whole (diagnostics.mount)
+        applies=lambda setup: setup.sensor.mount_known,  # an unknown mount is estimated whole (diagnostics.mount)
+        exact=exact_rotation)  # re-estimated exactly once selected (diagnostics.nonlinear)
 def ft_frame_rotation(s):
     C = np.zeros((s.n, 6, 3))
     for j in range(3):

@@ -1,0 +1,74 @@
+"""Exact re-estimates of effects whose columns are a first-order model (Gauss-Newton on the selection).
+
+An effect's columns are linear in its parameters; for some the physics is not (a rotation of the sensor
+axes, ``ft_frame_rotation``: ``r_meas = R(delta)^T r`` with the columns the first-order ``r x delta``).
+Such an effect may give ``exact(s, p) -> (n, 6)``: the wrench change its parameters ``p`` make exactly.
+Once the selection has chosen its model, ``refine`` iterates Gauss-Newton steps: the residual rows less
+the remainder ``exact(p) - columns p`` (through the same row map as everything else), the selected
+columns refitted jointly. The first-order estimate's bias (the second-order term projected onto the
+columns) goes; the sd (the columns' jackknife) is unchanged to first order.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kinadapt_nn.diagnostics import selection as sel
+
+
+def _selected(result: sel.Selection) -> list[tuple[str, list[int]]]:
+    """The selected effects and their columns, in the order of the final model's columns."""
+    ent = [e for e in result.entries if e.get("selected_round") is not None]
+    return [(e["effect"], list(e["columns_used"])) for e in sorted(ent, key=lambda e: e["selected_round"])]
+
+
+def refine(result: sel.Selection, des: sel.Design, row_apply, s, lib: dict, cols: dict, rc: sel.SelCfg,
+           iters: int = 4) -> sel.Selection:
+    """``result`` with the present effects re-estimated exactly where a selected effect has ``exact``
+    (module docstring); unchanged otherwise. ``row_apply``: (n, 6, k) sample columns -> (R, k) rows (the
+    design's ``RowMap.apply``); ``cols``: effect -> its (n, 6, k) sample columns the design was built from."""
+    chosen = _selected(result)
+    if not any(getattr(lib[n], "exact", None) is not None for n, _ in chosen):
+        return result
+    st = sel.Stats(des)
+    base = st.z_idx
+    idx = np.concatenate([base, *[st.idx[n][c] for n, c in chosen]])
+    scale = np.concatenate([np.ones(len(base)), *[np.asarray(des.scale[n])[c] for n, c in chosen]])
+    G = st.Gt[np.ix_(idx, idx)]
+    p_phys = _split(st.fit(idx, rc.ridge) * scale, chosen, len(base))
+    for _ in range(iters):
+        rem = np.zeros_like(s.wrench)
+        for n, c in chosen:
+            if getattr(lib[n], "exact", None) is not None:
+                full = np.zeros(cols[n].shape[2])
+                full[c] = p_phys[n]
+                rem += lib[n].exact(s, full) - cols[n] @ full
+        y = des.y - row_apply(rem[:, :, None])[:, 0]
+        p_phys = _split(st.solve(G, st.A[:, idx].T @ y, rc.ridge) * scale, chosen, len(base))
+    return _with_params(result, p_phys)
+
+
+def _split(p: np.ndarray, chosen: list[tuple[str, list[int]]], k0: int) -> dict[str, np.ndarray]:
+    out, i = {}, k0
+    for n, c in chosen:
+        out[n] = p[i:i + len(c)]
+        i += len(c)
+    return out
+
+
+def _with_params(result: sel.Selection, p_phys: dict[str, np.ndarray]) -> sel.Selection:
+    present = dict(result.present)
+    for e in result.entries:
+        n = e["effect"]
+        if n not in p_phys:
+            continue
+        full = np.array(e["params"], dtype=float)
+        full[e["columns_used"]] = p_phys[n]
+        e["params"] = full
+        if n in present:
+            c, _, sd = present[n]
+            present[n] = (c, p_phys[n], sd)
+    return result._replace(present=present)
+
+
+__all__ = ["refine"]
