@@ -31,10 +31,11 @@ last run block (stdout and stderr), ``…`` standing for any text and every numb
 with the number printed at its place: equal to the quoted precision (half a unit of the last
 quoted digit) unless ``tol=`` (relative) or ``abs=`` widens it. ``−`` and ``-`` are the same sign.
 
-    <!-- docs-check: expect-table file=runs/compare/comparison.md ignore="wall [s]" [tol=...] -->
+    <!-- docs-check: expect-table file=runs/compare/comparison.md [rows=1-12] ignore="wall [s]" [tol=...] -->
 
 before a Markdown table compares it cell by cell with the table in that file (a path in the
-working folder), rows matched in order; the ``ignore`` columns (speed: seconds, ratios -- which
+working folder; ``rows=N-M``: the text quotes rows N to M of it), rows matched in order; the
+``ignore`` columns (comma-separated) (speed: seconds, ratios -- which
 are re-measured by ``benchmarks/readme_numbers.py`` and name the machine, never compared here) are
 skipped.
 
@@ -226,6 +227,9 @@ def check_table(ex: Expect, work: Path) -> tuple[list[str], int]:
         return [f"expect-table: the command wrote no {ex.attrs.get('file')!r}"], 0
     head, rows = md_table(ex.text)
     head_f, rows_f = md_table(path.read_text())
+    if "rows" in ex.attrs:  # "N-M": the text quotes rows N..M (1-based) of the file's table
+        lo, _, hi = str(ex.attrs["rows"]).partition("-")
+        rows_f = rows_f[int(lo) - 1:int(hi or lo)]
     if head != head_f or len(rows) != len(rows_f):
         return [(f"expect-table: the columns or the row count differ: text {head} x {len(rows)}, "
                  f"file {head_f} x {len(rows_f)}")], 0
