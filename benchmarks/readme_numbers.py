@@ -13,8 +13,11 @@ Runs, each in a fresh process exactly as a user types it (outputs in a temporary
    (rig A as csv.gz and Parquet, rig B as csv), counted as ``benchmarks/foreign_logs.py`` counts
    them: the set of effects reported ``present`` must equal the hidden set.
 
+4. With ``--pretrain`` (or ``--only-pretrain``): ``kinadapt pretrain`` with its default config, timed
+   as a user waits for it.
+
 Prints the machine first and one block per headline. About 2 min on an idle 2-core VM
-(``--no-foreign``: about 30 s).
+(``--no-foreign``: about 30 s; ``--pretrain``: about 65 s more).
 """
 
 from __future__ import annotations
@@ -188,10 +191,27 @@ def headline_foreign(tmp: Path, jobs: int) -> list[str]:
     return lines
 
 
+def headline_pretrain(tmp: Path) -> list[str]:
+    """``kinadapt pretrain`` with its default config (pretrain/default.toml): how long a user waits
+    (the whole command, a fresh process) and what the checkpoint reaches."""
+    out = tmp / "pretrain"
+    t0 = time.perf_counter()
+    p = _cli("pretrain", "--out", str(out), "--quiet")
+    wall = time.perf_counter() - t0
+    if p.returncode:
+        raise RuntimeError(f"kinadapt pretrain failed: {p.stderr.strip()}")
+    m = json.loads((out / "metrics.json").read_text())
+    return ["[4] kinadapt pretrain  (pretrain/default.toml)",
+            (f"    {m['steps']} steps on {m['device']}: the command {wall:.0f} s (training {m['wall_time_s']:.0f} s); "
+             f"held-out Jacobian error (median) {m['heldout_rel_jacobian_error_median']:.2g}")]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel processes (default: all cores)")
     ap.add_argument("--no-foreign", action="store_true", help="skip the 24 foreign-log diagnoses")
+    ap.add_argument("--pretrain", action="store_true", help="also time kinadapt pretrain (about 65 s more)")
+    ap.add_argument("--only-pretrain", action="store_true", help="time kinadapt pretrain only")
     a = ap.parse_args()
     if a.jobs < 1:
         ap.error("--jobs must be >= 1")
@@ -199,9 +219,14 @@ def main() -> None:
     print(machine(), flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        for block in (lambda: headline_default(tmp, a.jobs),
-                      lambda: [] if a.no_foreign else headline_foreign(tmp, a.jobs),
-                      lambda: headline_socket(tmp)):
+        blocks = [lambda: headline_default(tmp, a.jobs),
+                  lambda: [] if a.no_foreign else headline_foreign(tmp, a.jobs),
+                  lambda: headline_socket(tmp)]
+        if a.only_pretrain:
+            blocks = []
+        if a.pretrain or a.only_pretrain:
+            blocks.append(lambda: headline_pretrain(tmp))
+        for block in blocks:
             lines = block()
             if lines:
                 print("\n".join(lines), flush=True)

@@ -21,6 +21,7 @@ folder afterwards (else its path is printed).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import math
 import os
@@ -99,6 +100,42 @@ def _progress(args: argparse.Namespace, name: str):
     return progress
 
 
+@contextlib.contextmanager
+def _announce_stages(progress, stages: list[tuple[object, str, str]]):
+    """While the body runs, each call of ``module.NAME`` (``stages``: (module, NAME, message)) first
+    prints its message through ``progress``: the stages of a library call that takes no progress
+    callback, shown as they start. Names a module no longer has are skipped; all are restored."""
+    saved = []
+    for module, name, msg in stages:
+        fn = getattr(module, name, None)
+        if fn is None:
+            continue
+        saved.append((module, name, fn))
+
+        def wrapped(*a, _fn=fn, _msg=msg, **k):
+            progress(_msg)
+            return _fn(*a, **k)
+
+        setattr(module, name, wrapped)
+    try:
+        yield
+    finally:
+        for module, name, fn in saved:
+            setattr(module, name, fn)
+
+
+def _run_diagnosis_stages(lib, residual) -> list[tuple[object, str, str]]:
+    """The stages of ``library.diagnose_run`` a user waits through, in the order they run."""
+    return [(lib, "load_log", "reading the log"),
+            (lib, "replay", "replaying the log through the known model"),
+            (residual, "analyse", "residual by channel and phase"),
+            (lib, "build_signals", "the effect library's signals"),
+            (lib, "choose_calibration", "the calibrated nominal model"),
+            (lib, "design_of", "the effect columns"),
+            (lib, "analyse_effects", "ranking the library's effects (held-out, block cross-validation)"),
+            (lib, "rerun_with_effects", "re-running the episode with the effects adapted online (--rerun)")]
+
+
 def _default_out(kind: str) -> Path:
     return Path("runs") / f"{kind}-{time.strftime('%Y%m%d-%H%M%S')}"
 
@@ -112,7 +149,7 @@ def _summary_lines(summary: dict, out: Path) -> list[str]:
     err = summary["offset_error_final_m"]
     return [
         f"kinadapt online: {ok}   features={summary['features']} law={summary['law']} seed={summary['seed']}",
-        f"  seat time          {seat}   (paper, with adaptation: 5.1 s)",
+        _seat_line(summary, seat),
         f"  depth sensor/true  {1e3 * summary['final_depth_m']:.2f} / {1e3 * summary['true_final_depth_m']:.2f} mm",
         f"  max |F| / |F_lat|  {summary['max_force_N']:.1f} / {summary['max_lateral_force_N']:.1f} N   "
         f"max |M| {summary['max_moment_Nm']:.2f} N m",
@@ -123,9 +160,19 @@ def _summary_lines(summary: dict, out: Path) -> list[str]:
         f"max {1e3 * summary['lateral_drift_max_m']:.3f} mm",
         *([f"  identification     {summary['identification']['text']}"] if summary.get("identification") else []),
         *_cell_lines(summary),
-        f"  sim {summary['sim_time_s']:.2f} s in {summary['wall_time_s']:.2f} s wall ({summary['steps']} steps)",
+        f"  sim {summary['sim_time_s']:.2f} s in {summary['wall_time_s']:.2f} s wall ({summary['steps']} steps)"
+        + (f"; the one-time compile before it {summary['compile_time_s']:.1f} s"
+           if summary.get("compile_time_s") else ""),
         f"  wrote {out}/ (config.toml, summary.json, trace.npz, rollout.png, tb/)",
     ]
+
+
+def _seat_line(summary: dict, seat: str) -> str:
+    """The seat-time line: the paper's figure beside it only for an insertion (an excitation run
+    does not insert, so it has no seat time to compare)."""
+    if summary.get("program") == "excite":
+        return "  seat time          -   (an excitation run follows its scripted program; it does not insert)"
+    return f"  seat time          {seat}   (paper, with adaptation: 5.1 s)"
 
 
 def _cell_lines(summary: dict) -> list[str]:
@@ -465,10 +512,15 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
     out = args.run_dir = Path(args.out) if args.out else _default_out("diagnose")
     check_output_dir(out, args.overwrite)
-    res = lib.diagnose_run(src, cfg, theta, list(args.add or []), args.rerun,
-                           Path(args.baseline) if args.baseline else None,
-                           Path(args.calibration) if args.calibration else None, args.no_calibration)
+    from kinadapt_nn.diagnostics import residual
+
+    progress = _progress(args, "diagnose")
+    with _announce_stages(progress, _run_diagnosis_stages(lib, residual)):
+        res = lib.diagnose_run(src, cfg, theta, list(args.add or []), args.rerun,
+                               Path(args.baseline) if args.baseline else None,
+                               Path(args.calibration) if args.calibration else None, args.no_calibration)
     summary = res.report["summary"]
+    progress("writing diagnosis.json and the figures")
     with staged_output(out, args.overwrite) as stage:
         (stage / "config.toml").write_text(config_to_toml(cfg))
         write_json(stage / "diagnosis.json", res.report)

@@ -985,6 +985,13 @@ class compiling:
     def __init__(self, progress: bool = False) -> None:
         self.progress = progress
         self.wall_s = 0.0
+        self._cold = False
+
+    @property
+    def cold(self) -> bool:
+        """True when this phase compiled (the outermost phase, a cold cache): its ``wall_s`` is then
+        the one-time compile, not the loading of cached code."""
+        return self._cold
 
     def __enter__(self) -> "compiling":
         import threading
@@ -997,20 +1004,30 @@ class compiling:
         self._stop = threading.Event()
         self._bar = None
         if self.progress and self._cold:
-            from tqdm import tqdm
-
-            bar = self._bar = tqdm(total=round(compile_record()), unit="s", leave=False,
-                                   desc="compiling the controller (first run only, cached after)",
-                                   bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed} of about {total} s")
-            t0, stop = self._t0, self._stop
-
-            def tick() -> None:
-                while not stop.wait(0.5):
-                    bar.n = min(round(time.perf_counter() - t0), bar.total)
-                    bar.refresh()
-
-            threading.Thread(target=tick, daemon=True).start()
+            self._tick_honestly(compile_record())
         return self
+
+    def _tick_honestly(self, expected_s: float) -> None:
+        """One status line, refreshed twice a second: the time spent and the last measured
+        compile -- no percentage (numba does not say how far it is, and a loaded machine
+        compiles slower than the last time)."""
+        import threading
+        import time
+
+        from tqdm import tqdm
+
+        bar = self._bar = tqdm(total=None, leave=False, bar_format="{desc}",
+                               desc="compiling the controller (first run only, cached after)")
+        t0, stop = self._t0, self._stop
+
+        def tick() -> None:
+            while not stop.wait(0.5):
+                dt = time.perf_counter() - t0
+                more = "" if dt <= expected_s else ", still compiling"
+                bar.set_description_str(f"compiling the controller (first run only, cached after): {dt:4.0f} s "
+                                        f"so far (the last compile here took {expected_s:.0f} s{more})")
+
+        threading.Thread(target=tick, daemon=True).start()
 
     def __exit__(self, *exc) -> None:
         import json

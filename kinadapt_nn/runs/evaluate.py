@@ -167,17 +167,21 @@ def identification_report(trace: Trace, ctrl: Controller, true_offset: np.ndarra
       eigenvector is closest to (x_f, y_f, z_f), not sorted.
     * ``pred_error_rms_contact_w``: RMS of the W-scaled prediction error in contact (for the
       oracle this *is* the bias b of eq. ft_pred, filtered).
-    * ``offset_uncertainty_m``: least-squares standard deviation of each offset component from
-      the residual, ``sqrt(diag(sigma^2 H^-1 N/N_eff))``, ``H`` the summed Gram, ``N_eff`` from the
-      residual's lag-1 autocorrelation. Statistical only: a bias b that co-varies with the motion
-      is not in it (compare ``offset_error_final_m``).
+    * ``theta_sd_data_only``: the standard deviation of each parameter (units of theta: m for the
+      adjoint) that the contact data *alone* would give, no prior: least squares on the W-scaled
+      prediction residual, ``sqrt(diag(sigma^2 H^-1 N/N_eff))``, ``H`` the summed Gram of
+      ``W Phi_f``, ``sigma^2`` the residual's mean square, ``N/N_eff = (1 + rho1)/(1 - rho1)`` from
+      its lag-1 autocorrelation ``residual_lag1_autocorr``. Metres where the motion does not
+      excite a direction (the bore's lateral offset); the law's own posterior, prior included, is
+      ``theta_sd_final``. Statistical only: a bias b that co-varies with the motion is not in it
+      (compare ``offset_error_final_m``). None for p > 12.
     """
     p = ctrl.features.n_params
     n_contact = ctrl.contact_steps
     out: dict = {"contact_steps": n_contact}
     gate = trace["adapt_gate"] > 0
     if n_contact == 0 or not gate.any():
-        out.update(regressor_gram=None, pred_error_rms_contact_w=None, offset_uncertainty_m=None)
+        out.update(regressor_gram=None, pred_error_rms_contact_w=None, theta_sd_data_only=None)
         return out
     G = ctrl.gram_sum / n_contact
     lam, vec = np.linalg.eigh(G)
@@ -206,9 +210,9 @@ def identification_report(trace: Trace, ctrl: Controller, true_offset: np.ndarra
     H = ctrl.gram_sum
     try:
         cov = sigma2 * np.linalg.inv(H) * n_ratio
-        out["offset_uncertainty_m"] = [float(np.sqrt(max(c, 0.0))) for c in np.diag(cov)][:p] if p <= 12 else None
+        out["theta_sd_data_only"] = [float(np.sqrt(max(c, 0.0))) for c in np.diag(cov)][:p] if p <= 12 else None
     except np.linalg.LinAlgError:
-        out["offset_uncertainty_m"] = None
+        out["theta_sd_data_only"] = None
     out["residual_lag1_autocorr"] = rho1
     return out
 

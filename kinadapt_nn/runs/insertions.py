@@ -70,10 +70,11 @@ def run_cells(cfgs: list[ExperimentCfg], counts, progress: bool = False) -> list
     is_cell = bool(cfgs[0].cell.bores_w_m)
     if n == 1 and not is_cell:
         return [{1: r} for r in _episodes(cfgs, [None] * len(cfgs), progress, keep_regressor=False)]
-    with core.compiling(progress):  # a first run's one-time compile: its own bar
+    with core.compiling(progress) as phase:  # a first run's one-time compile: its own bar
         ctrls = [make_controller(c) for c in cfgs]
         for k in ctrls:
             k.compile_kernels()
+    compile_s = phase.wall_s if phase.cold else 0.0  # reported apart from the insertions' wall times
     cells = [_Cell(c, k) for c, k in zip(cfgs, ctrls)]
     bar = None
     if progress:  # the insertions' own bar above each episode's
@@ -89,6 +90,9 @@ def run_cells(cfgs: list[ExperimentCfg], counts, progress: bool = False) -> list
             bar.update(1)
     if bar is not None:
         bar.close()
+    for cell in cells:
+        for r in cell.out.values():
+            r.summary["compile_time_s"] = compile_s
     return [cell.out for cell in cells]
 
 

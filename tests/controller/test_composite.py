@@ -215,7 +215,7 @@ def test_default_run_seats_and_reports_identification(default_episode):
     assert s["jacobian_rel_error_final"] <= s["jacobian_rel_error_initial"] * 1.001
     g = s["regressor_gram"]
     assert g["axes"] == ["x_f", "y_f", "z_f"] and len(g["eigenvalues"]) == 3
-    assert len(s["offset_uncertainty_m"]) == 3
+    assert len(s["theta_sd_data_only"]) == 3
     assert s["certificate"]["windows"] > 50
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -92,7 +93,12 @@ def test_diagnose_cli_outputs(oracle_run, tmp_path, capsys):
         assert key in d
     assert set(d["residual_rms_by_channel"]) == {"d", "F_lat_x", "F_lat_y", "M_x", "M_y", "M_z"}
     assert (out / "residual.png").stat().st_size > 20_000
-    assert "% of the (W-scaled) residual" in capsys.readouterr().out
+    cap = capsys.readouterr()
+    assert "% of the (W-scaled) residual" in cap.out
+    stages = re.findall(r"^kinadapt diagnose \[\s*[\d.]+ s\] (.+)$", cap.err, flags=re.MULTILINE)  # never silent:
+    want = ["reading the log", "replaying the log through the known model", "residual by channel and phase",
+            "ranking the library's effects (held-out, block cross-validation)", "writing diagnosis.json and the figures"]
+    assert [x for x in stages if x in want] == want, cap.err  # each stage as it starts (issue 41)
     assert d["calibration"].startswith("shipped")  # a simulated run: the shipped nominal calibration
     csv = tmp_path / "log.csv"  # an external (e.g. real-robot) log: no calibration unless one is given
     write_csv_log(csv, load_log(oracle_run))

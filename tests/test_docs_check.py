@@ -1,0 +1,88 @@
+"""``benchmarks/docs_check.py``: it finds a drifted number, accepts the quoted precision, and the
+README's marked blocks print what the README quotes (slow)."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _load():
+    spec = importlib.util.spec_from_file_location("docs_check", ROOT / "benchmarks" / "docs_check.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["docs_check"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+dc = _load()
+
+DOC = """# a page
+
+<!-- docs-check: run -->
+```bash
+echo "Present: tool_gravity (mass 0.25 ± 0.00012 kg, com_y -0.0201 m) and more; falls from 30.9 to 1.34"
+printf '| a | x [mm] | wall [s] |\\n|---|---|---|\\n| bore | 5.04 | 0.71 |\\n' > t.md
+```
+
+<!-- docs-check: expect -->
+> Present: tool_gravity (mass 0.25 ± {sd} kg, com_y −0.0201 m) … falls from 30.9 to {after}
+
+<!-- docs-check: expect-table file=t.md ignore="wall [s]" -->
+| a | x [mm] | wall [s] |
+|---|---|---|
+| bore | {x} | 9.99 |
+"""
+
+
+def _check(tmp_path: Path, monkeypatch, doc: str = DOC, **quoted) -> dict:
+    """docs_check on one page written from ``doc`` (its own checkout root, a temp folder)."""
+    root = tmp_path / "checkout"
+    root.mkdir()
+    (root / "page.md").write_text(doc.format(**quoted))
+    monkeypatch.setattr(dc, "ROOT", root)
+    return dc.check_docs(["page.md"], [], False, tmp_path / "out", False)
+
+
+def test_quoted_numbers_that_match_pass(tmp_path, monkeypatch):
+    res = _check(tmp_path, monkeypatch, sd="0.00012", after="1.34", x="5.04")
+    assert res["run"] == 1 and res["problems"] == []
+    assert res["numbers"] == 5 + 1  # the excerpt's five and the table's one compared cell (not the wall column)
+
+
+def test_a_drifted_number_is_named(tmp_path, monkeypatch):
+    res = _check(tmp_path, monkeypatch, sd="0.00018", after="1.3", x="5.1")
+    text = "\n".join(res["problems"])
+    assert len(res["problems"]) == 2, text  # 0.00018 vs 0.00012; 5.1 vs 5.04 (1.3 is 1.34 at the quoted precision)
+    assert "quotes 0.00018, the command printed 0.00012" in text and "quotes 5.1, the file has 5.04" in text
+
+
+def test_text_not_printed_is_a_mismatch(tmp_path, monkeypatch):
+    doc = DOC.replace("> Present: tool_gravity", "> Present: tool_tilt")
+    res = _check(tmp_path, monkeypatch, doc, sd="0.00012", after="1.34", x="5.04")
+    assert len(res["problems"]) == 1 and "not found" in res["problems"][0]
+
+
+def test_a_failing_block_is_a_mismatch(tmp_path, monkeypatch):
+    doc = DOC.replace('echo "Present', 'false\necho "Present')
+    res = _check(tmp_path, monkeypatch, doc, sd="0.00012", after="1.34", x="5.04")
+    assert res["problems"] == ["page.md:3: the block failed (exit 1)"]
+
+
+def test_tolerance_is_the_quoted_precision_or_the_markers():
+    assert dc.tolerance("0.25", {}) == pytest.approx(0.005)
+    assert dc.tolerance("1.2e-3", {}) == pytest.approx(0.5e-4)
+    assert dc.tolerance("40", {"tol": "5%"}) == pytest.approx(2.0)
+
+
+@pytest.mark.slow
+def test_readme_blocks_print_what_the_readme_quotes(capsys):
+    """The README's marked blocks (the hidden payload example, ~40 s) against their quotes."""
+    res = dc.check_docs(["README.md"], [], False, None, False)
+    assert res["run"] >= 1 and res["numbers"] >= 10
+    assert res["problems"] == [], "\n".join(res["problems"])
