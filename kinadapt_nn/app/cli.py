@@ -624,7 +624,7 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--executor", choices=["local", "ray"], default="local",
                     help="run episodes in local worker processes or on a Ray cluster (default: local)")
     sw.add_argument("--address", help="with --executor ray: a running Ray cluster's address (default: start a Ray of "
-                    "this command's own on 127.0.0.1 with 'jobs' CPUs, stopped at the end)")
+                    "this command's own with 'jobs' CPUs, stopped at the end)")
     p.set_defaults(in_place=False)
     for name in ("pretrain", "sweep"):  # these write into --out as they go (resumable)
         sub.choices[name].set_defaults(in_place=True)

@@ -14,9 +14,13 @@ longest tasks first, one progress bar that counts *episodes simulated* (one inse
 a worker reports each insertion as it ends, so the bar moves while a batch runs), and a failure
 cancels the tasks not yet started and is raised naming the task's first job.
 
-Ray: without an address the runner starts a Ray of its own on this machine, bound to 127.0.0.1
-and with ``workers`` CPUs, and shuts it down at the end (it never touches another Ray on the
-machine); with ``address`` it connects to that cluster and only disconnects.
+Ray: without an address the runner starts a Ray of its own on this machine (``address="local"``:
+never one already running), with ``workers`` CPUs, no dashboard and its node address asked to be
+127.0.0.1, and shuts it down at the end (its processes end with it; no other Ray on the machine is
+touched); with ``address`` it connects to that cluster and only disconnects. Ray 2.60 rewrites a
+127.0.0.1 node address to the machine's primary address and its GCS and raylet listen on every
+interface whatever the node address (measured with ``ss -ltn``); its token authentication, on by
+default there, is what keeps other machines out.
 """
 
 from __future__ import annotations
@@ -132,10 +136,10 @@ def run_task_cells(task: Task, report: Callable[[int], None]) -> list:
     return out
 
 
-def _each(fn: Callable, jobs: tuple, report: Callable[[int], None]) -> list:
+def _each(fn: Callable, task: Task, report: Callable[[int], None]) -> list:
     """``fn`` of every item of a :meth:`Runner.map` task, reported one by one."""
     out = []
-    for x in jobs:
+    for x in task.jobs:
         out.append(fn(x))
         report(1)
     return out
@@ -202,10 +206,10 @@ class Runner:
 
         cfgs = list(cfgs)
         if self.progress:
-            n = _uncached_kernels(cfgs)
-            if n:
-                print(f"compiling {n} controller kernels first (once; cached for later runs) ...",
-                      file=sys.stderr, flush=True)
+            kinds = _uncached_kinds(cfgs)
+            if kinds:
+                print(f"compiling the controller's kernels for {', '.join(kinds)} first (once on this machine; "
+                      "cached for later runs) ...", file=sys.stderr, flush=True)
         precompile(cfgs, self.progress)
 
     def run(self, fn: Callable, tasks: Sequence[Task], desc: str, on_done: Callable | None = None,
@@ -308,21 +312,21 @@ def _result(get: Callable[[], list], task: Task) -> list:
         raise
 
 
-def _uncached_kernels(cfgs: list) -> int:
-    """How many kernels of ``cfgs``' distinct features types and laws numba's cache lacks
-    (0 when every one is cached, or when that cannot be told)."""
+def _uncached_kinds(cfgs: list) -> list[str]:
+    """The distinct "features/law" of ``cfgs`` whose kernels numba's cache lacks (none when every
+    one is cached, or when that cannot be told)."""
     from kinadapt_nn.controller import core
     from kinadapt_nn.runs.build import make_controller
 
     kinds = {}
     for c in cfgs:
-        kinds.setdefault((c.run.features, c.adaptation.mode), c)
-    n = 0
-    for c in kinds.values():
+        kinds.setdefault(f"{c.run.features}/{c.adaptation.mode}", c)
+    out = []
+    for name, c in kinds.items():
         k = make_controller(c)
         if not core.calls_cached(k.kernel_calls(), k.law_spec):
-            n += len(k.kernel_calls()) + 1
-    return n
+            out.append(name)
+    return out
 
 
 def _python_path() -> str:
