@@ -36,7 +36,7 @@ def _episode(job: Job):
 
 def _episodes(ex: Runner, overs: list[list[str]]) -> list:
     """:func:`_episode` of each override list, on the runner's workers, in order."""
-    return ex.map(_episode, [_job(o) for o in overs])
+    return ex.map(_episode, [_job(o) for o in overs], "episodes")
 
 
 def _plt():
@@ -239,7 +239,7 @@ def part_ablations(out: Path, ex: Runner) -> dict:
     # (c) the bias floor ladder
     from kinadapt_nn.paper.floor import LADDER, floor_figure, measure
 
-    rows = ex.map(measure, LADDER)
+    rows = ex.map(measure, LADDER, "bias floor ladder")
     res["bias_floor"] = rows
     floor_figure(rows, out / "bias_floor.png")
     return res
@@ -337,7 +337,8 @@ def run_reproduce(out: Path, only: str | None = None, jobs: int = 2,
     funcs = {"rollout": part_rollout, "observability": part_observability, "gain_sweep": part_gain_sweep,
              "ablations": part_ablations, "qp": part_qp, "video": part_video}
     result: dict = {}
-    with Runner(jobs) as ex:  # one pool for every part; ex.map(fn, items) runs fn on the workers
+    # one pool for every part; ex.map(fn, items) runs fn on the workers, a bar per call with progress
+    with Runner(jobs, progress=progress is not None) as ex:
         for k, p in enumerate(parts):
             if progress is not None:
                 progress(f"part {k + 1}/{len(parts)}: {p}")

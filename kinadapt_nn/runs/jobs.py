@@ -213,13 +213,14 @@ class Runner:
         precompile(cfgs, self.progress)
 
     def run(self, fn: Callable, tasks: Sequence[Task], desc: str, on_done: Callable | None = None,
-            meanwhile: Callable[[], Any] | None = None, done_before: int = 0) -> list:
+            meanwhile: Callable[[], Any] | None = None, done_before: int = 0, unit: str = "episode") -> list:
         """``fn(task, report) -> list`` (a module-level function) for every task, the costliest
         first; ``on_done(task, results)`` in this process as each task ends; ``meanwhile()`` once
         the tasks are submitted. ``done_before``: episodes finished in an earlier run (the bar
-        starts there). -> the results per task, in ``tasks``' order."""
+        starts there); ``unit``: the bar's unit (a task's ``episodes`` of it). -> the results per
+        task, in ``tasks``' order."""
         order = sorted(range(len(tasks)), key=lambda i: -tasks[i].cost)
-        bar = self._bar(desc, sum(t.episodes for t in tasks) + done_before, done_before)
+        bar = self._bar(desc, sum(t.episodes for t in tasks) + done_before, done_before, unit)
         results: list = [None] * len(tasks)
         try:
             for i, res in self._completions(fn, tasks, order, bar, meanwhile):
@@ -235,15 +236,15 @@ class Runner:
         """``[fn(x) for x in items]`` on the workers (``fn`` module-level), one task per item, in order."""
         from functools import partial
 
-        out = self.run(partial(_each, fn), [Task(jobs=(x,)) for x in items], desc)
+        out = self.run(partial(_each, fn), [Task(jobs=(x,)) for x in items], desc, unit="run")
         return [r[0] for r in out]
 
-    def _bar(self, desc: str, total: int, initial: int):
+    def _bar(self, desc: str, total: int, initial: int, unit: str):
         if not self.progress:
             return None
         from tqdm import tqdm
 
-        return tqdm(total=total, initial=initial, desc=desc, unit="episode")
+        return tqdm(total=total, initial=initial, desc=desc, unit=unit)
 
     def _completions(self, fn, tasks, order, bar, meanwhile):
         """(task index, results) as the tasks end; the bar credited with each reported episode."""
