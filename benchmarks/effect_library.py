@@ -94,27 +94,8 @@ def insert_fp(a) -> None:
     (Path(a.out) / "effect_library_insert_fp.json").write_text(json.dumps(out, indent=1))
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--calibrate", action="store_true")
-    ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--seeds", type=int, default=20)
-    ap.add_argument("--out", default=str(REPO / "benchmarks" / "results"))
-    ap.add_argument("--skip-plain", action="store_true")
-    ap.add_argument("--insert-fp", action="store_true",
-                    help="only the false-positive rate on the plain insertion (seeds x noise, start jitter)")
-    a = ap.parse_args()
-    if a.calibrate:
-        calibrate()
-        return
-    if a.insert_fp:
-        insert_fp(a)
-        return
-    from kinadapt_nn.diagnostics.effects import headline_errors
-    from kinadapt_nn.features.effect_library import LIBRARY
-    from kinadapt_nn.config import EffectsCfg
-
-    names = list(LIBRARY)
+def _jobs(a: argparse.Namespace, names: list[str]) -> dict[str, tuple]:
+    """Every run of the benchmark: name -> (program, overrides, effects added)."""
     jobs: dict[str, tuple] = {}
     for noise, nz in (("clean", []), ("noise", NOISE)):
         jobs[f"excite/none/{noise}"] = ("excite", [*nz], [])
@@ -131,22 +112,30 @@ def main() -> None:
         jobs["insert/none/clean"] = ("insert", [], [])
         for n in names:
             jobs[f"insert/{n}/clean"] = ("insert", [f"effects.{n}.enabled=true"], [n])
-    keys = list(jobs)
-    with ProcessPoolExecutor(max_workers=a.jobs) as ex:
-        results = dict(zip(keys, ex.map(diagnose, [jobs[k] for k in keys])))
+    return jobs
 
-    def top(r):
-        return r["ranking"][0]["effect"]
 
-    def row_of(r, n):
-        return next(x for x in r["ranking"] if x["effect"] == n)
+def _top(r):
+    return r["ranking"][0]["effect"]
+
+
+def _row_of(r, n):
+    return next(x for x in r["ranking"] if x["effect"] == n)
+
+
+def _table(results: dict, names: list[str]) -> list[dict]:
+    """Per (noise, injected effect): its rank, explained fraction, significance, parameter error
+    and how much of the residual's excess over the nominal level adding it removes."""
+    from kinadapt_nn.config import EffectsCfg
+    from kinadapt_nn.diagnostics.effects import headline_errors
+    from kinadapt_nn.features.effect_library import LIBRARY
 
     table = []
     for noise in ("clean", "noise"):
         base = results[f"excite/none/{noise}"]
         for n in names:
             r = results[f"excite/{n}/{noise}"]
-            e = row_of(r, n)
+            e = _row_of(r, n)
             rank = [x["effect"] for x in r["ranking"]].index(n) + 1
             p_true = LIBRARY[n].default(EffectsCfg())
             err = headline_errors(n, np.asarray(e["estimate_params"]["value"]), p_true)
@@ -160,29 +149,41 @@ def main() -> None:
                           "param_error": err, "residual_before": before, "residual_after": after,
                           "residual_nominal": nominal, "fall_of_excess_sse": fall_sse, "fall_of_excess_rms": fall_rms,
                           "excitation_ratio": e["excitation"]["ratio"]})
+    return table
+
+
+def _false_positives(results: dict, seeds: int) -> dict:
     fp = {}
     for noise in ("clean", "noise"):
-        runs = [results[f"fp/excite/{noise}/{s}"] for s in range(1, a.seeds + 1)]
+        runs = [results[f"fp/excite/{noise}/{s}"] for s in range(1, seeds + 1)]
         flagged = [[x["effect"] for x in r["ranking"] if x["significant"]] for r in runs]
         fp[noise] = {"runs": len(runs), "runs_with_any_significant": sum(bool(f) for f in flagged), "flagged": flagged}
+    return fp
+
+
+def _two_effects(results: dict) -> dict:
     two = {}
     for k in ("two/gravity+rotation", "two/stiffness+friction"):
         r = results[k]
         two[k] = {"significant": [x["effect"] for x in r["ranking"] if x["significant"]],
                   "top2": [x["effect"] for x in r["ranking"][:2]],
-                  "estimates": {n: row_of(r, n)["estimate"] for n in r["add"]}}
-    confusion = {"excite_empirical_top1": {n: top(results[f"excite/{n}/clean"]) for n in names},
+                  "estimates": {n: _row_of(r, n)["estimate"] for n in r["add"]}}
+    return two
+
+
+def _confusion(results: dict, names: list[str], plain: bool) -> dict:
+    confusion = {"excite_empirical_top1": {n: _top(results[f"excite/{n}/clean"]) for n in names},
                  "excite_regressor_overlap": results["excite/none/clean"]["confusion"]}
-    if not a.skip_plain:
-        confusion["insert_empirical_top1"] = {n: top(results[f"insert/{n}/clean"]) for n in names}
+    if plain:
+        confusion["insert_empirical_top1"] = {n: _top(results[f"insert/{n}/clean"]) for n in names}
         confusion["insert_regressor_overlap"] = results["insert/none/clean"]["confusion"]
-        confusion["insert_rows"] = {n: {k: row_of(results[f"insert/{n}/clean"], n)[k] for k in
+        confusion["insert_rows"] = {n: {k: _row_of(results[f"insert/{n}/clean"], n)[k] for k in
                                         ("explained_fraction", "significant", "p_adjusted")}
                                     for n in names}
-    out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "effect_library.json").write_text(json.dumps({"table": table, "false_positives": fp, "two_effects": two,
-                                                          "confusion": confusion}, indent=1, default=float))
+    return confusion
+
+
+def _markdown(table: list[dict], fp: dict, two: dict, confusion: dict, names: list[str]) -> list[str]:
     lines = ["| noise | effect | rank | explained | p_adj | significant | verdict | param error | residual fall (of excess, SSE / rms) |",
              "|---|---|---|---|---|---|---|---|---|"]
     for t in table:
@@ -201,6 +202,41 @@ def main() -> None:
                   "| | " + " | ".join(n[:10] for n in names) + " |", "|---" * (len(names) + 1) + "|"]
         for n in names:
             lines.append(f"| {n} | " + " | ".join("-" if m[n][c] is None else f"{m[n][c]:.2f}" for c in names) + " |")
+    return lines
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--calibrate", action="store_true")
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--out", default=str(REPO / "benchmarks" / "results"))
+    ap.add_argument("--skip-plain", action="store_true")
+    ap.add_argument("--insert-fp", action="store_true",
+                    help="only the false-positive rate on the plain insertion (seeds x noise, start jitter)")
+    a = ap.parse_args()
+    if a.calibrate:
+        calibrate()
+        return
+    if a.insert_fp:
+        insert_fp(a)
+        return
+    from kinadapt_nn.features.effect_library import LIBRARY
+
+    names = list(LIBRARY)
+    jobs = _jobs(a, names)
+    keys = list(jobs)
+    with ProcessPoolExecutor(max_workers=a.jobs) as ex:
+        results = dict(zip(keys, ex.map(diagnose, [jobs[k] for k in keys])))
+    table = _table(results, names)
+    fp = _false_positives(results, a.seeds)
+    two = _two_effects(results)
+    confusion = _confusion(results, names, not a.skip_plain)
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "effect_library.json").write_text(json.dumps({"table": table, "false_positives": fp, "two_effects": two,
+                                                          "confusion": confusion}, indent=1, default=float))
+    lines = _markdown(table, fp, two, confusion, names)
     (out / "effect_library.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

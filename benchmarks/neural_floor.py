@@ -47,8 +47,8 @@ def _jerr(J_hat: np.ndarray, J_true: np.ndarray, W: np.ndarray) -> float:
 def _kalman_law(cfg, p: int, P0: np.ndarray) -> StandaloneLaw:
     ad = cfg.adaptation
     return StandaloneLaw("kalman", LawParams.of(ad, cfg.run.dt_s, P0), channel_metric(cfg.sensing), np.full(p, -np.inf),
-                         np.full(p, np.inf), filter_tau_s=cfg.sensing.filter_tau_s, contact_force_N=ad.contact_force_N,
-                         contact_moment_Nm=ad.contact_moment_Nm)
+                         np.full(p, np.inf), filter_tau_s=cfg.sensing.filter_tau_s,
+                         contact_gate=(ad.contact_force_N, ad.contact_moment_Nm))
 
 
 def one_tool(overrides: list[str]) -> dict[str, float]:

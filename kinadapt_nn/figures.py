@@ -539,13 +539,14 @@ def _with_gaps(t: np.ndarray, *ys: np.ndarray) -> tuple[np.ndarray, ...]:
     return tuple(np.insert(np.asarray(v, dtype=float), cut, np.nan) for v in (t, *ys))
 
 
-def before_after_panel(a, t: np.ndarray, channel: np.ndarray, before: np.ndarray, after: np.ndarray,
-                       chans: Sequence[int], names: Sequence[str], unit: str, added: Sequence[str],
-                       marker: str = "") -> None:
+def before_after_panel(a, rows: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], chans: Sequence[int],
+                       names: Sequence[str], unit: str, added: Sequence[str], marker: str = "") -> None:
     """Residual rows per channel over time, before (faint) and after adding ``added``, robust
-    y-limits over both; the legend names the channels and what faint/solid mean."""
+    y-limits over both; the legend names the channels and what faint/solid mean. ``rows``: (t [s],
+    channel, before, after), each (N,) -- one residual row each."""
     from matplotlib.lines import Line2D
 
+    t, channel, before, after = rows
     pooled = []
     for c in chans:
         m = channel == c

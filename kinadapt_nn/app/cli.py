@@ -675,7 +675,8 @@ def build_parser() -> argparse.ArgumentParser:
     cf.set_defaults(func=cmd_config, uses_mujoco=False)
     sw.add_argument("--executor", choices=["local", "ray"], default="local",
                     help="run episodes in local worker processes or on a Ray cluster (default: local)")
-    sw.add_argument("--address", help="Ray cluster address (default: auto, e.g. a local 'ray start --head')")
+    sw.add_argument("--address", help="with --executor ray: a running Ray cluster's address (default: start a Ray of "
+                    "this command's own with 'jobs' CPUs, stopped at the end)")
     p.set_defaults(in_place=False)
     for name in ("pretrain", "sweep"):  # these write into --out as they go (resumable)
         sub.choices[name].set_defaults(in_place=True)

@@ -137,6 +137,22 @@ def gram_sparse_log(A, log):
     idx = np.empty((m, p), dtype=np.int64)  # per column: its non-zero rows, and how many
     cnt = np.zeros(m, dtype=np.int64)
     owner = np.full(p, -1, dtype=np.int64)
+    disjoint = _gram_columns(A, G, idx, cnt, owner)
+    if log.shape[0] == 0:
+        return G
+    if disjoint:
+        _log_blocks(log, G, idx, cnt)
+    else:
+        _log_rows(log, G, owner)
+    return G
+
+
+@nb.njit(cache=True)
+def _gram_columns(A, G, idx, cnt, owner):
+    """``G += A @ A.T`` column by column from each column's non-zeros (:func:`gram_sparse_log`);
+    fills ``idx[r, :cnt[r]]`` (column r's non-zero rows) and ``owner`` (a row's last column).
+    -> whether the columns' non-zero rows are disjoint."""
+    p, m = A.shape
     disjoint = True
     col = np.empty(p)
     for r in range(m):
@@ -150,55 +166,68 @@ def gram_sparse_log(A, log):
                     disjoint = False
                 owner[i] = r
         cnt[r] = nz
+        if nz > 0:
+            _add_outer(G, idx[r], nz, col)
+    return disjoint
+
+
+@nb.njit(cache=True)
+def _add_outer(G, rows, nz, col):
+    """``G[rows[a], rows[b]] += col[a] col[b]`` for a, b < nz; a contiguous block of rows by
+    slices (the loops vectorise)."""
+    j0 = rows[0]
+    if rows[nz - 1] - j0 == nz - 1:
+        for a in range(nz):
+            Gi = G[j0 + a, j0:j0 + nz]
+            v = col[a]
+            for b in range(nz):
+                Gi[b] += v * col[b]
+    else:
+        for a in range(nz):
+            Gi = G[rows[a]]
+            v = col[a]
+            for b in range(nz):
+                Gi[rows[b]] += v * col[b]
+
+
+@nb.njit(cache=True)
+def _log_blocks(log, G, idx, cnt):
+    """``log += G`` on each column's block only (disjoint columns: G is exactly zero elsewhere)."""
+    for r in range(idx.shape[0]):
+        nz = cnt[r]
         if nz == 0:
             continue
         j0 = idx[r, 0]
-        if idx[r, nz - 1] - j0 == nz - 1:  # a contiguous block of rows (slices: the loops vectorise)
+        if idx[r, nz - 1] - j0 == nz - 1:
             for a in range(nz):
-                Gi = G[j0 + a, j0:j0 + nz]
-                v = col[a]
+                Li, Gi = log[j0 + a, j0:j0 + nz], G[j0 + a, j0:j0 + nz]
                 for b in range(nz):
-                    Gi[b] += v * col[b]
-        else:
-            for a in range(nz):
-                Gi = G[idx[r, a]]
-                v = col[a]
-                for b in range(nz):
-                    Gi[idx[r, b]] += v * col[b]
-    if log.shape[0] == 0:
-        return G
-    if disjoint:
-        for r in range(m):
-            nz = cnt[r]
-            if nz == 0:
-                continue
-            j0 = idx[r, 0]
-            if idx[r, nz - 1] - j0 == nz - 1:
-                for a in range(nz):
-                    Li, Gi = log[j0 + a, j0:j0 + nz], G[j0 + a, j0:j0 + nz]
-                    for b in range(nz):
-                        Li[b] += Gi[b]
-                continue
-            for a in range(nz):
-                i = idx[r, a]
-                Li, Gi = log[i], G[i]
-                for b in range(nz):
-                    j = idx[r, b]
-                    Li[j] += Gi[j]
-    else:
-        rows = np.empty(p, dtype=np.int64)
-        n_rows = 0
-        for i in range(p):
-            if owner[i] >= 0:
-                rows[n_rows] = i
-                n_rows += 1
-        for a in range(n_rows):
-            i = rows[a]
+                    Li[b] += Gi[b]
+            continue
+        for a in range(nz):
+            i = idx[r, a]
             Li, Gi = log[i], G[i]
-            for b in range(n_rows):
-                j = rows[b]
+            for b in range(nz):
+                j = idx[r, b]
                 Li[j] += Gi[j]
-    return G
+
+
+@nb.njit(cache=True)
+def _log_rows(log, G, owner):
+    """``log += G`` on every (i, j) of the rows that have a non-zero (``owner >= 0``)."""
+    p = owner.shape[0]
+    rows = np.empty(p, dtype=np.int64)
+    n_rows = 0
+    for i in range(p):
+        if owner[i] >= 0:
+            rows[n_rows] = i
+            n_rows += 1
+    for a in range(n_rows):
+        i = rows[a]
+        Li, Gi = log[i], G[i]
+        for b in range(n_rows):
+            j = rows[b]
+            Li[j] += Gi[j]
 
 
 # slice assignment and array arithmetic compile to numba's broadcasting machinery (seconds of

@@ -25,13 +25,13 @@ class StandaloneLaw:
 
     ``params``: the law's numbers (``LawParams``); ``W`` (m,) the channel metric; ``lo``, ``hi``
     (p,) the box Omega (``-inf``/``inf`` for none); ``filter_tau_s`` the rate filter's time
-    constant (the regressor rows go through the same filter); ``contact_force_N`` and
-    ``contact_moment_Nm`` the free-space rule; ``track_mask`` (p,) the rows of the tracking term
-    (default all).
+    constant (the regressor rows go through the same filter); ``contact_gate`` the free-space
+    rule, (force [N], moment [N m]) (default (0, 0): always in contact); ``track_mask`` (p,) the
+    rows of the tracking term (default all).
     """
 
     def __init__(self, name: str, params: LawParams, W: np.ndarray, lo: np.ndarray, hi: np.ndarray, *,
-                 filter_tau_s: float, contact_force_N: float, contact_moment_Nm: float,
+                 filter_tau_s: float, contact_gate: tuple[float, float] = (0.0, 0.0),
                  track_mask: np.ndarray | None = None) -> None:
         spec = law_spec(name)
         W = np.asarray(W, dtype=float)
@@ -40,7 +40,7 @@ class StandaloneLaw:
         dt = float(params.dt_s)
         c = np.zeros(core.N_C)
         c[core.ALPHA] = dt / (filter_tau_s + dt)  # the rate filter's (sensing.LowPass)
-        c[core.F_GATE], c[core.M_GATE] = contact_force_N, contact_moment_Nm
+        c[core.F_GATE], c[core.M_GATE] = contact_gate
         c[core.V_W:core.V_W + m] = W
         mask = np.ones(p) if track_mask is None else np.asarray(track_mask, dtype=float)
         consts = core.CoreConsts(

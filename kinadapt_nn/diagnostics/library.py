@@ -265,7 +265,7 @@ def _effects_fig(res: dict):
     if has_add:
         des, y, e = res["_series"]
         for col, (chans, unit) in enumerate((((0, 1, 2), "N"), ((3, 4, 5), "N m"))):
-            before_after_panel(ax[0, 1 + col], des.t_s, des.channel, y / des.W, e / des.W, chans, LEVEL_CHANNELS,
+            before_after_panel(ax[0, 1 + col], (des.t_s, des.channel, y / des.W, e / des.W), chans, LEVEL_CHANNELS,
                                unit, list(res["added"]))
             ax[0, 1 + col].set_ylabel(f"level residual [{unit}]")
     return fig

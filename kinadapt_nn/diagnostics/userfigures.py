@@ -154,6 +154,6 @@ def _effects_fig(res):
         des = res.design
         added = list(res.report["added"])
         for col, chans, unit in ((1, (0, 1, 2), "N"), (2, (3, 4, 5, 6, 7, 8), "N m")):
-            before_after_panel(ax[0, col], des.t_s, des.channel, res.before / des.W, res.after / des.W, chans,
+            before_after_panel(ax[0, col], (des.t_s, des.channel, res.before / des.W, res.after / des.W), chans,
                                des.channel_names, unit, added, marker=".")
     return fig

@@ -314,87 +314,146 @@ def adjoint_best_fit_error(data: dict, n_train: int, n_support: int) -> np.ndarr
     return np.array(errs)
 
 
-def pretrain(cfg: PretrainCfg, out: Path, progress: bool = True, stop_after: int | None = None) -> dict:
-    """Train (or resume) into ``out``. ``stop_after`` simulates an interruption (tests)."""
-    from kinadapt_nn.runio import EventWriter
+class _Training:
+    """The training's state: the data set (as float64 tensors on the device), the network, the
+    optimiser, the instance sampler and the step; resumed from ``train_state.pt`` if there is one."""
 
+    def __init__(self, cfg: PretrainCfg, out: Path, progress: bool) -> None:
+        self.cfg, self.dev = cfg, _device(cfg)
+        self.cfg_json = cfg.model_dump(mode="json")
+        self.state_path = out / "train_state.pt"
+        # the resume state is checked before the slow data set
+        resume = load_train_state(self.state_path, self.cfg_json) if self.state_path.is_file() else None
+        self.data = data = make_dataset(cfg, progress=progress)
+        f64 = torch.float64
+        self.q = torch.as_tensor(data["q"], dtype=f64, device=self.dev)  # (I, N, 7)
+        self.r = torch.as_tensor(data["r"], dtype=f64, device=self.dev)  # (I, N, 5, 7)
+        self.jn = torch.as_tensor(data["jn"], dtype=f64, device=self.dev)  # (I,)
+        torch.manual_seed(cfg.seed)
+        net = JacobianBasisNet(cfg.net.structure, cfg.net.n_features, cfg.net.hidden, data["q_mean"], data["q_std"])
+        self.net = net.double().to(self.dev)
+        self.opt = torch.optim.Adam(self.net.parameters(), lr=cfg.train.lr)
+        self.rng = np.random.default_rng(cfg.seed + 1)
+        self.step = 0
+        if resume is not None:
+            try:
+                self.net.load_state_dict(resume["net"])
+                self.opt.load_state_dict(resume["opt"])
+                self.rng.bit_generator.state = resume["rng"]
+                self.step = int(resume["step"])
+            except (KeyError, RuntimeError, TypeError, ValueError) as exc:
+                raise _bad_state(self.state_path, f"does not match the network ({type(exc).__name__})") from None
+
+    def train_step(self) -> torch.Tensor:
+        """One Adam step on ``batch_instances`` training instances (cosine learning rate down to
+        5 %). -> the loss, mean squared relative Jacobian error on their query sets."""
+        cfg, nt, ns = self.cfg, self.cfg.data.n_train, self.cfg.data.n_support
+        q, r, jn = self.q, self.r, self.jn
+        idx = torch.as_tensor(self.rng.choice(nt, cfg.train.batch_instances, replace=False), device=self.dev)
+        lr = cfg.train.lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * self.step / cfg.train.steps)))
+        for g in self.opt.param_groups:
+            g["lr"] = lr
+        err = _relative_error(self.net, q[idx, :ns], r[idx, :ns], q[idx, ns:], r[idx, ns:], jn[idx], cfg.train.ridge)
+        loss = torch.mean(err**2)
+        self.opt.zero_grad()
+        loss.backward()
+        self.opt.step()
+        self.step += 1
+        return loss
+
+    def heldout_error(self) -> np.ndarray:
+        """Per held-out instance, the relative Jacobian error on its query set, heads fit on its support set."""
+        nt, ns = self.cfg.data.n_train, self.cfg.data.n_support
+        q, r = self.q, self.r
+        with torch.no_grad():
+            he = _relative_error(self.net, q[nt:, :ns], r[nt:, :ns], q[nt:, ns:], r[nt:, ns:], self.jn[nt:],
+                                 self.cfg.train.ridge)
+        return he.cpu().numpy()
+
+    def save_state(self) -> None:
+        atomic_torch_save(
+            {"format": TRAIN_STATE_FORMAT, "version": TRAIN_STATE_VERSION, "net": self.net.state_dict(),
+             "opt": self.opt.state_dict(), "rng": self.rng.bit_generator.state, "step": self.step,
+             "config": self.cfg_json},
+            self.state_path,
+        )
+
+
+def pretrain(cfg: PretrainCfg, out: Path, progress: bool = True, stop_after: int | None = None) -> dict:
+    """Train (or resume) into ``out``: model.safetensors, metrics.json, tb/. ``stop_after``
+    simulates an interruption (tests). -> metrics.json's content (or ``{"interrupted_at": step}``)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    dev = _device(cfg)
     t0 = time.perf_counter()
-    cfg_json = cfg.model_dump(mode="json")
-    state_path = out / "train_state.pt"
-    resume = load_train_state(state_path, cfg_json) if state_path.is_file() else None  # before the slow data set
-    data = make_dataset(cfg, progress=progress)
-    nt, ns = cfg.data.n_train, cfg.data.n_support
-    f64 = torch.float64
-    q = torch.as_tensor(data["q"], dtype=f64, device=dev)
-    r = torch.as_tensor(data["r"], dtype=f64, device=dev)
-    jn = torch.as_tensor(data["jn"], dtype=f64, device=dev)
-    torch.manual_seed(cfg.seed)
-    net = JacobianBasisNet(cfg.net.structure, cfg.net.n_features, cfg.net.hidden, data["q_mean"], data["q_std"])
-    net = net.double().to(dev)
-    opt = torch.optim.Adam(net.parameters(), lr=cfg.train.lr)
-    rng = np.random.default_rng(cfg.seed + 1)
-    step = 0
-    if resume is not None:
-        try:
-            net.load_state_dict(resume["net"])
-            opt.load_state_dict(resume["opt"])
-            rng.bit_generator.state = resume["rng"]
-            step = int(resume["step"])
-        except (KeyError, RuntimeError, TypeError, ValueError) as exc:
-            raise _bad_state(state_path, f"does not match the network ({type(exc).__name__})") from None
-    adj_err = adjoint_best_fit_error(data, nt, ns)
-    held_arm = data["arm_error"][nt:]
+    run = _Training(cfg, out, progress)
+    adj_err = adjoint_best_fit_error(run.data, cfg.data.n_train, cfg.data.n_support)
+    hist = _train(run, out, adj_err, progress, stop_after)
+    if hist is None:
+        return {"interrupted_at": run.step}
+    metrics = _finish(run, out, adj_err, hist)
+    metrics["wall_time_s"] = time.perf_counter() - t0
+    from kinadapt_nn.runio import write_text_atomic
+
+    write_text_atomic(out / "metrics.json", json.dumps(metrics, indent=1) + "\n")
+    run.state_path.unlink(missing_ok=True)
+    return metrics
+
+
+def _train(run: _Training, out: Path, adj_err: np.ndarray, progress: bool, stop_after: int | None) -> dict | None:
+    """The training loop to ``train.steps``: TensorBoard scalars and the history every
+    ``eval_every`` steps, the resume state every ``checkpoint_every``. -> metrics.json's
+    "history" (one named list per column, one entry per evaluation), None when stopped at ``stop_after``."""
+    from kinadapt_nn.runio import EventWriter
+
+    cfg = run.cfg
+    held_arm = run.data["arm_error"][cfg.data.n_train:]
     bar = None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=cfg.train.steps, initial=step, desc="pretrain", unit="step")
-    # metrics.json's "history": one named list per column, one entry per evaluation (eval_every steps)
+        bar = tqdm(total=cfg.train.steps, initial=run.step, desc="pretrain", unit="step")
     hist: dict[str, list] = {"step": [], "train_rel_jacobian_error_rms": [], "heldout_rel_jacobian_error_median": []}
-    with EventWriter(out / "tb") as tb:
-        while step < cfg.train.steps:
-            idx = torch.as_tensor(rng.choice(nt, cfg.train.batch_instances, replace=False), device=dev)
-            lr = cfg.train.lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * step / cfg.train.steps)))
-            for g in opt.param_groups:
-                g["lr"] = lr
-            err = _relative_error(net, q[idx, :ns], r[idx, :ns], q[idx, ns:], r[idx, ns:], jn[idx], cfg.train.ridge)
-            loss = torch.mean(err**2)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            step += 1
-            if bar is not None:
-                bar.update(1)
-            if step % cfg.train.eval_every == 0 or step == cfg.train.steps:
-                with torch.no_grad():
-                    he = _relative_error(net, q[nt:, :ns], r[nt:, :ns], q[nt:, ns:], r[nt:, ns:], jn[nt:], cfg.train.ridge)
-                he = he.cpu().numpy()
-                tb.add_scalar("pretrain/train_rel_jacobian_error_rms", float(torch.sqrt(loss.detach())), step)
-                tb.add_scalar("pretrain/heldout_rel_jacobian_error_median", float(np.median(he)), step)
-                tb.add_scalar("pretrain/heldout_rel_jacobian_error_arm_errors_median", float(np.median(he[held_arm])) if held_arm.any() else 0.0, step)
-                tb.add_scalar("pretrain/adjoint_heldout_rel_jacobian_error_median", float(np.median(adj_err)), step)
-                hist["step"].append(step)
-                hist["train_rel_jacobian_error_rms"].append(float(torch.sqrt(loss.detach())))
-                hist["heldout_rel_jacobian_error_median"].append(float(np.median(he)))
-            if step % cfg.train.checkpoint_every == 0 or step == cfg.train.steps:
-                atomic_torch_save(
-                    {"format": TRAIN_STATE_FORMAT, "version": TRAIN_STATE_VERSION, "net": net.state_dict(),
-                     "opt": opt.state_dict(), "rng": rng.bit_generator.state, "step": step, "config": cfg_json},
-                    state_path,
-                )
-            if stop_after is not None and step >= stop_after and step < cfg.train.steps:
+    try:
+        with EventWriter(out / "tb") as tb:
+            while run.step < cfg.train.steps:
+                loss = run.train_step()
+                step = run.step
                 if bar is not None:
-                    bar.close()
-                return {"interrupted_at": step}
-    if bar is not None:
-        bar.close()
-    # heads of every training instance -> theta_mean (the online initial estimate)
+                    bar.update(1)
+                if step % cfg.train.eval_every == 0 or step == cfg.train.steps:
+                    _evaluate(run, tb, hist, float(torch.sqrt(loss.detach())), adj_err, held_arm)
+                if step % cfg.train.checkpoint_every == 0 or step == cfg.train.steps:
+                    run.save_state()
+                if stop_after is not None and step >= stop_after and step < cfg.train.steps:
+                    return None
+    finally:
+        if bar is not None:
+            bar.close()
+    return hist
+
+
+def _evaluate(run: _Training, tb, hist: dict, train_rms: float, adj_err: np.ndarray, held_arm: np.ndarray) -> None:
+    """The held-out error now: TensorBoard scalars and a history entry."""
+    he = run.heldout_error()
+    step = run.step
+    tb.add_scalar("pretrain/train_rel_jacobian_error_rms", train_rms, step)
+    tb.add_scalar("pretrain/heldout_rel_jacobian_error_median", float(np.median(he)), step)
+    tb.add_scalar("pretrain/heldout_rel_jacobian_error_arm_errors_median",
+                  float(np.median(he[held_arm])) if held_arm.any() else 0.0, step)
+    tb.add_scalar("pretrain/adjoint_heldout_rel_jacobian_error_median", float(np.median(adj_err)), step)
+    hist["step"].append(step)
+    hist["train_rel_jacobian_error_rms"].append(train_rms)
+    hist["heldout_rel_jacobian_error_median"].append(float(np.median(he)))
+
+
+def _finish(run: _Training, out: Path, adj_err: np.ndarray, hist: dict) -> dict:
+    """The heads of every training instance (their mean: the online initial estimate; their
+    covariance: the kalman law's neural prior), the model written. -> the metrics (no wall time)."""
+    cfg, nt = run.cfg, run.cfg.data.n_train
     with torch.no_grad():
-        theta_all = least_squares_heads(net, q[:nt], r[:nt], cfg.train.ridge).cpu().numpy()
-        he = _relative_error(net, q[nt:, :ns], r[nt:, :ns], q[nt:, ns:], r[nt:, ns:], jn[nt:], cfg.train.ridge).cpu().numpy()
+        theta_all = least_squares_heads(run.net, run.q[:nt], run.r[:nt], cfg.train.ridge).cpu().numpy()
+    he = run.heldout_error()
+    net, data = run.net, run.data
     n_body = sum(p.numel() for p in net.parameters())
     meta = {
         "theta0_online": "zeros: the head of the nominal (CAD) tool on the nominal arm",
@@ -413,28 +472,27 @@ def pretrain(cfg: PretrainCfg, out: Path, progress: bool = True, stop_after: int
         "w_rows": [float(x) for x in channel_metric(ExperimentCfg().sensing)[1:]],
         "tool_distribution": cfg.tools.model_dump(mode="json"),
         "arm_distribution": cfg.arms.model_dump(mode="json"),
-        "config": cfg_json,
+        "config": run.cfg_json,
         "library_version": kinadapt_nn.__version__,
         "torch_version": str(torch.__version__),
         "heldout_rel_jacobian_error_median": float(np.median(he)),
     }
-    net_cpu = net.to("cpu")
-    save_checkpoint(out / "model.safetensors", net_cpu, theta_all.mean(axis=0), meta, theta_all.std(axis=0))
-    metrics = {
-        "steps": step,
-        "wall_time_s": time.perf_counter() - t0,
-        "device": str(dev),
+    save_checkpoint(out / "model.safetensors", net.to("cpu"), theta_all.mean(axis=0), meta, theta_all.std(axis=0))
+    held_arm = data["arm_error"][nt:]
+
+    def median(x: np.ndarray, sel: np.ndarray) -> float | None:
+        return float(np.median(x[sel])) if sel.any() else None
+
+    return {
+        "steps": run.step,
+        "wall_time_s": None,
+        "device": str(run.dev),
         "n_params_online": int(net.n_params),
         "n_params_body": int(n_body),
         "heldout_rel_jacobian_error_median": float(np.median(he)),
-        "heldout_rel_jacobian_error_median_nominal_arm": float(np.median(he[~held_arm])) if (~held_arm).any() else None,
-        "heldout_rel_jacobian_error_median_arm_errors": float(np.median(he[held_arm])) if held_arm.any() else None,
-        "adjoint_best_fit_rel_error_median_nominal_arm": float(np.median(adj_err[~held_arm])) if (~held_arm).any() else None,
-        "adjoint_best_fit_rel_error_median_arm_errors": float(np.median(adj_err[held_arm])) if held_arm.any() else None,
+        "heldout_rel_jacobian_error_median_nominal_arm": median(he, ~held_arm),
+        "heldout_rel_jacobian_error_median_arm_errors": median(he, held_arm),
+        "adjoint_best_fit_rel_error_median_nominal_arm": median(adj_err, ~held_arm),
+        "adjoint_best_fit_rel_error_median_arm_errors": median(adj_err, held_arm),
         "history": hist,
     }
-    from kinadapt_nn.runio import write_text_atomic
-
-    write_text_atomic(out / "metrics.json", json.dumps(metrics, indent=1) + "\n")
-    state_path.unlink(missing_ok=True)
-    return metrics

@@ -9,24 +9,34 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 from kinadapt_nn.paper import PAPER_SETTING
+from kinadapt_nn.runs.jobs import Job, Runner
 
 PARTS = ("rollout", "observability", "gain_sweep", "ablations", "qp", "video")
 AXES = ("x_f", "y_f", "z_f")
 
 
-def _episode(over: list[str]):
-    from kinadapt_nn.config import load_config
+def _job(over: list[str]) -> Job:
+    """An episode of the paper's setting: the paper's claims are about the paper's law and bore
+    contact (PAPER_SETTING) unless a part says otherwise (``over``)."""
+    return Job(id=" ".join(over) or "paper setting", overrides=(*PAPER_SETTING, *over))
+
+
+def _episode(job: Job):
+    """One episode (a worker's call) -> (summary, trace)."""
     from kinadapt_nn.runs.episode import run_episode
 
-    # the paper's claims are about the paper's law and bore contact (PAPER_SETTING) unless a part says otherwise
-    r = run_episode(load_config(None, ["run.progress=false", *PAPER_SETTING, *over]))
+    r = run_episode(job.config())
     return r.summary, r.trace
+
+
+def _episodes(ex: Runner, overs: list[list[str]]) -> list:
+    """:func:`_episode` of each override list, on the runner's workers, in order."""
+    return ex.map(_episode, [_job(o) for o in overs], "episodes")
 
 
 def _plt():
@@ -39,14 +49,14 @@ def _plt():
 
 
 # ------------------------------------------------------------------------------------ rollout
-def part_rollout(out: Path, ex) -> dict:
+def part_rollout(out: Path, ex: Runner) -> dict:
     from kinadapt_nn.config import load_config
     from kinadapt_nn.features import compared_types
     from kinadapt_nn.figures import rollout_figure, save_figure
 
     res = {}
     feats = compared_types()
-    runs = list(ex.map(_episode, [[f"run.features={f}"] for f in feats]))
+    runs = _episodes(ex, [[f"run.features={f}"] for f in feats])
     for f, (s, tr) in zip(feats, runs):
         cfg_f = load_config(None, [*PAPER_SETTING, f"run.features={f}"])  # as _episode ran it
         save_figure(rollout_figure(tr, s, cfg_f), out / f"rollout_{f}.png")
@@ -85,14 +95,14 @@ def _running_gram(trace, cfg_over: list[str]) -> tuple[np.ndarray, np.ndarray]:
     return np.array(t_out), np.array(lam_out)
 
 
-def part_observability(out: Path, ex) -> dict:
+def part_observability(out: Path, ex: Runner) -> dict:
     plt = _plt()
     cases = {
         "stiff": ["control.loop=rigid", "control.compliance_lat_m_per_N=0", "control.compliance_mom_rad_per_Nm=0",
                   "adaptation.mode=frozen"],
         "compliant": ["adaptation.mode=frozen"],
     }
-    runs = dict(zip(cases, ex.map(_episode, list(cases.values()))))
+    runs = dict(zip(cases, _episodes(ex, list(cases.values()))))
     res = {}
     fig, axs = plt.subplots(1, 2, figsize=(12, 4.2), constrained_layout=True)
     for ax, (name, (s, tr)) in zip(axs, runs.items()):
@@ -129,7 +139,7 @@ def part_observability(out: Path, ex) -> dict:
 
 
 # --------------------------------------------------------------------------------- gain sweep
-def part_gain_sweep(out: Path, ex) -> dict:
+def part_gain_sweep(out: Path, ex: Runner) -> dict:
     plt = _plt()
     scen = {"bore (paper)": [], "socket + dither": ["scene.contact_model=socket", "control.dither_rad_s=[0.05,0.05,0.05]"]}
     jobs, keys = [], []
@@ -138,7 +148,7 @@ def part_gain_sweep(out: Path, ex) -> dict:
             for law in ("composite", "prediction"):
                 jobs.append([*sover, f"adaptation.gamma={g}", f"adaptation.mode={law}"])
                 keys.append((sname, g, law))
-    runs = list(ex.map(_episode, jobs))
+    runs = _episodes(ex, jobs)
     from kinadapt_nn.config import load_config
 
     gd = load_config(None, []).adaptation.gamma_d
@@ -164,7 +174,7 @@ def part_gain_sweep(out: Path, ex) -> dict:
 
 
 # ---------------------------------------------------------------------------------- ablations
-def part_ablations(out: Path, ex) -> dict:
+def part_ablations(out: Path, ex: Runner) -> dict:
     from kinadapt_nn.config import load_config
     from kinadapt_nn.runs.build import make_controller
     from kinadapt_nn.paper.rigid_demo import run_rigid_demo
@@ -216,11 +226,11 @@ def part_ablations(out: Path, ex) -> dict:
     }
     # (b) Remark ft_static: static wrench balance vs the law on the same run (socket couple)
     over = ["scene.contact_model=socket", "control.dither_rad_s=[0.05,0.05,0.05]"]
-    s, trc = _episode(over)
+    s, trc = _episode(_job(over))
     cfg = load_config(None, over)
     st = static_offset_estimate(trc, make_controller(cfg).kin)
     true = np.asarray(cfg.tool.offset_f_m)
-    s0, tr0 = _episode([*over, "scene.socket_k_rot_Nm_per_rad=0"])
+    s0, tr0 = _episode(_job([*over, "scene.socket_k_rot_Nm_per_rad=0"]))
     st0 = static_offset_estimate(tr0, make_controller(load_config(None, [*over, "scene.socket_k_rot_Nm_per_rad=0"])).kin)
     res["static_wrench_balance"] = {
         "with_couple_static_error_m": (st - true).tolist(), "with_couple_law_error_m": s["offset_error_final_m"],
@@ -229,14 +239,14 @@ def part_ablations(out: Path, ex) -> dict:
     # (c) the bias floor ladder
     from kinadapt_nn.paper.floor import LADDER, floor_figure, measure
 
-    rows = list(ex.map(measure, LADDER))
+    rows = ex.map(measure, LADDER, "bias floor ladder")
     res["bias_floor"] = rows
     floor_figure(rows, out / "bias_floor.png")
     return res
 
 
 # ----------------------------------------------------------------------------------------- qp
-def part_qp(out: Path, ex) -> dict:
+def part_qp(out: Path, ex: Runner) -> dict:
     from kinadapt_nn.paper.qp_check import run_qp_checks
 
     checks = run_qp_checks()
@@ -249,7 +259,7 @@ def part_qp(out: Path, ex) -> dict:
 
 
 # -------------------------------------------------------------------------------------- video
-def part_video(out: Path, ex) -> dict:
+def part_video(out: Path, ex: Runner) -> dict:
     """Render the default run in a fresh process (MUJOCO_GL must be set before mujoco loads)."""
     import os
     import subprocess
@@ -327,7 +337,8 @@ def run_reproduce(out: Path, only: str | None = None, jobs: int = 2,
     funcs = {"rollout": part_rollout, "observability": part_observability, "gain_sweep": part_gain_sweep,
              "ablations": part_ablations, "qp": part_qp, "video": part_video}
     result: dict = {}
-    with ProcessPoolExecutor(max_workers=jobs) as ex:
+    # one pool for every part; ex.map(fn, items) runs fn on the workers, a bar per call with progress
+    with Runner(jobs, progress=progress is not None) as ex:
         for k, p in enumerate(parts):
             if progress is not None:
                 progress(f"part {k + 1}/{len(parts)}: {p}")

@@ -16,6 +16,7 @@ Features:
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import mujoco
@@ -73,18 +74,27 @@ class RigidDemoResult(NamedTuple):
     V_aug: np.ndarray  #: (N,) 1/2 e^T K e + |theta - l|^2 / (2 gamma) (adjoint only; NaN otherwise)
 
 
+@dataclass(frozen=True)
+class RigidDemoSetup:
+    """The rigid loop's fixed numbers."""
+
+    k_gain: float = 10.0  #: task-space gain K [1/s]
+    dt_s: float = 1e-3  #: step [s]
+    target_m: tuple[float, float, float] = (0.03, 0.02, -0.04)  #: target - start of the tip, world [m]
+    n_centres: int = 5  #: per-entry features: RBF centres
+    theta_error_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  #: adjoint: initial offset error [m]
+
+
 def run_rigid_demo(
     features: str = "per_entry",
     mode: str = "tracking",
     gamma: float = 50.0,  # negative: the myopic sign of eq. adapt_law
-    k_gain: float = 10.0,
     duration_s: float = 2.0,
-    dt_s: float = 1e-3,
-    target_m: tuple[float, float, float] = (0.03, 0.02, -0.04),
-    n_centres: int = 5,
-    theta_error_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    setup: RigidDemoSetup = RigidDemoSetup(),
 ) -> RigidDemoResult:
     """Simulate the rigid loop; ``J_hat`` starts exact at q0 (so only the law moves it)."""
+    k_gain, dt_s, target_m = setup.k_gain, setup.dt_s, setup.target_m
+    n_centres, theta_error_m = setup.n_centres, setup.theta_error_m
     model = mujoco.MjModel.from_xml_path(str(PANDA_MJCF))
     data = mujoco.MjData(model)
     site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, FLANGE_SITE)
@@ -118,8 +128,7 @@ def run_rigid_demo(
     params = LawParams.of(AdaptationCfg(), dt_s, np.eye(feats.n_params), gamma=gamma, gamma_d=1.0, eta=0.5,
                           eps_norm=1e-6)
     # Omega: unbounded for the RBF weights, +-5 cm about the truth for the offset; no gate (rigid task)
-    law = StandaloneLaw(mode, params, np.ones(3), lo, hi, filter_tau_s=1e-12, contact_force_N=0.0,
-                        contact_moment_Nm=0.0)
+    law = StandaloneLaw(mode, params, np.ones(3), lo, hi, filter_tau_s=1e-12)
     n = int(round(duration_s / dt_s))
     out = {k: np.zeros(n) for k in ("t", "c", "e", "r", "j", "v")}
     on = np.ones(6)

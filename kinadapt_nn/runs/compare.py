@@ -23,7 +23,7 @@ from __future__ import annotations
 import csv
 import itertools
 import math
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +32,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from kinadapt_nn.config import load_toml_model
 from kinadapt_nn.errors import ConfigError
 from kinadapt_nn.features import FEATURES, compared_types, features_spec
+from kinadapt_nn.runs.jobs import Job, Runner, Task, group_tasks, run_task_cells
 
 FAMILIES = ("nominal", "arm_errors")
 
@@ -97,44 +98,19 @@ def draw_tools(cfg: CompareCfg) -> dict[str, list[list[str]]]:
     return out
 
 
-def _job_config(job: tuple):
-    """The online config of one job (scenario, family, features, tool, overrides, tb, law)."""
-    from kinadapt_nn.config import load_config
+@dataclass(frozen=True)
+class CompareJob(Job):
+    """One run of the comparison: a (scenario, family, features, law) on one tool."""
 
-    _scenario, _family, features, _tool_i, overrides, _tb_dir, law = job
-    return load_config(None, ["run.progress=false", *overrides, f"run.features={features}",
-                              *([f"adaptation.mode={law}"] if law else [])])
-
-
-def _prefix_groups(jobs: list[tuple]) -> list[list[int]]:
-    """Job indices grouped where the jobs' configs differ in ``run.insertions`` only: a run of n
-    insertions holds every shorter one as its prefix (``runs.insertions.run_insertion_prefixes``),
-    so a group is simulated once, its longest member's insertions. Order: first appearance."""
-    groups: dict[str, list[int]] = {}
-    for i, job in enumerate(jobs):
-        cfg = _job_config(job)
-        key = cfg.model_copy(update={"run": cfg.run.model_copy(update={"insertions": 1})}).model_dump_json()
-        groups.setdefault(key, []).append(i)
-    return list(groups.values())
+    scenario: str = ""
+    family: str = ""  #: tool family (``FAMILIES``)
+    features: str = ""  #: features type
+    tool: int = 0  #: tool index within its family (``draw_tools``)
+    tb_dir: str = ""  #: its TensorBoard folder
+    law: str | None = None  #: adaptation.mode; None: the config's default law
 
 
-def _batch_groups(jobs: list[tuple], groups: list[list[int]]) -> list[list[int]]:
-    """The prefix groups merged where their jobs differ only in the hidden truth (tool, arm
-    errors): the same scenarios, features and law. Such a group runs its tools' insertion i as one
-    batch (``runs.insertions.run_cells`` on ``runs.batch.run_episodes``: the same traces and
-    summaries as each tool alone). At most :data:`BATCH_MAX` tools per group. Order: first appearance."""
-    merged: dict[tuple, list[list[int]]] = {}
-    for g in groups:
-        _scen, _fam, feat, _i, _over, _tb, law = jobs[g[0]]
-        merged.setdefault((tuple(jobs[i][0] for i in g), feat, law), []).append(g)
-    out = []
-    for tools in merged.values():  # batches of at most BATCH_MAX tools: the workers' loads stay even
-        for i in range(0, len(tools), BATCH_MAX):
-            out.append([j for g in tools[i:i + BATCH_MAX] for j in g])
-    return out
-
-
-#: tools per batch in ``kinadapt compare``. Measured on the 2-core VM, 2 workers, the bore
+#: tool cells per task in ``kinadapt compare``. Measured on the 2-core VM, 2 workers, the bore
 #: scenario only: 24 episodes, 6.01 s with 8 per batch, 6.18 s with 4, 6.15-6.28 s as single
 #: episodes; 72 episodes, 16.72 s with 8 per batch, 17.6 s with 4, 16.6-16.9 s single. In one
 #: process, 8 adjoint episodes take 0.83 of their single-episode time batched, 8 RBF ones 0.99
@@ -143,73 +119,48 @@ def _batch_groups(jobs: list[tuple], groups: list[list[int]]) -> list[list[int]]
 BATCH_MAX = 8
 
 
-def _tools(group: list[tuple]) -> dict[tuple, list[int]]:
-    """(family, tool index) -> the positions in ``group`` of that tool's jobs, in order."""
-    tools: dict[tuple, list[int]] = {}
-    for pos, job in enumerate(group):
-        tools.setdefault((job[1], job[3]), []).append(pos)
-    return tools
+def compare_tasks(jobs: list[CompareJob], batch_max: int | None = None) -> list[Task]:
+    """The comparison's tasks (``runs.jobs.group_tasks``): the tools of the same scenarios,
+    features and law stepped together (at most ``batch_max`` tools, default :data:`BATCH_MAX`),
+    runs that differ only in ``run.insertions`` simulated once. A task's cost: its tools' longest
+    jobs' (``FeaturesSpec.cost`` x insertions), times 0.85 for a batch (measured: a batch of 8
+    costs ~0.85 of its single episodes)."""
+    tasks = group_tasks(jobs, batch_max or BATCH_MAX, cost=_job_cost)
+    return [replace(t, cost=0.85 * t.cost) if len(t.cells) > 1 else t for t in tasks]
 
 
-def _run_group(group: list[tuple]) -> list[dict]:
-    """The jobs of one group (:func:`_batch_groups`): each tool's jobs (a prefix group,
-    :func:`_prefix_groups`) simulated once, its longest, the tools' insertions stepped together.
-    Their results in the group's order, each what the job run alone gives (its own TensorBoard run)."""
-    from kinadapt_nn.runs.insertions import run_cells
-
-    cfgs = [_job_config(job) for job in group]
-    tools = list(_tools(group).values())
-    longest = [max((cfgs[p] for p in ps), key=lambda c: c.run.insertions) for ps in tools]
-    runs = run_cells(longest, [c.run.insertions for c in cfgs])
-    results: list[dict | None] = [None] * len(group)
-    for ps, run in zip(tools, runs):
-        for p in ps:
-            results[p] = _job_result(group[p], cfgs[p], run[cfgs[p].run.insertions])
-    return results
+def _job_cost(job: CompareJob) -> float:
+    """A job's expected cost: the features type's (``FeaturesSpec.cost``) x insertions."""
+    ins = [o.split("=", 1)[1] for o in job.overrides if o.startswith("run.insertions=")]
+    spec = FEATURES.get(job.features)
+    return (spec.cost if spec else 1.0) * (int(ins[-1]) if ins and ins[-1].isdigit() else 1)
 
 
-def _job_result(job: tuple, cfg, res) -> dict:
+def _run_task(task: Task, report) -> list[dict]:
+    """A task's jobs (``runs.jobs.run_task_cells``), each one's row material; writes each job's
+    TensorBoard run."""
+    return [_job_result(job, cfg, res) for job, (cfg, res) in zip(task.jobs, run_task_cells(task, report))]
+
+
+def _job_result(job: CompareJob, cfg, res) -> dict:
     """A job's row material from its run ``res``; writes its TensorBoard run."""
     from kinadapt_nn.runs.insertions import judged_whole
     from kinadapt_nn.runs.tb import write_cell_tensorboard, write_tensorboard
 
-    scenario, family, features, tool_i, _overrides, tb_dir, _law = job
     s = judged_whole(res.summary)  # several insertions: judged from the first one's start to the last one's end
-    hp = {"features": features, "tool_family": family, "scenario": scenario, "tool": tool_i,
+    hp = {"features": job.features, "tool_family": job.family, "scenario": job.scenario, "tool": job.tool,
           "n_params": int(s["n_params"]), "law": s["law"]}
-    write_tensorboard(Path(tb_dir), res.trace, s, hp)
+    write_tensorboard(Path(job.tb_dir), res.trace, s, hp)
     if "cell" in s:
-        write_cell_tensorboard(Path(tb_dir), s)
+        write_cell_tensorboard(Path(job.tb_dir), s)
     t = res.trace["t_s"]
     idx = np.arange(0, len(t), 10)
     return {
-        "scenario": scenario, "tool_family": family, "features": features, "tool": tool_i, "summary": s,
-        "law": cfg.adaptation.mode,
+        "scenario": job.scenario, "tool_family": job.family, "features": job.features, "tool": job.tool,
+        "summary": s, "law": cfg.adaptation.mode,
         "t": t[idx].tolist(), "jac_err": res.trace["truth_jacobian_rel_error"][idx].tolist(),
         "insertions": s.get("insertions"), "cell": s.get("cell"),
     }
-
-
-def _job_cost(job: tuple) -> float:
-    """A job's expected cost: the features type's (``FeaturesSpec.cost``) x insertions (for the
-    longest-first order)."""
-    overrides = job[4]
-    ins = [o.split("=", 1)[1] for o in overrides if o.startswith("run.insertions=")]
-    spec = FEATURES.get(job[2])
-    return (spec.cost if spec else 1.0) * (int(ins[-1]) if ins and ins[-1].isdigit() else 1)
-
-
-def _group_cost(group: list[tuple]) -> float:
-    """A group's expected cost: each tool's longest job (its prefixes come with it), summed over
-    the tools, times 0.85 for a batch (measured: a batch of 8 costs ~0.85 of its single episodes)."""
-    costs = [max(_job_cost(group[p]) for p in ps) for ps in _tools(group).values()]
-    return 0.85 * sum(costs) if _is_batch(group) else sum(costs)
-
-
-def _is_batch(group: list[tuple]) -> bool:
-    """Whether a group of :func:`_batch_groups` steps several tools together (a batch) rather than
-    one tool's jobs (a prefix group)."""
-    return len(_tools(group)) > 1
 
 
 def _median(xs):
@@ -217,9 +168,8 @@ def _median(xs):
     return float(np.median(xs)) if xs else None
 
 
-def compare_jobs(cfg: CompareCfg, out: Path) -> list[tuple]:
-    """Every run of the comparison: (scenario, family, features, tool index, overrides, TensorBoard
-    folder, law), the tools drawn by :func:`draw_tools`."""
+def compare_jobs(cfg: CompareCfg, out: Path) -> list[CompareJob]:
+    """Every run of the comparison, the tools drawn by :func:`draw_tools`."""
     tools = draw_tools(cfg)
     jobs = []
     laws = list(cfg.laws) or [None]
@@ -229,40 +179,55 @@ def compare_jobs(cfg: CompareCfg, out: Path) -> list[tuple]:
                 for law in laws:
                     for i, over in enumerate(rows):
                         tb = out / "tb" / scen / fam / feat / (f"{law}/" if len(laws) > 1 else "") / f"tool{i}"
-                        jobs.append((scen, fam, feat, i, [*cfg.base, *scen_over, *over], str(tb), law))
+                        over_all = (*cfg.base, *scen_over, *over, f"run.features={feat}",
+                                    *([f"adaptation.mode={law}"] if law else []))
+                        jobs.append(CompareJob(id=f"{scen}/{fam}/{feat}/{law or ''}/tool{i}", overrides=over_all,
+                                               scenario=scen, family=fam, features=feat, tool=i, tb_dir=str(tb),
+                                               law=law))
     return jobs
 
 
 def run_compare(cfg: CompareCfg, out: Path, progress: bool = True) -> list[dict]:
     """Run every episode, write tb/, comparison.csv/.md and jacobian_error.png into ``out``."""
+    results = _run_jobs(cfg, out, progress)
+    rows = _rows(cfg, results)
+    cols = list(rows[0].keys()) if rows else []
+    with open(out / "comparison.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=cols)
+        w.writeheader()
+        w.writerows(rows)
+    (out / "comparison.md").write_text(_markdown(rows, cols))
+    _figure(results, cfg, out / "jacobian_error.png")
+    if any(r.get("cell") for r in results):
+        from kinadapt_nn.figures import cell_learning_figure, save_figure
+
+        save_figure(cell_learning_figure(results), out / "cell_learning.png")
+    return rows
+
+
+def _run_jobs(cfg: CompareCfg, out: Path, progress: bool) -> list[dict]:
+    """Every job of the comparison on ``cfg.jobs`` workers (``runs.jobs.Runner``) -> each job's
+    row material (:func:`_job_result`), in :func:`compare_jobs`' order."""
     jobs = compare_jobs(cfg, out)
-    from kinadapt_nn.config import load_config
-    from kinadapt_nn.runs.episode import precompile
+    tasks = compare_tasks(jobs)  # single episodes batched; insertion prefixes once
 
-    kinds = {(feat, law): over for _scen, _fam, feat, _i, over, _tb, law in jobs}  # the tool changes no kernel
-    precompile([load_config(None, ["run.progress=false", *over, f"run.features={feat}",
-                                   *([f"adaptation.mode={law}"] if law else [])])
-                for (feat, law), over in kinds.items()], progress)  # before the workers
-    bar = None
-    if progress:
-        from tqdm import tqdm
+    def figures() -> None:  # matplotlib, while the workers run: the figure then only draws
+        import kinadapt_nn.figures  # noqa: F401
 
-        bar = tqdm(total=len(jobs), desc="compare", unit="episode")
-    groups = _batch_groups(jobs, _prefix_groups(jobs))  # single episodes batched; insertion prefixes once
-    groups.sort(key=lambda g: -_group_cost([jobs[i] for i in g]))  # the longest first: no lone tail
-    done: dict[int, dict] = {}
-    with ProcessPoolExecutor(max_workers=cfg.jobs) as ex:
-        futures = {ex.submit(_run_group, [jobs[i] for i in g]): g for g in groups}
-        import kinadapt_nn.figures  # noqa: F401  (matplotlib, while the workers run: the figure then only draws)
-        for fut in as_completed(futures):
-            g = futures[fut]
-            for i, r in zip(g, fut.result()):
-                done[i] = r
-            if bar is not None:
-                bar.update(len(g))
-    results = [done[i] for i in range(len(jobs))]
-    if bar is not None:
-        bar.close()
+    with Runner(cfg.jobs, progress=progress) as runner:
+        kinds = {(j.features, j.law): j for j in jobs}  # the tool changes no kernel
+        runner.precompile(j.config() for j in kinds.values())  # before the workers
+        per_task = runner.run(_run_task, tasks, f"compare ({len(jobs)} runs)", meanwhile=figures)
+    index = {j.id: i for i, j in enumerate(jobs)}
+    results: list = [None] * len(jobs)
+    for task, res in zip(tasks, per_task):
+        for job, r in zip(task.jobs, res):
+            results[index[job.id]] = r
+    return results
+
+
+def _rows(cfg: CompareCfg, results: list[dict]) -> list[dict]:
+    """The table: one row per (scenario, features, family, law); a work cell adds one per insertion."""
     rows = []
     law_names = list(dict.fromkeys(r["law"] for r in results))
     for scen, feat, fam, law in itertools.product(cfg.scenarios, cfg.features, cfg.families, law_names):
@@ -292,39 +257,38 @@ def run_compare(cfg: CompareCfg, out: Path, progress: bool = True) -> list[dict]
         })
         cells = [g["cell"] for g in grp if g.get("cell")]
         if cells:  # a work cell: one row per insertion (0 = before the first), medians over tools
-            rows[-1]["insertion"] = "all"
-            rows[-1]["jacobian_error_cell_median"] = _median([c["jacobian_error_cell_median"][-1] for c in cells])
-            for k in range(len(cells[0]["jacobian_error_cell_median"])):
-                ins = [g["insertions"][k - 1] for g in grp] if k else []
-                rows.append({
-                    "scenario": scen, "features": feat, "tool_family": fam, "law": law, "episodes": len(grp),
-                    "success_rate": sum(r["success"] for r in ins) / len(ins) if ins else None,
-                    "seat_time_s_median": _median([r["seat_time_s"] for r in ins]) if ins else None,
-                    "jacobian_rel_error_initial_median": _median([r["jacobian_rel_error_initial"] for r in ins]) if ins else None,
-                    "jacobian_rel_error_final_median": _median([r["jacobian_rel_error_final"] for r in ins]) if ins else None,
-                    "pred_error_rms_median": None,
-                    "offset_error_lateral_final_m_median": (_median([r["offset_error_lateral_final_m"] for r in ins])
-                                                            if ins else None),
-                    "min_lambda_JJt_median": None,
-                    "contact_transitions_per_s_median": (_median([r.get("contact_transitions_per_s") for r in ins])
-                                                         if ins else None),
-                    "longest_contact_span_s_median": (_median([r.get("longest_contact_span_s") for r in ins])
-                                                      if ins else None),
-                    "n_params": grp[0]["n_params"], "wall_time_s_median": None,
-                    "insertion": k,
-                    "jacobian_error_cell_median": _median([c["jacobian_error_cell_median"][k] for c in cells]),
-                })
-    cols = list(rows[0].keys()) if rows else []
-    with open(out / "comparison.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=cols)
-        w.writeheader()
-        w.writerows(rows)
-    (out / "comparison.md").write_text(_markdown(rows, cols))
-    _figure(results, cfg, out / "jacobian_error.png")
-    if any(r.get("cell") for r in results):
-        from kinadapt_nn.figures import cell_learning_figure, save_figure
+            rows += _cell_rows(rows.pop(), grp, cells)
+    return rows
 
-        save_figure(cell_learning_figure(results), out / "cell_learning.png")
+
+def _cell_rows(row: dict, grp: list[dict], cells: list[dict]) -> list[dict]:
+    """A work cell's rows: its run's (``insertion = "all"``, the cell error after the last
+    insertion) and one per insertion (0 = before the first), medians over tools."""
+    row = dict(row, insertion="all",
+               jacobian_error_cell_median=_median([c["jacobian_error_cell_median"][-1] for c in cells]))
+    rows = [row]
+    for k in range(len(cells[0]["jacobian_error_cell_median"])):
+        ins = [g["insertions"][k - 1] for g in grp] if k else []
+
+        def med(key: str, ins=ins):
+            return _median([r.get(key) for r in ins]) if ins else None
+
+        rows.append({
+            "scenario": row["scenario"], "features": row["features"], "tool_family": row["tool_family"],
+            "law": row["law"], "episodes": len(grp),
+            "success_rate": sum(r["success"] for r in ins) / len(ins) if ins else None,
+            "seat_time_s_median": med("seat_time_s"),
+            "jacobian_rel_error_initial_median": med("jacobian_rel_error_initial"),
+            "jacobian_rel_error_final_median": med("jacobian_rel_error_final"),
+            "pred_error_rms_median": None,
+            "offset_error_lateral_final_m_median": med("offset_error_lateral_final_m"),
+            "min_lambda_JJt_median": None,
+            "contact_transitions_per_s_median": med("contact_transitions_per_s"),
+            "longest_contact_span_s_median": med("longest_contact_span_s"),
+            "n_params": grp[0]["n_params"], "wall_time_s_median": None,
+            "insertion": k,
+            "jacobian_error_cell_median": _median([c["jacobian_error_cell_median"][k] for c in cells]),
+        })
     return rows
 
 

@@ -13,6 +13,7 @@ the wall times (``tests/runs/test_cell.py``).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -50,13 +51,16 @@ def _cell_layout(cfg: ExperimentCfg, n: int) -> tuple:
         cfg.cell.between
 
 
-def run_cells(cfgs: list[ExperimentCfg], counts, progress: bool = False) -> list[dict[int, EpisodeResult]]:
+def run_cells(cfgs: list[ExperimentCfg], counts, progress: bool = False,
+              on_insertion: Callable[[int], None] | None = None) -> list[dict[int, EpisodeResult]]:
     """:func:`run_insertion_prefixes` for every config of ``cfgs`` -- cells that differ only in the
     hidden truth (tool, arm errors, seed) -- with insertion i of every cell stepped as one batch
     (``runs.batch.run_episodes``; one cell: ``run_episode``, with its progress bar). -> one
     {k: result} per config, each what ``run_insertion_prefixes(cfg, counts)`` gives (to the last
     bit, but ``wall_time_s``: the insertion's share of the batch). Cells with other bores, bore
-    order or refit settings, or any other known setting, get a ``ConfigError``."""
+    order or refit settings, or any other known setting, get a ``ConfigError``. ``on_insertion(n)``
+    is called as each insertion ends, n = len(cfgs) episodes (a job runner's progress)."""
+    tell = on_insertion or (lambda _n: None)
     counts = sorted({int(k) for k in counts})
     if not counts or counts[0] < 1:
         raise ValueError(f"insertion counts must be >= 1, got {counts}")
@@ -69,7 +73,9 @@ def run_cells(cfgs: list[ExperimentCfg], counts, progress: bool = False) -> list
                           "-- run them separately")
     is_cell = bool(cfgs[0].cell.bores_w_m)
     if n == 1 and not is_cell:
-        return [{1: r} for r in _episodes(cfgs, [None] * len(cfgs), progress, keep_regressor=False)]
+        out = [{1: r} for r in _episodes(cfgs, [None] * len(cfgs), progress, keep_regressor=False)]
+        tell(len(cfgs))
+        return out
     with core.compiling(progress) as phase:  # a first run's one-time compile: its own bar
         ctrls = [make_controller(c) for c in cfgs]
         for k in ctrls:
@@ -86,6 +92,7 @@ def run_cells(cfgs: list[ExperimentCfg], counts, progress: bool = False) -> list
         cfg_i = [_start_insertion(c, k, i) for c, k in zip(cfgs, ctrls)]
         for cell, r in zip(cells, _episodes(cfg_i, ctrls, progress, keep)):
             cell.after(i, r, counts, is_cell)
+        tell(len(cfgs))
         if bar is not None:
             bar.update(1)
     if bar is not None:

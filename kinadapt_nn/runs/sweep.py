@@ -26,6 +26,7 @@ import json
 import math
 import re
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +36,7 @@ from kinadapt_nn.config import load_config, load_toml_model
 from kinadapt_nn.errors import ConfigError, KinadaptError
 from kinadapt_nn.features import features_spec
 from kinadapt_nn.runio import write_text_atomic
+from kinadapt_nn.runs.jobs import Job, Runner, Task, group_tasks, run_task_cells
 
 
 class SweepCfg(BaseModel):
@@ -87,46 +89,50 @@ def tool_overrides(cfg: SweepCfg, seed: int) -> list[str]:
     return [f"tool.offset_f_m=[{rad * math.cos(ang):.7f}, {rad * math.sin(ang):.7f}, {length:.7f}]"]
 
 
-def episode_jobs(cfg: SweepCfg) -> list[dict]:
+@dataclass(frozen=True)
+class SweepJob(Job):
+    """One episode (or work cell) of a sweep: ``<group>-s<seed>``."""
+
+    group: str = ""  #: the group's name
+    seed: int = 0  #: run.seed
+
+
+def episode_jobs(cfg: SweepCfg) -> list[SweepJob]:
     jobs = []
     for name, over in expand_groups(cfg).items():
         for seed in range(cfg.seed_offset, cfg.seed_offset + cfg.seeds):
-            full = [*cfg.base, *over, *tool_overrides(cfg, seed), f"run.seed={seed}", "run.progress=false"]
-            jobs.append({"id": f"{_slug(name)}-s{seed}", "group": name, "seed": seed, "overrides": full})
+            full = (*cfg.base, *over, *tool_overrides(cfg, seed), f"run.seed={seed}", "run.progress=false")
+            jobs.append(SweepJob(id=f"{_slug(name)}-s{seed}", overrides=full, group=name, seed=seed))
     return jobs
 
 
-def run_job(job: dict) -> dict:
-    """One episode, or ``run.insertions`` of them (a work cell) -> a flat record (no files, so it
-    can run anywhere: a local worker or Ray)."""
-    from kinadapt_nn.runs.insertions import run_insertions
-
-    return _record(job, run_insertions(load_config(None, job["overrides"])).summary)
+def run_task(task: Task, report) -> list[dict]:
+    """A task's episode -> its flat record (no files, so it can run anywhere: a local worker or
+    Ray): one episode, or ``run.insertions`` of them (a work cell), what ``run_insertions`` gives."""
+    return [_record(j, r.summary) for j, (_c, r) in zip(task.jobs, run_task_cells(task, report))]
 
 
-def run_batch_job(jobs: list[dict]) -> list[dict]:
-    """Episodes of one group stepped together (``runs.batch``) -> their flat records, in order.
-    Runs of several insertions or work cells step each insertion together
-    (``runs.insertions.run_cells``)."""
-    cfgs = [load_config(None, j["overrides"]) for j in jobs]
+def run_batch_task(task: Task, report) -> list[dict]:
+    """``batch = true``: a task's episodes stepped together by ``runs.batch.run_batch`` ->
+    their flat records, in order (summaries without traces). Runs of several insertions or work
+    cells step each insertion together (``runs.insertions.run_cells``)."""
+    cfgs = [j.config() for j in task.jobs]
     if any(c.run.insertions > 1 or c.cell.bores_w_m for c in cfgs):
-        from kinadapt_nn.runs.insertions import run_cells
-
-        runs = run_cells(cfgs, [c.run.insertions for c in cfgs])
-        return [_record(j, r[c.run.insertions].summary) for j, c, r in zip(jobs, cfgs, runs)]
+        return run_task(task, report)
     from kinadapt_nn.runs.batch import run_batch
 
     res = run_batch(cfgs, nthread=1)
-    return [_record(j, s) for j, s in zip(jobs, res.summaries)]
+    report(len(cfgs))
+    return [_record(j, s) for j, s in zip(task.jobs, res.summaries)]
 
 
-def _record(job: dict, s: dict) -> dict:
+def _record(job: SweepJob, s: dict) -> dict:
     """A flat record of a run's summary: its scalars and short number lists; several insertions
     are judged as a whole (``runs.insertions.judged_whole``)."""
     from kinadapt_nn.runs.insertions import judged_whole
 
     s = judged_whole(s)
-    rec = {"id": job["id"], "group": job["group"], "seed": job["seed"], "overrides": " ".join(job["overrides"])}
+    rec = {"id": job.id, "group": job.group, "seed": job.seed, "overrides": " ".join(job.overrides)}
     for k, v in s.items():
         if isinstance(v, (bool, int, float, str)) or v is None:
             rec[k] = v
@@ -136,16 +142,13 @@ def _record(job: dict, s: dict) -> dict:
     return rec
 
 
-def batch_tasks(cfg: SweepCfg, todo: list[dict]) -> list[list[dict]]:
-    """``todo`` split into worker tasks for ``batch = true``: each holds episodes of one group (a
-    batch shares every known setting), at most ``batch_size``, and a group is split into at least
-    ``jobs`` tasks where it has that many episodes, so every worker has work."""
-    tasks = []
-    for g in dict.fromkeys(j["group"] for j in todo):
-        js = [j for j in todo if j["group"] == g]
-        k = max(math.ceil(len(js) / cfg.batch_size), min(cfg.jobs, len(js)))
-        tasks += [js[i::k] for i in range(k)]
-    return tasks
+def sweep_tasks(cfg: SweepCfg, todo: list[SweepJob]) -> list[Task]:
+    """``todo`` split into worker tasks (``runs.jobs.group_tasks``): one episode each, or with
+    ``batch = true`` episodes that share every known setting, at most ``batch_size``, and such a
+    group split into at least ``jobs`` tasks where it has that many episodes, so every worker has work."""
+    if not cfg.batch:
+        return group_tasks(todo, 1)
+    return group_tasks(todo, cfg.batch_size, min_tasks=cfg.jobs)
 
 
 def wilson_interval(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
@@ -176,7 +179,7 @@ def _stats(recs: list[dict]) -> dict:
 def aggregate(out: Path, jobs: list[dict]) -> dict:
     recs = []
     for j in jobs:
-        p = out / "episodes" / f"{j['id']}.json"
+        p = out / "episodes" / f"{j.id}.json"
         if p.is_file():
             recs.append(json.loads(p.read_text()))
     cols: list[str] = []
@@ -203,6 +206,10 @@ def aggregate(out: Path, jobs: list[dict]) -> dict:
 
 def run_sweep(cfg: SweepCfg, out: Path, executor: str = "local", address: str | None = None,
               progress: bool = True) -> dict:
+    """Run the sweep's episodes not yet in ``out/episodes`` on ``cfg.jobs`` local workers or on Ray
+    (``runs.jobs.Runner``: without ``address`` a Ray of this call's own), each episode's record
+    written as its task ends; then ``sweep.csv`` and ``sweep.json`` from every record. -> the
+    aggregate (``sweep.json``) plus ``wall_time_s_this_run``."""
     out = Path(out)
     (out / "episodes").mkdir(parents=True, exist_ok=True)
     cfg_text = json.dumps(cfg.model_dump(mode="json"), indent=1, sort_keys=True)
@@ -211,52 +218,28 @@ def run_sweep(cfg: SweepCfg, out: Path, executor: str = "local", address: str | 
         raise KinadaptError(f"'{out}' holds a different sweep (sweep_config.json differs); use another --out")
     write_text_atomic(cfg_path, cfg_text)
     jobs = episode_jobs(cfg)
-    todo = [j for j in jobs if not (out / "episodes" / f"{j['id']}.json").is_file()]
-    if todo and executor == "local":  # the kernels once here, not in every worker at once
-        from kinadapt_nn.runs.episode import precompile
+    todo = [j for j in jobs if not (out / "episodes" / f"{j.id}.json").is_file()]
 
-        groups = {j["group"]: j for j in todo}  # one config per group (the seed changes no kernel)
-        precompile([load_config(None, j["overrides"]) for j in groups.values()], progress)
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="sweep", unit="episode")
-
-    def done(result) -> None:  # a record (run_job) or a batch task's records (run_batch_job)
-        for rec in result if cfg.batch else [result]:
+    def done(_task: Task, records: list[dict]) -> None:
+        for rec in records:
             write_text_atomic(out / "episodes" / f"{rec['id']}.json", json.dumps(rec) + "\n")
-            if bar is not None:
-                bar.update(1)
 
-    fn, tasks = (run_batch_job, batch_tasks(cfg, todo)) if cfg.batch else (run_job, todo)
     t0 = time.perf_counter()
-    if executor == "local":
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
-        with ProcessPoolExecutor(max_workers=cfg.jobs) as ex:
-            futs = [ex.submit(fn, j) for j in tasks]
-            for f in as_completed(futs):
-                done(f.result())
-    elif executor == "ray":
-        try:
-            import ray
-        except ImportError:
-            raise KinadaptError("--executor ray needs the [ray] extra: pip install -e \".[ray]\"") from None
-        try:
-            ray.init(address=address or "auto", ignore_reinit_error=True, log_to_driver=False)
-        except Exception as exc:  # ray raises ConnectionError and friends
-            raise KinadaptError(f"cannot connect to a Ray cluster at {address or 'auto'} ({str(exc).splitlines()[0]}); "
-                                "start one with 'ray start --head' or pass --address") from None
-        remote = ray.remote(fn)
-        pending = [remote.remote(j) for j in tasks]
-        while pending:
-            ready, pending = ray.wait(pending, num_returns=1)
-            done(ray.get(ready[0]))
-    else:
-        raise KinadaptError(f"--executor {executor!r}: choose local or ray")
-    if bar is not None:
-        bar.close()
+    with Runner(cfg.jobs, executor, address, progress) as runner:
+        if todo:  # the kernels once here, not in every worker at once (one config per group: the seed changes none)
+            runner.precompile([j.config() for j in {j.group: j for j in todo}.values()])
+        finished = [j for j in jobs if j not in set(todo)]
+        runner.run(run_batch_task if cfg.batch else run_task, sweep_tasks(cfg, todo), "sweep", on_done=done,
+                   done_before=_episodes_of(finished))
     summary = aggregate(out, jobs)
     summary["wall_time_s_this_run"] = time.perf_counter() - t0
     return summary
+
+
+def _episodes_of(jobs: list[SweepJob]) -> int:
+    """Episodes (insertions) the jobs simulate: ``run.insertions`` each (the seed changes it not)."""
+    per_group: dict[str, int] = {}
+    for j in jobs:
+        if j.group not in per_group:
+            per_group[j.group] = j.config().run.insertions
+    return sum(per_group[j.group] for j in jobs)

@@ -60,7 +60,7 @@ def socket_params(cfg, entry_w: np.ndarray, bore_axis_w: np.ndarray) -> np.ndarr
 
 
 @nb.njit(cache=True)
-def socket_step(t, st, prm, tip, R, com, cvel, subtree_com, xfrc):
+def socket_step(t, st, prm, tip, R, com, cvel, subtree_com, xfrc):  # noqa: PLR0913 (a numba kernel: flat arrays by necessity)
     """One step of the socket for one simulation, in place: ``st`` (N_STATE,) its state, ``prm``
     (N_PARAMS,), the current ``tip`` (3,) (the tip site, world), ``R`` (9,) the tool body's
     orientation (row-major), ``com`` (3,) its centre of mass, ``cvel`` (6,) its com-based

@@ -33,7 +33,7 @@ def one_law_step(name: str, Phi: np.ndarray, eps: np.ndarray, theta: np.ndarray 
     prior = params.pop("prior_cov", np.eye(p))
     law = StandaloneLaw(name, LawParams.of(AdaptationCfg(), params.pop("dt_s", 1e-3), prior, **params), np.ones(m),
                         np.full(p, -np.inf) if lo is None else lo, np.full(p, np.inf) if hi is None else hi,
-                        filter_tau_s=0.0, contact_force_N=0.0, contact_moment_Nm=0.0)
+                        filter_tau_s=0.0)
     theta = np.zeros(p) if theta is None else np.asarray(theta, dtype=float)
     theta_next, a = law.update(np.zeros(m), Phi, theta, eps, np.zeros(m) if F is None else F, np.ones(6))
     return theta_next, a, law

@@ -75,8 +75,7 @@ def test_kalman_updates_equal_the_batch_posterior():
     P0 = np.diag(rng.uniform(0.5, 2.0, p))
     th0 = rng.normal(size=p)
     law = StandaloneLaw("kalman", LawParams.of(AdaptationCfg(), 1e-3, P0, gamma_d=0.0, act_sd_ratio=1.0), np.ones(m),
-                        np.full(p, -np.inf), np.full(p, np.inf), filter_tau_s=0.0, contact_force_N=0.0,
-                        contact_moment_Nm=0.0)
+                        np.full(p, -np.inf), np.full(p, np.inf), filter_tau_s=0.0)
     theta = th0.copy()
     info, vec = np.linalg.inv(P0), np.linalg.inv(P0) @ th0
     for _ in range(N):
@@ -94,8 +93,7 @@ def _law(Phi, P0):
     params = LawParams.of(AdaptationCfg(), 1e-3, P0, gamma=1.0, gamma_d=0.0, eta=0.5, eps_norm=1e-4, corr_s=0.05,
                           resid_tau_s=1.0, resid_floor_w=1e-4, persist_tau_s=0.5, act_sd_ratio=0.4)
     p = P0.shape[0]
-    return StandaloneLaw("kalman", params, np.ones(6), np.full(p, -np.inf), np.full(p, np.inf), filter_tau_s=1e-6,
-                         contact_force_N=0.0, contact_moment_Nm=0.0), Phi
+    return StandaloneLaw("kalman", params, np.ones(6), np.full(p, -np.inf), np.full(p, np.inf), filter_tau_s=1e-6), Phi
 
 
 def _drive(law_phi, theta, y_of_t, n, qdot_of_t):

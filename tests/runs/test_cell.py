@@ -289,13 +289,13 @@ def test_cells_stepped_together_equal_each_cell_alone():
 def test_compare_simulates_runs_that_differ_in_insertions_once(tmp_path):
     """``kinadapt compare``: scenarios that differ only in run.insertions form one group (the
     default compare's 72 runs are 48 simulations); a scenario's row is what its runs alone give."""
-    from kinadapt_nn.runs.compare import _prefix_groups, compare_jobs, draw_tools, load_compare_config, run_compare
+    from kinadapt_nn.runs.compare import compare_jobs, compare_tasks, draw_tools, load_compare_config, run_compare
     from kinadapt_nn.runs.insertions import run_insertions
 
     jobs = compare_jobs(load_compare_config(None), tmp_path)
-    groups = _prefix_groups(jobs)
-    assert len(groups) == 48 and sorted(len(g) for g in groups) == [1] * 24 + [2] * 24
-    assert all({jobs[i][0] for i in g} == {"socket_dither", "socket_dither_x3"} for g in groups if len(g) == 2)
+    cells = [[t.jobs[p] for p in ps] for t in compare_tasks(jobs) for ps in t.cells]
+    assert len(cells) == 48 and sorted(len(c) for c in cells) == [1] * 24 + [2] * 24
+    assert all({j.scenario for j in c} == {"socket_dither", "socket_dither_x3"} for c in cells if len(c) == 2)
 
     short = [*SOCKET, "run.duration_s=1.5"]
     cfg = load_compare_config(None, ["features=['adjoint']", "families=['nominal']", "n_tools=1", "jobs=1",
@@ -318,18 +318,19 @@ def test_compare_batches_single_episodes_with_the_rows_of_single_runs(tmp_path, 
     import kinadapt_nn.runs.compare as C
 
     jobs = C.compare_jobs(C.load_compare_config(None), tmp_path)
-    groups = C._batch_groups(jobs, C._prefix_groups(jobs))
-    assert len(groups) == 6 and all(len(C._tools([jobs[i] for i in g])) == 8 for g in groups)
-    assert sorted(len(g) for g in groups) == [8] * 3 + [16] * 3  # bore: 8 tools; socket: 8 tools x (1, 3) insertions
-    assert all({jobs[i][0] for i in g} in ({"bore"}, {"socket_dither", "socket_dither_x3"}) for g in groups)
-    assert sorted(i for g in groups for i in g) == list(range(len(jobs)))
+    tasks = C.compare_tasks(jobs)
+    assert len(tasks) == 6 and all(len(t.cells) == 8 for t in tasks)
+    assert sorted(len(t.jobs) for t in tasks) == [8] * 3 + [16] * 3  # bore: 8 tools; socket: 8 tools x (1, 3) insertions
+    assert sorted(t.episodes for t in tasks) == [8] * 3 + [24] * 3  # the bar's unit: insertions simulated
+    assert all({j.scenario for j in t.jobs} in ({"bore"}, {"socket_dither", "socket_dither_x3"}) for t in tasks)
+    assert sorted(j.id for t in tasks for j in t.jobs) == sorted(j.id for j in jobs)
     short = ["run.duration_s=1.5", "start.lateral_jitter_m=0.0003"]
     cfg = C.load_compare_config(None, ["features=['adjoint','neural']", "n_tools=2", "jobs=1",
                                        f"scenarios={{one={short!r},two={[*short, 'run.insertions=2']!r}}}"])
     tables = {}
     for mode in ("batch", "single"):
         if mode == "single":
-            monkeypatch.setattr(C, "_batch_groups", lambda jobs, groups: groups)
+            monkeypatch.setattr(C, "BATCH_MAX", 1)  # one tool per task: its prefixes, no batch
         out = tmp_path / mode
         out.mkdir()
         rows = C.run_compare(cfg, out, progress=False)

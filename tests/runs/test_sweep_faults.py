@@ -83,14 +83,15 @@ def test_batched_sweep_records_what_the_episode_by_episode_sweep_records(tmp_pat
     digit, and the same aggregate; resuming runs only what is missing."""
     import csv
 
-    from kinadapt_nn.runs.sweep import batch_tasks, episode_jobs
+    from kinadapt_nn.runs.sweep import episode_jobs, sweep_tasks
 
     over = ["seeds=3", "jobs=2", "base=['run.stop_after_seat_s=0.05','start.lateral_jitter_m=0.0003']",
             "groups={a=[], b=['faults.ft_noise_N=0.5','faults.ft_dropout_prob=0.05']}"]
     one = run_sweep(load_sweep_config(None, over), tmp_path / "one", progress=False)
     cfg = load_sweep_config(None, [*over, "batch=true", "batch_size=2"])
-    tasks = batch_tasks(cfg, episode_jobs(cfg))
-    assert [len(t) for t in tasks] == [2, 1, 2, 1] and all(len({j["group"] for j in t}) == 1 for t in tasks)
+    tasks = sweep_tasks(cfg, episode_jobs(cfg))
+    assert [len(t.jobs) for t in tasks] == [2, 1, 2, 1] and all(len({j.group for j in t.jobs}) == 1 for t in tasks)
+    assert [t.episodes for t in tasks] == [2, 1, 2, 1]
     bat = run_sweep(cfg, tmp_path / "bat", progress=False)
     for k in ("total", "groups"):
         assert bat[k] == one[k]
@@ -123,9 +124,9 @@ def test_sweep_of_repeated_insertions_runs_every_insertion_batched_or_not(tmp_pa
     assert all(rows["bat"][i][c] == rows["one"][i][c] for i in rows["one"] for c in cols)
     assert one["total"] == bat["total"] and one["total"]["successes"] == 2
     job = episode_jobs(load_sweep_config(None, over))[1]
-    alone = run_insertions(load_config(None, job["overrides"])).summary
-    assert len(alone["insertions"]) == 2 and rows["one"][job["id"]]["insertions_seated"] == "2"
-    assert float(rows["one"][job["id"]]["seat_time_s"]) == alone["seat_time_s"]  # the last insertion's
+    alone = run_insertions(load_config(None, job.overrides)).summary
+    assert len(alone["insertions"]) == 2 and rows["one"][job.id]["insertions_seated"] == "2"
+    assert float(rows["one"][job.id]["seat_time_s"]) == alone["seat_time_s"]  # the last insertion's
 
 
 def test_killed_sweep_completes_every_episode_exactly_once(tmp_path):
@@ -228,20 +229,16 @@ def test_cli_exit_2_on_bad_sweep_and_compare_configs(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_ray_sweep_matches_the_local_sweep(tmp_path):
-    """For real: a local Ray head (ray start --head), 32 episodes, same rows as the local executor."""
-    pytest.importorskip("ray")
+    """For real: ``--executor ray`` without ``--address`` starts a Ray of the command's own (on
+    127.0.0.1) and stops it at the end -- no other Ray on the machine is touched; 32 episodes,
+    the same rows as the local executor."""
+    ray = pytest.importorskip("ray")
     import csv
 
-    started = subprocess.run(["ray", "start", "--head", "--num-cpus=2", "--include-dashboard=false",
-                              "--disable-usage-stats"], capture_output=True)
-    if started.returncode != 0:
-        pytest.skip("could not start a local Ray head")
-    try:
-        sets = ["--set", "seeds=16", "--set", "groups={a=[], b=['faults.ft_noise_N=0.5']}", "--quiet"]
-        assert main(["sweep", "--out", str(tmp_path / "ray"), "--executor", "ray", *sets]) == 0
-        assert main(["sweep", "--out", str(tmp_path / "local"), *sets]) == 0
-    finally:
-        subprocess.run(["ray", "stop"], capture_output=True)
+    sets = ["--set", "seeds=16", "--set", "groups={a=[], b=['faults.ft_noise_N=0.5']}", "--quiet"]
+    assert main(["sweep", "--out", str(tmp_path / "ray"), "--executor", "ray", *sets]) == 0
+    assert not ray.is_initialized()  # the command's own Ray is shut down
+    assert main(["sweep", "--out", str(tmp_path / "local"), *sets]) == 0
 
     def rows(p):
         return {r["id"]: {k: v for k, v in r.items() if k != "wall_time_s"} for r in csv.DictReader(open(p))}

@@ -92,31 +92,13 @@ def step(theta, H_T, G, e, PhiF, lo, hi, consts, x, k, unc, d_track, d_pred):
         vcopy(th, theta)
         vcopy(prior, theta)
         k[KF_INIT] = 1
-    # R = diag(r2 + floor) n_eff; n_eff = max(corr_s/dt, (2 tau_m/dt) r1^2 / r2)
-    e_kf = np.empty(m)
-    for i in range(m):
-        n_eff = max(c[N_CORR], c[N_PERSIST] * (r1[i] * r1[i]) / (r2[i] + c[R_FLOOR]))
-        R[i] = (r2[i] + c[R_FLOOR]) * n_eff
-        v = 0.0
-        for j in range(p):
-            v += (th[j] - theta[j]) * H_T[j, i]
-        e_kf[i] = e[i] - v  # innovation of the filter's estimate
+    e_kf = _noise_and_innovation(th, theta, H_T, e, r2, r1, R, c)
     if not _measurement_update(P, H_T, e_kf, R, d_pred):
         return n2
     for j in range(p):
         th[j] += d_pred[j]
-    if c[GAMMA_D] > 0.0:  # eq. ft_composite's tracking term with Gamma = P: P PhiF as sum_j PhiF_j P[j, :]
-        for i in range(p):  # (P is exactly symmetric: rows are columns; contiguous row sweeps vectorise)
-            d_track[i] = 0.0
-        for j in range(p):
-            v = PhiF[j]
-            Pj = P[j]
-            for i in range(p):
-                d_track[i] += v * Pj[i]
-        g = -c[DT] * c[GAMMA_D]
-        for i in range(p):
-            d_track[i] *= g
-            th[i] += d_track[i]
+    if c[GAMMA_D] > 0.0:
+        _tracking_term(P, PhiF, c, d_track, th)
     for j in range(p):  # Proj_Omega (clip)
         th[j] = min(max(th[j], lo[j]), hi[j])
     k[ACT_K] += 1
@@ -127,10 +109,58 @@ def step(theta, H_T, G, e, PhiF, lo, hi, consts, x, k, unc, d_track, d_pred):
         o = N_SCALARS + pp
         identified_projector(P, c[o:o + pp].reshape((p, p)), c[o + pp:o + 2 * pp].reshape((p, p)), c[ACT_RATIO], A,
                              True)
+    _act_identified(theta, th, prior, A)
+    tr = 0.0
+    for j in range(p):
+        tr += P[j, j]
+    unc[0] = math.sqrt(max(tr, 0.0) / c[TR_P0])
+    return n2
+
+
+@nb.njit(cache=True)
+def _noise_and_innovation(th, theta, H_T, e, r2, r1, R, c):
+    """R = diag(r2 + floor) n_eff, n_eff = max(corr_s/dt, (2 tau_m/dt) r1^2 / r2), into ``R``
+    (m,). -> the innovation of the filter's estimate, e - H (theta_kf - theta) (m,)."""
+    p, m = H_T.shape
+    e_kf = np.empty(m)
+    for i in range(m):
+        n_eff = max(c[N_CORR], c[N_PERSIST] * (r1[i] * r1[i]) / (r2[i] + c[R_FLOOR]))
+        R[i] = (r2[i] + c[R_FLOOR]) * n_eff
+        v = 0.0
+        for j in range(p):
+            v += (th[j] - theta[j]) * H_T[j, i]
+        e_kf[i] = e[i] - v
+    return e_kf
+
+
+@nb.njit(cache=True)
+def _tracking_term(P, PhiF, c, d_track, th):
+    """eq. ft_composite's tracking term with Gamma = P: d_track = -dt gamma_d P PhiF, added to
+    ``th``. P PhiF as sum_j PhiF_j P[j, :] (P is exactly symmetric: rows are columns; contiguous
+    row sweeps vectorise)."""
+    p = th.shape[0]
+    for i in range(p):
+        d_track[i] = 0.0
+    for j in range(p):
+        v = PhiF[j]
+        Pj = P[j]
+        for i in range(p):
+            d_track[i] += v * Pj[i]
+    g = -c[DT] * c[GAMMA_D]
+    for i in range(p):
+        d_track[i] *= g
+        th[i] += d_track[i]
+
+
+@nb.njit(cache=True)
+def _act_identified(theta, th, prior, A):
+    """theta = prior + Pi (th - prior): act on the identified part only, Pi dth = sum_j dth_j
+    Pi[:, j] (``A`` holds Pi^T)."""
+    p = th.shape[0]
     dth = np.empty(p)
     for j in range(p):
         dth[j] = th[j] - prior[j]
-    act = np.zeros(p)  # act on the identified part only: Pi dth = sum_j dth_j Pi[:, j] (A holds Pi^T)
+    act = np.zeros(p)
     for j in range(p):
         v = dth[j]
         if v != 0.0:
@@ -139,11 +169,6 @@ def step(theta, H_T, G, e, PhiF, lo, hi, consts, x, k, unc, d_track, d_pred):
                 act[i] += v * Aj[i]
     for i in range(p):
         theta[i] = prior[i] + act[i]
-    tr = 0.0
-    for j in range(p):
-        tr += P[j, j]
-    unc[0] = math.sqrt(max(tr, 0.0) / c[TR_P0])
-    return n2
 
 
 @nb.njit(cache=True)
@@ -252,33 +277,17 @@ def identified_projector(P, L, Linv, ratio, A, transposed=False):
     sums them with contiguous row sweeps)."""
     p = P.shape[0]
     if ratio >= 1.0:
-        for i in range(p):
-            for j in range(p):
-                A[i, j] = 1.0 if i == j else 0.0
+        _diagonal(A, 1.0)
         return
     M = mm_nt(mm(Linv, P), Linv)
     for i in range(p):
         for j in range(i + 1):
             M[i, j] = M[j, i] = 0.5 * (M[i, j] + M[j, i])
     lam, V = np.linalg.eigh(M)
-    sel = 0
-    for kk in range(p):
-        if lam[kk] < ratio * ratio:
-            sel += 1
-    if sel == 0:
-        for i in range(p):
-            for j in range(p):
-                A[i, j] = 0.0
+    U, Ut = _identified(lam, V, ratio * ratio)
+    if U.shape[1] == 0:
+        _diagonal(A, 0.0)
         return
-    U = np.empty((p, sel))  # the identified directions (whitened), as columns and as rows
-    Ut = np.empty((sel, p))
-    s_ = 0
-    for kk in range(p):
-        if lam[kk] < ratio * ratio:
-            for i in range(p):
-                U[i, s_] = V[i, kk]
-                Ut[s_, i] = V[i, kk]
-            s_ += 1
     LUL = mm(mm(L, U), mm(Ut, Linv))  # L U U^T L^-1: products with the selected directions only
     for i in range(p):
         for j in range(p):
@@ -286,6 +295,36 @@ def identified_projector(P, L, Linv, ratio, A, transposed=False):
                 A[j, i] = LUL[i, j]
             else:
                 A[i, j] = LUL[i, j]
+
+
+@nb.njit(cache=True)
+def _diagonal(A, v):
+    """A = v I (p, p)."""
+    p = A.shape[0]
+    for i in range(p):
+        for j in range(p):
+            A[i, j] = v if i == j else 0.0
+
+
+@nb.njit(cache=True)
+def _identified(lam, V, below):
+    """The eigenvectors (columns of V) whose eigenvalue lam is below ``below``. -> (U (p, sel) as
+    columns, Ut (sel, p) as rows)."""
+    p = lam.shape[0]
+    sel = 0
+    for kk in range(p):
+        if lam[kk] < below:
+            sel += 1
+    U = np.empty((p, sel))
+    Ut = np.empty((sel, p))
+    s_ = 0
+    for kk in range(p):
+        if lam[kk] < below:
+            for i in range(p):
+                U[i, s_] = V[i, kk]
+                Ut[s_, i] = V[i, kk]
+            s_ += 1
+    return U, Ut
 
 
 def reset(consts: np.ndarray, state: LawState, carried: bool) -> None:
