@@ -26,7 +26,9 @@ def _fmt(v) -> str:
     """A fitted entry for a person: numbers to 4 significant digits, ``value ± sd unit``."""
     if isinstance(v, dict) and "value" in v:
         val, sd = v["value"], v.get("sd")
-        num = (lambda x: f"{x:.4g}")
+        def num(x) -> str:
+            return f"{x:.4g}"
+
         vs = "[" + ", ".join(num(x) for x in val) + "]" if isinstance(val, list) else num(val)
         if sd is not None:
             vs += " ± " + ("[" + ", ".join(num(x) for x in sd) + "]" if isinstance(sd, list) else num(sd))

@@ -89,7 +89,9 @@ def test_contact_point_sd_carries_the_calibration_covariance():
     basis[0, 0], basis[1, 1], basis[2, 3], basis[3, 4] = 1.0, 1.0, 1.0, 1.0  # [N, N, N m, N m] offsets
     L = rng.normal(size=(4, 4)) * [0.05, 0.05, 0.005, 0.005]
     cov_x = L @ L.T
-    model_at = lambda dx: np.broadcast_to(dx @ basis, (n, 6))  # the fitted model is 0
+    def model_at(dx):  # the fitted model is 0
+        return np.broadcast_to(dx @ basis, (n, 6))
+
     contact = np.ones(n, bool)
     pt = estimate(w_c, contact)
     pt = ContactPoint(pt.point_s_m, np.zeros(3), None, pt.samples, 0.0, 0.0)
