@@ -338,6 +338,16 @@ class Controller:
         self.out[...] = 0.0
         self._stepped = False
 
+    def set_state(self, x: np.ndarray, k: np.ndarray, out: np.ndarray) -> None:
+        """Take the state a batched loop stepped this controller in (``runs.loop``: its row of a
+        B-episode ``ControllerState``): ``x`` (NX,) float state, ``k`` (N_K + law nk,) counters
+        (the error and done flags cleared) and ``out`` (nout,) the last step's out row."""
+        st = self.state
+        st.x[0], st.k[0] = x, k
+        st.k[0, core.K_ERROR] = st.k[0, core.K_DONE] = 0
+        self.out[0] = out
+        self._stepped = True
+
     # ------------------------------------------------------------------------------------
     def rank_margin_now(self) -> float:
         """``lambda_min(W J_hat J_hat^T W)`` of the Jacobian the controller will use next (the
@@ -389,8 +399,8 @@ class Controller:
                        o["theta_used"], float(out[self._i_rho]), a)
 
     def advance(self, t: float, q: np.ndarray, qdot: np.ndarray, wrench: np.ndarray) -> None:
-        """``step`` without building the command: the hot path of ``run_episode``, which reads the
-        command from ``state.q_ref[0]`` and ``out`` (the ``qdot_ref`` block) directly."""
+        """``step`` without building the command (the command: ``state.q_ref[0]`` and ``out``'s
+        ``qdot_ref`` block)."""
         self._q[:] = q
         self._qdot[:] = qdot
         self._wrench[:] = wrench
