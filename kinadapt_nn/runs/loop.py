@@ -384,7 +384,7 @@ def _stop_checks(lp: Loop, k: int, t: float) -> float:
     active = w["active"]  # a view
     active &= (t < w["stop_at"]) & ~w["breach"]
     if k % 100 == 0:  # divergence watch at 10 Hz: MuJoCo warnings
-        warned = lp.world.warned() & active
+        warned = lp.world.warned(active)
         for b in np.flatnonzero(warned):
             lp.reason[b] = warning_reason(t)
         w["diverged"] |= warned

@@ -164,7 +164,7 @@ class PegInHoleSim:
         return SensorSample(d.qpos[a.qpos_adr], d.qvel[a.dof_adr], wrench)  # fancy indexing copies
 
     def sense_into(self, q: np.ndarray, qdot: np.ndarray, wrench: np.ndarray) -> None:
-        """``sense()`` written into the caller's arrays (the episode loop's hot path; no new arrays)."""
+        """``sense()`` written into the caller's arrays (no new arrays)."""
         if not (self._views and self._wrench_v is not None):
             o = self.sense()
             q[:], qdot[:], wrench[:] = o.q_rad, o.qdot_rad_s, o.wrench_raw_f
@@ -220,15 +220,6 @@ class PegInHoleSim:
         tip = self._tip_v.copy()
         face, bore, fsum = self.contacts_of(self._sens_v, self._own_data)
         return TruthSample(tip, float(self.tip_depths(tip[None])[0]), face, bore, fsum)
-
-    def truth_into(self, tip_row: np.ndarray, contact_row: np.ndarray) -> None:
-        """``truth()`` written into an episode's logs, every logged step: the true tip (3,) into
-        ``tip_row``; [face, bore, normal force] into ``contact_row`` (3,) when there is a contact
-        (the caller's row holds zeros otherwise). The depth follows from the tip after the loop
-        (:meth:`tip_depths`, the same arithmetic)."""
-        tip_row[:] = self._tip_v
-        if self.has_socket or self.data.ncon:
-            contact_row[0], contact_row[1], contact_row[2] = self.contacts_of(self._sens_v, self._own_data)
 
     def tip_depths(self, tip_w_m: np.ndarray) -> np.ndarray:
         """True tip depth below the bore entrance along the bore axis for tips (N, 3), world [m]

@@ -15,7 +15,8 @@ What it offers the loop, and nothing else:
   contact's wrench first, where that contact model is on);
 * :meth:`truth_into` -- the per-step ground truth the logger needs (true tip, contacts); for
   evaluation only, never handed to the controller (the truth firewall);
-* :meth:`warned` -- which episodes MuJoCo warned about since the start (the divergence watch).
+* :meth:`warned` -- which episodes MuJoCo warned about since the start (the divergence watch;
+  a persistent batch or one episode).
 """
 
 from __future__ import annotations
@@ -107,7 +108,7 @@ class SceneBatch:
         self._sockets = [(b, s.bind_socket(rows[b])) for b, s in enumerate(self.sims) if s.has_socket]
         self._has_socket = [s.has_socket for s in self.sims]
         self._sensor_side = self._sensor_side_of(cfgs)
-        self._warn0 = self._warnings()
+        self._warn0 = self._warnings(range(self.B)) if self.physics is None or self.physics.persistent else None
         self._init_kernels()
 
     def _batch(self, nthread: int, persistent: bool) -> mujoco.batch.Batch:
@@ -180,8 +181,9 @@ class SceneBatch:
             if active[b]:
                 socket(t)
         if self.physics is None:
-            s = self.sims[0]
-            mujoco.mj_step(s.model, s.data)
+            if every_one or active[0]:
+                s = self.sims[0]
+                mujoco.mj_step(s.model, s.data)
         elif every_one:
             self.physics.step(None)
         else:
@@ -213,11 +215,19 @@ class SceneBatch:
             return np.array([self.sims[0].data.time])
         return self._src.time.copy()
 
-    def _warnings(self) -> np.ndarray:
+    def _warnings(self, rows) -> np.ndarray:
+        """Warning counts (summed over MuJoCo's kinds) of episodes ``rows`` (indices)."""
         if self.physics is None:
             return np.array([int(self.sims[0].data.warning.number.sum())])
-        return self.physics.warning[:, :, 0].sum(axis=1)
+        return np.array([int(self._data_of[b]().warning.number.sum()) for b in rows], dtype=np.int64)
 
-    def warned(self) -> np.ndarray:
-        """(B,) bool: MuJoCo warned about the episode (any warning counter rose) since the start."""
-        return self._warnings() > self._warn0
+    def warned(self, active: np.ndarray) -> np.ndarray:
+        """(B,) bool: MuJoCo warned about the episode (a warning counter rose) since the start, of
+        the ``active`` (B,) bool episodes. A batch that is not persistent keeps no MjData per
+        episode, hence no warnings of its own: nothing is reported then."""
+        out = np.zeros(self.B, bool)
+        if self.physics is not None and not self.physics.persistent:
+            return out
+        rows = np.flatnonzero(active)
+        out[rows] = self._warnings(rows) > self._warn0[rows]
+        return out
