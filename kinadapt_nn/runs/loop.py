@@ -40,7 +40,7 @@ from kinadapt_nn.runs.build import make_controller, make_features
 from kinadapt_nn.runs.monitor import seat_step
 from kinadapt_nn.runs.outcome import sensor_reason, warning_reason
 from kinadapt_nn.sensing import channel_metric
-from kinadapt_nn.sim.scenes import SceneBatch, StepTruth
+from kinadapt_nn.sim.scenes import SceneBatch
 
 #: one row per episode: what the watch keeps (:func:`_watch`)
 WATCH = np.dtype([
@@ -116,6 +116,34 @@ def _watch(t, out, idx, lam_ext, lim, ks, clock, w):
             clock[b, 0] = np.nan
         w[b].n_sim += 1
     return ev
+
+
+@nb.njit(cache=True)
+def _log_rows(j, t, every_one, active, src, dst):
+    """Logged row ``j`` at time ``t`` [s] of every episode (``every_one``) or the ``active`` (B,)
+    ones: src = (out (B, nout), q_ref (B, n), Phi_f^T (B, pm), lambda_min since the last row (B,),
+    true tip (B, 3)) into dst = (t (R, B), out (R, B, nout), q_ref (R, B, n), Phi_f^T (R, B, pm),
+    lambda_min (R, B), tip (R, B, 3)); the lambda_min since the last row restarts (inf)."""
+    out, q_ref, phi, lam, tip = src
+    t_log, out_log, q_log, phi_log, lam_log, tip_log = dst
+    for b in range(out.shape[0]):
+        if every_one or active[b]:
+            t_log[j, b] = t
+            out_log[j, b] = out[b]
+            q_log[j, b] = q_ref[b]
+            phi_log[j, b] = phi[b]
+            lam_log[j, b] = lam[b]
+            lam[b] = np.inf
+            tip_log[j, b] = tip[b]
+
+
+@nb.njit(cache=True)
+def _log_sample(j, every_one, active, inp, io):
+    """The samples ``inp`` (B, 2n+6) as given into row ``j`` of ``io`` (R, B, >= 2n+6), of every
+    episode (``every_one``) or the ``active`` (B,) ones."""
+    for b in range(inp.shape[0]):
+        if every_one or active[b]:
+            io[j, b, :inp.shape[1]] = inp[b]
 
 
 def _entry(fn, args):
@@ -322,29 +350,32 @@ class TraceLog:
         self.out = np.zeros((n_rec, B, lay.nout))
         self.io = np.zeros((n_rec, B, 3 * n + 6))  # q, qdot, wrench (raw, as given), q_ref
         self.phi = np.zeros((n_rec, B, p * m)) if keep_phi else None
+        phi_log = self.phi if keep_phi else np.zeros((n_rec, B, 0))
         self.tip = np.zeros((n_rec, B, 3))
         self.truth = np.zeros((n_rec, B, 4))  # depth (from the tip at the finish), face, bore, normal force
         self.lam = np.full((n_rec, B), np.inf)
         self.f0 = lay.x_blocks["filt"][0] + 2 * m  # Phi_f^T rows of the state (truth_bias_w, evaluation only)
         self.pm = p * m
+        # the sources and the logs, bound once (views): out rows, q_ref, Phi_f^T, lambda_min since the last row
+        kn = lp.kn
+        self._inp, self._world, self._active = kn.inp, lp.world, lp.watch["active"]
+        phi_src = kn.st.x[:, self.f0:self.f0 + self.pm] if keep_phi else kn.st.x[:, :0]
+        self._src = (kn.out, kn.st.q_ref, phi_src, lp.watch["lam_since"], lp.world.tip_w_m)
+        self._dst = (self.t, self.out, self.io[:, :, self.n_in:], phi_log, self.lam, self.tip)
+        self._log_rows = _entry(_log_rows, (0, 0.0, True, self._active, self._src, self._dst))
+        self._log_sample = _entry(_log_sample, (0, True, self._active, self._inp, self.io))
+        self._contact = self.truth[:, :, 1:]  # [face, bore, normal force] of each row
 
     def sample(self, j: int, rows) -> None:
         """Row ``j``: the samples as given (before any dropout hold), of episodes ``rows``."""
-        self.io[j, rows, :self.n_in] = self.lp.kn.inp[rows]
+        self._log_sample(j, isinstance(rows, slice), self._active, self._inp, self.io)
 
     def step(self, j: int, t: float, rows) -> None:
         """Row ``j`` at time ``t`` [s]: the controller's out row, q_ref, the law's filtered regressor,
-        lambda_min since the last row and the truth (``SceneBatch.truth_into``), of episodes ``rows``."""
-        lp = self.lp
-        kn, w = lp.kn, lp.watch
-        self.lam[j, rows] = w["lam_since"][rows]
-        w["lam_since"][rows] = np.inf
-        self.t[j, rows] = t
-        self.out[j, rows] = kn.out[rows]
-        self.io[j, rows, self.n_in:] = kn.st.q_ref[rows]
-        if self.phi is not None:
-            self.phi[j, rows] = kn.st.x[rows, self.f0:self.f0 + self.pm]
-        lp.world.truth_into(rows, StepTruth(self.tip[j], self.truth[j, :, 1:]))
+        lambda_min since the last row and the truth (``SceneBatch.truth_into``: the true tip, from its
+        live view ``tip_w_m``, and the contacts), of episodes ``rows``."""
+        self._log_rows(j, t, isinstance(rows, slice), self._active, self._src, self._dst)
+        self._world.contacts_into(rows, self._contact[j])
 
 
 class SummaryLog:

@@ -104,6 +104,9 @@ class SceneBatch:
             self._data_of = [lambda b=b: self.physics.get_data(b, dbuf) for b in range(self.B)]
         self.qpos, self.qvel, self.ctrl, self.sensordata = src.qpos, src.qvel, src.ctrl, src.sensordata
         self._src = src
+        #: (B, 3) the true tips, world [m]: a live view (truth side: evaluation only, never the controller's)
+        self.tip_w_m = src.site_xpos[:, ids.tip_site]
+        self._sens_rows = list(self.sensordata)  # each episode's sensordata row (a view)
         rows = [types.SimpleNamespace(**{k: getattr(src, k)[b] for k in _SOCKET_FIELDS}) for b in range(self.B)]
         self._sockets = [(b, s.bind_socket(rows[b])) for b, s in enumerate(self.sims) if s.has_socket]
         self._has_socket = [s.has_socket for s in self.sims]
@@ -195,14 +198,21 @@ class SceneBatch:
         of ``truth`` (:class:`StepTruth`, (B, ...) arrays): the true tip; [face, bore, normal force]
         where an episode has a contact (its row is left as it is otherwise: zeros in a new log).
         MuJoCo's contact sensor on the peg <-> block contacts (``PegInHoleSim.contacts_of``)."""
-        truth.tip_pos_w_m[rows] = self._src.site_xpos[rows, self.ids.tip_site]
-        if self.physics is None:
-            ncon = [self.sims[0].data.ncon]
-        else:
-            ncon = self._src.ncon.tolist()
+        truth.tip_pos_w_m[rows] = self.tip_w_m[rows]
+        self.contacts_into(rows, truth.contact)
+
+    def contacts_into(self, rows, contact: np.ndarray) -> None:
+        """The contact part of :meth:`truth_into`: [face, bore, normal force [N]] into the rows of
+        ``contact`` (B, 3) of episodes ``rows`` that have a contact (the others left as they are)."""
+        if self.physics is None:  # one episode: its own MjData
+            s = self.sims[0]
+            if s.has_socket or s.data.ncon:
+                contact[0] = s.contacts_of(self._sens_rows[0], self._data_of[0])
+            return
+        ncon = self._src.ncon.tolist()
         for b in (range(self.B) if isinstance(rows, slice) else np.flatnonzero(rows)):
             if self._has_socket[b] or ncon[b]:
-                truth.contact[b] = self.sims[b].contacts_of(self.sensordata[b], self._data_of[b])
+                contact[b] = self.sims[b].contacts_of(self._sens_rows[b], self._data_of[b])
 
     def tip_depths(self, b: int, tip_w_m: np.ndarray) -> np.ndarray:
         """Episode ``b``'s true tip depths below its true bore entrance for tips (N, 3) [m] -> (N,)."""
