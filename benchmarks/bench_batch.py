@@ -26,13 +26,13 @@ from concurrent.futures import ProcessPoolExecutor
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from kinadapt_nn.runs.batch import run_batch  # noqa: E402
-from kinadapt_nn.config import load_config  # noqa: E402
-from kinadapt_nn.runs.episode import run_episode  # noqa: E402
-from kinadapt_nn.runs.sweep import SweepCfg, tool_overrides  # noqa: E402
-from kinadapt_nn.sim.scenes import SceneBatch  # noqa: E402
+from kinadapt_nn.config import load_config
+from kinadapt_nn.runs.batch import run_batch
+from kinadapt_nn.runs.episode import run_episode
+from kinadapt_nn.runs.sweep import SweepCfg, tool_overrides
+from kinadapt_nn.sim.scenes import SceneBatch
 
 
 def raw_physics(cfgs, ctrl_log: np.ndarray, steps: np.ndarray) -> float:

@@ -2,7 +2,8 @@
 
 The per-step maths lives once, over B episodes, in ``kinadapt_nn.controller.core`` (numba
 kernels); ``Controller`` here is that core at B = 1 with the public interface (``step`` ->
-``JointCommand``, ``last`` -> ``StepLog``); ``kinadapt_nn.runs.batch`` runs the same kernels for B.
+``JointCommand``, ``last`` -> ``StepLog``); the episode loop (``kinadapt_nn.runs.loop``) runs the same
+kernels for B episodes, a single episode being a batch of one.
 
 Truth firewall: ``Controller.step(t, q, qdot, wrench)`` sees joint encoders and the raw
 wrist F/T reading only. Its kinematics come from its own MuJoCo model of the *bare arm*

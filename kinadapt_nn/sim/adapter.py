@@ -232,7 +232,7 @@ class PegInHoleSim:
 
     def contacts_of(self, sensordata: np.ndarray, get_data) -> tuple[bool, bool, float]:
         """(face, bore, normal force [N]) of this step's peg <-> block contacts, from this episode's
-        ``sensordata`` (its own, or its row of a batched run's, ``runs.batch``): MuJoCo's contact
+        ``sensordata`` (its own, or its row of a batch's, ``sim.scenes.SceneBatch``): MuJoCo's contact
         sensor on those contacts (``scene.TRUTH_CONTACT_SENSOR``: the normal force and position of
         each, in MuJoCo's contact order). More contacts than the sensor's slots: the contact array of
         ``get_data()`` (the episode's MjData), ``mj_contactForce`` for the normal. The socket model's

@@ -46,7 +46,7 @@ def test_contact_sensor_truth_equals_the_contact_array_scan(monkeypatch):
     at every step of an insertion, its (normal force, position) rows equal ``mj_contactForce`` on
     the peg <-> block entries of the contact array, to the last bit and in the same order; with the
     slot limit forced below the contact count, ``contacts_of`` takes the scan and gives the same."""
-    import kinadapt_nn.sim.adapter as adapter
+    from kinadapt_nn.sim import adapter
 
     cfg = load_config(None, ["run.progress=false"])
     sim, ctrl = PegInHoleSim(cfg), make_controller(cfg)
