@@ -985,6 +985,13 @@ class compiling:
     def __init__(self, progress: bool = False) -> None:
         self.progress = progress
         self.wall_s = 0.0
+        self._cold = False
+
+    @property
+    def cold(self) -> bool:
+        """True when this phase compiled (the outermost phase, a cold cache): its ``wall_s`` is then
+        the one-time compile, not the loading of cached code."""
+        return self._cold
 
     def __enter__(self) -> "compiling":
         import threading

@@ -87,7 +87,7 @@ def run_episodes(cfgs: list[ExperimentCfg], ctrls: list | None = None, keep_regr
     step as ``trace.arrays["law_Phi_fT"]`` (N, p, m) (controller side: what a between-insertion
     refit of theta needs). ``progress``: a bar of the steps (and of a cold compile).
     ``wall_time_s``: the episode's share of the batch's wall time (set-up and loop, in proportion
-    to its physics steps). The cfgs share every KNOWN setting and ``run.duration_s``,
+    to its physics steps), without the one-time compile of a cold cache (``compile_time_s``). The cfgs share every KNOWN setting and ``run.duration_s``,
     ``run.log_every``, ``run.stop_after_seat_s`` (else a ``ConfigError`` saying which). BLAS runs
     at one thread meanwhile (``runs.build.one_blas_thread``)."""
     wall0 = time.perf_counter()  # the wall time includes loading scipy's BLAS (one_blas_thread)
@@ -102,7 +102,7 @@ def run_episodes(cfgs: list[ExperimentCfg], ctrls: list | None = None, keep_regr
         run(lp, log, bar)
         if bar is not None:
             bar.close()
-        return _episode_results(lp, log, time.perf_counter() - wall0, keep_regressor)
+        return _episode_results(lp, log, time.perf_counter() - wall0 - lp.kn.compile_s, keep_regressor)
 
 
 def _episode_results(lp: Loop, log: TraceLog, wall_s: float, keep_regressor: bool) -> list[EpisodeResult]:
@@ -126,7 +126,9 @@ def _episode_results(lp: Loop, log: TraceLog, wall_s: float, keep_regressor: boo
         end = EpisodeEnd(n_logged=-(-n_sim // log.every), steps=int(w["n_ctrl"][b]), t_end_s=float(t_end[b]),
                          wall_s=wall_s * n_sim / sim_steps, diverged=diverged, divergence_reason=reason,
                          lam_min_all=float(w["lam_min"][b]), rank_breach_t=breach_t)
-        results.append(episode_result(cfg, lp.world.sims[b], ctrl, monitor, logs, end, keep_regressor))
+        res = episode_result(cfg, lp.world.sims[b], ctrl, monitor, logs, end, keep_regressor)
+        res.summary["compile_time_s"] = lp.kn.compile_s
+        results.append(res)
     return results
 
 

@@ -174,6 +174,7 @@ class Kernels:
         self.ob = {k: self.out[:, o:o + size] for k, (o, size) in self.lay.out_blocks.items()}
         self.observe = [getattr(f, "observe", None) for f in self.feats_b]
         self.lam_ext = np.full(B, np.inf)  # lambda_min from Python (features not fused)
+        self.compile_s = 0.0  # [s] the one-time compile of new controllers' kernels (a cold cache), else 0
         self.W = self.ctrls[0].W if self.ctrls else None  # the channel metric (the rank gate from Python)
         st, cs = self.st, self.cs
         #: the fused step kernel's arguments after t (its buffers, bound once)
@@ -231,15 +232,18 @@ def _known_of(cfgs: list[ExperimentCfg]) -> KnownCfg:
     return known
 
 
-def _controllers(cfgs: list[ExperimentCfg], ctrls: list, progress: bool) -> list[Controller]:
+def _controllers(cfgs: list[ExperimentCfg], ctrls: list, progress: bool) -> tuple[list[Controller], float]:
     """The episodes' controllers (new ones where None), compiled, checked to share every constant
-    the batched kernels read once for all rows (else ``ConfigError``)."""
+    the batched kernels read once for all rows (else ``ConfigError``). -> (the controllers, the
+    one-time compile of the new ones [s]: 0 when their kernels were cached)."""
     ctrls = list(ctrls)
+    compile_s = 0.0
     for i, (c, k) in enumerate(zip(cfgs, ctrls)):
         if k is None:
-            with core.compiling(progress):
+            with core.compiling(progress) as phase:
                 ctrls[i] = make_controller(c)
                 ctrls[i].compile_kernels()
+            compile_s += phase.wall_s if phase.cold else 0.0
         ctrls[i].compile_kernels(progress)
     c0, k0 = cfgs[0], ctrls[0]
     fx0 = feature_consts(k0.features)
@@ -254,19 +258,21 @@ def _controllers(cfgs: list[ExperimentCfg], ctrls: list, progress: bool) -> list
         if not same or k.layout.arr.tolist() != k0.layout.arr.tolist() or k.mode != k0.mode:
             raise ConfigError("these controllers differ in a constant the batched kernels share (features, law, "
                               "bore, gains) -- run them as separate batches")
-    return ctrls
+    return ctrls, compile_s
 
 
 def kernels_of_controllers(cfgs: list[ExperimentCfg], ctrls: list, progress: bool = False) -> Kernels:
     """The kernels stepping the episodes' own controllers (None entries: new ones) from their
     current state; ``Kernels.ctrls`` gets the state back at the finish (``Controller.set_state``)."""
-    ctrls = _controllers(cfgs, ctrls, progress)
+    ctrls, compile_s = _controllers(cfgs, ctrls, progress)
     k0 = ctrls[0]
     st = core.ControllerState(k0.layout, len(ctrls))
     for b, k in enumerate(ctrls):
         st.x[b], st.k[b] = k.state.x[0], k.state.k[0]
-    return Kernels(ctrls, [k.features for k in ctrls], k0.chain, k0.consts, k0.law_spec, k0.layout, st,
-                   feature_consts(k0.features))
+    kn = Kernels(ctrls, [k.features for k in ctrls], k0.chain, k0.consts, k0.law_spec, k0.layout, st,
+                 feature_consts(k0.features))
+    kn.compile_s = compile_s
+    return kn
 
 
 def kernels_of_known(cfgs: list[ExperimentCfg]) -> Kernels:
