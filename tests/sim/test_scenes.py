@@ -67,9 +67,10 @@ def test_a_batch_steps_each_scene_as_its_own_simulator_does(nthread):
 
 
 @pytest.mark.parametrize("B", [1, 2])
-def test_warned_names_the_episode_mujoco_warned_about(B):
+def test_warned_names_the_episode_mujoco_warned_about(B, tmp_path, monkeypatch):
     """A non-finite state (MuJoCo resets it and counts a warning) is seen in that episode only, and
     only while the episode is active (a stopped one is not watched)."""
+    monkeypatch.chdir(tmp_path)  # MuJoCo writes its warning to MUJOCO_LOG.TXT in the working directory
     world = SceneBatch([load_config(None, []) for _ in range(B)], persistent=True)
     active = np.ones(B, bool)
     world.step(0.0, active, True)
