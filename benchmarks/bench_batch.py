@@ -26,18 +26,20 @@ from concurrent.futures import ProcessPoolExecutor
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from kinadapt_nn.runs.batch import batch_scene, run_batch  # noqa: E402
-from kinadapt_nn.config import load_config  # noqa: E402
-from kinadapt_nn.runs.episode import run_episode  # noqa: E402
-from kinadapt_nn.runs.sweep import SweepCfg, tool_overrides  # noqa: E402
+from kinadapt_nn.config import load_config
+from kinadapt_nn.runs.batch import run_batch
+from kinadapt_nn.runs.episode import run_episode
+from kinadapt_nn.runs.sweep import SweepCfg, tool_overrides
+from kinadapt_nn.sim.scenes import SceneBatch
 
 
 def raw_physics(cfgs, ctrl_log: np.ndarray, steps: np.ndarray) -> float:
     """Step the same models with mujoco.batch, replaying ``ctrl_log`` (T, B, n); episode b for
     ``steps[b]`` steps (as in the controlled run). -> wall seconds of the stepping loop."""
-    _, scene, _, _, ctrl_b = batch_scene(cfgs, nthread=1)  # the same start as run_batch's
+    world = SceneBatch(cfgs, nthread=1)  # the same start as run_batch's (two episodes or more: one mujoco.batch)
+    scene, ctrl_b = world.physics, world.ctrl
     t0 = time.perf_counter()
     for k in range(len(ctrl_log)):
         ctrl_b[:] = ctrl_log[k]

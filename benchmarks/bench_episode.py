@@ -22,8 +22,10 @@ rbf ratio              34.9                  27.2
 
 Where a step goes now (adjoint, ~33 us/step): mj_step ~7 us; the controller ~9 us (one numba
 dispatch: intake, bare-arm kinematics, sense, regressor, drive, admittance, joint reference, law,
-rank gate); the loop's copies into preallocated logs, sense_into/apply, truth() on logged steps
-and the seat monitor ~10 us; set-up and the offline evaluation ~25 ms per episode.
+rank gate); the episode loop's own work (runs/loop.py: the samples, the watch, the logged step's
+copies, the servo set-point, the truth's contacts) ~10 us; set-up and the offline evaluation
+~25 ms per episode. The episode is a batch of one (``run_episodes([cfg])[0]``), stepping its own
+MjData with mj_step like the raw physics here.
 """
 
 from __future__ import annotations

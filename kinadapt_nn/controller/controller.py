@@ -2,7 +2,8 @@
 
 The per-step maths lives once, over B episodes, in ``kinadapt_nn.controller.core`` (numba
 kernels); ``Controller`` here is that core at B = 1 with the public interface (``step`` ->
-``JointCommand``, ``last`` -> ``StepLog``); ``kinadapt_nn.runs.batch`` runs the same kernels for B.
+``JointCommand``, ``last`` -> ``StepLog``); the episode loop (``kinadapt_nn.runs.loop``) runs the same
+kernels for B episodes, a single episode being a batch of one.
 
 Truth firewall: ``Controller.step(t, q, qdot, wrench)`` sees joint encoders and the raw
 wrist F/T reading only. Its kinematics come from its own MuJoCo model of the *bare arm*
@@ -338,6 +339,16 @@ class Controller:
         self.out[...] = 0.0
         self._stepped = False
 
+    def set_state(self, x: np.ndarray, k: np.ndarray, out: np.ndarray) -> None:
+        """Take the state a batched loop stepped this controller in (``runs.loop``: its row of a
+        B-episode ``ControllerState``): ``x`` (NX,) float state, ``k`` (N_K + law nk,) counters
+        (the error and done flags cleared) and ``out`` (nout,) the last step's out row."""
+        st = self.state
+        st.x[0], st.k[0] = x, k
+        st.k[0, core.K_ERROR] = st.k[0, core.K_DONE] = 0
+        self.out[0] = out
+        self._stepped = True
+
     # ------------------------------------------------------------------------------------
     def rank_margin_now(self) -> float:
         """``lambda_min(W J_hat J_hat^T W)`` of the Jacobian the controller will use next (the
@@ -389,8 +400,8 @@ class Controller:
                        o["theta_used"], float(out[self._i_rho]), a)
 
     def advance(self, t: float, q: np.ndarray, qdot: np.ndarray, wrench: np.ndarray) -> None:
-        """``step`` without building the command: the hot path of ``run_episode``, which reads the
-        command from ``state.q_ref[0]`` and ``out`` (the ``qdot_ref`` block) directly."""
+        """``step`` without building the command (the command: ``state.q_ref[0]`` and ``out``'s
+        ``qdot_ref`` block)."""
         self._q[:] = q
         self._qdot[:] = qdot
         self._wrench[:] = wrench

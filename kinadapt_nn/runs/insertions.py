@@ -123,11 +123,9 @@ def judged_whole(summary: dict) -> dict:
 
 
 def _episodes(cfgs: list[ExperimentCfg], ctrls: list, progress: bool, keep_regressor: bool) -> list[EpisodeResult]:
-    """One episode per (cfg, ctrl) (ctrl None: a new one): several as one batch (``run_episodes``),
-    one by ``run_episode`` with its progress bar; the results are the same either way."""
-    if len(cfgs) == 1:
-        return [run_episode(cfgs[0], progress, ctrl=ctrls[0], keep_regressor=keep_regressor)]
-    return run_episodes(cfgs, ctrls, keep_regressor=keep_regressor)
+    """One episode per (cfg, ctrl) (ctrl None: a new one), stepped as one batch (``run_episodes``;
+    the steps' progress bar for one episode alone); each result is the episode's own."""
+    return run_episodes(cfgs, ctrls, keep_regressor=keep_regressor, progress=progress and len(cfgs) == 1)
 
 
 def run_insertion(cfg: ExperimentCfg, ctrl: Controller, i: int, progress: bool = False,

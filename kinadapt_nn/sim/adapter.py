@@ -9,6 +9,7 @@ evaluation only and never reaches the controller.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import NamedTuple
 
 import mujoco
@@ -93,13 +94,15 @@ class PegInHoleSim:
         cfg = truth_config(cfg)  # hidden effects with a truth-side knob folded in (sim.effects)
         self.cfg = cfg
         self.model, self.ids = build_model(cfg.tool, cfg.scene, arm=cfg.arm, effects=cfg.effects)
-        self._sensor_fx = SensorEffects(cfg)
+        #: hidden sensor effects on the raw F/T reading (truth side; ``active`` False when none)
+        self.sensor_effects = SensorEffects(cfg)
         self.model.opt.timestep = cfg.run.dt_s
         self.data = mujoco.MjData(self.model)
         self.entry_w = np.asarray(true_bore_entry(cfg.scene), dtype=float)  # the TRUE bore
         self._block_set = frozenset(int(g) for g in self.ids.block_geoms)
         self._kv_over_kp = SERVO_KV / SERVO_KP
-        self._socket = cfg.scene.contact_model == "socket"
+        #: the socket contact model is on (``scene.contact_model = "socket"``, ``sim.socket``)
+        self.has_socket = cfg.scene.contact_model == "socket"
         self._tool_body = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, "tool")
         self._sock_st = np.zeros(N_STATE)  # the socket's state (sim.socket): engaged, anchor, |f|
         self._f6 = np.zeros(6)  # mj_contactForce output
@@ -118,9 +121,7 @@ class PegInHoleSim:
         self._peg = int(a.peg_geom)
         self._face_lat = cfg.scene.bore_half_width_m + 0.5e-3  # truth(): contact outside the bore mouth
         self._sock_prm = socket_params(cfg, self.entry_w, BORE_AXIS_W)
-        tb, vb = self._tool_body, int(self.model.site_bodyid[a.tip_site])  # the tip's body: its velocity
-        self._sock_views = (d.site_xpos[a.tip_site], d.xmat[tb], d.xipos[tb], d.cvel[vb],
-                            d.subtree_com[int(self.model.body_rootid[vb])], d.xfrc_applied[tb])
+        self._socket_step = self.bind_socket(d)
         self.q_start = self._start_configuration()
         self.reset()
 
@@ -156,14 +157,14 @@ class PegInHoleSim:
             wrench = np.concatenate(
                 [d.sensordata[a.force_adr : a.force_adr + 3], d.sensordata[a.torque_adr : a.torque_adr + 3]]
             )
-        if self._sensor_fx.active:
-            self._sensor_fx(float(d.time), wrench)
+        if self.sensor_effects.active:
+            self.sensor_effects(float(d.time), wrench)
         if self._views:
             return SensorSample(self._q_v.copy(), self._qdot_v.copy(), wrench)
         return SensorSample(d.qpos[a.qpos_adr], d.qvel[a.dof_adr], wrench)  # fancy indexing copies
 
     def sense_into(self, q: np.ndarray, qdot: np.ndarray, wrench: np.ndarray) -> None:
-        """``sense()`` written into the caller's arrays (the episode loop's hot path; no new arrays)."""
+        """``sense()`` written into the caller's arrays (no new arrays)."""
         if not (self._views and self._wrench_v is not None):
             o = self.sense()
             q[:], qdot[:], wrench[:] = o.q_rad, o.qdot_rad_s, o.wrench_raw_f
@@ -171,20 +172,27 @@ class PegInHoleSim:
         q[:] = self._q_v
         qdot[:] = self._qdot_v
         wrench[:] = self._wrench_v
-        if self._sensor_fx.active:
-            self._sensor_fx(float(self.data.time), wrench)
+        if self.sensor_effects.active:
+            self.sensor_effects(float(self.data.time), wrench)
 
     def apply(self, q_ref: np.ndarray, qdot_ref: np.ndarray) -> None:
         """Joint servo set-point with velocity feed-forward (q_ref + kv/kp qdot_ref)."""
         _servo_setpoint(self._ctrl_v, q_ref, qdot_ref, self._kv_over_kp)
 
     def step(self) -> None:
-        if self._socket:
-            self._socket_wrench()
+        """One physics step (``mj_step``), the socket contact's wrench applied first when it is on."""
+        if self._socket_step is not None:
+            self._socket_step(float(self.data.time))
         mujoco.mj_step(self.model, self.data)
 
-    def _socket_wrench(self) -> None:
-        """Low-bias contact (``scene.contact_model = "socket"``): a lateral spring-damper at the
+    def bind_socket(self, src) -> Callable[[float], None] | None:
+        """The socket contact's wrench for one physics step, ``f(t)``, on this scene's socket state,
+        reading and writing the arrays of ``src``: this scene's MjData, or one episode's rows of a
+        batch's bound fields (``sim.scenes.SceneBatch``) -- any object with ``site_xpos``, ``xmat``,
+        ``xipos``, ``cvel``, ``subtree_com`` and ``xfrc_applied`` indexed by object id. None when
+        the contact model is not the socket.
+
+        Low-bias contact (``scene.contact_model = "socket"``): a lateral spring-damper at the
         true tip and an angular spring-damper. ``socket_engage = "drive"``: anchored where they
         are when the drive starts (end of the settle/tare window); ``"depth"``: anchored when the
         true tip crosses the entrance plane, released when it is back 1 mm above it, with an
@@ -192,8 +200,15 @@ class PegInHoleSim:
         fixture). It is the nominal map S's own contact model, so the bias b is what remains:
         the lever (true offset vs nominal), the F-dependent terms, and any stiffness mismatch
         set in the config. Effect ``contact_friction_couple`` adds ``-radius |f| w/(|w|+eps)``.
-        The arithmetic is ``sim.socket.socket_step`` (shared with the batched runs)."""
-        socket_step(float(self.data.time), self._sock_st, self._sock_prm, *self._sock_views)
+        The arithmetic is ``sim.socket.socket_step``."""
+        if not self.has_socket:
+            return None
+        a, tb = self.ids, self._tool_body
+        vb = int(self.model.site_bodyid[a.tip_site])  # the tip's body: its velocity
+        views = (src.site_xpos[a.tip_site], src.xmat[tb], src.xipos[tb], src.cvel[vb],
+                 src.subtree_com[int(self.model.body_rootid[vb])], src.xfrc_applied[tb])
+        st, prm = self._sock_st, self._sock_prm
+        return lambda t: socket_step(t, st, prm, *views)
 
     @property
     def time_s(self) -> float:
@@ -206,15 +221,6 @@ class PegInHoleSim:
         face, bore, fsum = self.contacts_of(self._sens_v, self._own_data)
         return TruthSample(tip, float(self.tip_depths(tip[None])[0]), face, bore, fsum)
 
-    def truth_into(self, tip_row: np.ndarray, contact_row: np.ndarray) -> None:
-        """``truth()`` written into an episode's logs, every logged step: the true tip (3,) into
-        ``tip_row``; [face, bore, normal force] into ``contact_row`` (3,) when there is a contact
-        (the caller's row holds zeros otherwise). The depth follows from the tip after the loop
-        (:meth:`tip_depths`, the same arithmetic)."""
-        tip_row[:] = self._tip_v
-        if self._socket or self.data.ncon:
-            contact_row[0], contact_row[1], contact_row[2] = self.contacts_of(self._sens_v, self._own_data)
-
     def tip_depths(self, tip_w_m: np.ndarray) -> np.ndarray:
         """True tip depth below the bore entrance along the bore axis for tips (N, 3), world [m]
         -> (N,): n . (tip - entry), summed left to right as one step's scalars would be."""
@@ -226,7 +232,7 @@ class PegInHoleSim:
 
     def contacts_of(self, sensordata: np.ndarray, get_data) -> tuple[bool, bool, float]:
         """(face, bore, normal force [N]) of this step's peg <-> block contacts, from this episode's
-        ``sensordata`` (its own, or its row of a batched run's, ``runs.batch``): MuJoCo's contact
+        ``sensordata`` (its own, or its row of a batch's, ``sim.scenes.SceneBatch``): MuJoCo's contact
         sensor on those contacts (``scene.TRUTH_CONTACT_SENSOR``: the normal force and position of
         each, in MuJoCo's contact order). More contacts than the sensor's slots: the contact array of
         ``get_data()`` (the episode's MjData), ``mj_contactForce`` for the normal. The socket model's
@@ -248,7 +254,7 @@ class PegInHoleSim:
                 on_top = abs(pz - e2) < 1.5e-3 and max(abs(px - e0), abs(py - e1)) > hw
                 face |= on_top
                 bore |= not on_top
-        if self._socket:
+        if self.has_socket:
             bore = bool(self._sock_st[0])
             fsum = float(self._sock_st[13])
         return face, bore, fsum

@@ -2,7 +2,7 @@
 
 Truth side only (the simulator applies it; the controller never sees it). One call per physics
 step, before ``mj_step``, for one simulation: the single episode (``PegInHoleSim.step``) passes
-views of its ``MjData``, a batch (``runs.batch``) the rows of its bound ``(B, ...)`` arrays, so
+views of its ``MjData``, a batch (``sim.scenes.SceneBatch``) the rows of its bound ``(B, ...)`` arrays, so
 both run the same arithmetic.
 
 The wrench, at the tool body (``xfrc_applied``: force at its centre of mass, world)::

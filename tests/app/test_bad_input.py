@@ -366,9 +366,9 @@ def _boom(*_a, **_k):
 
 
 def test_an_internal_error_exits_3_naming_a_log_with_the_traceback(cwd, capsys, monkeypatch):
-    import kinadapt_nn.runs.episode
+    import kinadapt_nn.sim.scenes
 
-    monkeypatch.setattr(kinadapt_nn.runs.episode, "PegInHoleSim", _boom)  # a bug inside the episode
+    monkeypatch.setattr(kinadapt_nn.sim.scenes, "PegInHoleSim", _boom)  # a bug inside the episode
     rc, _, err = run_cli(capsys, "online", "--out", "run", "--quiet")
     assert rc == 3 and err.count("\n") == 1 and err.startswith("kinadapt: internal error (RuntimeError")
     log = Path(err.split("the traceback is in ")[1].split(" -- ")[0])
@@ -401,15 +401,15 @@ def _mujoco_warning() -> None:
 
 
 def test_mujoco_log_goes_to_the_run_folder_never_the_working_directory(cwd, capsys, monkeypatch):
-    import kinadapt_nn.runs.episode
+    import kinadapt_nn.sim.scenes
 
-    real = kinadapt_nn.runs.episode.PegInHoleSim
+    real = kinadapt_nn.sim.scenes.PegInHoleSim
 
     def warn_then_build(cfg):
         _mujoco_warning()
         return real(cfg)
 
-    monkeypatch.setattr(kinadapt_nn.runs.episode, "PegInHoleSim", warn_then_build)
+    monkeypatch.setattr(kinadapt_nn.sim.scenes, "PegInHoleSim", warn_then_build)
     rc, _, err = run_cli(capsys, "online", "--out", "run", "--set", "run.duration_s=0.1", "--set", "run.figure=false",
                          "--set", "run.tensorboard=false", "--set", "run.progress=false")
     assert rc == 1
@@ -421,7 +421,7 @@ def test_mujoco_log_goes_to_the_run_folder_never_the_working_directory(cwd, caps
         _mujoco_warning()
         _boom()
 
-    monkeypatch.setattr(kinadapt_nn.runs.episode, "PegInHoleSim", warn_then_crash)
+    monkeypatch.setattr(kinadapt_nn.sim.scenes, "PegInHoleSim", warn_then_crash)
     rc, _, err = run_cli(capsys, "online", "--out", "run2", "--quiet")
     assert rc == 3 and sorted(p.name for p in cwd.iterdir()) == ["run"]
     log = Path(err.split("the traceback is in ")[1].split(" -- ")[0]).read_text()

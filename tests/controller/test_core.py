@@ -25,8 +25,9 @@ from kinadapt_nn.runs.sweep import SweepCfg, tool_overrides
 
 @pytest.mark.parametrize("law", ["kalman", "composite"])
 def test_batch_of_three_equals_three_single_episodes(law):
-    """run_batch (B = 3, mujoco.batch) and three run_episode calls run the same kernels on the same
-    physics (mj_step per model): seat times, peak forces and final estimates agree exactly."""
+    """run_batch (B = 3, mujoco.batch, controllers from the known config) and three run_episode
+    calls (batches of one: Controller objects, mj_step on each episode's MjData) run the same
+    kernels on the same physics: seat times, peak forces and final estimates agree exactly."""
     base = ["run.progress=false", "start.lateral_jitter_m=0.0003", "start.tilt_jitter_deg=0.5",
             "run.stop_after_seat_s=0.05", f"adaptation.mode={law}"]
     cfgs = [load_config(None, [*base, *tool_overrides(SweepCfg(), s), f"run.seed={s}"]) for s in range(3)]

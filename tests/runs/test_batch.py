@@ -1,12 +1,15 @@
-"""Batched simulation agrees with the single-episode path."""
+"""The episode loop: a batch of N episodes (one ``mujoco.batch``) agrees with each episode run as a
+batch of one (``run_episode``: its own MjData, ``mj_step``) -- the same kernels on physics the two
+paths step differently, and a summaries-only batch (controllers built from the known config alone)
+with the traced one."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from kinadapt_nn.runs.batch import run_batch
 from kinadapt_nn.config import load_config
+from kinadapt_nn.runs.batch import run_batch
 from kinadapt_nn.runs.build import make_features
 from kinadapt_nn.runs.episode import run_episode
 from kinadapt_nn.runs.sweep import SweepCfg, tool_overrides
@@ -96,9 +99,9 @@ _TRACED = {
 
 @pytest.mark.parametrize("case", list(_TRACED))
 def test_run_episodes_equals_run_episode_to_the_last_bit(case):
-    """``run_episodes`` (one batched physics, the batched kernels, the truth from the batch's
-    buffers and its contact sensor) gives each episode's whole trace and summary as
-    ``run_episode`` does, and leaves each controller in the same state; the episodes stop at
+    """``run_episodes`` of three (one batched physics, the truth from the batch's buffers and its
+    contact sensor) gives each episode's whole trace and summary as the batch of one
+    (``run_episode``) does, and leaves each controller in the same state; the episodes stop at
     different steps (seated, diverged, rank gate), so the masks of stopped episodes are used."""
     from kinadapt_nn.runs.batch import run_episodes
     from kinadapt_nn.runs.build import make_controller

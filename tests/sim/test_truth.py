@@ -1,4 +1,4 @@
-"""The episode's truth logs (``PegInHoleSim.truth_into`` + ``tip_depths`` after the loop) against
+"""The episode loop's truth logs (``SceneBatch.truth_into`` + ``tip_depths`` after the loop) against
 ``PegInHoleSim.truth()`` step by step, through contact, for the bore and the socket contact models."""
 
 from __future__ import annotations
@@ -10,24 +10,26 @@ from kinadapt_nn.config import load_config
 from kinadapt_nn.known import BORE_AXIS_W
 from kinadapt_nn.runs.build import make_controller
 from kinadapt_nn.sim.adapter import PegInHoleSim
+from kinadapt_nn.sim.scenes import SceneBatch, StepTruth
 
 
 @pytest.mark.parametrize("over", [[], ["scene.contact_model=socket", "control.dither_rad_s=[0.05,0.05,0.05]"]])
 def test_truth_logs_equal_truth_samples_through_contact(over):
     cfg = load_config(None, ["run.progress=false", *over])
-    sim, ctrl = PegInHoleSim(cfg), make_controller(cfg)
+    world, ctrl = SceneBatch([cfg]), make_controller(cfg)  # one episode: the scene steps its own simulator
+    sim = world.sims[0]
     n = ctrl.layout.n
-    inp = ctrl.input_row
+    inp, on = ctrl.input_row, np.ones(1, bool)
     steps = 3500
     tips, rows = np.zeros((steps, 3)), np.zeros((steps, 3))
     want = []
     for k in range(steps):
-        sim.sense_into(inp[:n], inp[n:2 * n], inp[2 * n:])
-        ctrl.advance_input(sim.time_s)
-        sim.apply(ctrl.state.q_ref[0], ctrl._o["qdot_ref"])
+        world.sense_into(sim.time_s, inp[None], on)
+        cmd = ctrl.step(sim.time_s, inp[:n].copy(), inp[n:2 * n].copy(), inp[2 * n:].copy())
+        world.apply(cmd.q_ref_rad[None], cmd.qdot_ref_rad_s[None], on)
         want.append(sim.truth())
-        sim.truth_into(tips[k], rows[k])
-        sim.step()
+        world.truth_into(slice(None), StepTruth(tips[k:k + 1], rows[k:k + 1]))
+        world.step(sim.time_s, on, True)
     depth = sim.tip_depths(tips)
     for k, w in enumerate(want):  # the same numbers to the last bit
         assert tips[k].tolist() == w.tip_pos_w_m.tolist()
@@ -44,19 +46,18 @@ def test_contact_sensor_truth_equals_the_contact_array_scan(monkeypatch):
     at every step of an insertion, its (normal force, position) rows equal ``mj_contactForce`` on
     the peg <-> block entries of the contact array, to the last bit and in the same order; with the
     slot limit forced below the contact count, ``contacts_of`` takes the scan and gives the same."""
-    import kinadapt_nn.sim.adapter as adapter
+    from kinadapt_nn.sim import adapter
 
     cfg = load_config(None, ["run.progress=false"])
     sim, ctrl = PegInHoleSim(cfg), make_controller(cfg)
-    n, adr = ctrl.layout.n, sim.ids.contact_adr
-    inp = ctrl.input_row
+    adr = sim.ids.contact_adr
     seen, most = 0, 0
     results = []
     slots = adapter.TRUTH_CONTACT_SLOTS
     for _k in range(3500):
-        sim.sense_into(inp[:n], inp[n:2 * n], inp[2 * n:])
-        ctrl.advance_input(sim.time_s)
-        sim.apply(ctrl.state.q_ref[0], ctrl._o["qdot_ref"])
+        o = sim.sense()
+        cmd = ctrl.step(sim.time_s, o.q_rad, o.qdot_rad_s, o.wrench_raw_f)
+        sim.apply(cmd.q_ref_rad, cmd.qdot_ref_rad_s)
         scan = sim._contact_scan(sim.data)
         found = int(sim.data.sensordata[adr])
         assert found == len(scan)
