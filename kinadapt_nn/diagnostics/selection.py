@@ -61,13 +61,28 @@ class Design(NamedTuple):
     channel: np.ndarray  #: (R,) channel index of each row
     channel_names: tuple  #: names of the channels
     t_s: np.ndarray  #: (R,) time of each row [s]
+    #: a streamed design (``stream.BlockStats``): the per-block normal equations of ``[Z, X_e1, ...]``
+    #: (unscaled); then ``X`` and ``Z`` hold ``Width`` (the columns' shape only), never the columns
+    stats: object | None = None
+
+
+class Width(NamedTuple):
+    """Columns of a streamed design that are not held: only their shape (R, k)."""
+
+    shape: tuple
 
 
 class Stats:
-    """Per-block Gram statistics of ``[Z, X_e1 * d_e1, ...]`` (scaled columns) and ``y``."""
+    """Per-block Gram statistics of ``[Z, X_e1 * d_e1, ...]`` (scaled columns) and ``y``: from the
+    columns (``A``), or from a streamed design's per-block normal equations (``A`` is None; rows
+    then come from ``predict``)."""
 
     def __init__(self, des: Design) -> None:
         self.names = list(des.X)
+        self.des = des
+        if des.stats is not None:
+            self._from_blocks(des)
+            return
         blocks = [des.Z * (1.0 / np.maximum(np.linalg.norm(des.Z, axis=0), 1e-300))] if des.Z.shape[1] else []
         self.idx: dict[str, np.ndarray] = {}
         k0 = des.Z.shape[1]
@@ -91,6 +106,33 @@ class Stats:
             self.G[b] = Ab.T @ Ab
             self.h[b] = Ab.T @ yb
             self.yy[b] = float(yb @ yb)
+        self._totals()
+
+    def _from_blocks(self, des: Design) -> None:
+        """The same statistics from ``des.stats`` (unscaled per-block ``G_b``, ``h_b``, ``yy_b``): each
+        column scaled as ``__init__`` scales it (nuisance by its norm, effects by their relevant size)."""
+        bs = des.stats
+        k0 = des.Z.shape[1]
+        diag = np.diagonal(bs.G.sum(0))
+        self.z_idx = np.arange(k0)
+        self.z_scale = 1.0 / np.maximum(np.sqrt(diag[:k0]), 1e-300) if k0 else np.zeros(0)
+        scales = [self.z_scale]
+        self.idx = {}
+        for n in self.names:
+            k = des.X[n].shape[1]
+            self.idx[n] = np.arange(k0, k0 + k)
+            k0 += k
+            scales.append(np.asarray(des.scale[n], dtype=float))
+        self.col_scale = np.concatenate(scales) if scales else np.zeros(0)
+        d = self.col_scale
+        self.A = None
+        self.G = bs.G * d[None, :, None] * d[None, None, :]
+        self.h = bs.h * d[None, :]
+        self.yy = np.asarray(bs.yy, dtype=float)
+        self._totals()
+
+    def _totals(self) -> None:
+        B, K = self.G.shape[0], self.G.shape[1]
         self.Gt, self.ht, self.yyt = self.G.sum(0), self.h.sum(0), float(self.yy.sum())
         self.present = np.array([self.yy[b] > 0 or np.any(self.G[b]) for b in range(B)])
         #: absolute ridge floor: a column whose energy is this small (relative to the average
@@ -121,6 +163,20 @@ class Stats:
             reps[b] = p
             sse[b] = self.yy[b] - 2.0 * p @ hb + p @ Gb @ p
         return sse, reps[self.present], self.solve(G, h, ridge)
+
+    def predict(self, idx: np.ndarray, P: np.ndarray) -> np.ndarray:
+        """(R,) each row's columns ``idx`` times its block's coefficients ``P`` (B, len(idx)),
+        scaled units. A streamed design: one pass over the log (``stream.combine_rows``)."""
+        if self.A is not None:
+            return np.einsum("rk,rk->r", self.A[:, idx], P[self.des.block])
+        full = np.zeros((P.shape[0], len(self.col_scale)))
+        full[:, idx] = P * self.col_scale[idx][None, :]
+        return self.des.stats.combine(full)
+
+    def sse_all(self, idx: np.ndarray, p: np.ndarray) -> float:
+        """Sum of squares over all rows of ``y - A[:, idx] p`` from the normal equations."""
+        G, h = self.Gt[np.ix_(idx, idx)], self.ht[idx]
+        return float(self.yyt - 2.0 * p @ h + p @ G @ p)
 
     def fit(self, idx: np.ndarray, ridge: float) -> np.ndarray:
         return self.solve(self.Gt[np.ix_(idx, idx)], self.ht[idx], ridge)
@@ -435,12 +491,18 @@ def heldout_residual(st: Stats, des: Design, idx: np.ndarray, rc: SelCfg) -> np.
     """(R,) residual rows of the columns ``idx``, each block predicted by the fit on the others."""
     out = des.y.copy()
     G, h = st.Gt[np.ix_(idx, idx)], st.ht[idx]
+    P = np.zeros((len(st.yy), len(idx)))
     for b in range(len(st.yy)):
         m = des.block == b
         if not m.any() or len(idx) == 0:
             continue
         p = st.solve(G - st.G[b][np.ix_(idx, idx)], h - st.h[b][idx], rc.ridge)
-        out[m] = des.y[m] - st.A[m][:, idx] @ p
+        if st.A is None:
+            P[b] = p
+        else:
+            out[m] = des.y[m] - st.A[m][:, idx] @ p
+    if st.A is None and len(idx):
+        out = des.y - st.predict(idx, P)
     return out
 
 
@@ -468,7 +530,7 @@ def refit(des: Design, names: list[str], rc: SelCfg = SelCfg(), cols: dict | Non
     st = Stats(des)
     base = st.z_idx
     p0 = st.fit(base, rc.ridge)
-    before = des.y - st.A[:, base] @ p0
+    before = des.y - _rows(st, base, p0)
     idx = [base]
     chosen = {}
     for n in names:
@@ -480,14 +542,14 @@ def refit(des: Design, names: list[str], rc: SelCfg = SelCfg(), cols: dict | Non
             for j in range(k):
                 ii = np.concatenate([base, st.idx[n][[j]]])
                 p = st.fit(ii, rc.ridge)
-                sse.append(float(np.sum((des.y - st.A[:, ii] @ p) ** 2)))
+                sse.append(float(np.sum((des.y - st.A[:, ii] @ p) ** 2)) if st.A is not None else st.sse_all(ii, p))
             chosen[n] = [int(np.argmin(sse))]
         else:
             chosen[n] = list(range(k))
         idx.append(st.idx[n][chosen[n]])
     ii = np.concatenate(idx)
     p = st.fit(ii, rc.ridge)
-    after = des.y - st.A[:, ii] @ p
+    after = des.y - _rows(st, ii, p)
     _, reps, _ = st.cv(ii, rc.ridge)
     var_j = np.diag(jackknife_cov(reps)) if len(reps) > 1 else np.zeros(len(ii))
     G = st.Gt[np.ix_(ii, ii)]
@@ -505,3 +567,12 @@ def refit(des: Design, names: list[str], rc: SelCfg = SelCfg(), cols: dict | Non
         out[n] = (c, full, sd)
         i += len(c)
     return before, after, out
+
+
+def _rows(st: Stats, idx: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """(R,) the rows of columns ``idx`` times one coefficient vector ``p`` (scaled units)."""
+    if st.A is not None:
+        return st.A[:, idx] @ p
+    if len(idx) == 0:
+        return np.zeros(len(st.des.y))
+    return st.predict(idx, np.tile(p, (len(st.yy), 1)))

@@ -18,13 +18,14 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from kinadapt_nn.diagnostics import contact_point, segmentation
+from kinadapt_nn.diagnostics import contact_point, segmentation, stream
 from kinadapt_nn.diagnostics import selection as sel
 from kinadapt_nn.diagnostics import signals as sg
 from kinadapt_nn.diagnostics.builtin import BUILTINS, CONTACT_MODEL_EFFECTS
 from kinadapt_nn.diagnostics.contract import Effect, load_effect_files
 from kinadapt_nn.diagnostics.setup import SetupCfg
 from kinadapt_nn.errors import KinadaptError, did_you_mean
+from kinadapt_nn.diagnostics.stream import RowMap
 from kinadapt_nn.features.effect_library import moving_average
 
 FREE_CHANNELS = ("F_x", "F_y", "F_z", "M_x", "M_y", "M_z")  # sensor frame
@@ -125,26 +126,6 @@ def judged(lib: dict[str, Effect], setup: SetupCfg) -> list[str]:
     return [n for n in names if n not in setup.analysis.exclude_effects]
 
 
-class RowMap(NamedTuple):
-    """Which samples become regression rows, and how (free space: the six wrench channels weighted
-    by 1/noise; contact: the moment about the declared tip). ``apply`` maps any (n, 6, k) sample
-    columns to (R, k) rows: effects, the residual and the hint shapes go through the same map."""
-
-    rows: np.ndarray  #: (r,) sample index of each row time
-    contact: np.ndarray  #: (r,) bool: contact rows
-    k_smooth: int  #: moving-average length [samples]
-    w_free: np.ndarray  #: (6,) weights of the free-space channels [1/N, 1/(N m)]
-    w_tip: np.ndarray  #: (3,) weights of the tip-moment channels
-    tip_map: np.ndarray  #: (3, 6)
-
-    def apply(self, x: np.ndarray) -> np.ndarray:
-        xs = moving_average(x, self.k_smooth)[self.rows]  # (r, 6, k)
-        con = self.contact
-        free = xs[~con] * self.w_free[None, :, None]
-        tipm = np.einsum("ij,njk->nik", self.tip_map, xs[con]) * self.w_tip[None, :, None]
-        return np.concatenate([free.reshape(-1, x.shape[2]), tipm.reshape(-1, x.shape[2])], axis=0)
-
-
 def row_map(s: sg.LogSignals, sigma: np.ndarray, rc: RowCfg) -> RowMap:
     """The rows of a log (module docstring of ``RowMap``); one-line error when too few are left."""
     setup, t = s.setup, s.t
@@ -173,37 +154,48 @@ def row_map(s: sg.LogSignals, sigma: np.ndarray, rc: RowCfg) -> RowMap:
 
 
 def build_design(s: sg.LogSignals, lib: dict[str, Effect], names: list[str], sigma: np.ndarray, rc: RowCfg,
-                 cols_cache: dict) -> tuple[sel.Design, RowMap]:
-    """Rows of the regression with per-channel weights 1/noise. ``cols_cache`` keeps every
-    effect's sample columns (n, 6, k); those that do not depend on the contact mask are reused."""
+                 cols_cache: dict, chunk: int | None = None) -> tuple[sel.Design, RowMap]:
+    """Rows of the regression with per-channel weights 1/noise, streamed: the per-block normal
+    equations of the effects' columns from one chunked pass (``stream``; ``chunk`` samples per
+    chunk), never the columns themselves. ``cols_cache`` gets each effect's column ``Source``."""
     rm = row_map(s, sigma, rc)
     y = rm.apply((s.wrench - s.w_nom)[:, :, None])[:, 0]
-    X = {}
-    for name in names:
-        eff = lib[name]
-        if name not in cols_cache or eff.uses_contact:
-            cols_cache[name] = eff.evaluate(s)
-        X[name] = rm.apply(cols_cache[name])
-    Z = rm.apply(np.broadcast_to(np.eye(6)[None], (s.n, 6, 6)).copy()) if s.setup.log.tared else np.zeros((len(y), 0))
     con = rm.contact
     nf, nc = int((~con).sum()), int(con.sum())
     channel = np.concatenate([np.tile(np.arange(6), nf), np.tile(np.arange(6, 9), nc)])
     W = np.concatenate([np.tile(rm.w_free, nf), np.tile(rm.w_tip, nc)])
     t = s.clock  # a static log: the pose index (rows are in groups of similar poses)
     tr = np.concatenate([np.repeat(t[rm.rows][~con], 6), np.repeat(t[rm.rows][con], 3)]) - t[0]
+    block, nb = _row_blocks(s, rm, tr, rc)
+    for name in names:
+        cols_cache[name] = stream.Source(name, lib[name].evaluate, list(range(lib[name].k)))
+    nuis = [stream.Source("_offset", _offset_columns, list(range(6)))] if s.setup.log.tared else []
+    bs = stream.block_stats(s, rm, nuis + [cols_cache[n] for n in names], y, block, nb, chunk)
+    R = len(y)
+    X = {nm: sel.Width((R, lib[nm].k)) for nm in names}
+    return sel.Design(y, X, sel.Width((R, 6 if nuis else 0)), block, nb, {nm: lib[nm].relevant for nm in names},
+                      {nm: lib[nm].one_of for nm in names}, W, channel, CHANNELS, tr, bs), rm
+
+
+def _offset_columns(s: sg.LogSignals) -> np.ndarray:
+    """A tared log's unknown constant offset: the identity on every sample (n, 6, 6)."""
+    return np.broadcast_to(np.eye(6)[None], (s.n, 6, 6))
+
+
+def _row_blocks(s: sg.LogSignals, rm: RowMap, tr: np.ndarray, rc: RowCfg) -> tuple[np.ndarray, int]:
+    """(R,) the cross-validation block of each row and the number of blocks: groups of poses of a
+    static log, else contiguous time blocks (``tr`` (R,) the rows' times from the first sample)."""
+    con = rm.contact
     if s.static:  # blocks are groups of poses
         pb = s.pose_block[rm.rows]
         block = np.concatenate([np.repeat(pb[~con], 6), np.repeat(pb[con], 3)])
         _, block = np.unique(block, return_inverse=True)
         block = block.reshape(-1)
-        nb = int(block.max()) + 1
-    else:
-        dur = float(t[-1] - t[0])
-        blen = max(rc.block_s, dur / rc.max_blocks)
-        nb = max(2, int(np.ceil(dur / blen)))
-        block = np.minimum((tr / blen).astype(int), nb - 1)
-    return sel.Design(y, X, Z, block, nb, {nm: lib[nm].relevant for nm in names},
-                      {nm: lib[nm].one_of for nm in names}, W, channel, CHANNELS, tr), rm
+        return block, int(block.max()) + 1
+    dur = float(s.clock[-1] - s.clock[0])
+    blen = max(rc.block_s, dur / rc.max_blocks)
+    nb = max(2, int(np.ceil(dur / blen)))
+    return np.minimum((tr / blen).astype(int), nb - 1), nb
 
 
 def sign_check(fitm, s: sg.LogSignals, setup: SetupCfg) -> dict:
@@ -587,9 +579,9 @@ def _rank(s: sg.LogSignals, lib: dict, names: list[str], sigma: np.ndarray, rc: 
         result = sel.select(des, sc, lambda n, p: lib[n].why_impossible(p, setup), excite, block)
         if it == 1 or not result.present or setup.contact.mode == "none":
             break
-        fitted = np.zeros_like(s.wrench)
-        for n, (c, p_phys, _) in result.present.items():
-            fitted += cache[n][:, :, c] @ p_phys  # the columns this design was built from
+        srcs = [cache[n]._replace(cols=list(c)) for n, (c, _, _) in result.present.items()]
+        fitted = stream.sample_sum(s, srcs, [p for _, p, _ in result.present.values()], rm.k_smooth,
+                                   des.stats.chunk)  # the columns this design was built from
         new_contact, new_off = detect_contact(s.wrench - s.w_nom - fitted, s.t, setup, rc, ~s.contact)
         if np.mean(new_contact != s.contact) < 0.005:
             break
