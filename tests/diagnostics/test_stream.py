@@ -10,7 +10,7 @@ relative ridge (1e-9 of the mean diagonal) caps, and p-values move by the statis
 relative change. Measured on this log (chunks of 997 samples against one chunk, 2-core shared VM):
 the largest relative change of any reported number is 1.6e-11, of the held-out residual 6.8e-12.
 The test allows ``RTOL`` = 1e-6 relative (and ``ATOL`` = 1e-12 absolute, for numbers that are zero
-up to rounding): about 1e4 times what is measured (room for other chunkings to be amplified more
+up to rounding): 6e4 times what is measured (room for other chunkings to be amplified more
 through a p-value's tail or an ill-conditioned solve), and still far below anything a verdict or a
 printed 3-digit figure depends on. Verdicts, the selection's order, the columns used, the ties and every string must be
 identical.
