@@ -95,8 +95,14 @@ def _world_force(s) -> np.ndarray:
     return C
 
 
+def _whole(s, key: str, local: Callable):
+    """A whole-log number: from ``s.whole`` on a chunk of the log, else computed on ``s``."""
+    w = getattr(s, "whole", None)
+    return w[key] if w is not None else local()
+
+
 def _legendre(s, order: int) -> np.ndarray:
-    t0, t1 = float(np.min(s.t)), float(np.max(s.t))
+    t0, t1 = _whole(s, "t_span", lambda: (float(np.min(s.t)), float(np.max(s.t))))
     u = 2.0 * (s.t - t0) / max(t1 - t0, 1e-9) - 1.0
     return np.stack([np.polynomial.legendre.Legendre.basis(d)(u) for d in range(1, order + 1)], axis=1)
 
@@ -119,7 +125,7 @@ def _joint_velocity(s) -> np.ndarray:
 
 
 def _joint_position(s) -> np.ndarray:
-    return _per_channel(s.q - s.q.mean(axis=0))
+    return _per_channel(s.q - _whole(s, "q_mean", lambda: s.q.mean(axis=0)))
 
 
 def contact_moment_sources(s) -> np.ndarray:
@@ -202,7 +208,8 @@ def shapes(s, cc: CompCfg = CompCfg()) -> list[Shape]:
     if getattr(s, "static", False):  # poses at rest: no velocities
         out = [x for x in out if x.name != "joint_velocity"]
     for col in s.extra:
-        out.append(Shape(f"extra:{col}", (lambda c: lambda s_: _per_channel((s_.extra[c] - s_.extra[c].mean())[:, None]))(col),
+        out.append(Shape(f"extra:{col}", (lambda c: lambda s_: _per_channel(
+            (s_.extra[c] - _whole(s_, "extra_mean", lambda: {c: s_.extra[c].mean()})[c])[:, None]))(col),
                          lambda s_: _names_per_channel(["x"], ["unit"]), WORDS["extra"]))
     return out
 
@@ -278,7 +285,12 @@ def unexplained(des: sel.Design, e_ho: np.ndarray, rm, sigma: np.ndarray, setup,
 # ------------------------------------------------------------------------------------------ hints
 def _relevant_of(C: np.ndarray, rel6: np.ndarray) -> np.ndarray:
     """Per parameter: the size that changes some channel's RMS by that channel's relevant size."""
-    rms = np.sqrt(np.mean(C**2, axis=0))  # (6, k)
+    return _relevant_of_sq(np.mean(C**2, axis=0), rel6)
+
+
+def _relevant_of_sq(msq: np.ndarray, rel6: np.ndarray) -> np.ndarray:
+    """``_relevant_of`` from the columns' mean squares (6, k) over the samples."""
+    rms = np.sqrt(msq)  # (6, k)
     worst = np.max(rms / rel6[:, None], axis=0)
     return np.where(worst > 0, 1.0 / np.maximum(worst, 1e-300), 1.0)
 
@@ -288,19 +300,10 @@ def hints(s, des: sel.Design, rm, result, sc: sel.SelCfg, cc: CompCfg = CompCfg(
     from scipy.stats import false_discovery_control
 
     rel6 = np.array([s.setup.analysis.relevant_force_N] * 3 + [s.setup.analysis.relevant_moment_Nm] * 3)
-    base = [des.Z] if des.Z.shape[1] else []
-    for n, (c, _, _) in result.present.items():
-        base.append(des.X[n][:, c])
-    Z = np.concatenate(base, axis=1) if base else np.zeros((len(des.y), 0))
     sh = [x for x in shapes(s, cc) if not (x.name == "sensor_constant" and s.setup.log.tared)]
-    X, scale, info = {}, {}, {}
-    for x in sh:
-        C = x.columns(s)
-        X[x.name] = rm.apply(C)
-        scale[x.name] = _relevant_of(C, rel6)
-        info[x.name] = (x, C)
-    hd = sel.Design(des.y, X, Z, des.block, des.n_blocks, scale, {n: False for n in X}, des.W, des.channel,
-                    des.channel_names, des.t_s)
+    hd = hint_design(s, des, rm, result, sh, rel6)
+    info = {x.name: (x, None) for x in sh}
+    scale, X = hd.scale, hd.X
     st = sel.Stats(hd)
     b = st.z_idx
     sse0, _, _ = st.cv(b, sc.ridge)
@@ -331,6 +334,41 @@ def hints(s, des: sel.Design, rm, result, sc: sel.SelCfg, cc: CompCfg = CompCfg(
                     "_names": names, "_units": units, "_rel": scale[n], "_cols": list(t.cols)})
     out.sort(key=lambda h: -h["explains"])
     return out
+
+
+def hint_design(s, des: sel.Design, rm, result, sh: list[Shape], rel6: np.ndarray) -> sel.Design:
+    """The design of the hint test: the shapes ``sh`` as candidates, the final model's columns
+    (nuisance and present effects) as nuisance; each shape's parameters scaled by ``_relevant_of``.
+    A streamed ``des``: one chunked pass (``stream.block_stats``), never the shapes' columns."""
+    if des.stats is not None:
+        from kinadapt_nn.diagnostics import stream
+
+        bs = des.stats
+        pres = {n: list(c) for n, (c, _, _) in result.present.items()}
+        nuis = [src for src in bs.sources if src.name == "_offset"]
+        nuis += [src._replace(cols=pres[src.name]) for src in bs.sources if src.name in pres]
+        srcs = [stream.Source(x.name, x.columns, list(range(len(x.params(s)[0])))) for x in sh]
+        st = stream.block_stats(s, rm, nuis + srcs, des.y, des.block, des.n_blocks, bs.chunk)
+        kz = sum(len(src.cols) for src in nuis)
+        R, X, scale, k0 = len(des.y), {}, {}, kz
+        for src in srcs:
+            k = len(src.cols)
+            X[src.name] = sel.Width((R, k))
+            scale[src.name] = _relevant_of_sq(st.col_sq[:, k0:k0 + k] / max(st.n_samples, 1), rel6)
+            k0 += k
+        return sel.Design(des.y, X, sel.Width((R, kz)), des.block, des.n_blocks, scale, {n: False for n in X}, des.W,
+                          des.channel, des.channel_names, des.t_s, st)
+    base = [des.Z] if des.Z.shape[1] else []
+    for n, (c, _, _) in result.present.items():
+        base.append(des.X[n][:, c])
+    Z = np.concatenate(base, axis=1) if base else np.zeros((len(des.y), 0))
+    X, scale = {}, {}
+    for x in sh:
+        C = x.columns(s)
+        X[x.name] = rm.apply(C)
+        scale[x.name] = _relevant_of(C, rel6)
+    return sel.Design(des.y, X, Z, des.block, des.n_blocks, scale, {n: False for n in X}, des.W, des.channel,
+                      des.channel_names, des.t_s)
 
 
 def _sparse_test(st: sel.Stats, hd: sel.Design, name: str, base: np.ndarray, sse0: np.ndarray, sc: sel.SelCfg,

@@ -22,11 +22,12 @@ def _selected(result: sel.Selection) -> list[tuple[str, list[int]]]:
     return [(e["effect"], list(e["columns_used"])) for e in sorted(ent, key=lambda e: e["selected_round"])]
 
 
-def refine(result: sel.Selection, des: sel.Design, row_apply, s, lib: dict, cols: dict, rc: sel.SelCfg,
+def refine(result: sel.Selection, des: sel.Design, rm, s, lib: dict, cols: dict, rc: sel.SelCfg,
            iters: int = 4) -> sel.Selection:
     """``result`` with the present effects re-estimated exactly where a selected effect has ``exact``
-    (module docstring); unchanged otherwise. ``row_apply``: (n, 6, k) sample columns -> (R, k) rows (the
-    design's ``RowMap.apply``); ``cols``: effect -> its (n, 6, k) sample columns the design was built from."""
+    (module docstring); unchanged otherwise. ``rm``: the design's ``stream.RowMap`` ((n, 6, k) sample
+    columns -> (R, k) rows); ``cols``: effect -> its column source (``stream.Source``, a streamed
+    design) or its (n, 6, k) sample columns."""
     chosen = _selected(result)
     if not any(getattr(lib[n], "exact", None) is not None for n, _ in chosen):
         return result
@@ -37,15 +38,38 @@ def refine(result: sel.Selection, des: sel.Design, row_apply, s, lib: dict, cols
     G = st.Gt[np.ix_(idx, idx)]
     p_phys = _split(st.fit(idx, rc.ridge) * scale, chosen, len(base))
     for _ in range(iters):
-        rem = np.zeros_like(s.wrench)
+        rem = np.zeros_like(s.wrench)  # (n, 6) exact change less its first-order columns, per sample
         for n, c in chosen:
             if getattr(lib[n], "exact", None) is not None:
-                full = np.zeros(cols[n].shape[2])
+                full = np.zeros(lib[n].k)
                 full[c] = p_phys[n]
-                rem += lib[n].exact(s, full) - cols[n] @ full
-        y = des.y - row_apply(rem[:, :, None])[:, 0]
-        p_phys = _split(st.solve(G, st.A[:, idx].T @ y, rc.ridge) * scale, chosen, len(base))
+                rem += lib[n].exact(s, full) - _first_order(s, cols[n], full, des)
+        y_rem = rm.apply(rem[:, :, None])[:, 0]  # (R,) the remainder as rows
+        p_phys = _split(st.solve(G, st.ht[idx] - _cross(st, des, s, rm, y_rem)[idx], rc.ridge) * scale, chosen, len(base))
     return _with_params(result, p_phys)
+
+
+def _first_order(s, src, full: np.ndarray, des: sel.Design) -> np.ndarray:
+    """(n, 6) an effect's columns times ``full`` (k,), per sample: from its source in chunks (a
+    streamed design) or from its held (n, 6, k) columns."""
+    if isinstance(src, np.ndarray):
+        return src @ full
+    from kinadapt_nn.diagnostics import stream
+
+    chunk = des.stats.chunk if des.stats is not None else None
+    return stream.sample_sum(s, [src._replace(cols=list(range(len(full))))], [full], 1, chunk)
+
+
+def _cross(st: sel.Stats, des: sel.Design, s, rm, y: np.ndarray) -> np.ndarray:
+    """(K,) the design's scaled columns times the rows ``y`` (R,): ``A^T y`` from the held columns,
+    or one chunked pass over the log for a streamed design."""
+    if st.A is not None:
+        return st.A.T @ y
+    from kinadapt_nn.diagnostics import stream
+
+    bs = des.stats
+    h = stream.block_stats(s, rm, bs.sources, y, des.block, des.n_blocks, bs.chunk).h
+    return h.sum(0) * st.col_scale
 
 
 def _split(p: np.ndarray, chosen: list[tuple[str, list[int]]], k0: int) -> dict[str, np.ndarray]:

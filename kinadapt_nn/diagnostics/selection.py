@@ -63,13 +63,28 @@ class Design(NamedTuple):
     channel: np.ndarray  #: (R,) channel index of each row
     channel_names: tuple  #: names of the channels
     t_s: np.ndarray  #: (R,) time of each row [s]
+    #: a streamed design (``stream.BlockStats``): the per-block normal equations of ``[Z, X_e1, ...]``
+    #: (unscaled); then ``X`` and ``Z`` hold ``Width`` (the columns' shape only), never the columns
+    stats: object | None = None
+
+
+class Width(NamedTuple):
+    """Columns of a streamed design that are not held: only their shape (R, k)."""
+
+    shape: tuple
 
 
 class Stats:
-    """Per-block Gram statistics of ``[Z, X_e1 * d_e1, ...]`` (scaled columns) and ``y``."""
+    """Per-block Gram statistics of ``[Z, X_e1 * d_e1, ...]`` (scaled columns) and ``y``: from the
+    columns (``A``), or from a streamed design's per-block normal equations (``A`` is None; rows
+    then come from ``predict``)."""
 
     def __init__(self, des: Design) -> None:
         self.names = list(des.X)
+        self.des = des
+        if des.stats is not None:
+            self._from_blocks(des)
+            return
         blocks = [des.Z * (1.0 / np.maximum(np.linalg.norm(des.Z, axis=0), 1e-300))] if des.Z.shape[1] else []
         self.idx: dict[str, np.ndarray] = {}
         k0 = des.Z.shape[1]
@@ -93,6 +108,33 @@ class Stats:
             self.G[b] = Ab.T @ Ab
             self.h[b] = Ab.T @ yb
             self.yy[b] = float(yb @ yb)
+        self._totals()
+
+    def _from_blocks(self, des: Design) -> None:
+        """The same statistics from ``des.stats`` (unscaled per-block ``G_b``, ``h_b``, ``yy_b``): each
+        column scaled as ``__init__`` scales it (nuisance by its norm, effects by their relevant size)."""
+        bs = des.stats
+        k0 = des.Z.shape[1]
+        diag = np.diagonal(bs.G.sum(0))
+        self.z_idx = np.arange(k0)
+        self.z_scale = 1.0 / np.maximum(np.sqrt(diag[:k0]), 1e-300) if k0 else np.zeros(0)
+        scales = [self.z_scale]
+        self.idx = {}
+        for n in self.names:
+            k = des.X[n].shape[1]
+            self.idx[n] = np.arange(k0, k0 + k)
+            k0 += k
+            scales.append(np.asarray(des.scale[n], dtype=float))
+        self.col_scale = np.concatenate(scales) if scales else np.zeros(0)
+        d = self.col_scale
+        self.A = None
+        self.G = bs.G * d[None, :, None] * d[None, None, :]
+        self.h = bs.h * d[None, :]
+        self.yy = np.asarray(bs.yy, dtype=float)
+        self._totals()
+
+    def _totals(self) -> None:
+        B, K = self.G.shape[0], self.G.shape[1]
         self.Gt, self.ht, self.yyt = self.G.sum(0), self.h.sum(0), float(self.yy.sum())
         self.present = np.array([self.yy[b] > 0 or np.any(self.G[b]) for b in range(B)])
         #: absolute ridge floor: a column whose energy is this small (relative to the average
@@ -123,6 +165,20 @@ class Stats:
             reps[b] = p
             sse[b] = self.yy[b] - 2.0 * p @ hb + p @ Gb @ p
         return sse, reps[self.present], self.solve(G, h, ridge)
+
+    def predict(self, idx: np.ndarray, P: np.ndarray) -> np.ndarray:
+        """(R,) each row's columns ``idx`` times its block's coefficients ``P`` (B, len(idx)),
+        scaled units. A streamed design: one pass over the log (``stream.combine_rows``)."""
+        if self.A is not None:
+            return np.einsum("rk,rk->r", self.A[:, idx], P[self.des.block])
+        full = np.zeros((P.shape[0], len(self.col_scale)))
+        full[:, idx] = P * self.col_scale[idx][None, :]
+        return self.des.stats.combine(full)
+
+    def sse_all(self, idx: np.ndarray, p: np.ndarray) -> float:
+        """Sum of squares over all rows of ``y - A[:, idx] p`` from the normal equations."""
+        G, h = self.Gt[np.ix_(idx, idx)], self.ht[idx]
+        return float(self.yyt - 2.0 * p @ h + p @ G @ p)
 
     def fit(self, idx: np.ndarray, ridge: float) -> np.ndarray:
         return self.solve(self.Gt[np.ix_(idx, idx)], self.ht[idx], ridge)
@@ -230,22 +286,50 @@ def select(des: Design, rc: SelCfg = SelCfg(), plausible: Callable[[str, np.ndar
     """Forward selection and verdicts (module docstring). ``plausible(effect, params_physical)``
     returns why an estimate is impossible (or None); ``hints`` effect -> the motion that excites
     it; ``block_all``: a reason that makes every verdict ``cannot_decide`` (e.g. a failed sign
-    check)."""
-    from scipy.stats import false_discovery_control
-
+    check). Steps: ``_forward`` (rounds, near-ties) -> ``_below_relevant`` -> ``_joint`` (the
+    final model re-estimated) -> ``_entry`` per effect (excitation, equivalence, verdict)."""
     hints = hints or {}
     st = Stats(des)
-    names = st.names
     base = st.z_idx.copy()
     sse0, _, _ = st.cv(base, rc.ridge)
     sse_total = float(sse0.sum()) or 1e-300
-    alone = {n: _test(st, des, n, base, sse0, rc) for n in names}
+    alone = {n: _test(st, des, n, base, sse0, rc) for n in st.names}
+    fw = _forward(st, des, rc, base, sse0, alone, hints)
+    small = _below_relevant(st, des, st.names, fw.selected, fw.sse_sel, base, rc)
+    jt = _joint(st, des, rc, base, fw)
+    ctx = _EntryCtx(st, des, rc, base, fw, jt, small, sse_total, alone, plausible, hints, block_all)
+    entries = [_entry(ctx, n) for n in st.names]
+    present = {e["effect"]: jt.joint[e["effect"]] for e in entries if e["verdict"] == "present"}
+    order = {"present": 0, "cannot_decide": 1, "absent": 2}
+    entries.sort(key=lambda e: (e["selected_round"] is None, e["selected_round"] or 0, order[e["verdict"]],
+                                -e["explained_fraction"]))
+    small_idx = np.concatenate([jt.idx, *[st.idx[s][c] for s, c in small.items()]]) if small else jt.idx
+    return Selection(entries, present, sse_total, float(jt.sse.sum()), jt.nuisance,
+                     heldout_residual(st, des, small_idx, rc), jt.idx, list(small))
+
+
+class _Forward(NamedTuple):
+    """What the forward rounds found."""
+
+    selected: list  #: [(effect, cols)] in the order selected
+    ties: dict  #: effect -> set of effects it is near-tied with
+    tie_labels: dict  #: effect -> ["effect:param"] near-tied columns of a one-of effect
+    sse_sel: np.ndarray  #: (B,) held-out SSE of the selected model
+    last: dict  #: effect -> its last ``Candidate`` test
+
+
+def _forward(st: Stats, des: Design, rc: SelCfg, base: np.ndarray, sse0: np.ndarray, alone: dict,
+             hints: dict) -> _Forward:
+    """Forward selection (module docstring): each round tests the remaining candidates given the
+    selected ones (BH across the round) and selects the best eligible one, noting near-ties."""
+    from scipy.stats import false_discovery_control
+
+    names = st.names
     last = dict(alone)
     selected: list[tuple[str, list[int]]] = []
     ties: dict[str, set[str]] = {}
     tie_labels: dict[str, list[str]] = {}
     sse_sel = sse0
-    rounds = 0
     while len(selected) < len(names):
         cand = [n for n in names if n not in {s for s, _ in selected}]
         cur = np.concatenate([base, *[st.idx[s][c] for s, c in selected]]) if selected else base
@@ -256,53 +340,77 @@ def select(des: Design, rc: SelCfg = SelCfg(), plausible: Callable[[str, np.ndar
             tests[n].p_adjusted = float(pa)
             last[n] = tests[n]
         rest = float(sse_sel.sum()) or 1e-300
-
-        def eligible(t: Candidate) -> bool:
-            big = np.max(np.abs(t.p)) >= 1.0 if len(t.p) else False  # scaled: 1 = relevant magnitude
-            return t.p_adjusted < rc.alpha and t.gain.sum() / rest >= rc.min_explained and big
-
-        ok = [n for n in cand if eligible(tests[n])]
+        ok = [n for n in cand if _eligible(tests[n], rest, rc)]
         if not ok:
             break
         best = max(ok, key=lambda n: tests[n].gain.sum())
         t = tests[best]
-        # near-ties: another effect, or another column of a one-of effect, that explains nearly as much
-        # and nothing more once the best is in the model (and is not significantly worse block by block)
-        rivals: list[str] = []
-        for n in cand:
-            if n == best or tests[n].gain.sum() < rc.tie_ratio * t.gain.sum() or tests[n].gain.sum() <= 0:
-                continue
-            cur_b = np.concatenate([cur, st.idx[best][t.cols]])
-            given = _test(st, des, n, cur_b, t.sse, rc)
-            if given.gain.sum() / (float(t.sse.sum()) or 1e-300) < rc.min_explained and \
-                    paired_p(t.sse, tests[n].sse) > rc.tie_p:
-                rivals.append(n)
-        if des.one_of[best]:
-            for cols, g in t.choice_gains.items():
-                if list(cols) == t.cols or g < rc.tie_ratio * t.gain.sum():
-                    continue
-                alt = _test(st, des, best, cur, sse_sel, rc, only_cols=list(cols))
-                if paired_p(t.sse, alt.sse) > rc.tie_p:
-                    tie_labels.setdefault(best, []).append(
-                        f"{best}:{des_param(des, best, cols[0], hints)}")
+        rivals, labels = _near_ties(st, des, rc, tests, best, cur, sse_sel, hints)
+        if labels:
+            tie_labels.setdefault(best, []).extend(labels)
         if rivals:
             grp = {best, *rivals}
             for n in grp:
                 ties.setdefault(n, set()).update(grp - {n})
-        t.p_adjusted = float(t.p_adjusted)
         selected.append((best, t.cols))
         sse_sel = t.sse
-        rounds += 1
-    small = _below_relevant(st, des, names, selected, sse_sel, base, rc)
-    # joint re-estimate of everything selected
+    return _Forward(selected, ties, tie_labels, sse_sel, last)
+
+
+def _eligible(t: Candidate, rest: float, rc: SelCfg) -> bool:
+    """Significant, explains ``min_explained`` of ``rest`` held-out, and reaches its relevant size."""
+    big = np.max(np.abs(t.p)) >= 1.0 if len(t.p) else False  # scaled: 1 = relevant magnitude
+    return t.p_adjusted < rc.alpha and t.gain.sum() / rest >= rc.min_explained and big
+
+
+def _near_ties(st: Stats, des: Design, rc: SelCfg, tests: dict, best: str, cur: np.ndarray,
+               sse_sel: np.ndarray, hints: dict) -> tuple[list[str], list[str]]:
+    """Near-ties of the round's ``best`` among the round's candidates ``tests``: another effect, or
+    another column of a one-of effect, that explains nearly as much and nothing more once the best
+    is in the model (and is not significantly worse block by block). -> (rival effects,
+    ``best:param`` labels)."""
+    t = tests[best]
+    cand = list(tests)
+    rivals: list[str] = []
+    for n in cand:
+        if n == best or tests[n].gain.sum() < rc.tie_ratio * t.gain.sum() or tests[n].gain.sum() <= 0:
+            continue
+        cur_b = np.concatenate([cur, st.idx[best][t.cols]])
+        given = _test(st, des, n, cur_b, t.sse, rc)
+        if given.gain.sum() / (float(t.sse.sum()) or 1e-300) < rc.min_explained and \
+                paired_p(t.sse, tests[n].sse) > rc.tie_p:
+            rivals.append(n)
+    labels: list[str] = []
+    if des.one_of[best]:
+        for cols, g in t.choice_gains.items():
+            if list(cols) == t.cols or g < rc.tie_ratio * t.gain.sum():
+                continue
+            alt = _test(st, des, best, cur, sse_sel, rc, only_cols=list(cols))
+            if paired_p(t.sse, alt.sse) > rc.tie_p:
+                labels.append(f"{best}:{des_param(des, best, cols[0], hints)}")
+    return rivals, labels
+
+
+class _Joint(NamedTuple):
+    """The final model re-estimated jointly."""
+
+    sse: np.ndarray  #: (B,) held-out SSE
+    idx: np.ndarray  #: its columns (nuisance first)
+    joint: dict  #: effect -> (cols, estimate physical, sd physical)
+    nuisance: np.ndarray  #: (z,) nuisance estimate (physical column units)
+
+
+def _joint(st: Stats, des: Design, rc: SelCfg, base: np.ndarray, fw: _Forward) -> _Joint:
+    """Joint re-estimate of everything selected (block-jackknife sd), with the significant effects
+    the forward rounds left out fitted beside them (``intervals.given_significant``)."""
+    selected, last = fw.selected, fw.last
     sel_idx = np.concatenate([base, *[st.idx[s][c] for s, c in selected]]) if selected else base
     sse_fin, reps, p_all = st.cv(sel_idx, rc.ridge)
     cov_all = jackknife_cov(reps)
     chosen = {s for s, _ in selected}  # significant effects left out: fitted beside the selected (intervals.py)
-    extra = [st.idx[n][last[n].cols] for n in names if n not in chosen and last[n].p_adjusted < rc.alpha]
+    extra = [st.idx[n][last[n].cols] for n in st.names if n not in chosen and last[n].p_adjusted < rc.alpha]
     if selected and extra:
         p_all, cov_all = intervals.given_significant(lambda ii: st.cv(ii, rc.ridge), sel_idx, extra)
-    present: dict[str, tuple] = {}
     joint: dict[str, tuple] = {}
     i = len(base)
     for s, c in selected:
@@ -311,78 +419,105 @@ def select(des: Design, rc: SelCfg = SelCfg(), plausible: Callable[[str, np.ndar
         joint[s] = (c, p_all[i:i + k] * sc, np.sqrt(np.clip(np.diag(cov_all)[i:i + k], 0, None)) * sc)
         i += k
     nuis = p_all[:len(base)] * st.z_scale if len(base) else np.zeros(0)
-    sse_ref = max(float(sse_fin.sum()), 1e-4 * len(des.y))
-    entries = []
-    for n in names:
-        t = last[n]
-        k = des.X[n].shape[1]
-        scale = np.asarray(des.scale[n])
-        e: dict = {"effect": n, "explained_fraction": float(t.gain.sum() / sse_total),
-                   "explained_fraction_alone": float(alone[n].gain.sum() / sse_total),
-                   "p_value": float(t.p_value), "p_adjusted": float(t.p_adjusted)}
-        sel = n in joint
-        if sel:
-            c, pv, sd = joint[n]
+    return _Joint(sse_fin, sel_idx, joint, nuis)
+
+
+class _EntryCtx(NamedTuple):
+    """Everything an effect's entry is judged from."""
+
+    st: Stats
+    des: Design
+    rc: SelCfg
+    base: np.ndarray
+    fw: _Forward
+    jt: _Joint
+    small: dict
+    sse_total: float
+    alone: dict
+    plausible: Callable | None
+    hints: dict
+    block_all: str | None
+
+
+def _entry(cx: _EntryCtx, n: str) -> dict:
+    """One effect's entry: fractions, p-values, estimate, excitation, equivalence and verdict."""
+    des, fw = cx.des, cx.fw
+    t = fw.last[n]
+    k = des.X[n].shape[1]
+    scale = np.asarray(des.scale[n])
+    e: dict = {"effect": n, "explained_fraction": float(t.gain.sum() / cx.sse_total),
+               "explained_fraction_alone": float(cx.alone[n].gain.sum() / cx.sse_total),
+               "p_value": float(t.p_value), "p_adjusted": float(t.p_adjusted)}
+    sel = n in cx.jt.joint
+    if sel:
+        c, pv, sd = cx.jt.joint[n]
+    else:
+        c, pv = t.cols, t.p * scale[t.cols]
+        sd = np.sqrt(np.clip(np.diag(t.cov), 0, None)) * scale[c]
+    p_full, sd_full = np.zeros(k), np.zeros(k)
+    p_full[c], sd_full[c] = pv, sd
+    e["params"], e["sd"], e["columns_used"] = p_full, sd_full, list(c)
+    undecided = _excitation(cx, n, e, sel)
+    verdict, reason = _verdict(cx, n, p_full, sel, undecided)
+    if n in cx.small and verdict != "present":
+        e["below_relevant"] = True
+    e["verdict"], e["reason"] = verdict, reason
+    e["significant"] = verdict == "present"
+    e["selected_round"] = next((r for r, (s, _) in enumerate(fw.selected) if s == n), None)
+    if n in fw.ties or n in fw.tie_labels:
+        e["indistinguishable_from"] = sorted(fw.ties.get(n, set())) + fw.tie_labels.get(n, [])
+        e["to_separate"] = " / ".join(cx.hints.get(x.split(":")[0], "") for x in [n, *sorted(fw.ties.get(n, set()))])
+    if verdict == "cannot_decide" and undecided and not sel:
+        e["to_excite"] = cx.hints.get(n, "")
+    return e
+
+
+def _excitation(cx: _EntryCtx, n: str, e: dict, sel: bool) -> list[int]:
+    """Excitation and (not selected) the equivalence test: each parameter given the final model
+    minus itself; writes ``e["excitation"]`` (and ``e["equivalence"]``). -> undecided parameters."""
+    st, des = cx.st, cx.des
+    k = des.X[n].shape[1]
+    scale = np.asarray(des.scale[n])
+    sse_ref = max(float(cx.jt.sse.sum()), 1e-4 * len(des.y))
+    others = np.concatenate([cx.base, *[st.idx[s][cc] for s, cc in cx.fw.selected if s != n]])
+    eq = equivalence(st, des, n, others, cx.jt.sse, cx.rc) if not sel else None
+    if des.one_of[n]:
+        lam = np.array([float(st.schur(st.idx[n][[j]], others)[0, 0]) for j in range(k)])
+        ratio = float(lam.min() / sse_ref)
+    else:
+        ratio = float(np.linalg.eigvalsh(st.schur(st.idx[n], others))[0] / sse_ref)
+    undecided = [] if eq is None else [j for j in range(k) if not eq["inside"][j]]
+    e["excitation"] = {"ratio": ratio, "enough": not undecided, "weak_parameters": undecided}
+    if eq is not None:
+        e["equivalence"] = {"ci_low": eq["lo"] * scale, "ci_high": eq["hi"] * scale, "relevant": scale,
+                            "level": cx.rc.ci_level}
+    return undecided
+
+
+def _verdict(cx: _EntryCtx, n: str, p_full: np.ndarray, sel: bool, undecided: list[int]) -> tuple[str, str | None]:
+    """present / cannot_decide / absent and the reason (module docstring)."""
+    tie = "a near-tie: another explanation fits the data as well"
+    reason = None
+    if cx.block_all:
+        verdict, reason = "cannot_decide", cx.block_all
+    elif sel:
+        why = cx.plausible(n, p_full) if cx.plausible else None
+        if why:
+            verdict, reason = "cannot_decide", f"physically impossible estimate: {why}"
+        elif n in cx.fw.ties or n in cx.fw.tie_labels:
+            verdict, reason = "cannot_decide", tie
         else:
-            c = t.cols
-            pv = t.p * scale[c]
-            sd = np.sqrt(np.clip(np.diag(t.cov), 0, None)) * scale[c]
-        p_full, sd_full = np.zeros(k), np.zeros(k)
-        p_full[c], sd_full[c] = pv, sd
-        e["params"], e["sd"], e["columns_used"] = p_full, sd_full, list(c)
-        # excitation and the equivalence test: each parameter given the final model minus itself
-        others = np.concatenate([base, *[st.idx[s][cc] for s, cc in selected if s != n]])
-        eq = equivalence(st, des, n, others, sse_fin, rc) if not sel else None
-        if des.one_of[n]:
-            lam = np.array([float(st.schur(st.idx[n][[j]], others)[0, 0]) for j in range(k)])
-            ratio = float(lam.min() / sse_ref)
-        else:
-            ratio = float(np.linalg.eigvalsh(st.schur(st.idx[n], others))[0] / sse_ref)
-        undecided = [] if eq is None else [j for j in range(k) if not eq["inside"][j]]
-        e["excitation"] = {"ratio": ratio, "enough": not undecided, "weak_parameters": undecided}
-        if eq is not None:
-            e["equivalence"] = {"ci_low": eq["lo"] * scale, "ci_high": eq["hi"] * scale, "relevant": scale,
-                                "level": rc.ci_level}
-        reason = None
-        if block_all:
-            verdict, reason = "cannot_decide", block_all
-        elif sel:
-            why = plausible(n, p_full) if plausible else None
-            if why:
-                verdict, reason = "cannot_decide", f"physically impossible estimate: {why}"
-            elif n in ties or n in tie_labels:
-                verdict = "cannot_decide"
-                reason = "a near-tie: another explanation fits the data as well"
-            else:
-                verdict = "present"
-        elif n in ties:
-            verdict, reason = "cannot_decide", "a near-tie: another explanation fits the data as well"
-        elif undecided:
-            verdict = "cannot_decide"
-            reason = "its confidence interval crosses the relevant size: not excited enough to rule out"
-        else:
-            verdict = "absent"
-        if n in small and verdict != "present":
-            e["below_relevant"] = True
-            reason = ("significant, but its estimate stays below the relevant size" if verdict == "cannot_decide"
-                      else reason)
-        e["verdict"], e["reason"] = verdict, reason
-        e["significant"] = verdict == "present"
-        e["selected_round"] = next((r for r, (s, _) in enumerate(selected) if s == n), None)
-        if n in ties or n in tie_labels:
-            e["indistinguishable_from"] = sorted(ties.get(n, set())) + tie_labels.get(n, [])
-            e["to_separate"] = " / ".join(hints.get(x.split(":")[0], "") for x in [n, *sorted(ties.get(n, set()))])
-        if verdict == "cannot_decide" and undecided and not sel:
-            e["to_excite"] = hints.get(n, "")
-        if verdict == "present":
-            present[n] = joint[n]
-        entries.append(e)
-    order = {"present": 0, "cannot_decide": 1, "absent": 2}
-    entries.sort(key=lambda e: (e["selected_round"] is None, e["selected_round"] or 0, order[e["verdict"]],
-                                -e["explained_fraction"]))
-    small_idx = np.concatenate([sel_idx, *[st.idx[s][c] for s, c in small.items()]]) if small else sel_idx
-    return Selection(entries, present, sse_total, float(sse_fin.sum()), nuis, heldout_residual(st, des, small_idx, rc),
-                     sel_idx, list(small))
+            verdict = "present"
+    elif n in cx.fw.ties:
+        verdict, reason = "cannot_decide", tie
+    elif undecided:
+        verdict = "cannot_decide"
+        reason = "its confidence interval crosses the relevant size: not excited enough to rule out"
+    else:
+        verdict = "absent"
+    if n in cx.small and verdict == "cannot_decide":
+        reason = "significant, but its estimate stays below the relevant size"
+    return verdict, reason
 
 
 def _below_relevant(st: Stats, des: Design, names: list[str], selected: list, sse_sel: np.ndarray, base: np.ndarray,
@@ -441,12 +576,18 @@ def heldout_residual(st: Stats, des: Design, idx: np.ndarray, rc: SelCfg) -> np.
     """(R,) residual rows of the columns ``idx``, each block predicted by the fit on the others."""
     out = des.y.copy()
     G, h = st.Gt[np.ix_(idx, idx)], st.ht[idx]
+    P = np.zeros((len(st.yy), len(idx)))
     for b in range(len(st.yy)):
         m = des.block == b
         if not m.any() or len(idx) == 0:
             continue
         p = st.solve(G - st.G[b][np.ix_(idx, idx)], h - st.h[b][idx], rc.ridge)
-        out[m] = des.y[m] - st.A[m][:, idx] @ p
+        if st.A is None:
+            P[b] = p
+        else:
+            out[m] = des.y[m] - st.A[m][:, idx] @ p
+    if st.A is None and len(idx):
+        out = des.y - st.predict(idx, P)
     return out
 
 
@@ -475,7 +616,7 @@ def refit(des: Design, names: list[str], rc: SelCfg = SelCfg(), cols: dict | Non
     st = Stats(des)
     base = st.z_idx
     p0 = st.fit(base, rc.ridge)
-    before = des.y - st.A[:, base] @ p0
+    before = des.y - _rows(st, base, p0)
     idx = [base]
     chosen = {}
     for n in names:
@@ -487,14 +628,14 @@ def refit(des: Design, names: list[str], rc: SelCfg = SelCfg(), cols: dict | Non
             for j in range(k):
                 ii = np.concatenate([base, st.idx[n][[j]]])
                 p = st.fit(ii, rc.ridge)
-                sse.append(float(np.sum((des.y - st.A[:, ii] @ p) ** 2)))
+                sse.append(float(np.sum((des.y - st.A[:, ii] @ p) ** 2)) if st.A is not None else st.sse_all(ii, p))
             chosen[n] = [int(np.argmin(sse))]
         else:
             chosen[n] = list(range(k))
         idx.append(st.idx[n][chosen[n]])
     ii = np.concatenate(idx)
     p = st.fit(ii, rc.ridge)
-    after = des.y - st.A[:, ii] @ p
+    after = des.y - _rows(st, ii, p)
     _, reps, _ = st.cv(ii, rc.ridge)
     var_j = np.diag(jackknife_cov(reps)) if len(reps) > 1 else np.zeros(len(ii))
     G = st.Gt[np.ix_(ii, ii)]
@@ -513,3 +654,12 @@ def refit(des: Design, names: list[str], rc: SelCfg = SelCfg(), cols: dict | Non
         out[n] = (c, full, sd)
         i += len(c)
     return before, after, out
+
+
+def _rows(st: Stats, idx: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """(R,) the rows of columns ``idx`` times one coefficient vector ``p`` (scaled units)."""
+    if st.A is not None:
+        return st.A[:, idx] @ p
+    if len(idx) == 0:
+        return np.zeros(len(st.des.y))
+    return st.predict(idx, np.tile(p, (len(st.yy), 1)))

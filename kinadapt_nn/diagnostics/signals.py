@@ -50,6 +50,9 @@ class LogSignals:
     static: bool = False  #: a static-pose log ([log] static): rows are poses at rest, in canonical order
     has_time: bool = True  #: the log has a time column (False: ``t`` is the pose index, not a clock)
     pose_block: np.ndarray | None = None  #: (n,) static logs: the group of similar poses of each row (CV blocks)
+    #: a chunk of a log (``stream.slice_signals``): the whole log's numbers that shapes need (time span,
+    #: mean joint angles (dof,), extra columns' means); None for a whole log
+    whole: dict | None = field(repr=False, default=None)
 
     @property
     def n(self) -> int:

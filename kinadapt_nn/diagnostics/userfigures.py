@@ -8,6 +8,25 @@ from pathlib import Path
 import numpy as np
 
 VERDICT_COLORS = {"present": "C3", "cannot_decide": "C1", "absent": "0.6"}
+#: at most about this many points per plotted series (a long log's series are decimated)
+MAX_POINTS = 20_000
+
+
+def envelope(t: np.ndarray, y: np.ndarray, max_points: int = MAX_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """A line's samples (n,) decimated for plotting: ``max_points / 2`` bins of consecutive
+    samples, each drawn as its minimum and maximum at its first time (spikes stay visible);
+    the series itself when it is short. -> (t, y)."""
+    n = len(t)
+    if n <= max_points:
+        return t, y
+    start = np.linspace(0, n, max_points // 2 + 1).astype(int)[:-1]
+    lo, hi = np.minimum.reduceat(y, start), np.maximum.reduceat(y, start)
+    return np.repeat(t[start], 2), np.column_stack([lo, hi]).ravel()
+
+
+def every(n: int, max_points: int = MAX_POINTS) -> slice:
+    """A stride that leaves at most ``max_points`` of ``n`` points (dot plots, shading)."""
+    return slice(None, None, max(1, -(-n // max_points)))
 
 
 def _plt():
@@ -21,6 +40,8 @@ def _plt():
 
 def _shade(ax, t, mask) -> None:
     if mask.any():
+        k = every(len(t), 4 * MAX_POINTS)
+        t, mask = t[k], mask[k]
         ax.fill_between(t, 0, 1, where=mask, color="#ffe6cc", transform=ax.get_xaxis_transform(), step="mid",
                         label="contact (tip-moment rows)")
 
@@ -52,8 +73,8 @@ def _mvm_fig(res, setup):
     for i, a in enumerate(ax.ravel()):
         unit = "N" if i < 3 else "N m"
         _shade(a, t, res.contact)
-        a.plot(t, sig.wrench[:, i], lw=0.6, color="0.3", label="measured")
-        a.plot(t, sig.w_nom[:, i], lw=1.0, color="C0", label="declared tool (model)")
+        a.plot(*envelope(t, sig.wrench[:, i]), lw=0.6, color="0.3", label="measured")
+        a.plot(*envelope(t, sig.w_nom[:, i]), lw=1.0, color="C0", label="declared tool (model)")
         set_robust_ylim(a, t, [sig.wrench[:, i], sig.w_nom[:, i]], unit=unit)
         a.set_ylabel(f"{names[i]} [{unit}]")
         a.set_title(names[i], fontsize=10)
@@ -94,7 +115,7 @@ def _unexplained_row(axes, res, setup) -> None:
             m = des.channel == c
             if not m.any():
                 continue
-            o = np.argsort(des.t_s[m])
+            o = np.argsort(des.t_s[m])[every(int(m.sum()))]
             t = des.t_s[m][o]
             yb, ya = before[m][o] / des.W[m][o], after[m][o] / des.W[m][o]
             line, = a.plot(t, yb, ".", ms=1.2, alpha=0.25)
@@ -154,6 +175,8 @@ def _effects_fig(res):
         des = res.design
         added = list(res.report["added"])
         for col, chans, unit in ((1, (0, 1, 2), "N"), (2, (3, 4, 5, 6, 7, 8), "N m")):
-            before_after_panel(ax[0, col], (des.t_s, des.channel, res.before / des.W, res.after / des.W), chans,
-                               des.channel_names, unit, added, marker=".")
+            k = np.concatenate([np.flatnonzero(des.channel == c)[every(int(np.sum(des.channel == c)))]
+                                for c in chans])  # each channel's rows, decimated
+            before_after_panel(ax[0, col], (des.t_s[k], des.channel[k], res.before[k] / des.W[k],
+                                            res.after[k] / des.W[k]), chans, des.channel_names, unit, added, marker=".")
     return fig

@@ -18,13 +18,14 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from kinadapt_nn.diagnostics import contact_point, nonlinear, segmentation
+from kinadapt_nn.diagnostics import contact_point, nonlinear, segmentation, stream
 from kinadapt_nn.diagnostics import selection as sel
 from kinadapt_nn.diagnostics import signals as sg
 from kinadapt_nn.diagnostics.builtin import BUILTINS, CONTACT_MODEL_EFFECTS
 from kinadapt_nn.diagnostics.contract import Effect, load_effect_files
 from kinadapt_nn.diagnostics.setup import SetupCfg
 from kinadapt_nn.errors import KinadaptError, did_you_mean
+from kinadapt_nn.diagnostics.stream import RowMap
 from kinadapt_nn.features.effect_library import moving_average
 
 FREE_CHANNELS = ("F_x", "F_y", "F_z", "M_x", "M_y", "M_z")  # sensor frame
@@ -41,6 +42,7 @@ class RowCfg(NamedTuple):
     edge_s: float = 0.06  #: [s] rows this close to the log's ends are left out (derivative edges)
     force_floor_N: float = 0.01  #: [N] smallest per-sample force noise used for the channel weights
     moment_floor_Nm: float = 0.001  #: [N m] the same for moments
+    chunk_samples: int = stream.CHUNK_SAMPLES  #: samples per chunk of the design's passes (not in the report)
 
 
 def noise_sigma(r: np.ndarray, rc: RowCfg) -> np.ndarray:
@@ -125,26 +127,6 @@ def judged(lib: dict[str, Effect], setup: SetupCfg) -> list[str]:
     return [n for n in names if n not in setup.analysis.exclude_effects]
 
 
-class RowMap(NamedTuple):
-    """Which samples become regression rows, and how (free space: the six wrench channels weighted
-    by 1/noise; contact: the moment about the declared tip). ``apply`` maps any (n, 6, k) sample
-    columns to (R, k) rows: effects, the residual and the hint shapes go through the same map."""
-
-    rows: np.ndarray  #: (r,) sample index of each row time
-    contact: np.ndarray  #: (r,) bool: contact rows
-    k_smooth: int  #: moving-average length [samples]
-    w_free: np.ndarray  #: (6,) weights of the free-space channels [1/N, 1/(N m)]
-    w_tip: np.ndarray  #: (3,) weights of the tip-moment channels
-    tip_map: np.ndarray  #: (3, 6)
-
-    def apply(self, x: np.ndarray) -> np.ndarray:
-        xs = moving_average(x, self.k_smooth)[self.rows]  # (r, 6, k)
-        con = self.contact
-        free = xs[~con] * self.w_free[None, :, None]
-        tipm = np.einsum("ij,njk->nik", self.tip_map, xs[con]) * self.w_tip[None, :, None]
-        return np.concatenate([free.reshape(-1, x.shape[2]), tipm.reshape(-1, x.shape[2])], axis=0)
-
-
 def row_map(s: sg.LogSignals, sigma: np.ndarray, rc: RowCfg) -> RowMap:
     """The rows of a log (module docstring of ``RowMap``); one-line error when too few are left."""
     setup, t = s.setup, s.t
@@ -173,37 +155,48 @@ def row_map(s: sg.LogSignals, sigma: np.ndarray, rc: RowCfg) -> RowMap:
 
 
 def build_design(s: sg.LogSignals, lib: dict[str, Effect], names: list[str], sigma: np.ndarray, rc: RowCfg,
-                 cols_cache: dict) -> tuple[sel.Design, RowMap]:
-    """Rows of the regression with per-channel weights 1/noise. ``cols_cache`` keeps every
-    effect's sample columns (n, 6, k); those that do not depend on the contact mask are reused."""
+                 cols_cache: dict, chunk: int | None = None) -> tuple[sel.Design, RowMap]:
+    """Rows of the regression with per-channel weights 1/noise, streamed: the per-block normal
+    equations of the effects' columns from one chunked pass (``stream``; ``chunk`` samples per
+    chunk), never the columns themselves. ``cols_cache`` gets each effect's column ``Source``."""
     rm = row_map(s, sigma, rc)
     y = rm.apply((s.wrench - s.w_nom)[:, :, None])[:, 0]
-    X = {}
-    for name in names:
-        eff = lib[name]
-        if name not in cols_cache or eff.uses_contact:
-            cols_cache[name] = eff.evaluate(s)
-        X[name] = rm.apply(cols_cache[name])
-    Z = rm.apply(np.broadcast_to(np.eye(6)[None], (s.n, 6, 6)).copy()) if s.setup.log.tared else np.zeros((len(y), 0))
     con = rm.contact
     nf, nc = int((~con).sum()), int(con.sum())
     channel = np.concatenate([np.tile(np.arange(6), nf), np.tile(np.arange(6, 9), nc)])
     W = np.concatenate([np.tile(rm.w_free, nf), np.tile(rm.w_tip, nc)])
     t = s.clock  # a static log: the pose index (rows are in groups of similar poses)
     tr = np.concatenate([np.repeat(t[rm.rows][~con], 6), np.repeat(t[rm.rows][con], 3)]) - t[0]
+    block, nb = _row_blocks(s, rm, tr, rc)
+    for name in names:
+        cols_cache[name] = stream.Source(name, lib[name].evaluate, list(range(lib[name].k)))
+    nuis = [stream.Source("_offset", _offset_columns, list(range(6)))] if s.setup.log.tared else []
+    bs = stream.block_stats(s, rm, nuis + [cols_cache[n] for n in names], y, block, nb, chunk)
+    R = len(y)
+    X = {nm: sel.Width((R, lib[nm].k)) for nm in names}
+    return sel.Design(y, X, sel.Width((R, 6 if nuis else 0)), block, nb, {nm: lib[nm].relevant for nm in names},
+                      {nm: lib[nm].one_of for nm in names}, W, channel, CHANNELS, tr, bs), rm
+
+
+def _offset_columns(s: sg.LogSignals) -> np.ndarray:
+    """A tared log's unknown constant offset: the identity on every sample (n, 6, 6)."""
+    return np.broadcast_to(np.eye(6)[None], (s.n, 6, 6))
+
+
+def _row_blocks(s: sg.LogSignals, rm: RowMap, tr: np.ndarray, rc: RowCfg) -> tuple[np.ndarray, int]:
+    """(R,) the cross-validation block of each row and the number of blocks: groups of poses of a
+    static log, else contiguous time blocks (``tr`` (R,) the rows' times from the first sample)."""
+    con = rm.contact
     if s.static:  # blocks are groups of poses
         pb = s.pose_block[rm.rows]
         block = np.concatenate([np.repeat(pb[~con], 6), np.repeat(pb[con], 3)])
         _, block = np.unique(block, return_inverse=True)
         block = block.reshape(-1)
-        nb = int(block.max()) + 1
-    else:
-        dur = float(t[-1] - t[0])
-        blen = max(rc.block_s, dur / rc.max_blocks)
-        nb = max(2, int(np.ceil(dur / blen)))
-        block = np.minimum((tr / blen).astype(int), nb - 1)
-    return sel.Design(y, X, Z, block, nb, {nm: lib[nm].relevant for nm in names},
-                      {nm: lib[nm].one_of for nm in names}, W, channel, CHANNELS, tr), rm
+        return block, int(block.max()) + 1
+    dur = float(s.clock[-1] - s.clock[0])
+    blen = max(rc.block_s, dur / rc.max_blocks)
+    nb = max(2, int(np.ceil(dur / blen)))
+    return np.minimum((tr / blen).astype(int), nb - 1), nb
 
 
 def sign_check(fitm, s: sg.LogSignals, setup: SetupCfg) -> dict:
@@ -425,12 +418,43 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
              sc: sel.SelCfg = sel.SelCfg(), progress: Callable[[str], None] | None = None,
              effects_files=(), hints: bool = True) -> Result:
     """The whole diagnosis of a user's log (module docstring). ``add``: effects to refit with
-    (``--add``); ``effects_files``: the user's effect files (``--effects``). -> ``Result``."""
+    (``--add``); ``effects_files``: the user's effect files (``--effects``); ``rc.chunk_samples``:
+    samples per chunk of the design's passes (``stream``; the report does not depend on it beyond
+    rounding). Steps: ``_library_for`` -> ``signals.from_log`` -> ``calibrate`` -> ``_checks`` ->
+    ``_ranked`` -> ``_base_report`` -> completeness -> ``_added``. -> ``Result``."""
     from kinadapt_nn.diagnostics import completeness as cp
 
     progress = progress or (lambda msg: None)
     if log.t_s is None and setup.log.time:  # a static log read without its optional time column
         setup = setup.model_copy(update={"log": setup.log.model_copy(update={"time": ""})})
+    lib, names, add, forced = _library_for(log, setup, add, effects_files)
+    declared = setup
+    s = sg.from_log(log, setup, progress)
+    sigma = noise_sigma(s.wrench, rc) if not s.static else np.array([1.0] * 3 + [0.1] * 3)
+    cal = calibrate(log, s, setup, sigma, rc, progress)
+    s, setup = _effective_tip(cal.signals, declared, cal.contact_point)
+    cal = cal._replace(signals=s, setup=setup)
+    chk = _checks(cal, declared)
+    excite = {n: lib[n].excite for n in names}
+    excite["_params"] = {n: lib[n].params for n in names}
+    rk = _RankCtx(lib, cal.sigma, rc, sc, excite, chk.block, {}, progress)
+    ranked = _ranked(rk, s, names)
+    report = _base_report(log, declared, cal, chk, ranked, rk)
+    progress("completeness of the final model" + (" and hints" if hints else ""))
+    comp, files = cp.assess(ranked.s, ranked.des, ranked.rm, ranked.result, sc, cal.sigma, rc.stride_s,
+                            with_hints=hints and chk.block is None, source=str(getattr(log, "source", "the log")))
+    report.update(comp)
+    cp.caveat_present(report)
+    before = after = None
+    if add:
+        before, after = _added(report, ranked, add, forced, lib, setup, sc)
+    report["summary"] = summary_text(report)
+    return Result(report, ranked.des, before, after, ranked.s, ranked.s.contact, ranked.result.heldout, lib, files)
+
+
+def _library_for(log, setup: SetupCfg, add: list[str] | None, effects_files) -> tuple[dict, list[str], list[str], dict]:
+    """The effect library, the judged effects and ``--add`` checked against them (one-line errors).
+    -> (library, judged names, --add names, {effect: forced column})."""
     lib = library(setup, effects_files)
     names = judged(lib, setup)
     add, forced = _parse_add(add or [], lib)
@@ -448,34 +472,39 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
         if name not in (getattr(log, "extra", None) or {}):
             raise KinadaptError(f"[log] extra '{name}' was not read from the log (use a CSV, Parquet or ROS 2 bag log "
                                 "that has it)")
+    return lib, names, add, forced
+
+
+class Checks(NamedTuple):
+    """The checks of the set-up before any effect is judged."""
+
+    sign: dict  #: ``sign_check``
+    sensor_mount: dict  #: the mount fit's report, its plausibility and warning
+    unit_msg: str | None  #: the wrench units look wrong
+    mount_msg: str | None  #: the declared mount is off by more than a first-order rotation
+    block: str | None  #: the reason every verdict is ``cannot_decide`` (None: judge)
+
+
+def _checks(cal: Calibration, declared: SetupCfg) -> Checks:
+    """Sign, units and the mount's plausibility (``Checks``)."""
     from kinadapt_nn.diagnostics import mount, units
 
-    declared = setup
-    s = sg.from_log(log, setup, progress)
-    sigma = noise_sigma(s.wrench, rc) if not s.static else np.array([1.0] * 3 + [0.1] * 3)
-    cal = calibrate(log, s, setup, sigma, rc, progress)
-    fitm, s, setup, sigma, sigma_how, seg = cal.fit, cal.signals, cal.setup, cal.sigma, cal.sigma_how, cal.segmentation
-    s, setup = _effective_tip(s, declared, cal.contact_point)
+    fitm, s, setup = cal.fit, cal.signals, cal.setup
     check = sign_check(fitm, s, setup)
     sensor_mount = dict(fitm.report)
     why_not = mount.plausibility(fitm, setup)
-    unit_msg = units.check(fitm, s, setup, sigma).message
+    unit_msg = units.check(fitm, s, setup, cal.sigma).message
+    sensor_mount["plausible"] = not why_not
     if why_not:
-        sensor_mount["plausible"] = False
         sensor_mount["warning"] = "physically impossible calibration, not a finding: " + "; ".join(why_not)
-    else:
-        sensor_mount["plausible"] = True
     mount_msg = None
     if declared.sensor.mount_known and not sensor_mount["declared_consistent"] and not why_not:
-        mount_msg = (f"the declared sensor mount is off by {fitm.angle_deg:.1f} ± {fitm.angle_sd_deg:.1g} deg, more than "
-                     f"a first-order rotation can represent: the data say {sensor_mount['paste']} (± "
+        mount_msg = (f"the declared sensor mount is off by {fitm.angle_deg:.1f} ± {fitm.angle_sd_deg:.1g} deg, "
+                     f"more than a first-order rotation can represent: the data say {sensor_mount['paste']} (± "
                      + ", ".join(f"{v:.2g}" for v in fitm.rpy_sd_deg) + " deg); paste it into the setup or set "
                      "[sensor] mount_known = false")
     elif not declared.sensor.mount_known:
         sensor_mount["used"] = "the estimated rotation replaces [sensor] rpy_flange_deg for the whole diagnosis"
-    excite = {n: lib[n].excite for n in names}
-    excite["_params"] = {n: lib[n].params for n in names}
-    cache: dict = {}
     block = None
     if not check["ok"]:
         block = "the sign check failed: " + check["message"]
@@ -485,23 +514,60 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
         block = sensor_mount["warning"]
     elif mount_msg:
         block = mount_msg
-    des, rm, result, s = _rank(s, lib, names, sigma, rc, sc, excite, block, cache, progress)
-    fit_check = tip_consistency(des, list(result.present), sc)
+    return Checks(check, sensor_mount, unit_msg, mount_msg, block)
+
+
+class _RankCtx(NamedTuple):
+    """What the ranking needs besides the signals and the judged effects."""
+
+    lib: dict
+    sigma: np.ndarray
+    rc: RowCfg
+    sc: sel.SelCfg
+    excite: dict
+    block: str | None
+    cache: dict
+    progress: Callable
+
+
+class Ranked(NamedTuple):
+    """The ranking's outcome."""
+
+    des: sel.Design
+    rm: RowMap
+    result: sel.Selection
+    s: sg.LogSignals  #: the signals ranked (contact as finally detected; the set-up used)
+    names: list  #: the effects judged
+    fit_check: dict  #: ``tip_consistency``
+    contact_rows: str  #: how the contact rows were used
+
+
+def _ranked(rk: _RankCtx, s: sg.LogSignals, names: list[str]) -> Ranked:
+    """``_rank``, then the tip check; where the data contradict "contacts act through the declared
+    tip", judged again on free space alone rather than let an effect absorb a contact the model
+    cannot describe."""
+    setup, lib = s.setup, rk.lib
+    des, rm, result, s = _rank(rk, s, names)
+    fit_check = tip_consistency(des, list(result.present), rk.sc)
     contact_rows = "used (moment about the declared tip)" if setup.contact.mode == "tip" else setup.contact.mode
     if not fit_check["ok"] and setup.contact.mode == "tip":
-        # the data contradict "contacts act through the declared tip": judge on free space alone
-        # rather than let an effect absorb a contact the model cannot describe
-        progress("contact does not act through the declared tip: ranking again without the contact rows")
+        rk.progress("contact does not act through the declared tip: ranking again without the contact rows")
         setup_x = setup.model_copy(update={"contact": setup.contact.model_copy(update={"mode": "exclude"})})
         names = [n for n in names if lib[n].applies is None or lib[n].applies(setup_x)]
         s = dataclasses.replace(s, setup=setup_x)
-        des, rm, result, s = _rank(s, lib, names, sigma, rc, sc, excite, block, cache, progress)
+        des, rm, result, s = _rank(rk, s, names)
         fit_check["action"] = "contact rows left out; verdicts from free space alone"
         contact_rows = "left out (tip check failed)"
-    result = nonlinear.refine(result, des, rm.apply, s, lib, cache, sc)  # first-order effects made exact
+    result = nonlinear.refine(result, des, rm, s, lib, rk.cache, rk.sc)  # first-order effects made exact
+    return Ranked(des, rm, result, s, names, fit_check, contact_rows)
+
+
+def _base_report(log, declared: SetupCfg, cal: Calibration, chk: Checks, rd: Ranked, rk: _RankCtx) -> dict:
+    """The report before completeness and ``--add`` (the keys of ``diagnosis.json``)."""
+    setup, s, des, result, lib = cal.setup, rd.s, rd.des, rd.result, rk.lib
     entries = [_entry_report(e, lib[e["effect"]], setup) for e in result.entries]
     dt = None if s.static else float(np.median(np.diff(s.t)))
-    report = {
+    return {
         "setup_summary": {"tared": setup.log.tared, "wrench_acts": setup.log.wrench_acts,
                           "tool_mass_kg": setup.tool.mass_kg, "contact_mode": setup.contact.mode},
         "log": {"samples": int(s.n), "static": bool(s.static), "time_column": bool(s.has_time),
@@ -511,52 +577,53 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
                          else "differentiated from q"),
                 "joints": int(s.q.shape[1]), "force_unit": setup.log.force_unit, "torque_unit": setup.log.torque_unit,
                 "extra_columns": list(s.extra)},
-        "library": {n: {"source": lib[n].source, "doc": lib[n].doc, "params": dict(zip(lib[n].params, lib[n].units)),
-                        "judged": n in names} for n in lib},
-        "contact": {"fraction": float(s.contact.mean()), "windows_s": _windows(s.contact, s.t), "rows": contact_rows},
-        "segmentation": seg.to_json(),
-        "effective_setup": effective_setup(declared, setup, fitm, cal.contact_point),
-        "noise_sigma": dict(zip(FREE_CHANNELS, (float(v) for v in sigma))),
-        "noise_sigma_method": sigma_how,
-        "sensor_mount": sensor_mount,
-        "sign_check": check,
-        "tip_contact_check": fit_check,
-        "warnings": [m for m in (check.get("message"), unit_msg, sensor_mount.get("warning"), mount_msg,
-                                 fit_check.get("message")) if m],
-        "blocked": block,
+        "library": {n: {"source": lib[n].source, "doc": lib[n].doc,
+                        "params": dict(zip(lib[n].params, lib[n].units)), "judged": n in rd.names} for n in lib},
+        "contact": {"fraction": float(s.contact.mean()), "windows_s": _windows(s.contact, s.t),
+                    "rows": rd.contact_rows},
+        "segmentation": cal.segmentation.to_json(),
+        "effective_setup": effective_setup(declared, setup, cal.fit, cal.contact_point),
+        "noise_sigma": dict(zip(FREE_CHANNELS, (float(v) for v in cal.sigma))),
+        "noise_sigma_method": cal.sigma_how,
+        "sensor_mount": chk.sensor_mount,
+        "sign_check": chk.sign,
+        "tip_contact_check": rd.fit_check,
+        "warnings": [m for m in (chk.sign.get("message"), chk.unit_msg, chk.sensor_mount.get("warning"), chk.mount_msg,
+                                 rd.fit_check.get("message")) if m],
+        "blocked": chk.block,
         "ranking": entries + [_not_judged(n) for n in CONTACT_MODEL_EFFECTS],
         "not_judged": [{"effect": n, "reason": NOT_JUDGED} for n in CONTACT_MODEL_EFFECTS],
         "residual_rms_by_channel": _rms_by_channel(des, des.y),
         "explained_by_present": float(1.0 - result.sse_after / max(result.sse_total, 1e-300)),
-        "method": {"rows": rc._asdict(), "selection": sc._asdict(), "blocks": des.n_blocks,
+        "method": {"rows": {k: v for k, v in rk.rc._asdict().items() if k != "chunk_samples"},
+                   "selection": rk.sc._asdict(), "blocks": des.n_blocks,
                    "nuisance": "constant offset (tared log)" if s.setup.log.tared else "none"},
     }
-    progress("completeness of the final model" + (" and hints" if hints else ""))
-    comp, files = cp.assess(s, des, rm, result, sc, sigma, rc.stride_s, with_hints=hints and block is None,
-                            source=str(getattr(log, "source", "the log")))
-    report.update(comp)
-    cp.caveat_present(report)
-    before = after = None
-    if add:
-        named = {e["effect"]: e["columns_used"] for e in result.entries}  # a one-of effect: the column the ranking named
-        named.update(forced)  # or the one the user named (--add encoder_offset:joint5)
-        before, after, fitted_add = sel.refit(des, add, sc, named)
-        report["residual_rms_before"] = _rms_by_channel(des, before)
-        report["residual_rms_after"] = _rms_by_channel(des, after)
-        report["added"] = {}
-        for n, (c, full, sd) in fitted_add.items():
-            eff = lib[n]
-            est = to_log_units(eff.user_report(full, sd, setup), setup)
-            if eff.one_of:
-                est = {eff.params[j]: est[eff.params[j]] for j in c}
-            entry = {"estimate": est}
-            why = eff.why_impossible(full, setup)
-            if why:
-                entry["warning"] = f"physically impossible estimate: {why}; not a finding"
-                report["warnings"].append(f"--add {n}: {entry['warning']}")
-            report["added"][n] = entry
-    report["summary"] = summary_text(report)
-    return Result(report, des, before, after, s, s.contact, result.heldout, lib, files)
+
+
+def _added(report: dict, rd: Ranked, add: list[str], forced: dict, lib: dict, setup: SetupCfg, sc: sel.SelCfg
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """``--add``: the named effects refitted on all rows; writes ``residual_rms_before/after`` and
+    ``added`` into ``report``. -> (rows before (R,), rows after (R,))."""
+    des = rd.des
+    named = {e["effect"]: e["columns_used"] for e in rd.result.entries}  # a one-of effect: the column the ranking named
+    named.update(forced)  # or the one the user named (--add encoder_offset:joint5)
+    before, after, fitted_add = sel.refit(des, add, sc, named)
+    report["residual_rms_before"] = _rms_by_channel(des, before)
+    report["residual_rms_after"] = _rms_by_channel(des, after)
+    report["added"] = {}
+    for n, (c, full, sd) in fitted_add.items():
+        eff = lib[n]
+        est = to_log_units(eff.user_report(full, sd, setup), setup)
+        if eff.one_of:
+            est = {eff.params[j]: est[eff.params[j]] for j in c}
+        entry = {"estimate": est}
+        why = eff.why_impossible(full, setup)
+        if why:
+            entry["warning"] = f"physically impossible estimate: {why}; not a finding"
+            report["warnings"].append(f"--add {n}: {entry['warning']}")
+        report["added"][n] = entry
+    return before, after
 
 
 def _parse_add(add: list[str], lib: dict[str, Effect]) -> tuple[list[str], dict[str, list[int]]]:
@@ -577,23 +644,22 @@ def _parse_add(add: list[str], lib: dict[str, Effect]) -> tuple[list[str], dict[
     return list(dict.fromkeys(names)), forced
 
 
-def _rank(s: sg.LogSignals, lib: dict, names: list[str], sigma: np.ndarray, rc: RowCfg, sc: sel.SelCfg,
-          excite: dict, block: str | None, cache: dict, progress: Callable[[str], None]):
+def _rank(rk: _RankCtx, s: sg.LogSignals, names: list[str]):
     """Design + selection; once more with contact re-detected when the present effects change it.
     -> (Design, RowMap, Selection, LogSignals)."""
     result = des = rm = None
-    setup = s.setup
+    setup, lib = s.setup, rk.lib
     for it in range(2):
-        progress("effect columns" if it == 0 else "contact re-detected with the present effects; ranking again")
-        des, rm = build_design(s, lib, names, sigma, rc, cache)
-        progress(f"ranking {len(names)} effects on {len(des.y)} rows, {des.n_blocks} blocks")
-        result = sel.select(des, sc, lambda n, p: lib[n].why_impossible(p, setup), excite, block)
+        rk.progress("effect columns" if it == 0 else "contact re-detected with the present effects; ranking again")
+        des, rm = build_design(s, lib, names, rk.sigma, rk.rc, rk.cache, rk.rc.chunk_samples)
+        rk.progress(f"ranking {len(names)} effects on {len(des.y)} rows, {des.n_blocks} blocks")
+        result = sel.select(des, rk.sc, lambda n, p: lib[n].why_impossible(p, setup), rk.excite, rk.block)
         if it == 1 or not result.present or setup.contact.mode == "none":
             break
-        fitted = np.zeros_like(s.wrench)
-        for n, (c, p_phys, _) in result.present.items():
-            fitted += cache[n][:, :, c] @ p_phys  # the columns this design was built from
-        new_contact, new_off = detect_contact(s.wrench - s.w_nom - fitted, s.t, setup, rc, ~s.contact)
+        srcs = [rk.cache[n]._replace(cols=list(c)) for n, (c, _, _) in result.present.items()]
+        fitted = stream.sample_sum(s, srcs, [p for _, p, _ in result.present.values()], rm.k_smooth,
+                                   des.stats.chunk)  # the columns this design was built from
+        new_contact, new_off = detect_contact(s.wrench - s.w_nom - fitted, s.t, setup, rk.rc, ~s.contact)
         if np.mean(new_contact != s.contact) < 0.005:
             break
         s = s.with_contact(new_contact, new_off)

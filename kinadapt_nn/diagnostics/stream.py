@@ -1,0 +1,197 @@
+"""Chunked passes over a log: the regression's per-block sufficient statistics without its columns.
+
+A design's columns (``(n, 6, k)`` per effect, ``(R, k)`` as rows) are never held for the whole
+log. One pass evaluates every column source on a chunk of samples (``chunk`` samples, widened by
+a halo on both sides), filters it with the rows' moving average, maps the chunk's rows through
+``RowMap`` and adds each row's contribution to its cross-validation block's normal equations
+``G_b = A_b^T A_b``, ``h_b = A_b^T y_b`` (columns unscaled, physical). Least squares, block
+cross-validation and the block jackknife need nothing else (``selection.Stats``); the few per-row
+series (held-out residual, the residual before/after ``--add``) come from a second pass that
+recomputes only the columns with a non-zero coefficient (``BlockStats.combine``).
+
+Chunk-invariance: a sample's columns depend on the samples within ``halo_samples`` of it (the
+Savitzky-Golay derivative of the kinematics, the moving average), so every row sees the same
+inputs whatever the chunk size; what changes with the chunking is only the order of the sums
+(the moving average's running sum and the Gram accumulation), i.e. rounding. Effects must be
+sample-local in that sense (built-ins are); the hint shapes that use whole-log numbers (the time
+span, the mean joint angle, an extra column's mean) read them from ``LogSignals.whole``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable, NamedTuple
+
+import numpy as np
+
+from kinadapt_nn.features.effect_library import moving_average
+
+#: samples per chunk (memory per chunk ~ chunk * 6 * columns * 8 B, plus the effects' own work)
+CHUNK_SAMPLES = 20_000
+
+
+class RowMap(NamedTuple):
+    """Which samples become regression rows, and how (free space: the six wrench channels weighted
+    by 1/noise; contact: the moment about the declared tip). ``apply`` maps any (n, 6, k) sample
+    columns to (R, k) rows: effects, the residual and the hint shapes go through the same map.
+    Row order: every free-space row's 6 channels (in time order), then every contact row's 3."""
+
+    rows: np.ndarray  #: (r,) sample index of each row time (ascending)
+    contact: np.ndarray  #: (r,) bool: contact rows
+    k_smooth: int  #: moving-average length [samples]
+    w_free: np.ndarray  #: (6,) weights of the free-space channels [1/N, 1/(N m)]
+    w_tip: np.ndarray  #: (3,) weights of the tip-moment channels
+    tip_map: np.ndarray  #: (3, 6)
+
+    def apply(self, x: np.ndarray) -> np.ndarray:
+        return self.rows_of(moving_average(x, self.k_smooth)[self.rows], self.contact)
+
+    def rows_of(self, xs: np.ndarray, con: np.ndarray) -> np.ndarray:
+        """Filtered sample columns at row times (r, 6, k) -> (free rows * 6 + contact rows * 3, k)."""
+        free = xs[~con] * self.w_free[None, :, None]
+        tipm = np.einsum("ij,njk->nik", self.tip_map, xs[con]) * self.w_tip[None, :, None]
+        return np.concatenate([free.reshape(-1, xs.shape[2]), tipm.reshape(-1, xs.shape[2])], axis=0)
+
+    def positions(self) -> np.ndarray:
+        """(r,) the design position of each row's first channel (``apply``'s order)."""
+        con = self.contact
+        nf = int((~con).sum())
+        return np.where(con, 6 * nf + 3 * (np.cumsum(con) - 1), 6 * (np.cumsum(~con) - 1))
+
+
+class Source(NamedTuple):
+    """Columns of a design: ``columns(signals chunk) -> (m, 6, k_all)``, of which ``cols`` are kept."""
+
+    name: str
+    columns: Callable
+    cols: list[int]
+
+
+class BlockStats(NamedTuple):
+    """Per-block normal equations of a design's columns ``[Z, X_e1, ...]`` (unscaled, physical) and
+    its rows ``y``; ``combine(P (B, K)) -> (R,)``: each row's columns times its block's coefficients."""
+
+    G: np.ndarray  #: (B, K, K)
+    h: np.ndarray  #: (B, K)
+    yy: np.ndarray  #: (B,)
+    combine: Callable
+    col_sq: np.ndarray  #: (6, K) sum over all samples (unfiltered) of each column's square
+    n_samples: int
+    chunk: int  #: samples per chunk of the passes
+    sources: list  #: the ``Source`` of each column group, in column order
+
+
+def halo_samples(s, k_smooth: int) -> int:
+    """Samples on each side of a chunk that its rows' columns depend on (module docstring)."""
+    from kinadapt_nn.diagnostics.physical import ACC_WINDOW_S
+
+    if s.static:
+        return 0
+    dt = float(np.median(np.diff(s.t[: min(s.n, 10_001)])))
+    return int(k_smooth) + 2 * (int(round(ACC_WINDOW_S / dt)) | 1) + 8
+
+
+def whole(s) -> dict:
+    """The whole-log numbers a chunk's shapes need (``LogSignals.whole``)."""
+    return {"t_span": (float(np.min(s.t)), float(np.max(s.t))), "q_mean": s.q.mean(axis=0),
+            "extra_mean": {k: float(np.mean(v)) for k, v in s.extra.items()}}
+
+
+def slice_signals(s, a: int, b: int, w: dict | None = None):
+    """``LogSignals`` of samples ``a:b`` (every per-sample array sliced; ``whole`` = ``w``)."""
+    out = {}
+    for f in dataclasses.fields(s):
+        v = getattr(s, f.name)
+        if f.name == "extra":
+            out[f.name] = {k: x[a:b] for k, x in v.items()}
+        elif f.name != "tip_map" and isinstance(v, np.ndarray) and v.ndim >= 1 and len(v) == s.n:
+            out[f.name] = v[a:b]
+    return dataclasses.replace(s, **out, whole=w if w is not None else getattr(s, "whole", None))
+
+
+def chunks(n: int, chunk: int) -> list[tuple[int, int]]:
+    chunk = max(1, int(chunk))
+    return [(a, min(a + chunk, n)) for a in range(0, n, chunk)]
+
+
+def _chunk_rows(s, rm: RowMap, sources: list[Source], a: int, b: int, halo: int, w: dict
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rows of samples ``a:b``: (design positions (q,), row values (q, K), raw columns of the
+    samples ``a:b`` (b - a, 6, K))."""
+    lo, hi = max(0, a - halo), min(s.n, b + halo)
+    sub = slice_signals(s, lo, hi, w)
+    C = np.concatenate([np.asarray(src.columns(sub), dtype=float)[:, :, src.cols] for src in sources], axis=2)
+    i0, i1 = np.searchsorted(rm.rows, [a, b])
+    rows = rm.rows[i0:i1]
+    xs = moving_average(C, rm.k_smooth)[rows - lo]
+    con = rm.contact[i0:i1]
+    vals = rm.rows_of(xs, con)
+    start = rm.positions()[i0:i1]
+    pos = np.concatenate([(start[~con][:, None] + np.arange(6)).reshape(-1),
+                          (start[con][:, None] + np.arange(3)).reshape(-1)])
+    return pos, vals, C[a - lo:b - lo]
+
+
+def block_stats(s, rm: RowMap, sources: list[Source], y: np.ndarray, block: np.ndarray, n_blocks: int,
+                chunk: int | None = None) -> BlockStats:
+    """One chunked pass: the per-block normal equations of ``sources``' columns (module docstring).
+    ``y`` (R,), ``block`` (R,) the design's rows and their blocks; ``chunk`` samples per chunk
+    (default ``CHUNK_SAMPLES``)."""
+    chunk = int(chunk or CHUNK_SAMPLES)
+    K = sum(len(src.cols) for src in sources)
+    G, h = np.zeros((n_blocks, K, K)), np.zeros((n_blocks, K))
+    yy = np.bincount(block, weights=y * y, minlength=n_blocks).astype(float)
+    col_sq = np.zeros((6, K))
+    halo, w = halo_samples(s, rm.k_smooth), whole(s)
+    for a, b in chunks(s.n, chunk):
+        pos, vals, raw = _chunk_rows(s, rm, sources, a, b, halo, w)
+        col_sq += np.einsum("nck,nck->ck", raw, raw)
+        blk = block[pos]
+        for bb in np.unique(blk):
+            m = blk == bb
+            Ab = vals[m]
+            G[bb] += Ab.T @ Ab
+            h[bb] += Ab.T @ y[pos[m]]
+
+    def combine(P: np.ndarray) -> np.ndarray:
+        return combine_rows(s, rm, sources, P, block, len(y), chunk)
+
+    return BlockStats(G, h, yy, combine, col_sq, s.n, chunk, list(sources))
+
+
+def combine_rows(s, rm: RowMap, sources: list[Source], P: np.ndarray, block: np.ndarray, R: int,
+                 chunk: int | None = None) -> np.ndarray:
+    """(R,) each row's columns times its block's coefficients ``P`` (B, K); a pass over the log that
+    evaluates only the sources with a non-zero coefficient."""
+    out = np.zeros(R)
+    offs = np.cumsum([0] + [len(src.cols) for src in sources])
+    used = [i for i in range(len(sources)) if np.any(P[:, offs[i]:offs[i + 1]])]
+    if not used:
+        return out
+    keep = np.concatenate([np.arange(offs[i], offs[i + 1]) for i in used])
+    Pk = P[:, keep]
+    halo, w = halo_samples(s, rm.k_smooth), whole(s)
+    for a, b in chunks(s.n, chunk or CHUNK_SAMPLES):
+        pos, vals, _ = _chunk_rows(s, rm, [sources[i] for i in used], a, b, halo, w)
+        out[pos] = np.einsum("rk,rk->r", vals, Pk[block[pos]])
+    return out
+
+
+def sample_sum(s, sources: list[Source], coefs: list[np.ndarray], k_smooth: int = 1,
+               chunk: int | None = None) -> np.ndarray:
+    """(n, 6) the sum over ``sources`` of their kept columns times ``coefs`` (each (k,)), per sample,
+    unfiltered (a chunked pass)."""
+    out = np.zeros((s.n, 6))
+    if not sources:
+        return out
+    halo, w = halo_samples(s, k_smooth), whole(s)
+    for a, b in chunks(s.n, chunk or CHUNK_SAMPLES):
+        lo, hi = max(0, a - halo), min(s.n, b + halo)
+        sub = slice_signals(s, lo, hi, w)
+        for src, c in zip(sources, coefs):
+            out[a:b] += np.asarray(src.columns(sub), dtype=float)[a - lo:b - lo][:, :, src.cols] @ c
+    return out
+
+
+__all__ = ["BlockStats", "CHUNK_SAMPLES", "RowMap", "Source", "block_stats", "chunks", "combine_rows",
+           "halo_samples", "sample_sum", "slice_signals", "whole"]
