@@ -20,9 +20,6 @@ def _ruff() -> list[str]:
     return [str(find_ruff_bin())]
 
 
-# NOTE (branch `jobs`, until merged): this fails here on the violations in the files other
-# branches rework -- runs/batch.py, runs/episode.py and kinadapt_nn/diagnostics/ -- and passes
-# once those are merged; it is not to be skipped or marked xfail.
 def test_ruff_passes_with_the_complexity_rules():
     cmd = [*_ruff(), "check", "--no-cache", "--output-format", "concise", "kinadapt_nn", "benchmarks", "examples",
            "tests"]

@@ -231,12 +231,14 @@ def _spans(t: np.ndarray, mask: np.ndarray, gap: float) -> list[list[float]]:
     return out
 
 
-def unexplained(des: sel.Design, e_ho: np.ndarray, rm, sigma: np.ndarray, setup, dt: float, stride_s: float,
+def unexplained(des: sel.Design, e_ho: np.ndarray, rm, sigma: np.ndarray, setup, spacing: tuple[float, float],
                 cc: CompCfg = CompCfg(), static: bool = False) -> dict:
     """Per channel: the held-out residual against the noise floor and its structured part
     (module docstring). -> {"complete": bool, "channels": {...}, "carried_by": [...], ...}.
+    ``spacing`` = (dt, stride_s): the sample period and the row spacing [s].
     ``static``: rows are poses (ordered by group of similar poses, ``des.t_s`` their index): the
     long average runs over ``cc.static_window_poses`` neighbouring poses and no time spans are given."""
+    dt, stride_s = spacing
     if static:
         dt, stride_s = 1.0, 1.0
         cc = cc._replace(struct_window_s=float(cc.static_window_poses))
@@ -428,16 +430,18 @@ def _fitted(shape: str, names, units, p, sd, rel, cols, cc: CompCfg) -> dict:
     return {names[i]: q(i) for i in order}
 
 
-def assess(s, des: sel.Design, rm, result, sc: sel.SelCfg, sigma: np.ndarray, stride_s: float,
-           with_hints: bool = True, cc: CompCfg = CompCfg(), source: str = "the log") -> tuple[dict, dict[str, str]]:
+def assess(ranked, sc: sel.SelCfg, sigma: np.ndarray, stride_s: float, with_hints: bool = True,
+           cc: CompCfg = CompCfg(), source: str = "the log") -> tuple[dict, dict[str, str]]:
     """``model_complete`` and the ``unexplained`` section (with ``hints`` when incomplete), and
-    the hints' effect files ``{file name: Python source}``. ``sigma`` (6,): the per-sample noise
-    of the wrench channels; ``stride_s``: the row spacing."""
+    the hints' effect files ``{file name: Python source}``. ``ranked``: the ranking's outcome (its
+    signals ``s``, design ``des``, row map ``rm`` and selection ``result``); ``sigma`` (6,): the
+    per-sample noise of the wrench channels; ``stride_s``: the row spacing [s]."""
+    s, des, rm, result = ranked.s, ranked.des, ranked.rm, ranked.result
     from kinadapt_nn.diagnostics.hintfiles import effect_file, public
 
     static = bool(getattr(s, "static", False))
     dt = 1.0 if static else float(np.median(np.diff(s.t)))
-    un = unexplained(des, result.heldout, rm, sigma, s.setup, dt, stride_s, cc, static)
+    un = unexplained(des, result.heldout, rm, sigma, s.setup, (dt, stride_s), cc, static)
     complete = un.pop("complete")
     un["hints"] = []
     files: dict[str, str] = {}

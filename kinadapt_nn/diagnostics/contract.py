@@ -140,7 +140,8 @@ class Effect:
         return self.plausible(np.asarray(p, float), setup) if self.plausible is not None else None
 
 
-def effect(params: dict[str, str] | None = None, relevant=None, doc: str = "", excite: str = "",
+def effect(params: dict[str, str] | None = None, relevant=None, doc: str = "", excite: str = "",  # noqa: PLR0913
+           # (the public decorator's options, every one but the first five keyword-only)
            one_of: bool = False, *, report: Callable | None = None, plausible: Callable | None = None,
            applies: Callable | None = None, uses_contact: bool = True,
            params_for: Callable | None = None, exact: Callable | None = None) -> Callable[[Callable], Effect]:

@@ -367,7 +367,7 @@ def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: i
     dall = d._replace(ga=s.g_s[free] - s.a_s[free], omega=s.omega_s[free], alpha=s.alpha_s[free], r=s.wrench[free],
                       block=block[free])
     res = dall.r - _model(x, dall)
-    rep = report(x, sd, rpy, rpy_sd, float(np.rad2deg(th)), ang_sd, res, dall, s, rot_explains)
+    rep = report((x, sd), (rpy, rpy_sd), (float(np.rad2deg(th)), ang_sd), res, dall, s, rot_explains)
     corr = cov / np.sqrt(np.maximum(np.outer(np.diag(cov), np.diag(cov)), 1e-300))
     return MountFit(x, sd, rpy, rpy_sd, float(np.rad2deg(th)), ang_sd, res, rep, corr * np.outer(sd, sd))
 
@@ -428,9 +428,12 @@ def plausibility(fitm: "MountFit", setup) -> list[str]:
     return out
 
 
-def report(x, sd, rpy, rpy_sd, angle_deg, angle_sd, res, d: MountData, s, rot_explains: float = 1.0) -> dict:
+def report(fit: tuple, rpy: tuple, angle: tuple[float, float], res, d: MountData, s, rot_explains: float = 1.0) -> dict:
     """The ``sensor_mount`` block of diagnosis.json (module docstring); offset/residual in the
-    log's units and sign convention."""
+    log's units and sign convention. ``fit`` = (x, sd) the fitted parameters and their sd, ``rpy``
+    = (rpy, sd) the mount's roll/pitch/yaw [deg], ``angle`` = (angle, sd) its rotation from the
+    declared mount [deg]."""
+    (x, sd), (rpy, rpy_sd), (angle_deg, angle_sd) = fit, rpy, angle
     setup = s.setup
     scale = setup.log.wrench_scale()
     sign = setup.log.sign

@@ -441,7 +441,7 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
     ranked = _ranked(rk, s, names)
     report = _base_report(log, declared, cal, chk, ranked, rk)
     progress("completeness of the final model" + (" and hints" if hints else ""))
-    comp, files = cp.assess(ranked.s, ranked.des, ranked.rm, ranked.result, sc, cal.sigma, rc.stride_s,
+    comp, files = cp.assess(ranked, sc, cal.sigma, rc.stride_s,
                             with_hints=hints and chk.block is None, source=str(getattr(log, "source", "the log")))
     report.update(comp)
     cp.caveat_present(report)
