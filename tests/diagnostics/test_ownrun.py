@@ -137,3 +137,40 @@ def test_setup_of_a_package_run():
                                                                      cfg.sensing.stiffness_rot_Nm_per_rad)
     s2 = setup_of_run(cfg, tip_sensor_m=[0.003, -0.002, 0.1])
     assert s2.tool.tip_sensor_m == (0.003, -0.002, 0.1)
+
+
+@pytest.fixture(scope="module")
+def short_run(tmp_path_factory):
+    """A short insertion of the default program (free space, then contact in the bore)."""
+    from kinadapt_nn.app.cli import main
+
+    out = tmp_path_factory.mktemp("ownrun") / "run"
+    assert main(["online", "--out", str(out), "--quiet", "--set", "run.duration_s=3.0", "--set", "run.tensorboard=false",
+                 "--set", "run.figure=false"]) in (0, 1)
+    return out
+
+
+def test_diagnose_a_package_run_as_a_log_with_add_effects_and_figures(short_run, tmp_path, capsys):
+    """``kinadapt diagnose RUN --as-log``: the run's trace and generated set-up through the user-log
+    stages; a user's effect file (--effects) and --add work on it; the contact-model effects are
+    judged (the set-up declares the bore as a socket), the report says which set-up it used."""
+    import json
+
+    from kinadapt_nn.app.cli import main
+
+    out = tmp_path / "d"
+    fx = REPO / "examples" / "effects" / "cable_pull.py"
+    assert main(["diagnose", str(short_run), "--as-log", "--effects", str(fx), "--add", "tool_gravity", "--out",
+                 str(out), "--quiet"]) == 0
+    d = json.loads((out / "diagnosis.json").read_text())
+    assert d["kind"] == "package_run" and d["format"] == "kinadapt-diagnosis"
+    judged = {e["effect"] for e in d["ranking"] if e.get("judged", True)}
+    assert set(CONTACT_MODEL_EFFECTS) | {"cable_pull", "tool_gravity"} <= judged and not d["not_judged"]
+    assert d["library"]["cable_pull"]["source"].endswith("cable_pull.py")
+    assert "tool_gravity" in d["added"] and d["residual_rms_after"]["total_w"] <= d["residual_rms_before"]["total_w"]
+    assert 'geometry = "socket"' in (out / "setup.toml").read_text()
+    assert (out / "effects.png").stat().st_size > 10_000 and (out / "residual.png").stat().st_size > 10_000
+    capsys.readouterr()
+    assert main(["diagnose", str(short_run), "--as-log", "--theta", "0,0,0.1", "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--theta" in err[0] and not (tmp_path / "x").exists()
