@@ -30,8 +30,8 @@ def old_verdicts(run: Path) -> dict:
     cfg = load_config(run / "config.toml")
     cfg = cfg.model_copy(update={"effects": type(cfg.effects)()})
     rc = rk.RankCfg()
-    res = analyse_effects(design_of(signals_of(run, cfg), cfg, rc), rk.load_calibration(rk.DEFAULT_CALIBRATION, "excite"),
-                          [], rc)
+    calib = rk.load_calibration(rk.DEFAULT_CALIBRATION, "excite")
+    res = analyse_effects(design_of(signals_of(run, cfg), cfg, rc), calib, [], rc)
     return {r["effect"]: {"verdict": r.get("verdict"), "significant": r["significant"],
                           "estimate": r["estimate_params"]["value"]} for r in res["ranking"]}
 

@@ -109,7 +109,8 @@ def test_contact_model_effects_are_judged_only_with_a_declared_geometry():
     assert set(CONTACT_MODEL_EFFECTS) <= set(userlog.judged(lib, setup))
     assert not set(CONTACT_MODEL_EFFECTS) & set(userlog.judged(userlog.library(SetupCfg()), SetupCfg()))
     with pytest.raises(ConfigError, match="geometry") as e:
-        load_setup(None, ['contact.geometry="socket"', 'contact.mode="exclude"', "contact.stiffness_rot_Nm_per_rad=1.0"])
+        load_setup(None, ['contact.geometry="socket"', 'contact.mode="exclude"',
+                          "contact.stiffness_rot_Nm_per_rad=1.0"])
     assert len(str(e.value).splitlines()) == 1
     with pytest.raises(ConfigError, match="stiffness"):
         load_setup(None, ['contact.geometry="socket"'])
@@ -145,8 +146,8 @@ def short_run(tmp_path_factory):
     from kinadapt_nn.app.cli import main
 
     out = tmp_path_factory.mktemp("ownrun") / "run"
-    assert main(["online", "--out", str(out), "--quiet", "--set", "run.duration_s=3.0", "--set", "run.tensorboard=false",
-                 "--set", "run.figure=false"]) in (0, 1)
+    assert main(["online", "--out", str(out), "--quiet", "--set", "run.duration_s=3.0", "--set",
+                 "run.tensorboard=false", "--set", "run.figure=false"]) in (0, 1)
     return out
 
 
