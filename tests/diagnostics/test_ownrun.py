@@ -151,6 +151,7 @@ def short_run(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_diagnose_a_package_run_as_a_log_with_add_effects_and_figures(short_run, tmp_path, capsys):
     """``kinadapt diagnose RUN --as-log``: the run's trace and generated set-up through the user-log
     stages; a user's effect file (--effects) and --add work on it; the contact-model effects are
