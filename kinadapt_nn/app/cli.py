@@ -479,16 +479,62 @@ def _flat(v) -> list[str]:
     return [x for grp in (v or []) for x in (grp if isinstance(grp, list) else [grp])]
 
 
+def cmd_diagnose_run_as_log(args: argparse.Namespace) -> int:
+    """``kinadapt diagnose RUN --as-log``: a package run through the user-log stages, its set-up
+    generated from its config (``diagnostics.ownrun``); ``--baseline RUN``: the tip calibrated there."""
+    import time
+
+    from kinadapt_nn.config import load_config
+    from kinadapt_nn.diagnostics import ownrun
+    from kinadapt_nn.diagnostics import userfigures as uf
+    from kinadapt_nn.diagnostics.setup import setup_to_toml
+    from kinadapt_nn.diagnostics.userlog import diagnose
+    from kinadapt_nn.runio import check_output_dir, staged_output, write_json
+
+    for opt in ("theta", "calibration", "save_calibration"):
+        if getattr(args, opt, None):
+            raise KinadaptError(f"--{opt.replace('_', '-')} is for the package's own pipeline; drop it with --as-log")
+    if args.rerun or args.no_calibration or len(args.logs) > 1:
+        raise KinadaptError("--as-log diagnoses one package run (no --rerun, --no-calibration or several logs)")
+    src = Path(args.logs[0])
+    cfg_path = Path(args.config) if args.config else (src / "config.toml" if (src / "config.toml").is_file() else None)
+    cfg = load_config(cfg_path, args.set or [])
+    out = args.run_dir = Path(args.out) if args.out else _default_out("diagnose")
+    check_output_dir(out, args.overwrite)
+    t0 = time.perf_counter()
+    progress = _progress(args, "diagnose")
+    tip = ownrun.calibrated_tip(Path(args.baseline)) if args.baseline else None
+    log, setup = ownrun.as_log(src, cfg, list(args.effects or []), tip)
+    res = diagnose(log, setup, list(args.add or []), progress=progress)
+    with staged_output(out, args.overwrite) as stage:
+        for name, text in (res.hint_files or {}).items():
+            (stage / name).write_text(text)
+        (stage / "setup.toml").write_text(setup_to_toml(setup))
+        write_json(stage / "diagnosis.json", {"format": "kinadapt-diagnosis", "version": 4, "kind": "package_run",
+                                               "source": log.source, "setup_file": "generated from the run's config",
+                                               "summary": res.report["summary"],
+                                               **{k: v for k, v in res.report.items() if k != "summary"},
+                                               "wall_time_s": time.perf_counter() - t0})
+        uf.model_vs_measurement(res, setup, stage / "residual.png")
+        uf.effects_figure(res, stage / "effects.png")
+    if not args.quiet:
+        print(res.report["summary"])
+        print(f"wrote {out}/ (diagnosis.json, setup.toml, residual.png, effects.png)")
+    return 0
+
+
 def cmd_diagnose(args: argparse.Namespace) -> int:
     import numpy as np
 
     args.add = _flat(args.add)
     if args.setup:
         return cmd_diagnose_setup(args)
-    if args.effects:
-        raise KinadaptError("--effects is for a user's log (with --setup); this package's own runs use the built-in "
-                            "library")
+    if args.effects and not args.as_log:
+        raise KinadaptError("--effects is for a user's log (with --setup, or a package run with --as-log); this "
+                            "package's own pipeline uses the built-in library")
 
+    if getattr(args, "as_log", False):
+        return cmd_diagnose_run_as_log(args)
     from kinadapt_nn.config import config_to_toml, load_config
     from kinadapt_nn.diagnostics.report import residual_figure, write_tb
     from kinadapt_nn.runio import check_output_dir, staged_output, write_json
@@ -659,6 +705,9 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--save-calibration", metavar="FILE",
                     help="also fit the whole library on this log (a run without hidden effects) and store it as the "
                          "calibration of its control.program in FILE")
+    dg.add_argument("--as-log", action="store_true",
+                    help="a run of this package through the same stages as a robot's log, its set-up generated from "
+                         "its config (diagnostics/ownrun.py; --baseline RUN: the tip calibrated on that run)")
     dg.add_argument("--out", help="output folder (default: runs/diagnose-<timestamp>)")
     dg.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     dg.add_argument("--quiet", action="store_true", help="no progress lines, no summary")

@@ -55,6 +55,11 @@ default; ``examples/setups/`` has complete ones)::
     mode = "tip"               # "tip": contacts act through the declared tip; "exclude": contact left out; "none": free-space log
     detect_force_N = 4.0       # a sample is in contact when the force beyond the tool model exceeds this
     margin_s = 0.1             # contact windows are widened by this on each side
+    geometry = "none"          # "socket": a declared compliant contact (its effects are judged, see contact_model)
+    entry_w_m = [0.0, 0.0, 0.0]          # socket: a point of its entrance plane, world [m]
+    axis_w = [0.0, 0.0, -1.0]            # socket: its axis into the fixture, world (unit)
+    stiffness_lat_N_per_m = 0.0          # socket: lateral spring at the tip [N/m]
+    stiffness_rot_Nm_per_rad = 0.0       # socket: angular spring [N m/rad]
     [analysis]
     exclude_s = []             # [[t0, t1], ...] windows left out [s from the first sample]
     effects = []               # only these effects (empty: all that apply)
@@ -307,11 +312,36 @@ class ContactDeclCfg(_Cfg):
     mode: Literal["tip", "exclude", "none"] = "tip"
     detect_force_N: float = Field(4.0, gt=0.0)  # [N] force beyond the tool model that marks contact
     margin_s: float = Field(0.1, ge=0.0)  # [s] contact windows widened by this on each side
+    #: "socket": a declared compliant contact (``contact_model``): a lateral spring at the tip and an
+    #: angular spring, anchored where the declared tip crosses the entrance plane; its nominal wrench
+    #: joins the model and the contact-model effects are judged. "none": no contact geometry declared
+    geometry: Literal["none", "socket"] = "none"
+    entry_w_m: Vec3 = (0.0, 0.0, 0.0)  # [m] socket: a point of the entrance plane, world
+    axis_w: Vec3 = (0.0, 0.0, -1.0)  # socket: the axis into the fixture, world (normalised)
+    stiffness_lat_N_per_m: float = Field(0.0, ge=0.0)  # [N/m] socket: lateral spring at the tip
+    stiffness_rot_Nm_per_rad: float = Field(0.0, ge=0.0)  # [N m/rad] socket: angular spring
 
-    @field_validator("detect_force_N", "margin_s")
+    @field_validator("detect_force_N", "margin_s", "entry_w_m", "axis_w", "stiffness_lat_N_per_m",
+                     "stiffness_rot_Nm_per_rad")
     @classmethod
     def _fin(cls, v):
         return _finite(v, "the value")
+
+    @model_validator(mode="after")
+    def _socket(self):
+        if self.geometry == "socket":
+            if self.mode != "tip":
+                raise ValueError('geometry = "socket" needs mode = "tip" (the socket acts through the declared tip)')
+            if np.linalg.norm(self.axis_w) < 1e-9:
+                raise ValueError("axis_w must not be zero (the socket's axis into the fixture, world)")
+            if self.stiffness_lat_N_per_m <= 0.0 and self.stiffness_rot_Nm_per_rad <= 0.0:
+                raise ValueError('geometry = "socket" needs stiffness_lat_N_per_m or stiffness_rot_Nm_per_rad > 0')
+        return self
+
+    @property
+    def declared_geometry(self) -> bool:
+        """A contact geometry is declared: the contact-model effects are judged."""
+        return self.geometry != "none"
 
 
 class AnalysisCfg(_Cfg):

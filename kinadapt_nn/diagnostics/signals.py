@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from kinadapt_nn.diagnostics import contact_model
 from kinadapt_nn.diagnostics import physical as ph
 
 
@@ -43,7 +44,7 @@ class LogSignals:
     contact: np.ndarray  #: (n,) bool: contact detected
     extra: dict  #: declared extra columns ([log] extra): name -> (n,)
     setup: object  #: the validated setup (``SetupCfg``)
-    w_nom: np.ndarray  #: (n, 6) [N, N m] the declared tool's wrench (the nominal model)
+    w_nom: np.ndarray  #: (n, 6) [N, N m] the declared tool's wrench (+ a declared socket's: ``contact_model``)
     contact_force_s: np.ndarray  #: (n, 3) [N] force beyond the tool model in contact (s), 0 in free space
     tip_map: np.ndarray  #: (3, 6) a wrench -> its moment about the declared tip
     arm: ph.ArmModel = field(repr=False, default=None)  #: the arm model (forward kinematics)
@@ -67,7 +68,8 @@ class LogSignals:
         """The declared tool's wrench (n, 6) had the encoders read ``q`` (n, dof) instead (same
         velocities and times): for effects that move the model's joint angles."""
         m, mc, I_O = ph.nominal_inertials(self.setup)
-        return ph.tool_wrench(self.arm.series(q, self.qdot, self.clock), m, mc, I_O)
+        kin = self.arm.series(q, self.qdot, self.clock)
+        return ph.tool_wrench(kin, m, mc, I_O) + contact_model.nominal_wrench(self.setup, kin.R_ws, kin.p_ws)
 
     def with_contact(self, contact: np.ndarray, offset: np.ndarray) -> "LogSignals":
         """The same log with another contact mask; ``offset`` (6,) is the free-space offset taken
@@ -119,7 +121,8 @@ def from_log(log, setup, progress=lambda msg: None) -> LogSignals:
     qddot = np.zeros_like(q) if static else ph.derivative(qdot, t)
     return LogSignals(t - t0, q, qdot, qddot, kin.R_ws, kin.p_ws, kin.g_s, kin.a_s, kin.omega_s,
                       kin.alpha_s, r, np.zeros(n, bool), extra, setup,
-                      ph.tool_wrench(kin, m, mc, I_O), np.zeros((n, 3)), ph.tip_moment_map(setup.tool.tip_sensor_m),
+                      ph.tool_wrench(kin, m, mc, I_O) + contact_model.nominal_wrench(setup, kin.R_ws, kin.p_ws),
+                      np.zeros((n, 3)), ph.tip_moment_map(setup.tool.tip_sensor_m),
                       arm, static, has_time, block)
 
 

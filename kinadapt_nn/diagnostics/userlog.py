@@ -266,8 +266,10 @@ def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray, rc: Row
     excl = excluded_samples(s, setup)
     free = ~contact & ~excl if (~contact & ~excl).sum() > 20 else ~excl
     fitm = mount.fit(s, free, blocks, sigma)
-    point = contact_point.estimate(s.wrench - mount.predict(fitm.x, s), contact & ~excl)
-    point = contact_point.with_calibration(point, s.wrench, lambda dx: mount.predict(mount.shifted(fitm.x, dx), s),
+    # the contact wrench: beyond the calibrated tool and a declared contact geometry's own wrench
+    w_c = s.wrench - (s.w_nom - ph_tool_wrench(s))
+    point = contact_point.estimate(w_c - mount.predict(fitm.x, s), contact & ~excl)
+    point = contact_point.with_calibration(point, w_c, lambda dx: mount.predict(mount.shifted(fitm.x, dx), s),
                                            contact & ~excl, fitm.cov)
     if not setup.sensor.mount_known:
         setup = setup.model_copy(update={"sensor": setup.sensor.model_copy(
@@ -276,6 +278,15 @@ def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray, rc: Row
         s = sg.from_log(log, setup)
     off = np.median((s.wrench - s.w_nom)[~contact], axis=0) if (~contact).any() else np.zeros(6)
     return Calibration(fitm, s.with_contact(contact, off), setup, sigma, how, seg, point)
+
+
+def ph_tool_wrench(s: sg.LogSignals) -> np.ndarray:
+    """(n, 6) the declared tool's own wrench (``s.w_nom`` without a declared contact geometry's)."""
+    from kinadapt_nn.diagnostics import physical as ph
+
+    m, mc, I_O = ph.nominal_inertials(s.setup)
+    kin = ph.KinSeries(s.R_ws, s.g_s, s.a_s, s.omega_s, s.alpha_s, s.p_ws)
+    return ph.tool_wrench(kin, m, mc, I_O)
 
 
 class Calibration(NamedTuple):
@@ -591,8 +602,8 @@ def _base_report(log, declared: SetupCfg, cal: Calibration, chk: Checks, rd: Ran
         "warnings": [m for m in (chk.sign.get("message"), chk.unit_msg, chk.sensor_mount.get("warning"), chk.mount_msg,
                                  rd.fit_check.get("message")) if m],
         "blocked": chk.block,
-        "ranking": entries + [_not_judged(n) for n in CONTACT_MODEL_EFFECTS],
-        "not_judged": [{"effect": n, "reason": NOT_JUDGED} for n in CONTACT_MODEL_EFFECTS],
+        "ranking": entries + [_not_judged(n) for n in CONTACT_MODEL_EFFECTS if n not in rd.names],
+        "not_judged": [{"effect": n, "reason": NOT_JUDGED} for n in CONTACT_MODEL_EFFECTS if n not in rd.names],
         "residual_rms_by_channel": _rms_by_channel(des, des.y),
         "explained_by_present": float(1.0 - result.sse_after / max(result.sse_total, 1e-300)),
         "method": {"rows": {k: v for k, v in rk.rc._asdict().items() if k != "chunk_samples"},

@@ -1,0 +1,46 @@
+"""A torsional friction couple opposing rotation in the declared contact: ``-radius |f| w/(|w| + eps)``.
+
+``|f|``: the contact force, the measured force beyond the nominal model where the socket is
+engaged (``contact_model``); ``w`` the tool's angular velocity (sensor frame; a couple is the same
+about any point, so it shows in the moment about the tip). Judged only with a declared geometry.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kinadapt_nn.diagnostics import contact_model
+from kinadapt_nn.diagnostics.builtin.contact_stiffness import has_geometry
+from kinadapt_nn.diagnostics.contract import effect
+
+OMEGA_EPS_RAD_S = 0.005  #: [rad/s] smoothing of sign(w) (a model constant)
+
+
+def contact_force_norm(s) -> np.ndarray:
+    """(n,) [N] the force beyond the nominal model where the declared socket is engaged, else 0."""
+    st = contact_model.socket_terms(s.setup.contact, s.R_ws, s.p_ws, s.setup.tool.tip_sensor_m)
+    return np.linalg.norm((s.wrench - s.w_nom)[:, :3], axis=1) * st.gate
+
+
+def _report(p, sd, setup) -> dict:
+    return {"radius": {"value": float(p[0]), "sd": float(sd[0]), "unit": "m"}}
+
+
+def _plausible(p, setup) -> str | None:
+    if p[0] < 0.0:
+        return f"a friction radius of {1000 * p[0]:.3g} mm (friction that drives the rotation)"
+    return None
+
+
+@effect(params={"radius": "m"}, relevant=[1e-3],
+        doc="a torsional friction couple opposing rotation in contact",
+        excite="rotate back and forth in contact under a steady normal force (a couple that flips with the rotation)",
+        report=_report, plausible=_plausible, applies=has_geometry, uses_contact=False)
+def contact_friction_couple(s):
+    w = s.omega_s
+    C = np.zeros((s.n, 6, 1))
+    C[:, 3:, 0] = -contact_force_norm(s)[:, None] * w / (np.linalg.norm(w, axis=1) + OMEGA_EPS_RAD_S)[:, None]
+    return C
+
+
+__all__ = ["contact_friction_couple", "contact_force_norm"]

@@ -1,0 +1,52 @@
+"""The tool yields in the grasp under moment: it turns by ``compliance * M_perp`` about the sensor's
+x and y axes (``M_perp``: the contact moment about the sensor origin across the tool axis z_s).
+
+The declared socket answers the turn: its lateral spring sees the tip move by ``delta x tip``, its
+angular spring the rotation ``delta`` (``contact_model``); the change of the wrench on the sensor
+is linear in the compliance. Judged only with a declared geometry.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kinadapt_nn.diagnostics import contact_model
+from kinadapt_nn.diagnostics.builtin.contact_stiffness import has_geometry
+from kinadapt_nn.diagnostics.contract import effect
+
+
+def _report(p, sd, setup) -> dict:
+    return {"compliance": {"value": float(p[0]), "sd": float(sd[0]), "unit": "rad/(N m)"},
+            "stiffness": {"value": float(1.0 / p[0]) if p[0] > 0 else None, "sd": float(sd[0] / max(p[0], 1e-12) ** 2),
+                          "unit": "N m/rad"}}
+
+
+def _plausible(p, setup) -> str | None:
+    if p[0] < 0.0:
+        return f"a compliance of {p[0]:.3g} rad/(N m) (a grasp that turns against the moment)"
+    return None
+
+
+@effect(params={"compliance": "rad/(N m)"}, relevant=[1e-3],
+        doc="the tool yields in the grasp under moment",
+        excite="load the tool with a moment in contact (lateral pushes at the tip)",
+        report=_report, plausible=_plausible, applies=has_geometry, uses_contact=False)
+def grasp_compliance(s):
+    c = s.setup.contact
+    tip = np.asarray(s.setup.tool.tip_sensor_m, dtype=float)
+    st = contact_model.socket_terms(c, s.R_ws, s.p_ws, tip)
+    # the contact moment about the sensor origin: the measured one beyond the tool model (the
+    # socket's nominal wrench is the contact, so it is added back), where the socket is engaged
+    w_contact = contact_model.nominal_wrench(s.setup, s.R_ws, s.p_ws)
+    M_s = (s.wrench - s.w_nom + w_contact)[:, 3:] * st.gate[:, None]
+    M_perp = M_s.copy()
+    M_perp[:, 2] = 0.0  # the grasp yields about s x and s y only
+    turn_w = np.einsum("nij,nj->ni", s.R_ws, M_perp)  # per unit compliance [rad per rad/(N m)]
+    d_tip = np.cross(turn_w, np.einsum("nij,j->ni", s.R_ws, tip))
+    d_tip -= np.outer(d_tip @ st.axis_w, st.axis_w)
+    f_w = -c.stiffness_lat_N_per_m * d_tip * st.gate[:, None]
+    tau_w = -c.stiffness_rot_Nm_per_rad * turn_w
+    return contact_model.on_tool_to_sensor(s.R_ws, tip, f_w, tau_w)[:, :, None]
+
+
+__all__ = ["grasp_compliance"]

@@ -1,0 +1,102 @@
+"""A declared contact geometry's nominal wrench (``[contact] geometry = "socket"`` of the setup).
+
+A socket is a compliant fixture the declared tip enters: a lateral spring at the tip and an
+angular spring, anchored where the tip and the tool were when the tip crossed the entrance plane
+(released when it is back ``RELEASE_M`` above it)::
+
+    f   = -k_lat P (tip - tip_0)          (P: the projector across the axis)
+    tau = -k_rot rotvec(R R_0^T)          (both on the tool, world)
+
+The environment's wrench on the tool adds to the wrench the tool exerts on the sensor (quasi-
+static balance), so ``nominal_wrench`` is that wrench in the sensor frame about its origin: it
+joins the declared tool's wrench in the nominal model (``signals.LogSignals.w_nom``). An axial
+spring acts through the tip along the axis; it is not modelled (the contact rows are moments
+about the tip, where it has none). With no geometry declared the contact force is not modelled
+and only "contacts act through the tip" is (``userlog``).
+
+Everything here is computed from the encoders and the set-up: ``R_ws`` (n, 3, 3) the sensor axes
+in the world, ``p_ws`` (n, 3) [m] its origin. The contact-model effects
+(``builtin/contact_stiffness.py`` and the others) are built on the same terms.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+#: [m] the socket releases when the tip is this far back above the entrance plane (engages at 0)
+RELEASE_M = 1e-3
+
+
+class SocketTerms(NamedTuple):
+    """The socket's kinematics per sample (n samples), world frame."""
+
+    gate: np.ndarray  #: (n,) bool: engaged
+    tip_w: np.ndarray  #: (n, 3) [m] the declared tip
+    disp_lat_w: np.ndarray  #: (n, 3) [m] tip displacement since the anchor, across the axis (0 when free)
+    rotvec_w: np.ndarray  #: (n, 3) [rad] rotation of the tool since the anchor (0 when free)
+    axis_w: np.ndarray  #: (3,) the unit axis
+
+
+def _engaged(depth: np.ndarray) -> np.ndarray:
+    """(n,) bool: engaged from the first sample at depth >= 0 until depth < -RELEASE_M."""
+    out = np.zeros(len(depth), bool)
+    near = np.r_[0, (depth >= -RELEASE_M).astype(int), 0]
+    edges = np.flatnonzero(np.diff(near))
+    for a, b in zip(edges[::2], edges[1::2]):
+        inside = np.flatnonzero(depth[a:b] >= 0.0)
+        if len(inside):
+            out[a + inside[0]:b] = True
+    return out
+
+
+def _anchors(gate: np.ndarray) -> np.ndarray:
+    """(n,) the index of each engaged sample's anchor (the first sample of its run); -1 when free."""
+    idx = np.arange(len(gate))
+    start = gate & ~np.r_[False, gate[:-1]]
+    anchor = np.maximum.accumulate(np.where(start, idx, -1))
+    return np.where(gate, anchor, -1)
+
+
+def socket_terms(contact, R_ws: np.ndarray, p_ws: np.ndarray, tip_s) -> SocketTerms:
+    """The socket of ``contact`` (``setup.ContactDeclCfg``) along a log. ``tip_s`` (3,) [m] the
+    declared tip in the sensor frame. -> ``SocketTerms``."""
+    n_ax = np.asarray(contact.axis_w, dtype=float)
+    n_ax = n_ax / np.linalg.norm(n_ax)
+    tip_w = p_ws + R_ws @ np.asarray(tip_s, dtype=float)
+    gate = _engaged((tip_w - np.asarray(contact.entry_w_m, dtype=float)) @ n_ax)
+    anc = _anchors(gate)
+    on = anc >= 0
+    disp = np.zeros_like(tip_w)
+    rot = np.zeros_like(tip_w)
+    if on.any():
+        d = tip_w[on] - tip_w[anc[on]]
+        disp[on] = d - np.outer(d @ n_ax, n_ax)
+        rel = R_ws[on] @ np.transpose(R_ws[anc[on]], (0, 2, 1))
+        rot[on] = Rotation.from_matrix(rel).as_rotvec()
+    return SocketTerms(gate, tip_w, disp, rot, n_ax)
+
+
+def on_tool_to_sensor(R_ws: np.ndarray, tip_s, f_w: np.ndarray, tau_w: np.ndarray) -> np.ndarray:
+    """An environment wrench on the tool (force ``f_w`` (n, 3) [N] at the tip, couple ``tau_w``
+    (n, 3) [N m], world) as the change of the wrench the tool exerts on the sensor: (n, 6), sensor
+    frame, about its origin."""
+    f_s = np.einsum("nji,nj->ni", R_ws, f_w)
+    tau_s = np.einsum("nji,nj->ni", R_ws, tau_w)
+    return np.concatenate([f_s, tau_s + np.cross(np.asarray(tip_s, dtype=float), f_s)], axis=1)
+
+
+def nominal_wrench(setup, R_ws: np.ndarray, p_ws: np.ndarray) -> np.ndarray:
+    """The declared contact geometry's wrench on the sensor (n, 6) [N, N m] (module docstring);
+    zeros when none is declared."""
+    c = setup.contact
+    if c.geometry == "none":
+        return np.zeros((len(R_ws), 6))
+    tip = setup.tool.tip_sensor_m
+    st = socket_terms(c, R_ws, p_ws, tip)
+    return on_tool_to_sensor(R_ws, tip, -c.stiffness_lat_N_per_m * st.disp_lat_w, -c.stiffness_rot_Nm_per_rad * st.rotvec_w)
+
+
+__all__ = ["SocketTerms", "socket_terms", "on_tool_to_sensor", "nominal_wrench", "RELEASE_M"]

@@ -1,0 +1,117 @@
+"""A run of this package as a user's log: its trace plus a set-up generated from its config.
+
+``kinadapt diagnose RUN_DIR`` can judge a simulated run with the same stages as a robot's log
+(``userlog.diagnose``): the run's encoders, wrist F/T reading and time become a ``readers.UserLog``
+and its config the ``setup.SetupCfg`` a user would write for that cell:
+
+=================  ===========================================================================
+set-up             from the run's config (what the cell's integrator knows)
+=================  ===========================================================================
+[arm]              the arm model the controller uses (``scene.arm_mjcf``), flange site ``flange``
+[sensor]           at the flange, axes of the flange (the simulated wrist sensor)
+[log]              raw reading, the flange's wrench on the tool (``wrench_acts = "sensor_on_tool"``),
+                   not tared (the package tares inside its controller, the log is raw)
+[tool]             the peg (``tool.mass_kg``, a ``side_m`` x ``side_m`` x ``length_m`` box) on the
+                   NOMINAL axis, its tip at the nominal offset ``sensing.nominal_offset_f_m``
+[contact]          ``geometry = "socket"``: the known bore entrance and axis, the nominal map's
+                   stiffnesses ``sensing.stiffness_lat_N_per_m`` / ``stiffness_rot_Nm_per_rad``
+=================  ===========================================================================
+
+The hidden effects (``[effects]``) and the true tool pose are not read: the set-up is the
+nominal model, as the package's own diagnosis uses it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from kinadapt_nn.config import ExperimentCfg, arm_mjcf_path, load_config
+from kinadapt_nn.diagnostics.readers import UserLog
+from kinadapt_nn.diagnostics.setup import (ArmDeclCfg, ContactDeclCfg, LogCfg, SensorCfg, SetupCfg, ToolDeclCfg)
+from kinadapt_nn.errors import KinadaptError
+from kinadapt_nn.known import BORE_AXIS_W
+
+
+def _tool(cfg: ExperimentCfg) -> ToolDeclCfg:
+    """The nominal peg in the sensor (= flange) frame: a box along the nominal offset."""
+    tip = np.asarray(cfg.sensing.nominal_offset_f_m, dtype=float)
+    axis = tip / max(float(np.linalg.norm(tip)), 1e-12)
+    t = cfg.tool
+    com = tip - 0.5 * t.length_m * axis
+    a = t.side_m
+    i_side = t.mass_kg / 12.0 * (a * a + t.length_m ** 2)
+    i_axis = t.mass_kg / 6.0 * a * a
+    # the box's inertia about its COM, axes of f: i_side across the axis, i_axis along it
+    I_c = i_side * np.eye(3) + (i_axis - i_side) * np.outer(axis, axis)
+    inertia = (I_c[0, 0], I_c[1, 1], I_c[2, 2], I_c[0, 1], I_c[0, 2], I_c[1, 2])
+    return ToolDeclCfg(mass_kg=t.mass_kg, com_sensor_m=tuple(float(v) for v in com),
+                       inertia_com_kg_m2=tuple(float(v) for v in inertia), tip_sensor_m=tuple(float(v) for v in tip))
+
+
+def setup_of_run(cfg: ExperimentCfg, effects_files=(), tip_sensor_m=None) -> SetupCfg:
+    """The set-up of a package run (module docstring); ``tip_sensor_m`` (3,) [m]: a calibrated tip
+    (``calibrated_tip``) in place of the nominal offset. -> ``SetupCfg``."""
+    dof = 7
+    log = LogCfg(q=tuple(f"q{j}" for j in range(1, dof + 1)), qdot=tuple(f"qd{j}" for j in range(1, dof + 1)),
+                 wrench_acts="sensor_on_tool", tared=False)
+    contact = ContactDeclCfg(mode="tip", geometry="socket", entry_w_m=tuple(float(v) for v in cfg.scene.bore_entry_w_m),
+                             axis_w=tuple(float(v) for v in BORE_AXIS_W),
+                             stiffness_lat_N_per_m=cfg.sensing.stiffness_lat_N_per_m,
+                             stiffness_rot_Nm_per_rad=cfg.sensing.stiffness_rot_Nm_per_rad)
+    tool = _tool(cfg)
+    if tip_sensor_m is not None:
+        tool = tool.model_copy(update={"tip_sensor_m": tuple(float(v) for v in tip_sensor_m)})
+    setup = SetupCfg(log=log, sensor=SensorCfg(), tool=tool,
+                     arm=ArmDeclCfg(mjcf=str(arm_mjcf_path(cfg.scene)), flange_site="flange"), contact=contact)
+    if effects_files:
+        setup = setup.model_copy(update={"analysis": setup.analysis.model_copy(
+            update={"effects_files": tuple(str(p) for p in effects_files)})})
+    return setup
+
+
+def log_of_run(raw) -> UserLog:
+    """A ``importers.RawLog`` (a run's trace or the package's CSV) as a ``UserLog``: time from the
+    first sample, the raw reading as logged (its convention is the set-up's ``wrench_acts``)."""
+    t = np.asarray(raw.t_s, dtype=float)
+    return UserLog(t - t[0], np.asarray(raw.q_rad, dtype=float), np.asarray(raw.qdot_rad_s, dtype=float),
+                   np.asarray(raw.wrench_raw_f, dtype=float), str(raw.source))
+
+
+def as_log(src, cfg: ExperimentCfg | None = None, effects_files=(), tip_sensor_m=None) -> tuple[UserLog, SetupCfg]:
+    """A package run (a run folder, its ``trace.npz``, the package's CSV or a ``RawLog``) and its
+    config (the folder's ``config.toml`` when ``cfg`` is None) -> (log, set-up) for
+    ``userlog.diagnose``."""
+    from kinadapt_nn.diagnostics.residual import load_log
+
+    raw = load_log(Path(src)) if isinstance(src, (str, Path)) else src
+    if cfg is None:
+        folder = Path(src) if isinstance(src, (str, Path)) else None
+        folder = folder if folder is not None and folder.is_dir() else (folder.parent if folder is not None else None)
+        if folder is None or not (folder / "config.toml").is_file():
+            raise KinadaptError(f"'{src}': no config.toml beside the log; give the run's config (the set-up is "
+                                "generated from it)")
+        cfg = load_config(folder / "config.toml")
+    return log_of_run(raw), setup_of_run(cfg, effects_files, tip_sensor_m)
+
+
+def calibrated_tip(baseline, cfg: ExperimentCfg | None = None) -> np.ndarray:
+    """Where contacts act on a baseline run (a run without hidden effects of the same cell): the
+    calibration stage's contact point (``userlog.calibrate``, the declared socket's own wrench
+    taken out). The package's nominal offset is off by the tool error the controller adapts; this
+    is the calibration a diagnosis of the cell's other runs starts from. -> (3,) [m], sensor frame."""
+    from kinadapt_nn.diagnostics import signals as sg
+    from kinadapt_nn.diagnostics import userlog
+
+    log, setup = as_log(baseline, cfg)
+    s = sg.from_log(log, setup)
+    rc = userlog.RowCfg()
+    cal = userlog.calibrate(log, s, setup, userlog.noise_sigma(s.wrench, rc), rc, lambda msg: None)
+    if cal.contact_point is None or cal.contact_point.undetermined_along_s is not None:
+        raise KinadaptError(f"baseline '{baseline}': its contact does not pin the tip (too little contact, or the "
+                            "force barely changed direction); use a run with contact in several directions")
+    return np.asarray(cal.contact_point.point_s_m, dtype=float)
+
+
+__all__ = ["as_log", "calibrated_tip", "log_of_run", "setup_of_run"]

@@ -1,0 +1,178 @@
+"""A package run as a user's log (issue 37): the declared socket's nominal wrench, the contact-model
+effects as built-ins in the public form, and the set-up generated from a run's config."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from kinadapt_nn.config import load_config
+from kinadapt_nn.diagnostics import contact_model, userlog
+from kinadapt_nn.diagnostics.builtin import BUILTINS, CONTACT_MODEL_EFFECTS
+from kinadapt_nn.diagnostics.ownrun import setup_of_run
+from kinadapt_nn.diagnostics.setup import ContactDeclCfg, SetupCfg, ToolDeclCfg, load_setup
+from kinadapt_nn.errors import ConfigError
+
+REPO = Path(__file__).resolve().parents[2]
+K_LAT, K_ROT = 2.0e4, 20.0
+TIP = np.array([0.0, 0.0, 0.1])
+
+
+def _socket_setup(tip=TIP) -> SetupCfg:
+    return SetupCfg(tool=ToolDeclCfg(tip_sensor_m=tuple(tip)),
+                    contact=ContactDeclCfg(geometry="socket", entry_w_m=(0.0, 0.0, 0.0), axis_w=(0.0, 0.0, -1.0),
+                                           stiffness_lat_N_per_m=K_LAT, stiffness_rot_Nm_per_rad=K_ROT))
+
+
+def _path():
+    """A sensor pointing down (tip below it) that descends through the entrance plane z = 0,
+    slides 2 mm in x and turns 0.05 rad about world x while engaged, rises out and comes back."""
+    n = 400
+    R_down = Rotation.from_euler("x", np.pi).as_matrix()  # sensor z points down: the tip is below it
+    z_tip = np.r_[np.linspace(0.004, -0.003, 100), np.full(100, -0.003), np.linspace(-0.003, 0.004, 100),
+                  np.linspace(0.004, -0.002, 100)]
+    x = np.r_[np.zeros(100), np.linspace(0.0, 0.002, 100), np.full(100, 0.002), np.full(100, 0.005)]
+    ang = np.r_[np.zeros(100), np.linspace(0.0, 0.05, 100), np.full(100, 0.05), np.full(100, 0.05)]
+    R = np.stack([Rotation.from_euler("x", a).as_matrix() @ R_down for a in ang])
+    tip_w = np.stack([x, np.zeros(n), z_tip], axis=1)
+    p_ws = tip_w - R @ TIP
+    return R, p_ws, tip_w, ang
+
+
+def test_socket_wrench_is_the_two_springs_from_the_anchor():
+    """Closed form, sample by sample: engaged from the first sample at or below the plane until
+    the tip is 1 mm back above it; f = -k_lat (tip - tip_0) across the axis, tau = -k_rot angle;
+    on the sensor: [R^T f; R^T tau + tip x R^T f]. A second entry anchors anew."""
+    R, p_ws, tip_w, ang = _path()
+    setup = _socket_setup()
+    st = contact_model.socket_terms(setup.contact, R, p_ws, TIP)
+    depth = -tip_w[:, 2]
+    first = int(np.argmax(depth >= 0))
+    release = first + int(np.argmax(depth[first:] < -contact_model.RELEASE_M))
+    second = release + int(np.argmax(depth[release:] >= 0))
+    expect_gate = np.zeros(len(depth), bool)
+    expect_gate[first:release] = True
+    expect_gate[second:] = True
+    np.testing.assert_array_equal(st.gate, expect_gate)
+    w = contact_model.nominal_wrench(setup, R, p_ws)
+    for i in (first + 150, release - 1, len(depth) - 1):
+        a = first if i < release else second
+        d = tip_w[i] - tip_w[a]
+        f_w = -K_LAT * np.array([d[0], d[1], 0.0])
+        tau_w = -K_ROT * np.array([ang[i] - ang[a], 0.0, 0.0])
+        f_s, tau_s = R[i].T @ f_w, R[i].T @ tau_w
+        np.testing.assert_allclose(w[i], np.r_[f_s, tau_s + np.cross(TIP, f_s)], atol=1e-9)
+    assert abs(w[first + 150, 0]) > 1.0 and np.all(w[~expect_gate] == 0.0)
+    # no geometry declared: no contact wrench
+    assert not contact_model.nominal_wrench(SetupCfg(), R, p_ws).any()
+
+
+def _signals(setup, R, p_ws, wrench, w_nom, omega_s):
+    return SimpleNamespace(setup=setup, R_ws=R, p_ws=p_ws, wrench=wrench, w_nom=w_nom, omega_s=omega_s, n=len(R),
+                           t=np.arange(len(R)) * 0.001)
+
+
+def test_friction_couple_and_grasp_compliance_columns_closed_form():
+    """Engaged, sensor axes = world, 12 N of contact force, turning about z at 0.2 rad/s: the
+    friction column is -|f| w/(|w| + eps) in the moments. A contact moment of 1 N m about x_s turns
+    the grasp by c per unit compliance: the tip moves by (c e_x) x tip, the lateral spring pushes
+    back, the angular spring resists: M_x = -k_rot - k_lat |tip|^2 per unit c."""
+    from kinadapt_nn.diagnostics.builtin.contact_friction_couple import OMEGA_EPS_RAD_S
+
+    n = 5
+    R = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+    setup = _socket_setup(tip=np.array([0.0, 0.0, -0.1]))
+    p_ws = np.tile([0.0, 0.0, 0.098], (n, 1))  # tip at z = -0.002: engaged at the first sample, not moved
+    w_nom = contact_model.nominal_wrench(setup, R, p_ws)
+    assert not w_nom.any()
+    wrench = np.tile([0.0, 0.0, 12.0, 1.0, 0.0, 0.0], (n, 1))
+    omega = np.tile([0.0, 0.0, 0.2], (n, 1))
+    s = _signals(setup, R, p_ws, wrench, w_nom, omega)
+    C = BUILTINS["contact_friction_couple"].evaluate(s)
+    np.testing.assert_allclose(C[:, 5, 0], -12.0 * 0.2 / (0.2 + OMEGA_EPS_RAD_S))
+    assert not C[:, :5, 0].any()
+    G = BUILTINS["grasp_compliance"].evaluate(s)[0, :, 0]
+    tip = np.array([0.0, 0.0, -0.1])
+    f = -K_LAT * np.cross([1.0, 0.0, 0.0], tip)  # across the axis (already: along y)
+    np.testing.assert_allclose(G, np.r_[f, np.array([-K_ROT, 0.0, 0.0]) + np.cross(tip, f)], atol=1e-9)
+    assert G[3] == pytest.approx(-K_ROT - K_LAT * 0.01)
+
+
+def test_contact_model_effects_are_judged_only_with_a_declared_geometry():
+    setup = _socket_setup()
+    lib = userlog.library(setup)
+    assert set(CONTACT_MODEL_EFFECTS) == {"contact_stiffness", "contact_friction_couple", "grasp_compliance"}
+    assert set(CONTACT_MODEL_EFFECTS) <= set(userlog.judged(lib, setup))
+    assert not set(CONTACT_MODEL_EFFECTS) & set(userlog.judged(userlog.library(SetupCfg()), SetupCfg()))
+    with pytest.raises(ConfigError, match="geometry") as e:
+        load_setup(None, ['contact.geometry="socket"', 'contact.mode="exclude"',
+                          "contact.stiffness_rot_Nm_per_rad=1.0"])
+    assert len(str(e.value).splitlines()) == 1
+    with pytest.raises(ConfigError, match="stiffness"):
+        load_setup(None, ['contact.geometry="socket"'])
+
+
+def test_setup_of_a_package_run():
+    """The generated set-up: the controller's arm, the sensor at the flange, the raw reading (the
+    flange's wrench on the tool, not tared), the peg on the nominal axis (box inertia as the
+    simulator builds it), the known bore entrance and the nominal map's stiffnesses."""
+    from kinadapt_nn.sim.scene import _box_inertia
+
+    cfg = load_config(REPO / "online" / "excite.toml")
+    s = setup_of_run(cfg)
+    assert Path(s.arm.mjcf).name == "panda.xml" and s.arm.flange_site == "flange"
+    assert s.log.wrench_acts == "sensor_on_tool" and not s.log.tared and s.log.sign == -1.0
+    assert s.tool.mass_kg == cfg.tool.mass_kg
+    np.testing.assert_allclose(s.tool.tip_sensor_m, cfg.sensing.nominal_offset_f_m)
+    np.testing.assert_allclose(s.tool.com_sensor_m, [0.0, 0.0, 0.1 - 0.5 * cfg.tool.length_m])
+    half = np.array([cfg.tool.side_m / 2, cfg.tool.side_m / 2, cfg.tool.length_m / 2])
+    np.testing.assert_allclose(s.tool.inertia_com_kg_m2[:3], _box_inertia(cfg.tool.mass_kg, half), rtol=1e-12)
+    c = s.contact
+    assert c.geometry == "socket" and c.mode == "tip"
+    np.testing.assert_allclose(c.entry_w_m, cfg.scene.bore_entry_w_m)
+    assert (c.stiffness_lat_N_per_m, c.stiffness_rot_Nm_per_rad) == (cfg.sensing.stiffness_lat_N_per_m,
+                                                                     cfg.sensing.stiffness_rot_Nm_per_rad)
+    s2 = setup_of_run(cfg, tip_sensor_m=[0.003, -0.002, 0.1])
+    assert s2.tool.tip_sensor_m == (0.003, -0.002, 0.1)
+
+
+@pytest.fixture(scope="module")
+def short_run(tmp_path_factory):
+    """A short insertion of the default program (free space, then contact in the bore)."""
+    from kinadapt_nn.app.cli import main
+
+    out = tmp_path_factory.mktemp("ownrun") / "run"
+    assert main(["online", "--out", str(out), "--quiet", "--set", "run.duration_s=3.0", "--set",
+                 "run.tensorboard=false", "--set", "run.figure=false"]) in (0, 1)
+    return out
+
+
+@pytest.mark.slow
+def test_diagnose_a_package_run_as_a_log_with_add_effects_and_figures(short_run, tmp_path, capsys):
+    """``kinadapt diagnose RUN --as-log``: the run's trace and generated set-up through the user-log
+    stages; a user's effect file (--effects) and --add work on it; the contact-model effects are
+    judged (the set-up declares the bore as a socket), the report says which set-up it used."""
+    import json
+
+    from kinadapt_nn.app.cli import main
+
+    out = tmp_path / "d"
+    fx = REPO / "examples" / "effects" / "cable_pull.py"
+    assert main(["diagnose", str(short_run), "--as-log", "--effects", str(fx), "--add", "tool_gravity", "--out",
+                 str(out), "--quiet"]) == 0
+    d = json.loads((out / "diagnosis.json").read_text())
+    assert d["kind"] == "package_run" and d["format"] == "kinadapt-diagnosis"
+    judged = {e["effect"] for e in d["ranking"] if e.get("judged", True)}
+    assert set(CONTACT_MODEL_EFFECTS) | {"cable_pull", "tool_gravity"} <= judged and not d["not_judged"]
+    assert d["library"]["cable_pull"]["source"].endswith("cable_pull.py")
+    assert "tool_gravity" in d["added"] and d["residual_rms_after"]["total_w"] <= d["residual_rms_before"]["total_w"]
+    assert 'geometry = "socket"' in (out / "setup.toml").read_text()
+    assert (out / "effects.png").stat().st_size > 10_000 and (out / "residual.png").stat().st_size > 10_000
+    capsys.readouterr()
+    assert main(["diagnose", str(short_run), "--as-log", "--theta", "0,0,0.1", "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--theta" in err[0] and not (tmp_path / "x").exists()
