@@ -21,7 +21,6 @@ CPU-time ratio is the one that measures the code (the wall time measures the nei
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import resource
 import subprocess
@@ -37,11 +36,11 @@ RATE_HZ = 1000.0
 
 
 def _rig():
-    spec = importlib.util.spec_from_file_location("foreign_rig", ROOT / "examples" / "foreign_rig.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["foreign_rig"] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    """``examples/foreign_rig.py`` loaded as a module (the same loader as benchmarks/foreign_logs.py)."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from foreign_logs import _rig as load_rig
+
+    return load_rig()
 
 
 def write_long_log(out: Path, minutes: float, case: str = "tool_gravity", rows_per_group: int = 200_000
