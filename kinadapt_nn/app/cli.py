@@ -21,7 +21,6 @@ folder afterwards (else its path is printed).
 from __future__ import annotations
 
 import argparse
-import contextlib
 import logging
 import math
 import os
@@ -98,42 +97,6 @@ def _progress(args: argparse.Namespace, name: str):
             print(f"kinadapt {name} [{time.perf_counter() - t0:5.1f} s] {msg}", file=sys.stderr, flush=True)
 
     return progress
-
-
-@contextlib.contextmanager
-def _announce_stages(progress, stages: list[tuple[object, str, str]]):
-    """While the body runs, each call of ``module.NAME`` (``stages``: (module, NAME, message)) first
-    prints its message through ``progress``: the stages of a library call that takes no progress
-    callback, shown as they start. Names a module no longer has are skipped; all are restored."""
-    saved = []
-    for module, name, msg in stages:
-        fn = getattr(module, name, None)
-        if fn is None:
-            continue
-        saved.append((module, name, fn))
-
-        def wrapped(*a, _fn=fn, _msg=msg, **k):
-            progress(_msg)
-            return _fn(*a, **k)
-
-        setattr(module, name, wrapped)
-    try:
-        yield
-    finally:
-        for module, name, fn in saved:
-            setattr(module, name, fn)
-
-
-def _run_diagnosis_stages(lib, residual) -> list[tuple[object, str, str]]:
-    """The stages of ``library.diagnose_run`` a user waits through, in the order they run."""
-    return [(lib, "load_log", "reading the log"),
-            (lib, "replay", "replaying the log through the known model"),
-            (residual, "analyse", "residual by channel and phase"),
-            (lib, "build_signals", "the effect library's signals"),
-            (lib, "choose_calibration", "the calibrated nominal model"),
-            (lib, "design_of", "the effect columns"),
-            (lib, "analyse_effects", "ranking the library's effects (held-out, block cross-validation)"),
-            (lib, "rerun_with_effects", "re-running the episode with the effects adapted online (--rerun)")]
 
 
 def _default_out(kind: str) -> Path:
@@ -558,13 +521,10 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
     out = args.run_dir = Path(args.out) if args.out else _default_out("diagnose")
     check_output_dir(out, args.overwrite)
-    from kinadapt_nn.diagnostics import residual
-
     progress = _progress(args, "diagnose")
-    with _announce_stages(progress, _run_diagnosis_stages(lib, residual)):
-        res = lib.diagnose_run(src, cfg, theta, list(args.add or []), args.rerun,
-                               Path(args.baseline) if args.baseline else None,
-                               Path(args.calibration) if args.calibration else None, args.no_calibration)
+    choice = lib.CalibrationChoice(Path(args.baseline) if args.baseline else None,
+                                   Path(args.calibration) if args.calibration else None, args.no_calibration)
+    res = lib.diagnose_run(src, cfg, theta, list(args.add or []), args.rerun, choice, progress=progress)
     summary = res.report["summary"]
     progress("writing diagnosis.json and the figures")
     with staged_output(out, args.overwrite) as stage:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -145,31 +145,52 @@ class RunDiagnosis(NamedTuple):
     rerun: tuple | None  #: (config, EpisodeResult) of ``--rerun``, or None
 
 
+class CalibrationChoice(NamedTuple):
+    """Which calibrated nominal model a run is judged against (``choose_calibration``)."""
+
+    baseline: Path | None = None  #: ``--baseline RUN``: fitted now on that effect-free run
+    calibration: Path | None = None  #: ``--calibration FILE``
+    none: bool = False  #: ``--no-calibration``
+
+
 def diagnose_run(src: Path, cfg: ExperimentCfg, theta=None, add: list[str] | None = None, rerun: bool = False,
-                 baseline: Path | None = None, calibration: Path | None = None, no_calibration: bool = False
-                 ) -> RunDiagnosis:
+                 choice: CalibrationChoice = CalibrationChoice(),
+                 progress: Callable[[str], None] = lambda msg: None) -> RunDiagnosis:
     """The whole diagnosis of this package's run (a run folder, trace or CSV log) against the
     known model ``cfg``: replay, residual analysis, the effect ranking against the calibrated
-    nominal model, ``--add`` and ``--rerun``. One call; the CLI only writes and prints."""
+    nominal model, ``--add`` and ``--rerun``. One call; the CLI only writes and prints.
+    ``progress(message)`` is called as each stage starts. Bad input (effect names, a calibration
+    file) is refused before any stage runs."""
     from kinadapt_nn.diagnostics.residual import analyse, plain_summary
 
     add = list(add or [])
     check_effect_names(add)
     if rerun:
         check_rerun(src, add)
+    baseline, calibration, no_calibration = choice
+    if calibration is not None and baseline is None and not no_calibration:
+        rk.load_calibration(calibration, cfg.control.program)  # a malformed file: its error before the work
+    progress("reading the log")
     log = load_log(Path(src))
+    progress("replaying the log through the known model")
     rep = replay(log, cfg, theta)
+    progress("residual by channel and phase")
     a = analyse(rep, channel_metric(cfg.sensing))
     rc = rk.RankCfg()
     # the effect library works on the nominal model (the CAD offset; the channels it takes from the
     # replay -- s, the tared wrench, the drive flag -- do not depend on theta)
+    progress("the effect library's signals")
     sig = build_signals(rep, log, cfg)
+    progress("the calibrated nominal model")
     calib, calib_src = choose_calibration(Path(src), cfg, rc, baseline, calibration, no_calibration)
+    progress("the effect columns")
     des = design_of(sig, cfg, rc)
+    progress("ranking the library's effects (held-out, block cross-validation)")
     fx = analyse_effects(des, calib, add, rc)
     series = fx.pop("_series", None)
     rr = None
     if rerun:
+        progress("re-running the episode with the effects adapted online (--rerun)")
         rerun_cfg, rerun_res, fx["rerun"] = rerun_with_effects(Path(src), add)
         rr = (rerun_cfg, rerun_res)
     summary = plain_summary(a) + " " + summary_sentence(fx)
