@@ -31,6 +31,12 @@ def test_plan_lists_the_kernels_callees_with_their_cached_types(features):
     names = [fn.py_func.__name__ for fn, _ in plan]
     assert {"_front", "_law", "_act_head", "_act_tail", "_filter_regressor"} <= set(names)
     assert len(names) == len(set(names))
+    import numba
+
+    if numba.config.OPT == 0:
+        # unoptimised code keeps the laws' function addresses as "dynamic globals", which numba
+        # refuses to cache (the same measured reason as tests/runs/test_episode.py's precompile test)
+        pytest.skip("NUMBA_OPT=0: numba cannot cache kernels that hold function addresses")
     for fn, sig in plan:
         assert core._in_cache(fn, sig), (fn.py_func.__name__, sig)
 
