@@ -96,7 +96,7 @@ def test_batched_sweep_records_what_the_episode_by_episode_sweep_records(tmp_pat
     for k in ("total", "groups"):
         assert bat[k] == one[k]
     rows = {n: {r["id"]: r for r in csv.DictReader(open(tmp_path / n / "sweep.csv"))} for n in ("one", "bat")}
-    cols = [c for c in next(iter(rows["bat"].values())) if c != "wall_time_s"]
+    cols = [c for c in next(iter(rows["bat"].values())) if c not in ("wall_time_s", "compile_time_s")]  # wall times
     assert {"success", "failure", "seat_time_s", "max_force_N", "offset_error_final_m_0", "steps"} <= set(cols)
     assert all(rows["bat"][i][c] == rows["one"][i][c] for i in rows["one"] for c in cols)
     assert bat["total"]["successes"] == 6
@@ -119,7 +119,7 @@ def test_sweep_of_repeated_insertions_runs_every_insertion_batched_or_not(tmp_pa
     one = run_sweep(load_sweep_config(None, over), tmp_path / "one", progress=False)
     bat = run_sweep(load_sweep_config(None, [*over, "batch=true"]), tmp_path / "bat", progress=False)
     rows = {n: {r["id"]: r for r in csv.DictReader(open(tmp_path / n / "sweep.csv"))} for n in ("one", "bat")}
-    cols = [c for c in next(iter(rows["one"].values())) if c != "wall_time_s"]
+    cols = [c for c in next(iter(rows["one"].values())) if c not in ("wall_time_s", "compile_time_s")]  # wall times
     assert {"insertions_seated", "success", "failure", "seat_time_s"} <= set(cols)
     assert all(rows["bat"][i][c] == rows["one"][i][c] for i in rows["one"] for c in cols)
     assert one["total"] == bat["total"] and one["total"]["successes"] == 2
@@ -241,7 +241,7 @@ def test_ray_sweep_matches_the_local_sweep(tmp_path):
     assert main(["sweep", "--out", str(tmp_path / "local"), *sets]) == 0
 
     def rows(p):
-        return {r["id"]: {k: v for k, v in r.items() if k != "wall_time_s"} for r in csv.DictReader(open(p))}
+        return {r["id"]: {k: v for k, v in r.items() if k not in ("wall_time_s", "compile_time_s")} for r in csv.DictReader(open(p))}
 
     a, b = rows(tmp_path / "ray" / "sweep.csv"), rows(tmp_path / "local" / "sweep.csv")
     assert len(a) == 32 and a == b
