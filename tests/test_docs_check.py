@@ -3,21 +3,17 @@ README's marked blocks print what the README quotes (slow)."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
+
+from tests.diagnostics.example_scripts import load_script
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _load():
-    spec = importlib.util.spec_from_file_location("docs_check", ROOT / "benchmarks" / "docs_check.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["docs_check"] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script(ROOT / "benchmarks" / "docs_check.py", "docs_check")
 
 
 dc = _load()

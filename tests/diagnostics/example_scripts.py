@@ -14,7 +14,11 @@ EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 def load_example(name: str) -> ModuleType:
     """``examples/<name>.py`` as module ``name`` (loaded once)."""
-    path = EXAMPLES / f"{name}.py"
+    return load_script(EXAMPLES / f"{name}.py", name)
+
+
+def load_script(path: Path, name: str) -> ModuleType:
+    """The script at ``path`` as module ``name`` (loaded once): examples, benchmarks."""
     mod = sys.modules.get(name)
     if mod is not None and Path(mod.__file__).resolve() == path:
         return mod
