@@ -1096,10 +1096,21 @@ def calls_cached(calls, law=None) -> bool:
         return False
 
 
+#: more kernels a compile phase must find cached to be warm (``cache_probe``: the episode loop's)
+_CACHE_PROBES: list = []
+
+
+def cache_probe(dispatchers) -> None:
+    """Register numba dispatchers (a layer above this one: the episode loop's, the scenes') that
+    :func:`kernels_cached` checks too, so that a compile phase that compiles them is cold and shown."""
+    _CACHE_PROBES.extend(dispatchers)
+
+
 def kernels_cached() -> bool:
-    """True when the step kernel's compiled code is in numba's on-disk cache (the first run on a
-    machine compiles it, once); True also when that cannot be told (no message then)."""
+    """True when the step kernel's compiled code (and every :func:`cache_probe` kernel's) is in
+    numba's on-disk cache (the first run on a machine compiles it, once); True also when that
+    cannot be told (no message then)."""
     try:  # the index is empty when missing or written for another version of this source file
-        return bool(step_adjoint._cache._cache_file._load_index())
+        return all(bool(f._cache._cache_file._load_index()) for f in (step_adjoint, *_CACHE_PROBES))
     except Exception:  # numba's cache internals moved: say nothing
         return True

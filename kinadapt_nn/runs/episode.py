@@ -12,7 +12,7 @@ from __future__ import annotations
 from kinadapt_nn.config import ExperimentCfg
 from kinadapt_nn.controller import core
 from kinadapt_nn.controller.controller import Controller
-from kinadapt_nn.runs.batch import run_episodes
+from kinadapt_nn.runs.batch import compile_loop, run_episodes
 from kinadapt_nn.runs.build import make_controller
 from kinadapt_nn.runs.outcome import FAILURES, EpisodeResult
 
@@ -29,11 +29,12 @@ def precompile(cfgs: list[ExperimentCfg], progress: bool = False) -> float:
     for c in cfgs:
         kinds.setdefault((c.run.features, c.adaptation.mode), c)
     ctrls = [make_controller(c) for c in kinds.values()]
-    if all(core.calls_cached(k.kernel_calls(), k.law_spec) for k in ctrls):
+    if all(core.calls_cached(k.kernel_calls(), k.law_spec) for k in ctrls) and core.kernels_cached():
         return 0.0  # all cached: each worker loads them (loading here too would only delay the workers)
     with core.compiling(progress) as phase:
         for k in ctrls:
             k.compile_kernels()
+        compile_loop(cfgs[0])  # the episode loop's and the scenes' kernels too (a two-step episode)
     return phase.wall_s
 
 

@@ -21,7 +21,7 @@ from kinadapt_nn.config import ExperimentCfg
 from kinadapt_nn.controller import core
 from kinadapt_nn.controller.controller import Controller
 from kinadapt_nn.errors import ConfigError
-from kinadapt_nn.runs.batch import run_episodes
+from kinadapt_nn.runs.batch import compile_loop, run_episodes
 from kinadapt_nn.runs.build import make_controller
 from kinadapt_nn.runs.episode import EpisodeResult, run_episode
 
@@ -80,6 +80,7 @@ def run_cells(cfgs: list[ExperimentCfg], counts, progress: bool = False,
         ctrls = [make_controller(c) for c in cfgs]
         for k in ctrls:
             k.compile_kernels()
+        compile_loop(cfgs[0])  # the episode loop's and the scenes' kernels too (a two-step episode)
     compile_s = phase.wall_s if phase.cold else 0.0  # reported apart from the insertions' wall times
     cells = [_Cell(c, k) for c, k in zip(cfgs, ctrls)]
     bar = None

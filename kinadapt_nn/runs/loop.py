@@ -40,6 +40,7 @@ from kinadapt_nn.runs.build import make_controller, make_features
 from kinadapt_nn.runs.monitor import seat_step
 from kinadapt_nn.runs.outcome import sensor_reason, warning_reason
 from kinadapt_nn.sensing import channel_metric
+from kinadapt_nn.sim import scenes
 from kinadapt_nn.sim.scenes import SceneBatch
 
 #: one row per episode: what the watch keeps (:func:`_watch`)
@@ -144,6 +145,10 @@ def _log_sample(j, every_one, active, inp, io):
     for b in range(inp.shape[0]):
         if every_one or active[b]:
             io[j, b, :inp.shape[1]] = inp[b]
+
+
+# a compile phase is cold (and shown) while these are not in numba's cache either
+core.cache_probe((_watch, _log_rows, _log_sample, *scenes.KERNELS))
 
 
 def _entry(fn, args):

@@ -68,6 +68,10 @@ def _servo(u, q_ref, qdot_ref, kv_over_kp, active):
                 u[b, i] = qdot_ref[b, i] * kv_over_kp + q_ref[b, i]
 
 
+#: the scenes' numba kernels (a compile phase checks they are cached: ``controller.core.cache_probe``)
+KERNELS = (_gather, _servo)
+
+
 def _bound(fn, args):
     """``fn`` compiled (or loaded from numba's cache) for the types of ``args``, and its compiled
     entry: for arguments whose types never change in the loop (the dispatcher's type resolution
