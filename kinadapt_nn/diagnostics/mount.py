@@ -1,6 +1,6 @@
 """The sensor mount, estimated at any angle: the classic F/T calibration, on every user log.
 
-Unknowns (13): the rotation ``D`` of the true sensor axes from the declared ones (``R_fs,true =
+Unknowns (13, reported): the rotation ``D`` of the true sensor axes from the declared ones (``R_fs,true =
 R_fs,declared D``), the tool's mass ``m`` [kg], its first moment ``m c`` [kg m] (c in the true
 sensor frame s) and a constant offset ``b`` (6,) [N, N m]. Model of the wrench the tool exerts on
 the sensor (``physical`` module docstring), with every kinematic vector of the declared frame
@@ -9,7 +9,9 @@ turned into the true one (``x_s = D^T x_declared``)::
     F = m g_a - alpha x (m c) - omega x (omega x (m c)) + b_F,      g_a = D^T (g_s - a_s)
     M = (m c) x g_a - I_O alpha - omega x (I_O omega) + b_M
 
-(the declared inertia ``I_O`` in s). A linear start (``F = K g_a + b_F``: ``K = m D^T``; the
+(the declared inertia ``I_O`` in s; on a moving log the inertia beyond it, ``dI``, six more unknowns,
+adds ``- dI alpha - omega x (dI omega)`` to M and is fitted as a nuisance: never reported, its
+uncertainty marginalised out of the 13's). A linear start (``F = K g_a + b_F``: ``K = m D^T``; the
 nearest rotation by SVD) and the declared mount ``D = 1`` both start a Gauss-Newton refinement on
 the noise-weighted samples by variable projection (the model is linear in ``m``, ``m c`` and ``b``
 for a fixed rotation: those ten are solved in closed form at every step, the rotation is updated
@@ -34,6 +36,8 @@ from typing import NamedTuple
 import numpy as np
 
 MAX_ROWS = 2000  #: samples used by the fit (evenly spaced subset)
+N_THETA = 10  #: [m, m c, b] reported by the fit
+N_INERTIA = 6  #: the inertia beyond the declared one, fitted beside them on a moving log (a nuisance)
 STEP_TOL_RAD = 1e-8  #: Gauss-Newton stops when the rotation update is this small
 MAX_FIRST_ORDER_DEG = 15.0
 COM_PLAUSIBLE_M = 0.5  #: [m] a tool's centre of mass farther from the sensor than this is not a tool
@@ -92,19 +96,42 @@ class MountData(NamedTuple):
     block: np.ndarray  #: (n,) cross-validation block of each sample
 
 
+def _moves(d: MountData) -> bool:
+    """Whether the samples turn the sensor (omega or alpha not all zero): then the tool's inertia
+    about the sensor origin beyond the declared one is fitted too (a nuisance of the fit)."""
+    return bool(np.any(d.omega) or np.any(d.alpha))
+
+
+def _inertia_columns(v: np.ndarray) -> np.ndarray:
+    """(n, 3) -> (n, 3, 6): ``I v`` = L(v) [I_xx, I_yy, I_zz, I_xy, I_xz, I_yz] for a symmetric I."""
+    L = np.zeros((len(v), 3, 6))
+    L[:, 0, 0], L[:, 1, 1], L[:, 2, 2] = v[:, 0], v[:, 1], v[:, 2]
+    L[:, 0, 3], L[:, 1, 3] = v[:, 1], v[:, 0]
+    L[:, 0, 4], L[:, 2, 4] = v[:, 2], v[:, 0]
+    L[:, 1, 5], L[:, 2, 5] = v[:, 2], v[:, 1]
+    return L
+
+
 def _linear_part(D: np.ndarray, d: MountData) -> tuple[np.ndarray, np.ndarray]:
-    """The model is linear in ``theta = [m, m c, b]`` (10,) for a fixed rotation ``D``:
-    ``w = A theta + c`` with A (n, 6, 10) and c (n, 6) (the declared inertia's own terms)."""
+    """The model is linear in ``theta = [m, m c, b]`` (10,) -- and, when the samples turn the sensor
+    (``_moves``), the six entries of the tool's inertia about the sensor origin beyond the declared
+    ``I_O`` (theta (16,); a payload changes the inertia too, and a fit that leaves it out biases
+    the mount and the centre of mass: the ten inertial parameters of Atkeson, An & Hollerbach 1986)
+    -- for a fixed rotation ``D``: ``w = A theta + c`` with A (n, 6, 10 or 16) and c (n, 6) (the
+    declared inertia's own terms). Only ``theta[:10]`` is reported; the inertia stays a nuisance
+    (the ``tool_inertia`` effect judges it against the declared tool)."""
     ga, om, al = d.ga @ D, d.omega @ D, d.alpha @ D  # rows: D^T v
     n = len(ga)
-    A = np.zeros((n, 6, 10))
+    A = np.zeros((n, 6, N_THETA + (N_INERTIA if _moves(d) else 0)))
     A[:, :3, 0] = ga
     So = _skews(om)
     A[:, :3, 1:4] = -(_skews(al) + So @ So)  # -alpha x mc - omega x (omega x mc)
     A[:, 3:, 1:4] = -_skews(ga)  # mc x ga
-    A[:, :, 4:] = np.eye(6)
+    A[:, :, 4:N_THETA] = np.eye(6)
     c = np.zeros((n, 6))
     c[:, 3:] = -al @ d.I_O.T - np.einsum("nij,nj->ni", So, om @ d.I_O.T)
+    if A.shape[2] > N_THETA:  # - dI alpha - omega x (dI omega)
+        A[:, 3:, N_THETA:] = -(_inertia_columns(al) + So @ _inertia_columns(om))
     return A, c
 
 
@@ -117,9 +144,9 @@ def _skews(v: np.ndarray) -> np.ndarray:
 
 
 def _model(x: np.ndarray, d: MountData) -> np.ndarray:
-    """(13,) [rotvec, m, mc, b] -> predicted wrench (n, 6)."""
+    """(13,) [rotvec, m, mc, b] -> predicted wrench (n, 6) (the declared inertia; no fitted nuisance)."""
     A, c = _linear_part(rotvec_matrix(x[:3]), d)
-    return np.einsum("nik,k->ni", A, x[3:]) + c
+    return np.einsum("nik,k->ni", A[:, :, :N_THETA], x[3:3 + N_THETA]) + c
 
 
 def _project(D: np.ndarray, d: MountData, rw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -127,7 +154,7 @@ def _project(D: np.ndarray, d: MountData, rw: np.ndarray) -> tuple[np.ndarray, n
     ``rw`` (n, 6)) and the noise-weighted residual (n*6,)."""
     A, c = _linear_part(D, d)
     sw = d.w * np.sqrt(rw)  # (n, 6)
-    Aw = (A * sw[:, :, None]).reshape(-1, 10)
+    Aw = (A * sw[:, :, None]).reshape(-1, A.shape[2])
     yw = ((d.r - c) * sw).reshape(-1)
     theta = _normal_solve(Aw, yw)
     return theta, ((d.r - c - np.einsum("nik,k->ni", A, theta)) * d.w).reshape(-1)
@@ -305,22 +332,24 @@ def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: i
             Dp, thp, cp = _refine(d, Dp, thp, cp)
         if thp[0] > 0 and _mirror_indistinguishable(d, (D, theta, best), (Dp, thp, cp)):
             D, theta, best = Dp, thp, cp  # as good a fit: the data cannot tell them, physics can
-    x = np.concatenate([Rotation.from_matrix(D).as_rotvec(), theta])
+    x = np.concatenate([Rotation.from_matrix(D).as_rotvec(), theta[:N_THETA]])
     cost_declared = _cost_at(np.eye(3), d)
     rot_explains = float(max(0.0, 1.0 - best / max(cost_declared, 1e-300)))
-    # information-limited covariance in (local rotation, theta), theta held at the solution
+    # information-limited covariance in (local rotation, theta), theta held at the solution; the
+    # inertia nuisance (moving logs) is marginalised: the (13, 13) block of the whole inverse
     e = _resid_at(D, theta, d)
-    J = np.empty((len(e), 13))
+    npar = 3 + len(theta)
+    J = np.empty((len(e), npar))
     for k in range(3):
         dv = np.zeros(3)
         dv[k] = 1e-6
         J[:, k] = (_resid_at(D @ rotvec_matrix(dv), theta, d) - e) / 1e-6
     A, _ = _linear_part(D, d)
-    J[:, 3:] = -(A * d.w[None, :, None]).reshape(-1, 10)
-    s2 = float(e @ e) / max(len(e) - 13, 1)
+    J[:, 3:] = -(A * d.w[None, :, None]).reshape(-1, A.shape[2])
+    s2 = float(e @ e) / max(len(e) - npar, 1)
     H = J.T @ J
-    H += np.eye(13) * 1e-12 * max(np.trace(H), 1e-300) / 13  # never a pseudo-inverse: large, finite sd
-    cov = s2 * np.linalg.inv(H)
+    H += np.eye(npar) * 1e-12 * max(np.trace(H), 1e-300) / npar  # never a pseudo-inverse: large, finite sd
+    cov = (s2 * np.linalg.inv(H))[:3 + N_THETA, :3 + N_THETA]
     sd_info = np.sqrt(np.maximum(np.diag(cov), 0.0))
     # delete-one-block jackknife (correlated residuals of a moving log make the information sd small)
     ub = np.unique(d.block)
@@ -334,7 +363,7 @@ def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: i
             keep = ~np.isin(d.block, g)
             db = d._replace(ga=d.ga[keep], omega=d.omega[keep], alpha=d.alpha[keep], r=d.r[keep], block=d.block[keep])
             Db, thb, _ = _gauss_newton(db, D, iters=4)
-            reps.append(thb)
+            reps.append(thb[:N_THETA])
             devs.append(Rotation.from_matrix(D.T @ Db).as_rotvec())
             rpys.append(_wrap_deg(np.rad2deg(matrix_rpy(R_decl @ Db)) - rpy))
             angs.append(np.rad2deg(rotation_angle(Db)))
@@ -421,16 +450,17 @@ def refine_rotation(d: MountData, starts: list[np.ndarray], iters: int = 8) -> n
 
 def fit_at(D: np.ndarray, d: MountData, iters: int = 8) -> tuple[np.ndarray, np.ndarray]:
     """The best ``theta = [m, m c, b]`` (10,) at a fixed rotation ``D`` (3, 3) (robust IRLS, as the
-    fit) and the residual (n, 6) [N, N m] of ``d``'s samples."""
-    A, c = _linear_part(D, d)  # (n, 6, 10), (n, 6): built once, the weights change
+    fit, the inertia nuisance fitted beside it on a moving log) and the residual (n, 6) [N, N m] of
+    ``d``'s samples."""
+    A, c = _linear_part(D, d)  # (n, 6, 10 or 16), (n, 6): built once, the weights change
     y = d.r - c
     rw = np.ones_like(d.r)
     for _ in range(iters + 1):
         sw = d.w * np.sqrt(rw)  # (n, 6)
-        theta = _normal_solve((A * sw[:, :, None]).reshape(-1, 10), (y * sw).reshape(-1))
+        theta = _normal_solve((A * sw[:, :, None]).reshape(-1, A.shape[2]), (y * sw).reshape(-1))
         res = y - np.einsum("nik,k->ni", A, theta)
         rw = _huber((res * d.w).reshape(-1))
-    return theta, res
+    return theta[:N_THETA], res
 
 
 def plausibility(fitm: "MountFit", setup) -> list[str]:
