@@ -160,14 +160,18 @@ class Case:
     declares_tip: bool  # the set-up declares the tip (the face centre)
 
 
-_FLAT = ("a 20 x 20 mm box-peg face pressed, slid and twisted on the table (a moment about the face centre: "
-         "pressure shift + torsional friction) and a hidden crosstalk Fx += 0.04 Fz")
+_FACE = ("a 20 x 20 mm box-peg face pressed, slid and twisted on the table (a moment about the face centre: "
+         "pressure shift + torsional friction)")
+_FLAT = _FACE + " and a hidden crosstalk Fx += 0.04 Fz"
 CASES: dict[str, Case] = {
     "point": Case("a point contact at the tip (0.03, -0.015, 0.12) m of the sensor frame, not declared; pivot, "
                   "sideways pushes and slides change the force's direction", "point", "turn", 0.0, False),
     "flat_face": Case(_FLAT, "flat", "turn", CROSSTALK_FX_FROM_FZ, True),
     "flat_face_rich": Case(_FLAT + "; first a rich free-space phase (tilts of 25-35 deg about two axes, turns "
                            "about the tool axis)", "flat", "rich", CROSSTALK_FX_FROM_FZ, True),
+    "flat_face_alone": Case(_FACE + "; nothing else hidden", "flat", "turn", 0.0, True),
+    "flat_face_alone_rich": Case(_FACE + "; nothing else hidden; first the rich free-space phase of flat_face_rich",
+                                 "flat", "rich", 0.0, True),
 }
 Q_COLS = tuple(f"q{j}" for j in range(1, 7))
 WRENCH_COLS = ("fx", "fy", "fz", "tx", "ty", "tz")
