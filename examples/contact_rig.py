@@ -57,6 +57,8 @@ after a rich free-space phase that separates them (``RICH_TARGETS``, 7.7 s, so t
 min-jerk moves with short holds, the tool tilted 25-35 deg about world x, world y and both, turned
 about its own axis by up to 60 deg (rotations along the geodesic, the tip moved by a few cm), back
 to the start pose; then the flat_face experiment unchanged (same q and contact wrench, delayed).
+``flat_face_alone`` and ``flat_face_alone_rich`` are ``flat_face`` and ``flat_face_rich`` with
+nothing hidden but the face contact (no crosstalk): the effect-free face-contact logs.
 Pipeline: physics -> crosstalk
 ``(I + E) w`` -> tare (minus the noise-free reading at the first pose) -> noise N(0, 0.05 N /
 0.003 N m) -> text with 6 decimals (q to 1 urad).
