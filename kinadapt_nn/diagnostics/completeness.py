@@ -14,8 +14,8 @@ Hints. When the model is incomplete, the held-out residual is tested against a g
 of shapes (``SHAPES``), each with its physical readings, with the selection's own statistics:
 block cross-validation given the final model, a Hotelling-type test with the block-jackknife
 covariance, Benjamini-Hochberg over the shapes, ``min_explained`` of what the final model leaves
-held-out, and a relevant size (a parameter is scaled so that 1 changes some channel's RMS by its
-relevant size). A shape is listed only where it passes, ranked by its held-out gain; each comes
+held-out, and a relevant size (a parameter is scaled so that 1 changes some channel's RMS, over
+that channel's rows, by its relevant size). A shape is listed only where it passes, ranked by its held-out gain; each comes
 with a ready effect file (``hint_files``) in the public contract.
 """
 
