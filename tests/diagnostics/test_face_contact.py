@@ -1,5 +1,5 @@
 """A flat-faced peg pressed and slid on a flat face (issue 38; ``examples/contact_rig.py``, cases
-``flat_face_alone_rich`` and ``flat_face_rich``): a 20 x 20 mm box-peg face whose pressure centre
+``flat_face_alone_rich``, ``flat_face_alone`` and ``flat_face_rich``): a 20 x 20 mm box-peg face whose pressure centre
 moves with the friction force and whose torsional friction resists the twist -- a moment about the
 declared tip of a few hundredths of a N m in contact, not a point contact.
 
