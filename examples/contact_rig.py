@@ -57,6 +57,8 @@ after a rich free-space phase that separates them (``RICH_TARGETS``, 7.7 s, so t
 min-jerk moves with short holds, the tool tilted 25-35 deg about world x, world y and both, turned
 about its own axis by up to 60 deg (rotations along the geodesic, the tip moved by a few cm), back
 to the start pose; then the flat_face experiment unchanged (same q and contact wrench, delayed).
+``flat_face_alone`` and ``flat_face_alone_rich`` are ``flat_face`` and ``flat_face_rich`` with
+nothing hidden but the face contact (no crosstalk): the effect-free face-contact logs.
 Pipeline: physics -> crosstalk
 ``(I + E) w`` -> tare (minus the noise-free reading at the first pose) -> noise N(0, 0.05 N /
 0.003 N m) -> text with 6 decimals (q to 1 urad).
@@ -160,14 +162,18 @@ class Case:
     declares_tip: bool  # the set-up declares the tip (the face centre)
 
 
-_FLAT = ("a 20 x 20 mm box-peg face pressed, slid and twisted on the table (a moment about the face centre: "
-         "pressure shift + torsional friction) and a hidden crosstalk Fx += 0.04 Fz")
+_FACE = ("a 20 x 20 mm box-peg face pressed, slid and twisted on the table (a moment about the face centre: "
+         "pressure shift + torsional friction)")
+_FLAT = _FACE + " and a hidden crosstalk Fx += 0.04 Fz"
 CASES: dict[str, Case] = {
     "point": Case("a point contact at the tip (0.03, -0.015, 0.12) m of the sensor frame, not declared; pivot, "
                   "sideways pushes and slides change the force's direction", "point", "turn", 0.0, False),
     "flat_face": Case(_FLAT, "flat", "turn", CROSSTALK_FX_FROM_FZ, True),
     "flat_face_rich": Case(_FLAT + "; first a rich free-space phase (tilts of 25-35 deg about two axes, turns "
                            "about the tool axis)", "flat", "rich", CROSSTALK_FX_FROM_FZ, True),
+    "flat_face_alone": Case(_FACE + "; nothing else hidden", "flat", "turn", 0.0, True),
+    "flat_face_alone_rich": Case(_FACE + "; nothing else hidden; first the rich free-space phase of flat_face_rich",
+                                 "flat", "rich", 0.0, True),
 }
 Q_COLS = tuple(f"q{j}" for j in range(1, 7))
 WRENCH_COLS = ("fx", "fy", "fz", "tx", "ty", "tz")

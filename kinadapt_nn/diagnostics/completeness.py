@@ -14,8 +14,8 @@ Hints. When the model is incomplete, the held-out residual is tested against a g
 of shapes (``SHAPES``), each with its physical readings, with the selection's own statistics:
 block cross-validation given the final model, a Hotelling-type test with the block-jackknife
 covariance, Benjamini-Hochberg over the shapes, ``min_explained`` of what the final model leaves
-held-out, and a relevant size (a parameter is scaled so that 1 changes some channel's RMS by its
-relevant size). A shape is listed only where it passes, ranked by its held-out gain; each comes
+held-out, and a relevant size (a parameter is scaled so that 1 changes some channel's RMS, over
+that channel's rows, by its relevant size). A shape is listed only where it passes, ranked by its held-out gain; each comes
 with a ready effect file (``hint_files``) in the public contract.
 """
 
@@ -285,15 +285,15 @@ def unexplained(des: sel.Design, e_ho: np.ndarray, rm, sigma: np.ndarray, setup,
 
 
 # ------------------------------------------------------------------------------------------ hints
-def _relevant_of(C: np.ndarray, rel6: np.ndarray) -> np.ndarray:
-    """Per parameter: the size that changes some channel's RMS by that channel's relevant size."""
-    return _relevant_of_sq(np.mean(C**2, axis=0), rel6)
-
-
-def _relevant_of_sq(msq: np.ndarray, rel6: np.ndarray) -> np.ndarray:
-    """``_relevant_of`` from the columns' mean squares (6, k) over the samples."""
-    rms = np.sqrt(msq)  # (6, k)
-    worst = np.max(rms / rel6[:, None], axis=0)
+def _relevant_of_sq(col_sq: np.ndarray, n_rows: np.ndarray, rel9: np.ndarray) -> np.ndarray:
+    """Per parameter: the size that changes some channel's RMS by that channel's relevant size,
+    the RMS taken over the rows of that channel, as the verdict takes it (``unexplained``): the six
+    free-space channels over the free-space rows, the three tip-moment channels over the contact
+    rows. A shape that acts in contact only is not diluted by the free space (and vice versa).
+    ``col_sq`` (9, k): the columns' squares summed per channel (``RowMap.channel_sq``); ``n_rows``
+    (9,) the rows of each channel; ``rel9`` (9,) the channels' relevant sizes."""
+    rms = np.sqrt(col_sq / np.maximum(n_rows, 1)[:, None])  # (9, k)
+    worst = np.max(rms / rel9[:, None], axis=0)
     return np.where(worst > 0, 1.0 / np.maximum(worst, 1e-300), 1.0)
 
 
@@ -301,9 +301,9 @@ def hints(s, des: sel.Design, rm, result, sc: sel.SelCfg, cc: CompCfg = CompCfg(
     """Test every shape against the held-out residual given the final model (module docstring)."""
     from scipy.stats import false_discovery_control
 
-    rel6 = np.array([s.setup.analysis.relevant_force_N] * 3 + [s.setup.analysis.relevant_moment_Nm] * 3)
+    rel9 = np.array([s.setup.analysis.relevant_force_N] * 3 + [s.setup.analysis.relevant_moment_Nm] * 6)
     sh = [x for x in shapes(s, cc) if not (x.name == "sensor_constant" and s.setup.log.tared)]
-    hd = hint_design(s, des, rm, result, sh, rel6)
+    hd = hint_design(s, des, rm, result, sh, rel9)
     info = {x.name: (x, None) for x in sh}
     scale, X = hd.scale, hd.X
     st = sel.Stats(hd)
@@ -338,9 +338,10 @@ def hints(s, des: sel.Design, rm, result, sc: sel.SelCfg, cc: CompCfg = CompCfg(
     return out
 
 
-def hint_design(s, des: sel.Design, rm, result, sh: list[Shape], rel6: np.ndarray) -> sel.Design:
+def hint_design(s, des: sel.Design, rm, result, sh: list[Shape], rel9: np.ndarray) -> sel.Design:
     """The design of the hint test: the shapes ``sh`` as candidates, the final model's columns
-    (nuisance and present effects) as nuisance; each shape's parameters scaled by ``_relevant_of``.
+    (nuisance and present effects) as nuisance; each shape's parameters scaled by ``_relevant_of_sq``
+    (``rel9`` (9,): the relevant size of the six free-space channels and the three tip moments).
     A streamed ``des``: one chunked pass (``stream.block_stats``), never the shapes' columns."""
     if des.stats is not None:
         from kinadapt_nn.diagnostics import stream
@@ -356,7 +357,7 @@ def hint_design(s, des: sel.Design, rm, result, sh: list[Shape], rel6: np.ndarra
         for src in srcs:
             k = len(src.cols)
             X[src.name] = sel.Width((R, k))
-            scale[src.name] = _relevant_of_sq(st.col_sq[:, k0:k0 + k] / max(st.n_samples, 1), rel6)
+            scale[src.name] = _relevant_of_sq(st.col_sq[:, k0:k0 + k], rm.phase_rows(), rel9)
             k0 += k
         return sel.Design(des.y, X, sel.Width((R, kz)), des.block, des.n_blocks, scale, {n: False for n in X}, des.W,
                           des.channel, des.channel_names, des.t_s, st)
@@ -368,7 +369,8 @@ def hint_design(s, des: sel.Design, rm, result, sh: list[Shape], rel6: np.ndarra
     for x in sh:
         C = x.columns(s)
         X[x.name] = rm.apply(C)
-        scale[x.name] = _relevant_of(C, rel6)
+        xs = moving_average(C, rm.k_smooth)[rm.rows]
+        scale[x.name] = _relevant_of_sq(rm.channel_sq(xs, rm.contact), rm.phase_rows(), rel9)
     return sel.Design(des.y, X, Z, des.block, des.n_blocks, scale, {n: False for n in X}, des.W, des.channel,
                       des.channel_names, des.t_s)
 

@@ -52,6 +52,18 @@ class RowMap(NamedTuple):
         tipm = np.einsum("ij,njk->nik", self.tip_map, xs[con]) * self.w_tip[None, :, None]
         return np.concatenate([free.reshape(-1, xs.shape[2]), tipm.reshape(-1, xs.shape[2])], axis=0)
 
+    def channel_sq(self, xs: np.ndarray, con: np.ndarray) -> np.ndarray:
+        """Filtered sample columns at row times (r, 6, k) -> (9, k): per channel of the rows (the six
+        free-space wrench channels, then the three tip-moment channels), the sum of each column's
+        square over the rows of that channel, unweighted (physical units)."""
+        tipm = np.einsum("ij,njk->nik", self.tip_map, xs[con])
+        return np.concatenate([np.einsum("nck,nck->ck", xs[~con], xs[~con]), np.einsum("nck,nck->ck", tipm, tipm)])
+
+    def phase_rows(self) -> np.ndarray:
+        """(9,) the number of rows of each channel (``channel_sq``'s order)."""
+        nc = int(self.contact.sum())
+        return np.array([len(self.contact) - nc] * 6 + [nc] * 3)
+
     def positions(self) -> np.ndarray:
         """(r,) the design position of each row's first channel (``apply``'s order)."""
         con = self.contact
@@ -75,8 +87,7 @@ class BlockStats(NamedTuple):
     h: np.ndarray  #: (B, K)
     yy: np.ndarray  #: (B,)
     combine: Callable
-    col_sq: np.ndarray  #: (6, K) sum over all samples (unfiltered) of each column's square
-    n_samples: int
+    col_sq: np.ndarray  #: (9, K) per channel of the rows, the sum of each column's square (``RowMap.channel_sq``)
     chunk: int  #: samples per chunk of the passes
     sources: list  #: the ``Source`` of each column group, in column order
 
@@ -116,8 +127,8 @@ def chunks(n: int, chunk: int) -> list[tuple[int, int]]:
 
 def _chunk_rows(s, rm: RowMap, sources: list[Source], a: int, b: int, halo: int, w: dict
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The rows of samples ``a:b``: (design positions (q,), row values (q, K), raw columns of the
-    samples ``a:b`` (b - a, 6, K))."""
+    """The rows of samples ``a:b``: (design positions (q,), row values (q, K), the columns' squares
+    per channel of these rows (9, K): ``RowMap.channel_sq``)."""
     lo, hi = max(0, a - halo), min(s.n, b + halo)
     sub = slice_signals(s, lo, hi, w)
     C = np.concatenate([np.asarray(src.columns(sub), dtype=float)[:, :, src.cols] for src in sources], axis=2)
@@ -129,7 +140,7 @@ def _chunk_rows(s, rm: RowMap, sources: list[Source], a: int, b: int, halo: int,
     start = rm.positions()[i0:i1]
     pos = np.concatenate([(start[~con][:, None] + np.arange(6)).reshape(-1),
                           (start[con][:, None] + np.arange(3)).reshape(-1)])
-    return pos, vals, C[a - lo:b - lo]
+    return pos, vals, rm.channel_sq(xs, con)
 
 
 def block_stats(s, rm: RowMap, sources: list[Source], y: np.ndarray, block: np.ndarray, n_blocks: int,
@@ -141,11 +152,11 @@ def block_stats(s, rm: RowMap, sources: list[Source], y: np.ndarray, block: np.n
     K = sum(len(src.cols) for src in sources)
     G, h = np.zeros((n_blocks, K, K)), np.zeros((n_blocks, K))
     yy = np.bincount(block, weights=y * y, minlength=n_blocks).astype(float)
-    col_sq = np.zeros((6, K))
+    col_sq = np.zeros((9, K))
     halo, w = halo_samples(s, rm.k_smooth), whole(s)
     for a, b in chunks(s.n, chunk):
-        pos, vals, raw = _chunk_rows(s, rm, sources, a, b, halo, w)
-        col_sq += np.einsum("nck,nck->ck", raw, raw)
+        pos, vals, sq = _chunk_rows(s, rm, sources, a, b, halo, w)
+        col_sq += sq
         blk = block[pos]
         for bb in np.unique(blk):
             m = blk == bb
@@ -156,7 +167,7 @@ def block_stats(s, rm: RowMap, sources: list[Source], y: np.ndarray, block: np.n
     def combine(P: np.ndarray) -> np.ndarray:
         return combine_rows(s, rm, sources, P, block, len(y), chunk)
 
-    return BlockStats(G, h, yy, combine, col_sq, s.n, chunk, list(sources))
+    return BlockStats(G, h, yy, combine, col_sq, chunk, list(sources))
 
 
 def combine_rows(s, rm: RowMap, sources: list[Source], P: np.ndarray, block: np.ndarray, R: int,

@@ -127,3 +127,10 @@ def test_streamed_statistics_equal_the_columns():
             np.testing.assert_allclose(bs.h[b], X[m].T @ y[m], rtol=1e-10, atol=1e-9)
         P = rng.normal(size=(7, 3))
         np.testing.assert_allclose(bs.combine(P), np.einsum("rk,rk->r", X, P[block]), rtol=1e-10, atol=1e-9)
+        # the columns' squares per channel of the rows (the hints' relevant sizes): the weighted rows
+        # of ``apply`` unweighted, summed per channel (free-space rows: 6 channels, contact rows: 3)
+        nf = int((~con).sum())
+        free = (X[:6 * nf].reshape(nf, 6, 3) / rm.w_free[None, :, None]) ** 2
+        tip = (X[6 * nf:].reshape(-1, 3, 3) / rm.w_tip[None, :, None]) ** 2
+        np.testing.assert_allclose(bs.col_sq, np.concatenate([free.sum(0), tip.sum(0)]), rtol=1e-10, atol=1e-9)
+        np.testing.assert_array_equal(rm.phase_rows(), [nf] * 6 + [int(con.sum())] * 3)
