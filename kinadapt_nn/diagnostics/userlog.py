@@ -506,6 +506,9 @@ def _checks(cal: Calibration, declared: SetupCfg) -> Checks:
     why_not = mount.plausibility(fitm, setup)
     unit_msg = units.check(fitm, s, setup, cal.sigma).message
     sensor_mount["plausible"] = not why_not
+    heavy = mount.heavier_than_declared(fitm, setup)
+    if heavy:
+        sensor_mount["mass_note"] = heavy
     if why_not:
         sensor_mount["warning"] = "physically impossible calibration, not a finding: " + "; ".join(why_not)
     mount_msg = None
@@ -600,7 +603,7 @@ def _base_report(log, declared: SetupCfg, cal: Calibration, chk: Checks, rd: Ran
         "sign_check": chk.sign,
         "tip_contact_check": rd.fit_check,
         "warnings": [m for m in (chk.sign.get("message"), chk.unit_msg, chk.sensor_mount.get("warning"), chk.mount_msg,
-                                 rd.fit_check.get("message")) if m],
+                                 chk.sensor_mount.get("mass_note"), rd.fit_check.get("message")) if m],
         "blocked": chk.block,
         "ranking": entries + [_not_judged(n) for n in CONTACT_MODEL_EFFECTS if n not in rd.names],
         "not_judged": [{"effect": n, "reason": NOT_JUDGED} for n in CONTACT_MODEL_EFFECTS if n not in rd.names],
