@@ -71,6 +71,22 @@ def test_socket_wrench_is_the_two_springs_from_the_anchor():
     assert not contact_model.nominal_wrench(SetupCfg(), R, p_ws).any()
 
 
+def test_socket_tip_derivative_is_the_finite_difference_of_its_wrench():
+    """``contact_model.tip_derivative`` against central differences of ``nominal_wrench`` with the
+    declared tip moved (1 micrometre: the engagement does not change), on every engaged sample."""
+    R, p_ws, _, _ = _path()
+    setup = _socket_setup()
+    gate = contact_model.socket_terms(setup.contact, R, p_ws, TIP).gate
+    for dtip in (np.array([0.0, -0.1, 0.0]), np.array([0.0, 0.0, 0.1]), np.array([0.02, 0.03, 0.01])):
+        h = 1e-5
+        w = [contact_model.nominal_wrench(_socket_setup(TIP + sgn * h * dtip), R, p_ws) for sgn in (1.0, -1.0)]
+        fd = (w[0] - w[1]) / (2 * h)
+        an = contact_model.tip_derivative(setup, R, p_ws, dtip)
+        assert np.abs(fd[gate]).max() > 1.0  # the spring's lever and displacement both move
+        np.testing.assert_allclose(an[gate], fd[gate], rtol=0, atol=1e-6 * np.abs(fd).max())
+        assert not an[~gate].any()
+
+
 def _signals(setup, R, p_ws, wrench, w_nom, omega_s):
     return SimpleNamespace(setup=setup, R_ws=R, p_ws=p_ws, wrench=wrench, w_nom=w_nom, omega_s=omega_s, n=len(R),
                            t=np.arange(len(R)) * 0.001)
