@@ -320,7 +320,7 @@ def cmd_diagnose_setup(args: argparse.Namespace) -> int:
 
     from kinadapt_nn.diagnostics.readers import read_log
     from kinadapt_nn.diagnostics.setup import load_setup
-    from kinadapt_nn.diagnostics.userlog import diagnose
+    from kinadapt_nn.diagnostics.userlog import check_request, diagnose
     from kinadapt_nn.runio import check_output_dir
 
     for opt in ("config", "baseline"):
@@ -330,6 +330,7 @@ def cmd_diagnose_setup(args: argparse.Namespace) -> int:
     if args.rerun:
         raise KinadaptError("--rerun is for this package's own runs; drop it with --setup")
     setup = load_setup(Path(args.setup), args.set or [])
+    check_request(setup, list(args.add or []), list(args.effects or []))  # before any log is read
     out = args.run_dir = Path(args.out) if args.out else _default_out("diagnose")
     check_output_dir(out, args.overwrite)
     t0 = time.perf_counter()
@@ -406,7 +407,7 @@ def cmd_diagnose_run(args: argparse.Namespace) -> int:
 
     from kinadapt_nn.config import load_config
     from kinadapt_nn.diagnostics import ownrun
-    from kinadapt_nn.diagnostics.userlog import diagnose
+    from kinadapt_nn.diagnostics.userlog import check_request, diagnose
     from kinadapt_nn.runio import check_output_dir
 
     if len(args.logs) > 1:
@@ -415,6 +416,7 @@ def cmd_diagnose_run(args: argparse.Namespace) -> int:
     src = Path(args.logs[0])
     cfg_path = Path(args.config) if args.config else (src / "config.toml" if (src / "config.toml").is_file() else None)
     cfg = load_config(cfg_path, args.set or [])
+    check_request(ownrun.setup_of_run(cfg, list(args.effects or [])), list(args.add or []), ())  # before any work
     if args.rerun:
         ownrun.check_rerun(src, list(args.add or []))
     out = args.run_dir = Path(args.out) if args.out else _default_out("diagnose")

@@ -463,22 +463,28 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
     return Result(report, ranked.des, before, after, ranked.s, ranked.s.contact, ranked.result.heldout, lib, files)
 
 
-def _library_for(log, setup: SetupCfg, add: list[str] | None, effects_files) -> tuple[dict, list[str], list[str], dict]:
-    """The effect library, the judged effects and ``--add`` checked against them (one-line errors).
-    -> (library, judged names, --add names, {effect: forced column})."""
+def check_request(setup: SetupCfg, add: list[str] | None, effects_files=()) -> tuple[dict, list[str], list[str], dict]:
+    """The effect library, the judged effects and ``--add`` checked against them, before any log
+    is read (one-line errors). -> (library, judged names, --add names, {effect: forced column})."""
     lib = library(setup, effects_files)
     names = judged(lib, setup)
     add, forced = _parse_add(add or [], lib)
     for a in add:
         if a not in lib:
             hint = did_you_mean(a, lib)
-            raise KinadaptError(f"--add {a}: unknown effect for a user's log{'; ' + hint if hint else ''} (choose from "
+            raise KinadaptError(f"--add {a}: unknown effect{'; ' + hint if hint else ''} (choose from "
                                 f"{', '.join(lib)}; your own effects come with --effects FILE)")
         if a not in names:
             raise KinadaptError(f"--add {a}: this effect is left out for this set-up (see [analysis] and "
                                 f"[log] tared; judged: {', '.join(names)})")
     if not names:
         raise KinadaptError("no effect left to judge ([analysis] effects / exclude_effects leave none)")
+    return lib, names, add, forced
+
+
+def _library_for(log, setup: SetupCfg, add: list[str] | None, effects_files) -> tuple[dict, list[str], list[str], dict]:
+    """``check_request``, and the log holds the set-up's extra columns (one-line errors)."""
+    lib, names, add, forced = check_request(setup, add, effects_files)
     for name in setup.log.extra:
         if name not in (getattr(log, "extra", None) or {}):
             raise KinadaptError(f"[log] extra '{name}' was not read from the log (use a CSV, Parquet or ROS 2 bag log "

@@ -169,9 +169,10 @@ def short_run(tmp_path_factory):
 
 @pytest.mark.slow
 def test_diagnose_a_package_run_as_a_log_with_add_effects_and_figures(short_run, tmp_path, capsys):
-    """``kinadapt diagnose RUN --as-log``: the run's trace and generated set-up through the user-log
-    stages; a user's effect file (--effects) and --add work on it; the contact-model effects are
-    judged (the set-up declares the bore as a socket), the report says which set-up it used."""
+    """``kinadapt diagnose RUN`` (``--as-log``: an accepted alias): the run's trace and generated set-up
+    through the one pipeline; a user's effect file (--effects) and --add work on it; the contact-model
+    effects are judged (the set-up declares the bore as a socket), the report says which set-up it used;
+    the own-run pipeline's options are gone (one line, nothing written)."""
     import json
 
     from kinadapt_nn.app.cli import main
@@ -189,6 +190,6 @@ def test_diagnose_a_package_run_as_a_log_with_add_effects_and_figures(short_run,
     assert 'geometry = "socket"' in (out / "setup.toml").read_text()
     assert (out / "effects.png").stat().st_size > 10_000 and (out / "residual.png").stat().st_size > 10_000
     capsys.readouterr()
-    assert main(["diagnose", str(short_run), "--as-log", "--theta", "0,0,0.1", "--out", str(tmp_path / "x")]) == 2
+    assert main(["diagnose", str(short_run), "--theta", "0,0,0.1", "--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--theta" in err[0] and not (tmp_path / "x").exists()
