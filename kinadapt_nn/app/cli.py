@@ -319,6 +319,7 @@ def cmd_diagnose_setup(args: argparse.Namespace) -> int:
     import time
 
     from kinadapt_nn.diagnostics.readers import read_log
+    from kinadapt_nn.diagnostics.report import Provenance
     from kinadapt_nn.diagnostics.setup import load_setup
     from kinadapt_nn.diagnostics.userlog import check_request, diagnose
     from kinadapt_nn.runio import check_output_dir
@@ -344,8 +345,7 @@ def cmd_diagnose_setup(args: argparse.Namespace) -> int:
         res = diagnose(log, setup, list(args.add or []), progress=progress, effects_files=list(args.effects or []))
         results.append((stems[i], log, res))
     progress("writing figures")
-    header = {"kind": "user_log", "source": results[0][1].source, "setup_file": str(args.setup)}
-    _write_diagnosis(out, args, results, setup, header, t0)
+    _write_diagnosis(out, args, results, setup, Provenance("user_log", results[0][1].source, str(args.setup)), t0)
     return 0
 
 
@@ -407,6 +407,7 @@ def cmd_diagnose_run(args: argparse.Namespace) -> int:
 
     from kinadapt_nn.config import load_config
     from kinadapt_nn.diagnostics import ownrun
+    from kinadapt_nn.diagnostics.report import Provenance
     from kinadapt_nn.diagnostics.userlog import check_request, diagnose
     from kinadapt_nn.runio import check_output_dir
 
@@ -435,54 +436,47 @@ def cmd_diagnose_run(args: argparse.Namespace) -> int:
         rerun = ownrun.rerun_with_effects(src, list(args.add))
         res.report["rerun"] = rerun[2]
     progress("writing diagnosis.json and the figures")
-    header = {"kind": "package_run", "source": log.source, "setup_file": "generated from the run's config"}
-    _write_diagnosis(out, args, [(None, log, res)], setup, header, t0, rerun)
+    prov = Provenance("package_run", log.source, "generated from the run's config")
+    _write_diagnosis(out, args, [(None, log, res)], setup, prov, t0, rerun)
     return 0
 
 
-def _write_diagnosis(out: Path, args: argparse.Namespace, results: list, setup, header: dict, t0: float,
+def _write_diagnosis(out: Path, args: argparse.Namespace, results: list, setup, prov, t0: float,
                      rerun=None) -> None:
     """Write one diagnosis (``results`` = [(None, log, Result)]) or several pooled logs (one folder
-    each) into ``out``, then print the summary and the warnings."""
+    each) into ``out`` (``diagnostics.report`` owns the format), then print the summary and the
+    warnings."""
+    import dataclasses
     import time
 
     from kinadapt_nn.diagnostics import userfigures as uf
+    from kinadapt_nn.diagnostics.report import diagnosis_json, pooled_json
     from kinadapt_nn.diagnostics.setup import setup_to_toml
     from kinadapt_nn.runio import staged_output, write_json
 
-    def write_one(stage: Path, log, res, head: dict) -> None:
+    def write_one(stage: Path, res, source: str) -> None:
         for name, text in (res.hint_files or {}).items():
             (stage / name).write_text(text)
         (stage / "setup.toml").write_text(setup_to_toml(setup))
-        write_json(stage / "diagnosis.json", {"format": "kinadapt-diagnosis", "version": 4, **head,
-                                               "summary": res.report["summary"],
-                                               **{k: v for k, v in res.report.items() if k != "summary"},
-                                               "wall_time_s": time.perf_counter() - t0})
+        write_json(stage / "diagnosis.json", diagnosis_json(res.report, dataclasses.replace(prov, source=source),
+                                                            time.perf_counter() - t0))
         uf.model_vs_measurement(res, setup, stage / "residual.png")
         uf.effects_figure(res, stage / "effects.png")
 
     pooled = None
     with staged_output(out, args.overwrite) as stage:
         if len(results) == 1:
-            write_one(stage, results[0][1], results[0][2], header)
+            write_one(stage, results[0][2], results[0][1].source)
             if rerun is not None:
                 (stage / "rerun").mkdir()
                 _write_online(stage / "rerun", rerun[0], rerun[1])
         else:
-            from kinadapt_nn.diagnostics.pooled import pool, summary_text
-
             for name, log, res in results:
                 (stage / name).mkdir()
-                write_one(stage / name, log, res, {**header, "source": log.source})
-            pooled = pool([(name, res.report) for name, _, res in results])
-            pooled["summary"] = summary_text(pooled)
-            write_json(stage / "diagnosis.json", {"format": "kinadapt-diagnosis", "version": 4, "kind": "pooled_logs",
-                                                   "setup_file": header["setup_file"], "summary": pooled["summary"],
-                                                   "pooled": pooled, "logs": {
-                                                       name: {"source": log.source, "folder": name,
-                                                              "summary": res.report["summary"]}
-                                                       for name, log, res in results},
-                                                   "wall_time_s": time.perf_counter() - t0})
+                write_one(stage / name, res, log.source)
+            pooled = pooled_json([(name, log.source, res.report) for name, log, res in results], prov.setup_file,
+                                 time.perf_counter() - t0)
+            write_json(stage / "diagnosis.json", pooled)
     if args.quiet:
         return
     for name, _, res in results:
