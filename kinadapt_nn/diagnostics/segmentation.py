@@ -55,10 +55,13 @@ class Segmentation:
     span_s: tuple[float, float]  #: [s] the grown span, from the first sample
     onsets_s: tuple[float, ...]  #: [s] where the force first leaves the free-space model (ends of the span inside the log)
     method: str  #: how the free span was found (one sentence)
+    turn_mps2: float | None = None  #: [m/s^2] how far u moves in the span (``_turns``)
+    passed_over: tuple = ()  #: ((start s, end s, turn m/s^2), ...) spans grown first that did not turn
 
     def to_json(self) -> dict:
         return {"free_span_s": list(self.span_s), "seed_window_s": list(self.seed_s),
-                "free_samples": int(self.free.sum()), "contact_onsets_s": list(self.onsets_s), "method": self.method}
+                "free_samples": int(self.free.sum()), "contact_onsets_s": list(self.onsets_s), "method": self.method,
+                "turn_mps2": self.turn_mps2, "passed_over": [list(p) for p in self.passed_over]}
 
 
 def everything(n: int, t_s: np.ndarray, why: str) -> Segmentation:
@@ -86,10 +89,10 @@ def _turns(u: np.ndarray) -> float:
 
 def _grown_spans(F: np.ndarray, u: np.ndarray, ok: np.ndarray, L: int, cost: np.ndarray, thr: float):
     """Step 3 of the module docstring: spans grown from the seeds in the order of ``cost``, each
-    seed outside the spans so far. -> (seed sample, lo, hi, onsets) of the first span that turns
-    by ``TURN_MPS2``, else of the first span."""
+    seed outside the spans so far. -> ((seed sample, lo, hi, onsets) of the first span that turns
+    by ``TURN_MPS2``, else of the first span; [(lo, hi)] of the spans passed over)."""
     cost = cost.copy()
-    first = None
+    first, passed = None, []
     for _ in range(MAX_SEEDS):
         w = int(np.argmin(cost))
         if not np.isfinite(cost[w]):
@@ -98,10 +101,11 @@ def _grown_spans(F: np.ndarray, u: np.ndarray, ok: np.ndarray, L: int, cost: np.
         lo, hi, onsets = _grow(F, u, ok, start, L, thr)
         first = first or (start, lo, hi, onsets)
         if hi - lo >= MIN_FREE and _turns(u[lo:hi]) >= TURN_MPS2:
-            return start, lo, hi, onsets
+            return (start, lo, hi, onsets), passed
+        passed.append((lo, hi))
         cost[lo // L:(hi + L - 1) // L] = np.inf
         cost[w] = np.inf
-    return first
+    return first, []
 
 
 class _Affine:
@@ -187,7 +191,7 @@ def free_space(s, excluded: np.ndarray | None = None) -> Segmentation:
     cost = _seed_cost(F, ok, L, setup.log.tared, weight)
     if not np.isfinite(cost).any():
         return everything(n, s.t, "no seed window outside [analysis] exclude_s: every sample is a candidate")
-    start, lo, hi, onsets = _grown_spans(F, u, ok, L, cost, setup.contact.detect_force_N)
+    (start, lo, hi, onsets), passed = _grown_spans(F, u, ok, L, cost, setup.contact.detect_force_N)
     t = s.t - s.t[0]
     if hi - lo < MIN_FREE:
         return everything(n, s.t, "no free-space span found from the data: every sample is a candidate")
@@ -195,12 +199,13 @@ def free_space(s, excluded: np.ndarray | None = None) -> Segmentation:
     free[lo:hi] = True
     how = ("grown from the tare pose (the quietest window of least force)" if setup.log.tared else
            "grown from the quietest window whose force is nearest the declared tool's weight")
-    if _turns(u[lo:hi]) >= TURN_MPS2 and start != int(np.argmin(cost)) * L:
+    if passed:
         how += " among those whose span turns the sensor against gravity (the nearest grew in a span that does not)"
     return Segmentation(free, (float(t[start]), float(t[min(start + L, n) - 1])), (float(t[lo]), float(t[hi - 1])),
                         tuple(float(t[i]) for i in sorted(onsets)),
                         how + f"; a sample is free while the force stays within {setup.contact.detect_force_N:g} N of "
-                        "the free-space wrench (affine in the sensor's gravity direction)")
+                        "the free-space wrench (affine in the sensor's gravity direction)", _turns(u[lo:hi]),
+                        tuple((float(t[a]), float(t[b - 1]), _turns(u[a:b])) for a, b in passed))
 
 
 __all__ = ["Segmentation", "everything", "free_space"]
