@@ -87,6 +87,30 @@ def test_socket_tip_derivative_is_the_finite_difference_of_its_wrench():
         assert not an[~gate].any()
 
 
+def test_chunks_never_cut_a_socket_engagement():
+    """The socket's springs are anchored where the tip entered (not sample-local): the streamed
+    passes move a chunk boundary to a sample with no engagement within the halo, so every engaged
+    run is inside one chunk and its wrench is the whole log's."""
+    from kinadapt_nn.diagnostics import stream
+
+    R, p_ws, _, _ = _path()
+    setup = _socket_setup()
+    s = SimpleNamespace(setup=setup, R_ws=R, p_ws=p_ws, n=len(R))
+    gate = contact_model.socket_terms(setup.contact, R, p_ws, TIP).gate
+    halo = 3
+    cuts = stream.bounds(s, 50, halo)
+    assert cuts[0][0] == 0 and cuts[-1][1] == len(R) and all(b == c for (_, b), (c, _) in zip(cuts, cuts[1:]))
+    assert len(cuts) > 1
+    for a, _ in cuts[1:]:
+        assert not gate[max(0, a - halo):a + halo + 1].any(), a
+    whole = contact_model.nominal_wrench(setup, R, p_ws)
+    for a, b in cuts:
+        lo = max(0, a - halo)
+        part = contact_model.nominal_wrench(setup, R[lo:b], p_ws[lo:b])[a - lo:]
+        np.testing.assert_allclose(part, whole[a:b], atol=1e-12)
+    assert stream.bounds(SimpleNamespace(setup=SetupCfg(), n=len(R)), 50, halo) == stream.chunks(len(R), 50)
+
+
 def _signals(setup, R, p_ws, wrench, w_nom, omega_s):
     return SimpleNamespace(setup=setup, R_ws=R, p_ws=p_ws, wrench=wrench, w_nom=w_nom, omega_s=omega_s, n=len(R),
                            t=np.arange(len(R)) * 0.001)
