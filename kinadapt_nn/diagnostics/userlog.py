@@ -303,12 +303,13 @@ class Calibration(NamedTuple):
 
 def _tip_consistent(declared: SetupCfg, point) -> tuple[bool, float]:
     """Is the estimated contact point the declared tip (within 3 sd or 2 mm, across the line the
-    data leave free)? -> (consistent, distance [m])."""
+    data leave free)? Each sensor axis against its own sd: a point pinned to 0.02 mm across the tool
+    is not excused by a wide sd along it. -> (consistent, distance [m])."""
     tip = np.asarray(declared.tool.tip_sensor_m, dtype=float)
     d = point.point_s_m - tip
     if point.undetermined_along_s is not None:  # only the part across the line the data leave free
         d = d - (d @ point.undetermined_along_s) * point.undetermined_along_s
-    z = float(np.linalg.norm(d) / max(np.linalg.norm(point.sd_m), 1e-9))
+    z = float(np.linalg.norm(d / np.maximum(np.asarray(point.sd_m, dtype=float), 1e-9)))
     return bool(z < 3.0 or np.linalg.norm(d) < 0.002), float(np.linalg.norm(d))
 
 
