@@ -14,7 +14,7 @@ from kinadapt_nn.app.cli import main
 from kinadapt_nn.config import arm_mjcf_path, load_config
 from kinadapt_nn.diagnostics import ownrun, userlog
 from kinadapt_nn.diagnostics.importers import RawLog
-from kinadapt_nn.features.effect_library import LIBRARY, Signals, nominal_parts, tip_twist_map
+from kinadapt_nn.features.effect_library import LIBRARY, Signals, tip_twist_map, to_level
 from kinadapt_nn.runs.episode import run_episode
 from kinadapt_nn.errors import ConfigError
 
@@ -74,7 +74,7 @@ def test_closed_form_columns_match_the_simulated_effect(free_space_pair, name):
     frame in the columns fails this by far more than the tolerance."""
     _, sig0, _, _ = free_space_pair["none"]
     cfg1, sig1, _, _ = free_space_pair[name]
-    meas = nominal_parts(sig1)[0] - nominal_parts(sig0)[0]
+    meas = to_level(sig1, sig1.w_env_w) - to_level(sig0, sig0.w_env_w)  # the measured (tared) levels
     lev, _ = LIBRARY[name].columns(sig1)
     pred = lev @ LIBRARY[name].default(load_config(None, [f"effects.{name}.enabled=true"]).effects)
     moving = np.linalg.norm(sig1.twist_tip_w[:, 3:], axis=1) > 0.01
