@@ -140,7 +140,7 @@ class Trace:
 def _check_time_and_shapes(path: Path, arrays: dict[str, np.ndarray]) -> None:
     """What every reader of a trace relies on: ``t_s`` (N,) finite and strictly increasing, and the
     raw channels (N, width) numbers. (The diagnosis adds the log readers' rules: finite raw channels,
-    no gaps, enough samples; ``kinadapt_nn.diagnostics.residual.load_log``.)"""
+    no gaps, enough samples; ``kinadapt_nn.diagnostics.importers.load_log``.)"""
     t = arrays["t_s"]
     if t.ndim != 1 or t.dtype.kind not in "iuf":
         raise KinadaptError(f"trace file '{path}': 't_s' has shape {t.shape} ({t.dtype}); expected (N,) numbers")

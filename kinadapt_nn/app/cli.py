@@ -318,19 +318,20 @@ def cmd_diagnose_setup(args: argparse.Namespace) -> int:
     """``kinadapt diagnose LOG --setup SETUP.toml``: a user's log against their declared set-up."""
     import time
 
-    from kinadapt_nn.diagnostics import userfigures as uf
     from kinadapt_nn.diagnostics.readers import read_log
-    from kinadapt_nn.diagnostics.setup import load_setup, setup_to_toml
-    from kinadapt_nn.diagnostics.userlog import diagnose
-    from kinadapt_nn.runio import check_output_dir, staged_output, write_json
+    from kinadapt_nn.diagnostics.report import Provenance
+    from kinadapt_nn.diagnostics.setup import load_setup
+    from kinadapt_nn.diagnostics.userlog import check_request, diagnose
+    from kinadapt_nn.runio import check_output_dir
 
-    for opt in ("config", "theta", "baseline", "calibration", "save_calibration"):
+    for opt in ("config", "baseline"):
         if getattr(args, opt, None):
-            raise KinadaptError(f"--{opt.replace('_', '-')} is for this package's own runs; with --setup the model is "
-                                "the declared set-up (drop the option)")
-    if args.rerun or args.no_calibration:
-        raise KinadaptError("--rerun/--no-calibration are for this package's own runs; drop them with --setup")
+            raise KinadaptError(f"--{opt} is for this package's own runs; with --setup the model is the declared "
+                                "set-up (drop the option)")
+    if args.rerun:
+        raise KinadaptError("--rerun is for this package's own runs; drop it with --setup")
     setup = load_setup(Path(args.setup), args.set or [])
+    check_request(setup, list(args.add or []), list(args.effects or []))  # before any log is read
     out = args.run_dir = Path(args.out) if args.out else _default_out("diagnose")
     check_output_dir(out, args.overwrite)
     t0 = time.perf_counter()
@@ -344,51 +345,7 @@ def cmd_diagnose_setup(args: argparse.Namespace) -> int:
         res = diagnose(log, setup, list(args.add or []), progress=progress, effects_files=list(args.effects or []))
         results.append((stems[i], log, res))
     progress("writing figures")
-
-    def write_one(stage: Path, log, res) -> None:
-        for name, text in (res.hint_files or {}).items():
-            (stage / name).write_text(text)
-        (stage / "setup.toml").write_text(setup_to_toml(setup))
-        write_json(stage / "diagnosis.json", {"format": "kinadapt-diagnosis", "version": 4, "kind": "user_log",
-                                               "source": log.source, "setup_file": str(args.setup),
-                                               "summary": res.report["summary"],
-                                               **{k: v for k, v in res.report.items() if k != "summary"},
-                                               "wall_time_s": time.perf_counter() - t0})
-        uf.model_vs_measurement(res, setup, stage / "residual.png")
-        uf.effects_figure(res, stage / "effects.png")
-
-    pooled = None
-    with staged_output(out, args.overwrite) as stage:
-        if len(results) == 1:
-            write_one(stage, results[0][1], results[0][2])
-        else:
-            from kinadapt_nn.diagnostics.pooled import pool, summary_text
-
-            for name, log, res in results:
-                (stage / name).mkdir()
-                write_one(stage / name, log, res)
-            pooled = pool([(name, res.report) for name, _, res in results])
-            pooled["summary"] = summary_text(pooled)
-            write_json(stage / "diagnosis.json", {"format": "kinadapt-diagnosis", "version": 4, "kind": "pooled_logs",
-                                                   "setup_file": str(args.setup), "summary": pooled["summary"],
-                                                   "pooled": pooled, "logs": {
-                                                       name: {"source": log.source, "folder": name,
-                                                              "summary": res.report["summary"]}
-                                                       for name, log, res in results},
-                                                   "wall_time_s": time.perf_counter() - t0})
-    if not args.quiet:
-        for name, _, res in results:
-            for w in res.report["warnings"]:
-                print(f"kinadapt: warning: {name + ': ' if pooled else ''}{w}", file=sys.stderr)
-        if pooled:
-            print(pooled["summary"])
-            print(f"wrote {out}/ (diagnosis.json; one folder per log: {', '.join(n for n, _, _ in results)})")
-        else:
-            res = results[0][2]
-            files = res.hint_files or {}
-            print(res.report["summary"])
-            print(f"wrote {out}/ (diagnosis.json, setup.toml, residual.png, effects.png"
-                  f"{''.join(', ' + f for f in files)})")
+    _write_diagnosis(out, args, results, setup, Provenance("user_log", results[0][1].source, str(args.setup)), t0)
     return 0
 
 
@@ -442,65 +399,17 @@ def _flat(v) -> list[str]:
     return [x for grp in (v or []) for x in (grp if isinstance(grp, list) else [grp])]
 
 
-def cmd_diagnose_run_as_log(args: argparse.Namespace) -> int:
-    """``kinadapt diagnose RUN --as-log``: a package run through the user-log stages, its set-up
-    generated from its config (``diagnostics.ownrun``); ``--baseline RUN``: the tip calibrated there."""
+def cmd_diagnose_run(args: argparse.Namespace) -> int:
+    """``kinadapt diagnose RUN``: a package run through the same stages as a robot's log, its set-up
+    generated from its config (``diagnostics.ownrun``); ``--baseline RUN``: the tip calibrated there;
+    ``--rerun``: the online run again with the ``--add`` effects in its model."""
     import time
 
     from kinadapt_nn.config import load_config
     from kinadapt_nn.diagnostics import ownrun
-    from kinadapt_nn.diagnostics import userfigures as uf
-    from kinadapt_nn.diagnostics.setup import setup_to_toml
-    from kinadapt_nn.diagnostics.userlog import diagnose
-    from kinadapt_nn.runio import check_output_dir, staged_output, write_json
-
-    for opt in ("theta", "calibration", "save_calibration"):
-        if getattr(args, opt, None):
-            raise KinadaptError(f"--{opt.replace('_', '-')} is for the package's own pipeline; drop it with --as-log")
-    if args.rerun or args.no_calibration or len(args.logs) > 1:
-        raise KinadaptError("--as-log diagnoses one package run (no --rerun, --no-calibration or several logs)")
-    src = Path(args.logs[0])
-    cfg_path = Path(args.config) if args.config else (src / "config.toml" if (src / "config.toml").is_file() else None)
-    cfg = load_config(cfg_path, args.set or [])
-    out = args.run_dir = Path(args.out) if args.out else _default_out("diagnose")
-    check_output_dir(out, args.overwrite)
-    t0 = time.perf_counter()
-    progress = _progress(args, "diagnose")
-    tip = ownrun.calibrated_tip(Path(args.baseline)) if args.baseline else None
-    log, setup = ownrun.as_log(src, cfg, list(args.effects or []), tip)
-    res = diagnose(log, setup, list(args.add or []), progress=progress)
-    with staged_output(out, args.overwrite) as stage:
-        for name, text in (res.hint_files or {}).items():
-            (stage / name).write_text(text)
-        (stage / "setup.toml").write_text(setup_to_toml(setup))
-        write_json(stage / "diagnosis.json", {"format": "kinadapt-diagnosis", "version": 4, "kind": "package_run",
-                                               "source": log.source, "setup_file": "generated from the run's config",
-                                               "summary": res.report["summary"],
-                                               **{k: v for k, v in res.report.items() if k != "summary"},
-                                               "wall_time_s": time.perf_counter() - t0})
-        uf.model_vs_measurement(res, setup, stage / "residual.png")
-        uf.effects_figure(res, stage / "effects.png")
-    if not args.quiet:
-        print(res.report["summary"])
-        print(f"wrote {out}/ (diagnosis.json, setup.toml, residual.png, effects.png)")
-    return 0
-
-
-def cmd_diagnose(args: argparse.Namespace) -> int:
-    import numpy as np
-
-    args.add = _flat(args.add)
-    if args.setup:
-        return cmd_diagnose_setup(args)
-    if args.effects and not args.as_log:
-        raise KinadaptError("--effects is for a user's log (with --setup, or a package run with --as-log); this "
-                            "package's own pipeline uses the built-in library")
-
-    if getattr(args, "as_log", False):
-        return cmd_diagnose_run_as_log(args)
-    from kinadapt_nn.config import config_to_toml, load_config
-    from kinadapt_nn.diagnostics.report import residual_figure, write_tb
-    from kinadapt_nn.runio import check_output_dir, staged_output, write_json
+    from kinadapt_nn.diagnostics.report import Provenance
+    from kinadapt_nn.diagnostics.userlog import check_request, diagnose
+    from kinadapt_nn.runio import check_output_dir
 
     if len(args.logs) > 1:
         raise KinadaptError(f"{len(args.logs)} logs given: several logs are pooled only with --setup SETUP.toml (a "
@@ -508,41 +417,87 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     src = Path(args.logs[0])
     cfg_path = Path(args.config) if args.config else (src / "config.toml" if (src / "config.toml").is_file() else None)
     cfg = load_config(cfg_path, args.set or [])
-    theta = None
-    if args.theta:
-        try:
-            theta = np.array([float(x) for x in args.theta.split(",")])
-        except ValueError:
-            raise KinadaptError(f"--theta {args.theta!r}: give three numbers in metres, e.g. 0.003,-0.002,0.1") from None
-        if theta.shape != (3,) or not np.isfinite(theta).all():
-            raise KinadaptError(f"--theta {args.theta!r}: give three finite numbers in metres, e.g. 0.003,-0.002,0.1")
-    from kinadapt_nn.diagnostics import library as lib
-    from kinadapt_nn.diagnostics import ranking as rk
-
+    check_request(ownrun.setup_of_run(cfg, list(args.effects or [])), list(args.add or []), ())  # before any work
+    if args.rerun:
+        ownrun.check_rerun(src, list(args.add or []))
     out = args.run_dir = Path(args.out) if args.out else _default_out("diagnose")
     check_output_dir(out, args.overwrite)
+    t0 = time.perf_counter()
     progress = _progress(args, "diagnose")
-    choice = lib.CalibrationChoice(Path(args.baseline) if args.baseline else None,
-                                   Path(args.calibration) if args.calibration else None, args.no_calibration)
-    res = lib.diagnose_run(src, cfg, theta, list(args.add or []), args.rerun, choice, progress=progress)
-    summary = res.report["summary"]
+    if args.baseline:
+        progress(f"where contacts act, calibrated on the baseline {args.baseline}")
+    tip = ownrun.calibrated_tip(Path(args.baseline)) if args.baseline else None
+    progress("reading the run; its set-up generated from its config")
+    log, setup = ownrun.as_log(src, cfg, list(args.effects or []), tip)
+    res = diagnose(log, setup, list(args.add or []), progress=progress)
+    rerun = None
+    if args.rerun:
+        progress("re-running the episode with the effects adapted online (--rerun)")
+        rerun = ownrun.rerun_with_effects(src, list(args.add))
+        res.report["rerun"] = rerun[2]
     progress("writing diagnosis.json and the figures")
-    with staged_output(out, args.overwrite) as stage:
-        (stage / "config.toml").write_text(config_to_toml(cfg))
-        write_json(stage / "diagnosis.json", res.report)
-        residual_figure(res.replay, stage / "residual.png")
-        lib.effects_figure(res.effects, stage / "effects.png")
-        write_tb(stage / "tb", res.replay)
-        if res.rerun is not None:
-            (stage / "rerun").mkdir()
-            _write_online(stage / "rerun", *res.rerun)
-    if args.save_calibration:
-        lib.save_calibration(Path(args.save_calibration), cfg.control.program, rk.calibrate(res.design, rk.RankCfg()),
-                             res.report["source"])
-    if not args.quiet:
-        print(summary)
-        print(f"wrote {out}/ (diagnosis.json, residual.png, effects.png, tb/)")
+    prov = Provenance("package_run", log.source, "generated from the run's config")
+    _write_diagnosis(out, args, [(None, log, res)], setup, prov, t0, rerun)
     return 0
+
+
+def _write_diagnosis(out: Path, args: argparse.Namespace, results: list, setup, prov, t0: float,
+                     rerun=None) -> None:
+    """Write one diagnosis (``results`` = [(None, log, Result)]) or several pooled logs (one folder
+    each) into ``out`` (``diagnostics.report`` owns the format), then print the summary and the
+    warnings."""
+    import dataclasses
+    import time
+
+    from kinadapt_nn.diagnostics import userfigures as uf
+    from kinadapt_nn.diagnostics.report import diagnosis_json, pooled_json
+    from kinadapt_nn.diagnostics.setup import setup_to_toml
+    from kinadapt_nn.runio import staged_output, write_json
+
+    def write_one(stage: Path, res, source: str) -> None:
+        for name, text in (res.hint_files or {}).items():
+            (stage / name).write_text(text)
+        (stage / "setup.toml").write_text(setup_to_toml(setup))
+        write_json(stage / "diagnosis.json", diagnosis_json(res.report, dataclasses.replace(prov, source=source),
+                                                            time.perf_counter() - t0))
+        uf.model_vs_measurement(res, setup, stage / "residual.png")
+        uf.effects_figure(res, stage / "effects.png")
+
+    pooled = None
+    with staged_output(out, args.overwrite) as stage:
+        if len(results) == 1:
+            write_one(stage, results[0][2], results[0][1].source)
+            if rerun is not None:
+                (stage / "rerun").mkdir()
+                _write_online(stage / "rerun", rerun[0], rerun[1])
+        else:
+            for name, log, res in results:
+                (stage / name).mkdir()
+                write_one(stage / name, res, log.source)
+            pooled = pooled_json([(name, log.source, res.report) for name, log, res in results], prov.setup_file,
+                                 time.perf_counter() - t0)
+            write_json(stage / "diagnosis.json", pooled)
+    if args.quiet:
+        return
+    for name, _, res in results:
+        for w in res.report["warnings"]:
+            print(f"kinadapt: warning: {name + ': ' if pooled else ''}{w}", file=sys.stderr)
+    if pooled:
+        print(pooled["summary"])
+        print(f"wrote {out}/ (diagnosis.json; one folder per log: {', '.join(n for n, _, _ in results)})")
+    else:
+        res = results[0][2]
+        files = res.hint_files or {}
+        print(res.report["summary"])
+        print(f"wrote {out}/ (diagnosis.json, setup.toml, residual.png, effects.png"
+              f"{''.join(', ' + f for f in files)}{', rerun/' if rerun is not None else ''})")
+
+
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    args.add = _flat(args.add)
+    if args.setup:
+        return cmd_diagnose_setup(args)
+    return cmd_diagnose_run(args)  # --as-log: accepted, the default (one pipeline)
 
 
 def cmd_config(args: argparse.Namespace) -> int:
@@ -588,8 +543,9 @@ _DESCRIPTIONS = {
                  "the figures; takes several minutes (progress on stderr).",
     "sweep": "Run many episodes over groups (named override sets) x seeds, locally or on a Ray cluster, and "
              "aggregate success rates with 95 % intervals; rerun the same command to resume.",
-    "diagnose": "Model vs measurement: replay a log through the known model and rank which physical effect is "
-                "missing. With --setup: your robot's log (CSV, Parquet, ROS 2 bag); without: a run of this package.",
+    "diagnose": "Model vs measurement: judge a log against the physical nominal model of its set-up and rank which "
+                "physical effect is missing, each with a verdict. With --setup: your robot's log (CSV, Parquet, ROS 2 "
+                "bag); without: a run of this package, its set-up generated from its config (the same stages).",
     "setup-template": "Print (or write with --out) a commented setup-file template for kinadapt diagnose LOG --setup.",
     "config": "Print every key of the experiment config (kinadapt online) with its value, unit and meaning, after "
               "--config and --set are applied.",
@@ -639,35 +595,30 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("logs", nargs="+", metavar="LOG", help="with --setup: .csv, .csv.gz, .parquet, a ROS 2 bag or a "
                     "trace.npz -- several logs of one set-up are pooled (one tool and mount; the logs that "
                     "contradict the others named); without: a run folder, a trace.npz, or a CSV in this package's "
-                    "format (kinadapt_nn/diagnostics/importers.py)")
+                    "format (kinadapt_nn/diagnostics/importers.py), its set-up generated from its config")
     dg.add_argument("--setup", metavar="SETUP.toml", help="your set-up: columns, wrench convention, sensor mount, tool "
                     "(template: kinadapt setup-template; examples: examples/setups/)")
-    dg.add_argument("--config", help="the known model (default: the run's config.toml, else built-in defaults)")
-    dg.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a model key")
-    dg.add_argument("--theta", help="offset estimate x,y,z [m] to evaluate (default: the run's final estimate)")
+    dg.add_argument("--config", help="a package run's config, the set-up is generated from it (default: the run's "
+                    "config.toml, else built-in defaults)")
+    dg.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a set-up key (with --setup) or a "
+                    "config key (a package run)")
     add = dg.add_argument("--add", action="append", nargs="+", metavar="EFFECT",
                     help="refit with these effects added and report the residual before/after (--add A B, or "
-                    "repeated; a one-of effect's parameter: encoder_offset:joint5); with --setup: the built-ins "
-                    "(%(builtins)s) and your own (--effects); own runs also contact_stiffness, "
-                    "contact_friction_couple, grasp_compliance")
+                    "repeated; a one-of effect's parameter: encoder_offset:joint5): the built-ins "
+                    "(%(builtins)s) and your own (--effects)")
     add.builtins = _Lazy(lambda: ", ".join(_builtin_names()))  # read when the help is shown, not on every command
     dg.add_argument("--effects", action="append", metavar="FILE.py",
-                    help="with --setup: a Python file of your own effects (@effect from kinadapt_nn.diagnostics; "
+                    help="a Python file of your own effects (@effect from kinadapt_nn.diagnostics; "
                     "docs/missing_physics.md); judged and --add-able like the built-ins (repeatable). An effects "
                     "file is code that runs, like a test file")
     dg.add_argument("--rerun", action="store_true",
-                    help="simulated runs: repeat the online run with the --add effects in the model (model.effects), "
+                    help="package runs: repeat the online run with the --add effects in the model (model.effects), "
                          "written to OUT/rerun/ with the same TensorBoard tags")
-    dg.add_argument("--baseline", metavar="RUN", help="calibrate the nominal model on this run without hidden effects "
-                    "(default: the shipped calibration for the run's control.program; none for a CSV log)")
-    dg.add_argument("--calibration", metavar="FILE", help="a calibration file written by --save-calibration")
-    dg.add_argument("--no-calibration", action="store_true", help="judge effects against the bare nominal model")
-    dg.add_argument("--save-calibration", metavar="FILE",
-                    help="also fit the whole library on this log (a run without hidden effects) and store it as the "
-                         "calibration of its control.program in FILE")
+    dg.add_argument("--baseline", metavar="RUN", help="package runs: where contacts act (the tip) calibrated on this "
+                    "run of the same cell (default: the config's nominal tip)")
     dg.add_argument("--as-log", action="store_true",
-                    help="a run of this package through the same stages as a robot's log, its set-up generated from "
-                         "its config (diagnostics/ownrun.py; --baseline RUN: the tip calibrated on that run)")
+                    help="accepted for compatibility: a package run always goes through the same stages as a "
+                         "robot's log, its set-up generated from its config (diagnostics/ownrun.py)")
     dg.add_argument("--out", help="output folder (default: runs/diagnose-<timestamp>)")
     dg.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     dg.add_argument("--quiet", action="store_true", help="no progress lines, no summary")

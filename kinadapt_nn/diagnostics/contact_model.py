@@ -99,4 +99,24 @@ def nominal_wrench(setup, R_ws: np.ndarray, p_ws: np.ndarray) -> np.ndarray:
     return on_tool_to_sensor(R_ws, tip, -c.stiffness_lat_N_per_m * st.disp_lat_w, -c.stiffness_rot_Nm_per_rad * st.rotvec_w)
 
 
-__all__ = ["SocketTerms", "socket_terms", "on_tool_to_sensor", "nominal_wrench", "RELEASE_M"]
+def tip_derivative(setup, R_ws: np.ndarray, p_ws: np.ndarray, dtip_s) -> np.ndarray:
+    """d ``nominal_wrench`` / d tip along ``dtip_s`` (3,) [m per unit parameter], sensor frame:
+    (n, 6). The tip moves the lateral spring's displacement (``P (R - R_0) dtip``: the anchor moves
+    with it) and the spring force's lever (``dtip x f``); the engagement and the anchors stay where
+    the declared tip puts them (their derivative is zero almost everywhere). Zeros when no contact
+    geometry is declared."""
+    c = setup.contact
+    if c.geometry == "none":
+        return np.zeros((len(R_ws), 6))
+    tip = np.asarray(setup.tool.tip_sensor_m, dtype=float)
+    dtip = np.asarray(dtip_s, dtype=float)
+    st = socket_terms(c, R_ws, p_ws, tip)
+    anc = np.where(st.gate, np.maximum(_anchors(st.gate), 0), 0)
+    d_w = (R_ws - R_ws[anc]) @ dtip  # (n, 3): the tip's extra displacement since the anchor
+    d_w = np.where(st.gate[:, None], d_w - np.outer(d_w @ st.axis_w, st.axis_w), 0.0)
+    f_s = np.einsum("nji,nj->ni", R_ws, -c.stiffness_lat_N_per_m * st.disp_lat_w)
+    df_s = np.einsum("nji,nj->ni", R_ws, -c.stiffness_lat_N_per_m * d_w)
+    return np.concatenate([df_s, np.cross(tip, df_s) + np.cross(dtip, f_s)], axis=1)
+
+
+__all__ = ["SocketTerms", "socket_terms", "on_tool_to_sensor", "nominal_wrench", "tip_derivative", "RELEASE_M"]

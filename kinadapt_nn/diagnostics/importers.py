@@ -1,6 +1,8 @@
-"""CSV import for ``kinadapt diagnose`` (e.g. a log from a real Panda).
+"""A package run's log for ``kinadapt diagnose RUN``: its ``trace.npz`` or this package's CSV
+(``load_log``), as the ``RawLog`` that ``ownrun.as_log`` turns into a log plus a generated set-up.
+A robot's own log (any CSV, Parquet, a ROS 2 bag) is read by ``readers`` against its setup file.
 
-Format (version 1): a header row, then one row per control sample, comma-separated, SI units:
+CSV format (version 1): a header row, then one row per control sample, comma-separated, SI units:
 
     t_s, q1..q7 [rad], qd1..qd7 [rad/s], fx, fy, fz [N], tx, ty, tz [N m]
 
@@ -20,6 +22,7 @@ import numpy as np
 
 from kinadapt_nn.errors import KinadaptError
 
+
 class RawLog(NamedTuple):
     """What a real robot logs (the only inputs the diagnosis uses)."""
 
@@ -27,15 +30,44 @@ class RawLog(NamedTuple):
     q_rad: np.ndarray  #: (N, 7) joint positions
     qdot_rad_s: np.ndarray  #: (N, 7) joint velocities
     wrench_raw_f: np.ndarray  #: (N, 6) raw F/T reading: flange on tool, about O, in f [N, N m]
-    theta: np.ndarray | None  #: (p,) the run's final parameter estimate, when known
     source: str  #: where it came from
 
 
+#: what a robot's own log needs (``kinadapt diagnose`` without ``--setup`` reads only this package's runs)
+NEEDS_SETUP = ("pass --setup SETUP.toml (a commented template: kinadapt setup-template --out SETUP.toml; complete "
+               "ones in examples/setups/)")
 
 COLUMNS = ["t_s", *[f"q{i}" for i in range(1, 8)], *[f"qd{i}" for i in range(1, 8)], "fx", "fy", "fz", "tx", "ty", "tz"]
 
 
-def read_csv_log(path: Path):
+def load_log(path: Path) -> RawLog:
+    """A run folder, a ``trace.npz`` or this package's CSV; a robot's own log (another CSV, Parquet,
+    a ROS 2 bag) is a one-line error saying to pass ``--setup``. A trace obeys the log readers'
+    rules (``kinadapt_nn.diagnostics.readers``): finite raw channels, strictly increasing time, no
+    gaps, enough samples -- each a one-line ``KinadaptError`` naming the file."""
+    from kinadapt_nn.diagnostics import readers
+    from kinadapt_nn.trace import Trace
+
+    path = Path(path)
+    kind = readers.log_format(path)  # not found, an unknown suffix: one line naming the formats
+    if kind == "csv" and path.name.lower().endswith(".csv"):
+        try:
+            return read_csv_log(path)
+        except KinadaptError as exc:
+            raise KinadaptError(f"{exc}; for your robot's own CSV log, {NEEDS_SETUP}") from None
+    if kind != "trace":
+        what = {"csv": "a CSV", "parquet": "a Parquet", "bag": "a ROS 2 bag"}[kind]
+        raise KinadaptError(f"log '{path}' is {what} log, not a run of this package; for your robot's own log, "
+                            f"{NEEDS_SETUP}")
+    if path.is_dir():
+        path = path / "trace.npz"
+    tr = Trace.load(path)
+    readers.check_trace(tr, path)  # the same checks as every user log
+    return RawLog(tr["t_s"], tr["q_rad"], tr["qdot_rad_s"], tr["wrench_raw_f"], str(path))
+
+
+def read_csv_log(path: Path) -> RawLog:
+    """This package's CSV (module docstring) -> ``RawLog``; one-line errors naming the row and column."""
     path = Path(path)
     try:
         with open(path, newline="") as fh:
@@ -65,7 +97,7 @@ def read_csv_log(path: Path):
     if np.any(np.diff(data[:, 0]) <= 0):
         r = int(np.argmax(np.diff(data[:, 0]) <= 0)) + 3
         raise KinadaptError(f"CSV log '{path}', row {r}: column 't_s' does not increase")
-    return RawLog(data[:, 0], data[:, 1:8], data[:, 8:15], data[:, 15:21], None, str(path))
+    return RawLog(data[:, 0], data[:, 1:8], data[:, 8:15], data[:, 15:21], str(path))
 
 
 def write_csv_log(path: Path, log) -> None:

@@ -464,15 +464,19 @@ def fit_at(D: np.ndarray, d: MountData, iters: int = 8) -> tuple[np.ndarray, np.
 
 
 def plausibility(fitm: "MountFit", setup) -> list[str]:
-    """Why the calibration fit is not a physical tool on a physical sensor (empty: plausible)."""
+    """Why the calibration fit is not a physical tool on a physical sensor (empty: plausible). A
+    tool much heavier than declared is implausible only when the log does not determine its mass
+    (then contact in the calibration samples is the likely cause); a determined one is a payload
+    the declared tool lacks -- the ``tool_gravity`` effect's finding, judged, not blocked
+    (``heavier_than_declared`` words it)."""
     out = []
     m = float(fitm.x[3])
     m_decl = float(setup.tool.mass_kg)
     if m <= 0:
         out.append(f"the fitted tool mass is {m:.3g} kg (not positive)")
-    elif m_decl > 0 and m > MASS_PLAUSIBLE_FACTOR * m_decl:
-        out.append(f"the fitted tool mass {m:.3g} kg is more than {MASS_PLAUSIBLE_FACTOR:g}x the declared "
-                   f"{m_decl:g} kg (not the declared tool: contact in the calibration samples, or [tool] mass_kg)")
+    elif m_decl > 0 and m > MASS_PLAUSIBLE_FACTOR * m_decl and fitm.sd[3] > UNDETERMINED_MASS_REL * m:
+        out.append(f"the fitted tool mass {m:.3g} ± {fitm.sd[3]:.2g} kg is more than {MASS_PLAUSIBLE_FACTOR:g}x the "
+                   f"declared {m_decl:g} kg and not determined by the log (contact in the calibration samples?)")
     elif np.linalg.norm(fitm.x[4:7] / m) > COM_PLAUSIBLE_M:
         out.append(f"the fitted centre of mass is {np.linalg.norm(fitm.x[4:7] / m):.3g} m from the sensor")
     rf, rt = setup.sensor.range_force_N, setup.sensor.range_torque_Nm
@@ -481,6 +485,16 @@ def plausibility(fitm: "MountFit", setup) -> list[str]:
     if rt > 0 and np.max(np.abs(fitm.x[10:13])) > rt:
         out.append(f"the torque offset {np.max(np.abs(fitm.x[10:13])):.3g} N m exceeds the sensor's range ({rt:g} N m)")
     return out
+
+
+def heavier_than_declared(fitm: "MountFit", setup) -> str | None:
+    """A warning when the fitted mass is ``MASS_PLAUSIBLE_FACTOR`` times the declared one or more
+    and determined by the log (not a block: ``plausibility``); None otherwise."""
+    m, m_decl = float(fitm.x[3]), float(setup.tool.mass_kg)
+    if m_decl <= 0 or m <= MASS_PLAUSIBLE_FACTOR * m_decl or fitm.sd[3] > UNDETERMINED_MASS_REL * m:
+        return None
+    return (f"the tool weighs {m:.3g} ± {fitm.sd[3]:.2g} kg by the calibration, {m / m_decl:.1f}x the declared "
+            f"{m_decl:g} kg: a payload the set-up lacks (see tool_gravity) or [tool] mass_kg is wrong")
 
 
 def report(fit: tuple, rpy: tuple, angle: tuple[float, float], res, d: MountData, s, rot_explains: float = 1.0) -> dict:
@@ -564,5 +578,5 @@ def undetermined(x: np.ndarray, sd: np.ndarray) -> list[dict]:
     return out
 
 
-__all__ = ["MountFit", "fit", "fit_at", "matrix_rpy", "plausibility", "predict", "refine_rotation", "rotation_angle",
+__all__ = ["MountFit", "fit", "fit_at", "heavier_than_declared", "matrix_rpy", "plausibility", "predict", "refine_rotation", "rotation_angle",
            "rotvec_matrix"]

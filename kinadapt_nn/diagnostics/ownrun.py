@@ -23,6 +23,7 @@ nominal model, as the package's own diagnosis uses it.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -83,7 +84,7 @@ def as_log(src, cfg: ExperimentCfg | None = None, effects_files=(), tip_sensor_m
     """A package run (a run folder, its ``trace.npz``, the package's CSV or a ``RawLog``) and its
     config (the folder's ``config.toml`` when ``cfg`` is None) -> (log, set-up) for
     ``userlog.diagnose``."""
-    from kinadapt_nn.diagnostics.residual import load_log
+    from kinadapt_nn.diagnostics.importers import load_log
 
     raw = load_log(Path(src)) if isinstance(src, (str, Path)) else src
     if cfg is None:
@@ -114,4 +115,43 @@ def calibrated_tip(baseline, cfg: ExperimentCfg | None = None) -> np.ndarray:
     return np.asarray(cal.contact_point.point_s_m, dtype=float)
 
 
-__all__ = ["as_log", "calibrated_tip", "log_of_run", "setup_of_run"]
+def check_rerun(src: Path, add: list[str]) -> None:
+    """``--rerun`` needs ``--add`` effects the online model knows and a run folder with its config."""
+    from kinadapt_nn.features.effect_library import LIBRARY
+
+    if not add:
+        raise KinadaptError("--rerun needs --add EFFECT (the effect to put into the online model)")
+    for a in add:
+        if a.partition(":")[0] not in LIBRARY:
+            raise KinadaptError(f"--rerun --add {a}: the online model adapts only {', '.join(LIBRARY)} "
+                                "(model.effects)")
+    if not (Path(src).is_dir() and (Path(src) / "config.toml").is_file()):
+        raise KinadaptError(f"--rerun needs a simulated run folder with config.toml (got '{src}')")
+
+
+def rerun_with_effects(src: Path, add: list[str]):
+    """Repeat the simulated run ``src`` with ``model.effects += add`` (adapted online: a frozen or
+    tracking-only run gets the default ``kalman`` law), TensorBoard on.
+    -> (config, EpisodeResult, the ``rerun`` entry of diagnosis.json)."""
+    from kinadapt_nn.runs.episode import run_episode
+
+    add = [a.partition(":")[0] for a in add]
+    check_rerun(src, add)
+    src = Path(src)
+    run_cfg = load_config(src / "config.toml")
+    over = {"model": run_cfg.model.model_copy(update={"effects": tuple(dict.fromkeys((*run_cfg.model.effects, *add)))}),
+            "run": run_cfg.run.model_copy(update={"tensorboard": True, "progress": False})}  # TB: the point of a rerun
+    if run_cfg.adaptation.mode in ("frozen", "tracking"):  # the effect must adapt: the default law
+        over["adaptation"] = run_cfg.adaptation.model_copy(update={"mode": "kalman"})
+    cfg = run_cfg.model_copy(update=over)
+    result = run_episode(cfg)
+    before = json.loads((src / "summary.json").read_text()) if (src / "summary.json").is_file() else {}
+    info = {"model_effects": list(cfg.model.effects), "adaptation_mode": cfg.adaptation.mode,
+            "model_effect_params": result.summary["model_effect_params"],
+            "pred_error_rms_contact_w": {"original": before.get("pred_error_rms_contact_w"),
+                                         "rerun": result.summary["pred_error_rms_contact_w"]},
+            "folder": "rerun/ (tensorboard --logdir_spec original:RUN/tb,rerun:OUT/rerun/tb)"}
+    return cfg, result, info
+
+
+__all__ = ["as_log", "calibrated_tip", "check_rerun", "log_of_run", "rerun_with_effects", "setup_of_run"]

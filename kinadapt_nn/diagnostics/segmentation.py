@@ -16,6 +16,12 @@ so free space can be found before any calibration:
    so far (normal equations; a ridge keeps the orientation directions the span has not moved in
    at zero). Growth stops where the smoothed force leaves the model by more than
    ``[contact] detect_force_N``: that sample is a **contact onset**.
+3. **turned**: the declared weight is one of the things under test (a hidden payload changes it),
+   and a steady axial push along gravity can read as the declared weight. So seeds are tried in
+   the order of step 1, each outside the spans already grown (at most ``MAX_SEEDS``), and the first
+   span in which the sensor turns against gravity (``u`` spreads by ``TURN_MPS2``) wins -- a free
+   span the calibration can use; a contact span rarely turns the tool that far. When no span
+   turns, the first one stands.
 
 The calibration (``mount.fit``) then runs on this free span alone; contact everywhere else is
 decided against the calibrated model (``userlog.detect_contact``) with the free span's offset --
@@ -36,6 +42,8 @@ MIN_WINDOW = 5  #: samples in a window at least
 SMOOTH_S = 0.02  #: [s] centred moving average on the wrench before the test (the row filter's width)
 RIDGE_MPS2 = 0.1  #: [m/s^2] orientation spread below which a direction of u is not fitted (ridge scale)
 MIN_FREE = 20  #: fewer free samples than this: the seed is not trusted, every sample is a candidate
+MAX_SEEDS = 6  #: seeds tried at most (step 3 of the module docstring)
+TURN_MPS2 = 1.0  #: [m/s^2] a span turns against gravity when |u - mean u| reaches this (~6 deg)
 
 
 @dataclass(frozen=True)
@@ -47,10 +55,13 @@ class Segmentation:
     span_s: tuple[float, float]  #: [s] the grown span, from the first sample
     onsets_s: tuple[float, ...]  #: [s] where the force first leaves the free-space model (ends of the span inside the log)
     method: str  #: how the free span was found (one sentence)
+    turn_mps2: float | None = None  #: [m/s^2] how far u moves in the span (``_turns``)
+    passed_over: tuple = ()  #: ((start s, end s, turn m/s^2), ...) spans grown first that did not turn
 
     def to_json(self) -> dict:
         return {"free_span_s": list(self.span_s), "seed_window_s": list(self.seed_s),
-                "free_samples": int(self.free.sum()), "contact_onsets_s": list(self.onsets_s), "method": self.method}
+                "free_samples": int(self.free.sum()), "contact_onsets_s": list(self.onsets_s), "method": self.method,
+                "turn_mps2": self.turn_mps2, "passed_over": [list(p) for p in self.passed_over]}
 
 
 def everything(n: int, t_s: np.ndarray, why: str) -> Segmentation:
@@ -59,15 +70,42 @@ def everything(n: int, t_s: np.ndarray, why: str) -> Segmentation:
     return Segmentation(np.ones(n, bool), span, span, (), why)
 
 
-def _seed(F: np.ndarray, ok: np.ndarray, L: int, tared: bool, weight_N: float) -> int:
-    """First sample of the seed window: quiet and at the tool's own free-space force level."""
+def _seed_cost(F: np.ndarray, ok: np.ndarray, L: int, tared: bool, weight_N: float) -> np.ndarray:
+    """(n // L,) the seed cost of each window (lower: quieter and nearer the tool's own free-space
+    force level); inf where a window holds an excluded sample."""
     nw = len(F) // L
     Fw = F[: nw * L].reshape(nw, L, 3)
     mean, sd = Fw.mean(1), np.linalg.norm(Fw.std(1), axis=1)
     level = np.linalg.norm(mean, axis=1)
     cost = (level if tared else np.abs(level - weight_N)) + 3.0 * sd
     cost[~ok[: nw * L].reshape(nw, L).all(1)] = np.inf
-    return int(np.argmin(cost)) * L
+    return cost
+
+
+def _turns(u: np.ndarray) -> float:
+    """[m/s^2] how far the specific gravity ``u`` (n, 3) moves from its mean over a span."""
+    return float(np.linalg.norm(u - u.mean(0), axis=1).max()) if len(u) else 0.0
+
+
+def _grown_spans(F: np.ndarray, u: np.ndarray, ok: np.ndarray, L: int, cost: np.ndarray, thr: float):
+    """Step 3 of the module docstring: spans grown from the seeds in the order of ``cost``, each
+    seed outside the spans so far. -> ((seed sample, lo, hi, onsets) of the first span that turns
+    by ``TURN_MPS2``, else of the first span; [(lo, hi)] of the spans passed over)."""
+    cost = cost.copy()
+    first, passed = None, []
+    for _ in range(MAX_SEEDS):
+        w = int(np.argmin(cost))
+        if not np.isfinite(cost[w]):
+            break
+        start = w * L
+        lo, hi, onsets = _grow(F, u, ok, start, L, thr)
+        first = first or (start, lo, hi, onsets)
+        if hi - lo >= MIN_FREE and _turns(u[lo:hi]) >= TURN_MPS2:
+            return (start, lo, hi, onsets), passed
+        passed.append((lo, hi))
+        cost[lo // L:(hi + L - 1) // L] = np.inf
+        cost[w] = np.inf
+    return first, []
 
 
 class _Affine:
@@ -150,8 +188,10 @@ def free_space(s, excluded: np.ndarray | None = None) -> Segmentation:
     F = moving_average(s.wrench[:, :3], max(1, int(round(SMOOTH_S / dt))))
     u = s.g_s - s.a_s
     weight = setup.tool.mass_kg * setup.world.gravity_mps2
-    start = _seed(F, ok, L, setup.log.tared, weight)
-    lo, hi, onsets = _grow(F, u, ok, start, L, setup.contact.detect_force_N)
+    cost = _seed_cost(F, ok, L, setup.log.tared, weight)
+    if not np.isfinite(cost).any():
+        return everything(n, s.t, "no seed window outside [analysis] exclude_s: every sample is a candidate")
+    (start, lo, hi, onsets), passed = _grown_spans(F, u, ok, L, cost, setup.contact.detect_force_N)
     t = s.t - s.t[0]
     if hi - lo < MIN_FREE:
         return everything(n, s.t, "no free-space span found from the data: every sample is a candidate")
@@ -159,10 +199,13 @@ def free_space(s, excluded: np.ndarray | None = None) -> Segmentation:
     free[lo:hi] = True
     how = ("grown from the tare pose (the quietest window of least force)" if setup.log.tared else
            "grown from the quietest window whose force is nearest the declared tool's weight")
+    if passed:
+        how += " among those whose span turns the sensor against gravity (the nearest grew in a span that does not)"
     return Segmentation(free, (float(t[start]), float(t[min(start + L, n) - 1])), (float(t[lo]), float(t[hi - 1])),
                         tuple(float(t[i]) for i in sorted(onsets)),
                         how + f"; a sample is free while the force stays within {setup.contact.detect_force_N:g} N of "
-                        "the free-space wrench (affine in the sensor's gravity direction)")
+                        "the free-space wrench (affine in the sensor's gravity direction)", _turns(u[lo:hi]),
+                        tuple((float(t[a]), float(t[b - 1]), _turns(u[a:b])) for a, b in passed))
 
 
 __all__ = ["Segmentation", "everything", "free_space"]

@@ -14,7 +14,10 @@ Savitzky-Golay derivative of the kinematics, the moving average), so every row s
 inputs whatever the chunk size; what changes with the chunking is only the order of the sums
 (the moving average's running sum and the Gram accumulation), i.e. rounding. Effects must be
 sample-local in that sense (built-ins are); the hint shapes that use whole-log numbers (the time
-span, the mean joint angle, an extra column's mean) read them from ``LogSignals.whole``.
+span, the mean joint angle, an extra column's mean) read them from ``LogSignals.whole``. A declared
+socket is not sample-local (its springs are anchored where the tip entered): chunk boundaries are
+moved to samples with no engagement within a halo (``bounds``), so an engagement is never cut (a
+chunk then grows by at most the engagement it would have cut).
 """
 
 from __future__ import annotations
@@ -125,6 +128,23 @@ def chunks(n: int, chunk: int) -> list[tuple[int, int]]:
     return [(a, min(a + chunk, n)) for a in range(0, n, chunk)]
 
 
+def bounds(s, chunk: int, halo: int) -> list[tuple[int, int]]:
+    """``chunks`` of ``LogSignals`` s, each interior boundary moved forward to the first sample
+    with no declared-socket engagement within ``halo`` samples of it (module docstring); a
+    boundary with none after it is dropped."""
+    out = chunks(s.n, chunk)
+    if len(out) == 1 or s.setup.contact.geometry == "none":
+        return out
+    from kinadapt_nn.diagnostics.contact_model import socket_terms
+
+    gate = socket_terms(s.setup.contact, s.R_ws, s.p_ws, s.setup.tool.tip_sensor_m).gate
+    busy = np.convolve(gate.astype(float), np.ones(2 * halo + 1), "same") > 0  # engaged within the halo
+    ok = np.flatnonzero(~busy)
+    cuts = sorted({int(ok[i]) for a, _ in out[1:] if (i := np.searchsorted(ok, a)) < len(ok)})
+    edges = [0, *[c for c in cuts if 0 < c < s.n], s.n]
+    return [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+
 def _chunk_rows(s, rm: RowMap, sources: list[Source], a: int, b: int, halo: int, w: dict
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The rows of samples ``a:b``: (design positions (q,), row values (q, K), the columns' squares
@@ -154,7 +174,7 @@ def block_stats(s, rm: RowMap, sources: list[Source], y: np.ndarray, block: np.n
     yy = np.bincount(block, weights=y * y, minlength=n_blocks).astype(float)
     col_sq = np.zeros((9, K))
     halo, w = halo_samples(s, rm.k_smooth), whole(s)
-    for a, b in chunks(s.n, chunk):
+    for a, b in bounds(s, chunk, halo):
         pos, vals, sq = _chunk_rows(s, rm, sources, a, b, halo, w)
         col_sq += sq
         blk = block[pos]
@@ -182,7 +202,7 @@ def combine_rows(s, rm: RowMap, sources: list[Source], P: np.ndarray, block: np.
     keep = np.concatenate([np.arange(offs[i], offs[i + 1]) for i in used])
     Pk = P[:, keep]
     halo, w = halo_samples(s, rm.k_smooth), whole(s)
-    for a, b in chunks(s.n, chunk or CHUNK_SAMPLES):
+    for a, b in bounds(s, chunk or CHUNK_SAMPLES, halo):
         pos, vals, _ = _chunk_rows(s, rm, [sources[i] for i in used], a, b, halo, w)
         out[pos] = np.einsum("rk,rk->r", vals, Pk[block[pos]])
     return out
@@ -196,7 +216,7 @@ def sample_sum(s, sources: list[Source], coefs: list[np.ndarray], k_smooth: int 
     if not sources:
         return out
     halo, w = halo_samples(s, k_smooth), whole(s)
-    for a, b in chunks(s.n, chunk or CHUNK_SAMPLES):
+    for a, b in bounds(s, chunk or CHUNK_SAMPLES, halo):
         lo, hi = max(0, a - halo), min(s.n, b + halo)
         sub = slice_signals(s, lo, hi, w)
         for src, c in zip(sources, coefs):
@@ -204,5 +224,5 @@ def sample_sum(s, sources: list[Source], coefs: list[np.ndarray], k_smooth: int 
     return out
 
 
-__all__ = ["BlockStats", "CHUNK_SAMPLES", "RowMap", "Source", "block_stats", "chunks", "combine_rows",
+__all__ = ["BlockStats", "CHUNK_SAMPLES", "RowMap", "Source", "block_stats", "bounds", "chunks", "combine_rows",
            "halo_samples", "sample_sum", "slice_signals", "whole"]

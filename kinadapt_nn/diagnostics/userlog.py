@@ -303,12 +303,13 @@ class Calibration(NamedTuple):
 
 def _tip_consistent(declared: SetupCfg, point) -> tuple[bool, float]:
     """Is the estimated contact point the declared tip (within 3 sd or 2 mm, across the line the
-    data leave free)? -> (consistent, distance [m])."""
+    data leave free)? Each sensor axis against its own sd: a point pinned to 0.02 mm across the tool
+    is not excused by a wide sd along it. -> (consistent, distance [m])."""
     tip = np.asarray(declared.tool.tip_sensor_m, dtype=float)
     d = point.point_s_m - tip
     if point.undetermined_along_s is not None:  # only the part across the line the data leave free
         d = d - (d @ point.undetermined_along_s) * point.undetermined_along_s
-    z = float(np.linalg.norm(d) / max(np.linalg.norm(point.sd_m), 1e-9))
+    z = float(np.linalg.norm(d / np.maximum(np.asarray(point.sd_m, dtype=float), 1e-9)))
     return bool(z < 3.0 or np.linalg.norm(d) < 0.002), float(np.linalg.norm(d))
 
 
@@ -463,22 +464,28 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
     return Result(report, ranked.des, before, after, ranked.s, ranked.s.contact, ranked.result.heldout, lib, files)
 
 
-def _library_for(log, setup: SetupCfg, add: list[str] | None, effects_files) -> tuple[dict, list[str], list[str], dict]:
-    """The effect library, the judged effects and ``--add`` checked against them (one-line errors).
-    -> (library, judged names, --add names, {effect: forced column})."""
+def check_request(setup: SetupCfg, add: list[str] | None, effects_files=()) -> tuple[dict, list[str], list[str], dict]:
+    """The effect library, the judged effects and ``--add`` checked against them, before any log
+    is read (one-line errors). -> (library, judged names, --add names, {effect: forced column})."""
     lib = library(setup, effects_files)
     names = judged(lib, setup)
     add, forced = _parse_add(add or [], lib)
     for a in add:
         if a not in lib:
             hint = did_you_mean(a, lib)
-            raise KinadaptError(f"--add {a}: unknown effect for a user's log{'; ' + hint if hint else ''} (choose from "
+            raise KinadaptError(f"--add {a}: unknown effect{'; ' + hint if hint else ''} (choose from "
                                 f"{', '.join(lib)}; your own effects come with --effects FILE)")
         if a not in names:
             raise KinadaptError(f"--add {a}: this effect is left out for this set-up (see [analysis] and "
                                 f"[log] tared; judged: {', '.join(names)})")
     if not names:
         raise KinadaptError("no effect left to judge ([analysis] effects / exclude_effects leave none)")
+    return lib, names, add, forced
+
+
+def _library_for(log, setup: SetupCfg, add: list[str] | None, effects_files) -> tuple[dict, list[str], list[str], dict]:
+    """``check_request``, and the log holds the set-up's extra columns (one-line errors)."""
+    lib, names, add, forced = check_request(setup, add, effects_files)
     for name in setup.log.extra:
         if name not in (getattr(log, "extra", None) or {}):
             raise KinadaptError(f"[log] extra '{name}' was not read from the log (use a CSV, Parquet or ROS 2 bag log "
@@ -506,6 +513,9 @@ def _checks(cal: Calibration, declared: SetupCfg) -> Checks:
     why_not = mount.plausibility(fitm, setup)
     unit_msg = units.check(fitm, s, setup, cal.sigma).message
     sensor_mount["plausible"] = not why_not
+    heavy = mount.heavier_than_declared(fitm, setup)
+    if heavy:
+        sensor_mount["mass_note"] = heavy
     if why_not:
         sensor_mount["warning"] = "physically impossible calibration, not a finding: " + "; ".join(why_not)
     mount_msg = None
@@ -600,7 +610,7 @@ def _base_report(log, declared: SetupCfg, cal: Calibration, chk: Checks, rd: Ran
         "sign_check": chk.sign,
         "tip_contact_check": rd.fit_check,
         "warnings": [m for m in (chk.sign.get("message"), chk.unit_msg, chk.sensor_mount.get("warning"), chk.mount_msg,
-                                 rd.fit_check.get("message")) if m],
+                                 chk.sensor_mount.get("mass_note"), rd.fit_check.get("message")) if m],
         "blocked": chk.block,
         "ranking": entries + [_not_judged(n) for n in CONTACT_MODEL_EFFECTS if n not in rd.names],
         "not_judged": [{"effect": n, "reason": NOT_JUDGED} for n in CONTACT_MODEL_EFFECTS if n not in rd.names],

@@ -1,5 +1,7 @@
-"""The effect library, model side: each named physical effect as regressor columns linear in
-physical parameters (the simulator side is ``kinadapt_nn.sim.effects``).
+"""The online model's effects (``model.effects``, adapted by ``kinadapt_nn.features.effects``):
+each named physical effect as regressor columns linear in physical parameters, per control step
+(the simulator side is ``kinadapt_nn.sim.effects``; the diagnosis judges the same names with its
+own registry, ``kinadapt_nn.diagnostics.builtin``, on every log alike).
 
 Everything here is computed from what a real robot logs (encoders, the raw F/T reading, time)
 and the known model (nominal tool offset ``l_nom``, the nominal map ``S``, the bore pose, the
@@ -30,8 +32,6 @@ contact_stiffness          factor - 1 [-]                              int S_c v
 contact_friction_couple    radius [m]                                  M -= radius |f| w/(|w|+e)
 grasp_compliance           compliance [rad/(N m)]                      S_c [M_perp x R l; M_perp]
 encoder_offset             joint 1..6 zero offsets, 6 [rad]            d/dq_j of the model
-                                                                       (and of its calibrated
-                                                                       part: ranking)
 =========================  ==========================================  ========================
 
 A joint-7 zero offset is not in the library: it turns the reading about the flange axis exactly
@@ -128,11 +128,6 @@ def _contact_rate(sig: Signals, tip_twist_w: np.ndarray) -> np.ndarray:
     return out
 
 
-def _contact_rate_to_level(sig: Signals, tip_twist_w: np.ndarray) -> np.ndarray:
-    """``int gate S_c [v; omega]`` -> (N, 6) level channels."""
-    return cumulative(_contact_rate(sig, tip_twist_w), sig.dt_s)
-
-
 def _lever_w(sig: Signals) -> np.ndarray:
     """The nominal lever ``R_wf l_nom`` (N, 3), world."""
     return _rot(sig.R_wf, np.broadcast_to(sig.l_nom_f, (len(sig.t_s), 3)))
@@ -146,21 +141,6 @@ def to_level(sig: Signals, w_w: np.ndarray) -> np.ndarray:
     f_tool = -w_w[:, :3]
     out[:, 3:] -= sig.gate[:, None] * np.cross(_lever_w(sig), f_tool)
     return out
-
-
-class LevelParts(NamedTuple):
-    """The nominal model's two level series (N samples, LEVEL_CHANNELS)."""
-
-    measured: np.ndarray  #: (N, 6) the measured level Z (tared wrench, tip-contact moment form)
-    predicted_integral: np.ndarray  #: (N, 6) integral of the nominal tip-contact rate (gated)
-
-
-def nominal_parts(sig: Signals) -> LevelParts:
-    """The measured level ``Z`` (tared: absolute) and the integral of the nominal tip-contact
-    prediction (``_contact_rate``); ``ranking.build_design`` combines them (free space: the model
-    predicts a zero tared wrench; contact: the level at entry plus the integral).
-    -> ``LevelParts``."""
-    return LevelParts(to_level(sig, sig.w_env_w), _contact_rate_to_level(sig, sig.twist_tip_w))
 
 
 def _wrench_to_s(w_w: np.ndarray, S: np.ndarray) -> np.ndarray:
@@ -314,9 +294,7 @@ def _cols_encoder_offset(sig: Signals, eps: float = 1e-6, grid_s: float = 0.005,
     the measured level ``Z = to_level(R r)`` with the lever ``R l_nom`` and the tip-contact rate
     of the twist. A joint that sits at reading + offset leaves ``-dZ/dq_j`` in the level and
     ``+d(rate)/dq_j`` in the prediction's integral (the residual is measured minus predicted).
-    The calibrated part of the prediction also moves with ``q``; ``calibration_derivative``
-    gives that part (added by ``ranking.calibrated_design``). ``derivs``: ``encoder_derivatives``
-    when already computed."""
+    ``derivs``: ``encoder_derivatives`` when already computed."""
     n = len(sig.t_s)
     lev = np.zeros((n, 6, 6))
     integ = np.zeros((n, 6, 6))
@@ -327,44 +305,6 @@ def _cols_encoder_offset(sig: Signals, eps: float = 1e-6, grid_s: float = 0.005,
         dZ[:, 3:] -= sig.gate[:, None] * np.cross(_rot(dR_f, np.broadcast_to(sig.l_nom_f, (n, 3))), -sig.w_env_w[:, :3])
         lev[:, :, j] = -dZ
     return Terms(lev, integ)
-
-
-def shifted_signals(sig: Signals, dR: np.ndarray, dtwist: np.ndarray, h: float, j: int | None = None) -> Signals:
-    """``sig`` with the encoder-dependent quantities moved to first order by ``h`` along a joint
-    zero whose derivatives are ``dR`` (N, 3, 3) and ``dtwist`` (N, 6) (``encoder_derivatives``):
-    ``R_wf``, the tip twist, the tared wrench in world ``R (r - r0)`` (the tare is in the sensor
-    frame), the wrench rows of ``s`` and the tare orientation. The contact gate (an inequality on
-    the encoder depth) is kept: its derivative is zero almost everywhere."""
-    R = sig.R_wf + h * dR
-    w = np.concatenate([_rot(R, sig.r_tared_f[:, :3]), _rot(R, sig.r_tared_f[:, 3:])], axis=1)
-    s = sig.s.copy()
-    ws = _wrench_to_s(w, sig.S)
-    s[:, 1:3], s[:, 3:] = ws[:, :2], ws[:, 3:]
-    i_tare = int(np.clip(np.searchsorted(sig.t_s, sig.t_tare_s), 0, len(sig.t_s) - 1))
-    q = sig.q_rad.copy()
-    if j is not None:
-        q[:, j] += h
-    return sig._replace(R_wf=R, twist_tip_w=sig.twist_tip_w + h * dtwist, w_env_w=w, s=s,
-                        R_tare=sig.R_tare + h * dR[i_tare], q_rad=q)
-
-
-def calibration_derivative(sig: Signals, names, h: float = 1e-4,
-                           derivs: list[tuple[np.ndarray, np.ndarray]] | None = None):
-    """``d Terms_e / d q_j`` for the effects ``names`` (the encoder offset itself excluded: its
-    derivative is second order in the model), by central differences of the effects' terms on
-    ``shifted_signals`` (+-h; ``derivs``: ``encoder_derivatives``, computed when None). The
-    encoder-offset column of a calibrated model is ``C_enc_j + sum_e (dC_e/dq_j) p_e^calib``
-    (``ranking.calibrated_design``: a joint zero moves the whole prediction, its calibrated part
-    included). -> generator over joints j = 0..5 of ``{effect: Terms(level, rate)}`` ((N, 6, k)
-    or None each)."""
-    names = [n for n in names if n != "encoder_offset"]
-    for j, (dR, dtw) in enumerate(derivs if derivs is not None else encoder_derivatives(sig)):
-        plus, minus = shifted_signals(sig, dR, dtw, h, j), shifted_signals(sig, dR, dtw, -h, j)
-        out = {}
-        for n in names:
-            a, b = LIBRARY[n].terms(plus), LIBRARY[n].terms(minus)
-            out[n] = Terms(*(None if x is None else (x - y) / (2.0 * h) for x, y in zip(a, b)))
-        yield out
 
 
 # ---------------------------------------------------------------------------------------- library
@@ -382,8 +322,7 @@ class Effect:
     default: Callable[[EffectsCfg], np.ndarray]  #: the config's magnitude as model parameters (k,)
     excite_hint: str
     doc: str
-    #: True: the effect is "one of" its columns (e.g. one joint's offset): the ranking fits each
-    #: column alone, keeps the best held-out one and pays for the choice (Bonferroni x k)
+    #: True: the effect is "one of" its columns (e.g. one joint's offset): one column at a time
     one_of: bool = False
 
     @property
@@ -450,28 +389,3 @@ LIBRARY: dict[str, Effect] = {
                "a joint encoder zero offset (one of joints 1-6)", one_of=True),
     )
 }
-
-
-def physical_report(name: str, p: np.ndarray, sd: np.ndarray) -> dict:
-    """The estimate in physical quantities with units and 1-sigma uncertainty."""
-    def q(v, s, unit):
-        return {"value": float(v), "sd": float(s), "unit": unit}
-
-    if name == "tool_gravity":
-        m, sm = p[0], sd[0]
-        mc, smc = p[1:], sd[1:]
-        com = mc / m if abs(m) > 1e-9 else np.full(3, np.nan)
-        scom = np.abs(com) * np.sqrt((smc / np.maximum(np.abs(mc), 1e-12)) ** 2 + (sm / max(abs(m), 1e-12)) ** 2)
-        return {"mass": q(m, sm, "kg"), **{f"com_{a}_f": q(1e3 * c, 1e3 * s, "mm") for a, c, s in zip("xyz", com, scom)}}
-    if name in ("ft_frame_rotation", "tool_tilt", "encoder_offset"):
-        lib = LIBRARY[name]
-        return {pn: q(np.rad2deg(v), np.rad2deg(s), "deg") for pn, v, s in zip(lib.params, p, sd)}
-    if name == "contact_stiffness":
-        return {"stiffness_factor": q(1.0 + p[0], sd[0], "-")}
-    if name == "contact_friction_couple":
-        return {"radius": q(1e3 * p[0], 1e3 * sd[0], "mm")}
-    if name == "grasp_compliance":
-        return {"compliance": q(p[0], sd[0], "rad/(N m)"),
-                "stiffness": q(1.0 / p[0] if p[0] > 0 else np.inf, sd[0] / max(p[0], 1e-12) ** 2, "N m/rad")}
-    lib = LIBRARY[name]
-    return {pn: q(v, s, u) for pn, v, s, u in zip(lib.params, p, sd, lib.units)}

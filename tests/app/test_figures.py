@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from kinadapt_nn.config import load_config
-from kinadapt_nn.diagnostics import library as lib
-from kinadapt_nn.diagnostics import report
-from kinadapt_nn.diagnostics.residual import PHASES, Replay
+from kinadapt_nn.diagnostics import userfigures as uf
+from kinadapt_nn.diagnostics.setup import load_setup
+from kinadapt_nn.diagnostics.userlog import CHANNELS
 from kinadapt_nn.figures import (
     ROLLOUT_SIZE_IN,
     SAVE_DPI,
@@ -154,47 +154,54 @@ def test_contact_at_200_switches_per_s_is_a_fraction_not_a_barcode(insert_run):
     plt.close(fig)
 
 
-def _synthetic_replay(n: int = 4000, spike_at: int = 2500) -> Replay:
+def _synthetic_result(n: int = 4000, spike_at: int = 2500, add: bool = False) -> SimpleNamespace:
+    """A diagnosis ``Result`` in miniature: a reading with one 100x spike on F_y, the declared model
+    0.9 of it, contact in the middle third; rows of the nine channels (free six, tip three)."""
     rng = np.random.default_rng(0)
     t = np.arange(n) * 1e-3
     meas = np.column_stack([np.sin(2 * np.pi * f * t) * a for f, a in
                             ((0.5, 1e-3), (1, 5), (2, 3), (1.5, 0.2), (3, 0.3), (0.7, 0.1))])
     meas += 0.05 * rng.normal(size=meas.shape) * np.abs(meas).max(axis=0)
-    pred = 0.9 * meas
-    resid = meas - pred
-    resid[spike_at, 1] = 100 * np.abs(resid[:, 1]).max()  # one sample, 100x the bulk
-    phase = np.zeros(n, int)
-    phase[n // 3: 2 * n // 3] = PHASES.index("entry")
-    return Replay(t_s=t, s=np.column_stack([np.linspace(-0.01, 0.02, n), meas[:, 1:]]), w_env=meas,
-                  s_dot_meas=meas, s_dot_pred=pred, residual=resid, contact=phase > 0, phase=phase,
-                  qdot_norm=np.abs(np.sin(t)), active=np.ones(n, bool))
+    meas[spike_at, 1] = 100 * np.abs(meas[:, 1]).max()  # one sample, 100x the bulk
+    contact = np.zeros(n, bool)
+    contact[n // 3: 2 * n // 3] = True
+    rows = np.arange(0, n, 10)
+    ch = np.concatenate([np.tile(np.arange(6), len(rows)), np.tile(np.arange(6, 9), len(rows))])
+    tr = np.concatenate([np.repeat(t[rows], 6), np.repeat(t[rows], 3)])
+    y = np.sin(7 * tr) + 0.1 * ch
+    y[12] = 1e3  # a spike (row 12: channel F_x)
+    des = SimpleNamespace(y=y, t_s=tr, channel=ch, W=np.ones(len(y)), channel_names=CHANNELS)
+    rows_ = [{"effect": e, "verdict": v, "explained_fraction": f, "judged": True}
+             for e, v, f in (("tool_gravity", "present", 0.9), ("ft_bias_drift", "absent", 3e-4),
+                             ("grasp_compliance", "absent", -0.3))]
+    report = {"ranking": rows_, "model_complete": True, **({"added": {"tool_gravity": {}}} if add else {})}
+    return SimpleNamespace(signals=SimpleNamespace(t=t, wrench=meas, w_nom=0.9 * meas), contact=contact, design=des,
+                           before=y if add else None, after=0.1 * y if add else None, heldout=0.5 * y, report=report)
 
 
-def test_residual_figure_clips_a_spike_keeps_the_bulk_and_has_no_empty_panel(tmp_path):
+def test_model_vs_measurement_clips_a_spike_keeps_the_bulk_and_has_no_empty_panel(tmp_path):
     import matplotlib.pyplot as plt
 
-    rep = _synthetic_replay()
-    fig = report._residual_fig(rep)
+    res = _synthetic_result()
+    setup = load_setup(None)
+    fig = uf._mvm_fig(res, setup)
     _check_panels(fig)
-    assert len(_visible(fig)) == 12
-    a = next(a for a in fig.axes if a.get_ylabel().startswith("d/dt F_lat_x"))
+    assert len(_visible(fig)) == 9
+    a = next(a for a in fig.axes if a.get_ylabel() == "F_y [N]")
     lo, hi = a.get_ylim()
-    r = rep.residual[:, 1]
+    r = res.signals.wrench[:, 1]
     assert hi < r.max(), "the 100x spike sets the axis"
     for q in (1, 99):
         p = np.percentile(r, q)
-        assert lo <= p <= hi, f"the {q}th percentile of the residual is off the axis"
+        assert lo <= p <= hi, f"the {q}th percentile of the reading is off the axis"
     assert _clipped_marks(a), "the clipped spike is not marked"
     # a panel without spikes is not clipped: its full range is on the axis, nothing marked
-    b = next(a for a in fig.axes if a.get_ylabel().startswith("d/dt F_lat_y"))
+    b = next(a for a in fig.axes if a.get_ylabel() == "F_z [N]")
     assert not _clipped_marks(b)
     lo, hi = b.get_ylim()
-    assert lo <= min(rep.s_dot_meas[:, 2].min(), rep.residual[:, 2].min())
-    assert hi >= rep.s_dot_meas[:, 2].max()
-    # the phase colour key: every phase present is in the last panel's legend
-    assert {"free_space", "entry"} <= set(_legend_texts(fig.axes[-1]))
+    assert lo <= res.signals.wrench[:, 2].min() and hi >= res.signals.wrench[:, 2].max()
     plt.close(fig)
-    report.residual_figure(rep, tmp_path / "residual.png")  # the public entry point still writes the file
+    uf.model_vs_measurement(res, setup, tmp_path / "residual.png")  # the public entry point writes the file
     assert (tmp_path / "residual.png").stat().st_size > 20_000
 
 
@@ -215,25 +222,12 @@ def test_robust_limits_cut_spikes_only():
 def test_effects_figure_bars_readable_and_before_after_panels_filled():
     import matplotlib.pyplot as plt
 
-    from kinadapt_nn.features.effect_library import LEVEL_CHANNELS
-
-    rows = [{"effect": n, "verdict": v, "significant": s, "explained_fraction": f, "explained_fraction_alone": f}
-            for n, v, s, f in (("tool_gravity", "present", True, 0.9), ("ft_bias_drift", "absent", False, -3e-4),
-                               ("grasp_compliance", "absent", False, -0.3))]
-    n = 600
-    t = np.repeat(np.arange(n // 6) * 5e-3, 6)
-    t[t > 0.2] += 1.0  # a gap in the rows
-    ch = np.tile(np.arange(6), n // 6)
-    y = np.sin(7 * t) + 0.1 * ch
-    y[12] = 1e3  # a spike (row 12: channel F_lat_x)
-    des = SimpleNamespace(t_s=t, channel=ch, W=np.ones(n))
-    fig = lib._effects_fig({"ranking": rows, "added": {"tool_gravity": {}}, "_series": (des, y, 0.1 * y)})
+    fig = uf._effects_fig(_synthetic_result(add=True))
     _check_panels(fig)
     assert len(_visible(fig)) == 3
     bars = fig.axes[0]
-    assert bars.get_xlim()[0] < -0.3  # a bar below -0.1 is not cut off
-    assert {"+0.900", "+0.000", "-0.300"} <= {x.get_text() for x in bars.texts}  # near-zero bars get their value
+    assert {"+0.900", "+0.000"} <= {x.get_text() for x in bars.texts}  # near-zero bars get their value
     force = fig.axes[1]
     assert force.get_ylim()[1] < 100 and _clipped_marks(force)
-    assert {"faint: before", *LEVEL_CHANNELS[:3]} <= set(_legend_texts(force))
+    assert {"faint: before", *CHANNELS[:3]} <= set(_legend_texts(force))
     plt.close(fig)

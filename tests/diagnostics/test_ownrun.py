@@ -71,6 +71,46 @@ def test_socket_wrench_is_the_two_springs_from_the_anchor():
     assert not contact_model.nominal_wrench(SetupCfg(), R, p_ws).any()
 
 
+def test_socket_tip_derivative_is_the_finite_difference_of_its_wrench():
+    """``contact_model.tip_derivative`` against central differences of ``nominal_wrench`` with the
+    declared tip moved (1 micrometre: the engagement does not change), on every engaged sample."""
+    R, p_ws, _, _ = _path()
+    setup = _socket_setup()
+    gate = contact_model.socket_terms(setup.contact, R, p_ws, TIP).gate
+    for dtip in (np.array([0.0, -0.1, 0.0]), np.array([0.0, 0.0, 0.1]), np.array([0.02, 0.03, 0.01])):
+        h = 1e-5
+        w = [contact_model.nominal_wrench(_socket_setup(TIP + sgn * h * dtip), R, p_ws) for sgn in (1.0, -1.0)]
+        fd = (w[0] - w[1]) / (2 * h)
+        an = contact_model.tip_derivative(setup, R, p_ws, dtip)
+        assert np.abs(fd[gate]).max() > 1.0  # the spring's lever and displacement both move
+        np.testing.assert_allclose(an[gate], fd[gate], rtol=0, atol=1e-6 * np.abs(fd).max())
+        assert not an[~gate].any()
+
+
+def test_chunks_never_cut_a_socket_engagement():
+    """The socket's springs are anchored where the tip entered (not sample-local): the streamed
+    passes move a chunk boundary to a sample with no engagement within the halo, so every engaged
+    run is inside one chunk and its wrench is the whole log's."""
+    from kinadapt_nn.diagnostics import stream
+
+    R, p_ws, _, _ = _path()
+    setup = _socket_setup()
+    s = SimpleNamespace(setup=setup, R_ws=R, p_ws=p_ws, n=len(R))
+    gate = contact_model.socket_terms(setup.contact, R, p_ws, TIP).gate
+    halo = 3
+    cuts = stream.bounds(s, 50, halo)
+    assert cuts[0][0] == 0 and cuts[-1][1] == len(R) and all(b == c for (_, b), (c, _) in zip(cuts, cuts[1:]))
+    assert len(cuts) > 1
+    for a, _ in cuts[1:]:
+        assert not gate[max(0, a - halo):a + halo + 1].any(), a
+    whole = contact_model.nominal_wrench(setup, R, p_ws)
+    for a, b in cuts:
+        lo = max(0, a - halo)
+        part = contact_model.nominal_wrench(setup, R[lo:b], p_ws[lo:b])[a - lo:]
+        np.testing.assert_allclose(part, whole[a:b], atol=1e-12)
+    assert stream.bounds(SimpleNamespace(setup=SetupCfg(), n=len(R)), 50, halo) == stream.chunks(len(R), 50)
+
+
 def _signals(setup, R, p_ws, wrench, w_nom, omega_s):
     return SimpleNamespace(setup=setup, R_ws=R, p_ws=p_ws, wrench=wrench, w_nom=w_nom, omega_s=omega_s, n=len(R),
                            t=np.arange(len(R)) * 0.001)
@@ -153,9 +193,10 @@ def short_run(tmp_path_factory):
 
 @pytest.mark.slow
 def test_diagnose_a_package_run_as_a_log_with_add_effects_and_figures(short_run, tmp_path, capsys):
-    """``kinadapt diagnose RUN --as-log``: the run's trace and generated set-up through the user-log
-    stages; a user's effect file (--effects) and --add work on it; the contact-model effects are
-    judged (the set-up declares the bore as a socket), the report says which set-up it used."""
+    """``kinadapt diagnose RUN`` (``--as-log``: an accepted alias): the run's trace and generated set-up
+    through the one pipeline; a user's effect file (--effects) and --add work on it; the contact-model
+    effects are judged (the set-up declares the bore as a socket), the report says which set-up it used;
+    the own-run pipeline's options are gone (one line, nothing written)."""
     import json
 
     from kinadapt_nn.app.cli import main
@@ -173,6 +214,6 @@ def test_diagnose_a_package_run_as_a_log_with_add_effects_and_figures(short_run,
     assert 'geometry = "socket"' in (out / "setup.toml").read_text()
     assert (out / "effects.png").stat().st_size > 10_000 and (out / "residual.png").stat().st_size > 10_000
     capsys.readouterr()
-    assert main(["diagnose", str(short_run), "--as-log", "--theta", "0,0,0.1", "--out", str(tmp_path / "x")]) == 2
+    assert main(["diagnose", str(short_run), "--theta", "0,0,0.1", "--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--theta" in err[0] and not (tmp_path / "x").exists()

@@ -6,7 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinadapt_nn.diagnostics import library, selection, userlog
+from types import SimpleNamespace
+
+from kinadapt_nn.diagnostics import selection, userlog
 from kinadapt_nn.diagnostics.setup import load_setup
 from kinadapt_nn.errors import ConfigError, KinadaptError
 
@@ -23,15 +25,16 @@ def test_a_misspelt_setup_key_names_the_closest_key(override, fragment):
 
 
 def test_a_misspelt_effect_name_names_the_closest_effect():
+    log = SimpleNamespace(extra={})
     with pytest.raises(KinadaptError, match=r"--add tool_gravty: unknown effect; did you mean 'tool_gravity'\?"):
-        library.check_effect_names(["tool_gravty"])
+        userlog._library_for(log, load_setup(None), ["tool_gravty"], ())
     setup = load_setup(None, ["analysis.exclude_effects=['encoder_ofset']"])
     with pytest.raises(KinadaptError, match=r"unknown effect 'encoder_ofset'; did you mean 'encoder_offset'\?"):
         userlog.judged(userlog.library(setup), setup)
     with pytest.raises(KinadaptError, match=r"did you mean 'offset_joint4'\?"):
         userlog._parse_add(["encoder_offset:offset_jiont4"], userlog.library(load_setup(None)))
     with pytest.raises(KinadaptError) as exc:  # nothing close: no guess
-        library.check_effect_names(["xyz"])
+        userlog._library_for(log, load_setup(None), ["xyz"], ())
     assert "did you mean" not in str(exc.value)
 
 
@@ -52,17 +55,6 @@ def test_a_tie_inside_a_one_of_effect_names_the_two_parameters():
     assert selection.tie_words("a", ["p"], ["b"]) == "indistinguishable from b"  # another effect: as before
 
 
-def test_the_summary_sentence_never_calls_an_effect_indistinguishable_from_itself():
-    r = {"effect": "encoder_offset", "verdict": "cannot_decide", "significant": False, "selected": True,
-         "reason": "a near-tie: another explanation fits the data as well", "columns_used": ["offset_joint3"],
-         "indistinguishable_from": ["encoder_offset:offset_joint4"], "explained_fraction": 0.4,
-         "excitation": {"enough": True}}
-    txt = library.summary_sentence({"ranking": [r]})
-    assert "Cannot decide: encoder_offset (a near-tie: another explanation fits the data as well; offset_joint3 " \
-           "indistinguishable from offset_joint4)" in txt
-    assert "encoder_offset:" not in txt
-
-
 def test_the_user_log_summary_names_the_two_joints():
     e = {"effect": "encoder_offset", "verdict": "cannot_decide", "judged": True,
          "reason": "a near-tie: another explanation fits the data as well",
@@ -71,3 +63,4 @@ def test_the_user_log_summary_names_the_two_joints():
     txt = userlog.summary_text({"sign_check": {"ok": True}, "tip_contact_check": {"ok": True}, "ranking": [e]})
     assert "Cannot decide: encoder_offset (a near-tie: another explanation fits the data as well; offset_joint3 " \
            "indistinguishable from offset_joint4, tool_tilt)." in txt
+    assert "encoder_offset:" not in txt  # never an effect indistinguishable from itself

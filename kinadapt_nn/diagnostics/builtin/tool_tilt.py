@@ -1,8 +1,9 @@
 """The tool sits rotated in the grasp about the sensor's x and y axes (first order).
 
 The COM moves by ``delta x c`` (gravity and inertia, through ``tool_gravity``'s first-moment
-columns), the tip by ``delta x p`` (the contact force's moment about the sensor changes by
-``(delta x p) x F_c``). Judged only where contacts act through the tip (``[contact] mode = "tip"``):
+columns), the tip by ``delta x p``: the contact force's moment about the sensor changes by
+``(delta x p) x F_c``, and a declared socket's spring sees the moved tip (its displacement and
+lever: ``contact_model.tip_derivative``). Judged only where contacts act through the tip (``[contact] mode = "tip"``):
 without it a tilt is only a COM shift, which ``tool_gravity`` already holds.
 """
 
@@ -10,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from kinadapt_nn.diagnostics import contact_model
 from kinadapt_nn.diagnostics.builtin.ft_frame_rotation import plausible_small_angle, report_deg
 from kinadapt_nn.diagnostics.builtin.tool_gravity import first_moment_columns
 from kinadapt_nn.diagnostics.contract import effect
@@ -31,4 +33,5 @@ def tool_tilt(s):
         e[j] = 1.0
         C[:, :, j] = grav @ np.cross(e, mc)
         C[:, 3:, j] += np.cross(np.cross(e, tip), s.contact_force_s)
+        C[:, :, j] += contact_model.tip_derivative(s.setup, s.R_ws, s.p_ws, np.cross(e, tip))
     return C
