@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -99,13 +100,15 @@ def test_streamed_statistics_equal_the_columns():
     C = rng.normal(size=(n, 6, 3)).cumsum(axis=0)
 
     @dataclasses.dataclass(frozen=True)
-    class Sig:  # the few fields ``slice_signals`` and ``halo_samples`` read
+    class Sig:  # the few fields ``slice_signals``, ``halo_samples`` and ``bounds`` read
         t: np.ndarray
         c: np.ndarray
         q: np.ndarray
         extra: dict
         static: bool = False
         whole: dict | None = None
+        setup: object = dataclasses.field(  # no declared socket: plain chunks
+            default_factory=lambda: SimpleNamespace(contact=SimpleNamespace(geometry="none")))
 
         @property
         def n(self):
