@@ -99,4 +99,23 @@ def nominal_wrench(setup, R_ws: np.ndarray, p_ws: np.ndarray) -> np.ndarray:
     return on_tool_to_sensor(R_ws, tip, -c.stiffness_lat_N_per_m * st.disp_lat_w, -c.stiffness_rot_Nm_per_rad * st.rotvec_w)
 
 
-__all__ = ["SocketTerms", "socket_terms", "on_tool_to_sensor", "nominal_wrench", "RELEASE_M"]
+
+def nominal_wrench_dq(setup, R_ws: np.ndarray, p_ws: np.ndarray, J_v: np.ndarray, J_w: np.ndarray,
+                      eps: float = 1e-6) -> np.ndarray:
+    """(n, 6, dof) ``d nominal_wrench / d q_j``: joint j turns the sensor by ``J_w[:, :, j]`` and
+    moves its origin by ``J_v[:, :, j]`` (world, per unit ``q_j``); central differences of the
+    socket's wrench along that motion (the anchors are where the gate opens: not differentiable in
+    closed form)."""
+    n, _, dof = J_v.shape
+    C = np.zeros((n, 6, dof))
+    if setup.contact.geometry == "none":
+        return C
+    for j in range(dof):
+        w = []
+        for sgn in (1.0, -1.0):
+            Rj = Rotation.from_rotvec(sgn * eps * J_w[:, :, j]).as_matrix() @ R_ws
+            w.append(nominal_wrench(setup, Rj, p_ws + sgn * eps * J_v[:, :, j]))
+        C[:, :, j] = (w[0] - w[1]) / (2.0 * eps)
+    return C
+
+__all__ = ["SocketTerms", "socket_terms", "on_tool_to_sensor", "nominal_wrench", "nominal_wrench_dq", "RELEASE_M"]

@@ -364,10 +364,10 @@ def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: i
     rpy_sd = np.maximum(np.sqrt(np.maximum(np.diag(G @ cov_loc @ G.T), 0.0)), rpy_sd_jk)
     ang_sd = max(float(np.rad2deg(np.sqrt(max(ga_ @ cov_loc @ ga_, 0.0)))), ang_sd_jk)
     # the fitted residual on every free sample (not only the subset)
-    dall = d._replace(ga=s.g_s[free] - s.a_s[free], omega=s.omega_s[free], alpha=s.alpha_s[free], r=s.wrench[free],
-                      block=block[free])
-    res = dall.r - _model(x, dall)
-    rep = report((x, sd), (rpy, rpy_sd), (float(np.rad2deg(th)), ang_sd), res, dall, s, rot_explains)
+    fidx = np.flatnonzero(free)
+    r_free = s.wrench[fidx]
+    res = r_free - predict(x, s, fidx)
+    rep = report((x, sd), (rpy, rpy_sd), (float(np.rad2deg(th)), ang_sd), res, d._replace(r=r_free), s, rot_explains)
     corr = cov / np.sqrt(np.maximum(np.outer(np.diag(cov), np.diag(cov)), 1e-300))
     return MountFit(x, sd, rpy, rpy_sd, float(np.rad2deg(th)), ang_sd, res, rep, corr * np.outer(sd, sd))
 
@@ -377,13 +377,21 @@ def _resid_at(D: np.ndarray, theta: np.ndarray, d: MountData) -> np.ndarray:
     return ((d.r - c - np.einsum("nik,k->ni", A, theta)) * d.w).reshape(-1)
 
 
-def predict(x: np.ndarray, s) -> np.ndarray:
-    """The calibrated model's wrench (n, 6) [N, N m] on every sample of ``LogSignals`` s."""
+def predict(x: np.ndarray, s, idx: np.ndarray | None = None, chunk: int = 50_000) -> np.ndarray:
+    """The calibrated model's wrench (n, 6) [N, N m] on every sample of ``LogSignals`` s, or on the
+    samples ``idx`` (m,) only (-> (m, 6)); in chunks of ``chunk`` samples (the linear part is
+    (chunk, 6, 10))."""
     from kinadapt_nn.diagnostics.physical import nominal_inertials
 
     _, _, I_O = nominal_inertials(s.setup)
-    d = MountData(s.g_s - s.a_s, s.omega_s, s.alpha_s, s.wrench, np.ones(6), I_O, np.zeros(s.n, int))
-    return _model(x, d)
+    idx = np.arange(s.n) if idx is None else np.asarray(idx)
+    out = np.empty((len(idx), 6))
+    for a in range(0, len(idx), chunk):
+        i = idx[a:a + chunk]
+        d = MountData(s.g_s[i] - s.a_s[i], s.omega_s[i], s.alpha_s[i], s.wrench[i], np.ones(6), I_O,
+                      np.zeros(len(i), int))
+        out[a:a + chunk] = _model(x, d)
+    return out
 
 
 def refine_rotation(d: MountData, starts: list[np.ndarray], iters: int = 8) -> np.ndarray:

@@ -71,6 +71,18 @@ class LogSignals:
         kin = self.arm.series(q, self.qdot, self.clock)
         return ph.tool_wrench(kin, m, mc, I_O) + contact_model.nominal_wrench(self.setup, kin.R_ws, kin.p_ws)
 
+    def nominal_wrench_dq(self) -> np.ndarray:
+        """(n, 6, dof) ``d w_nom / d q_j``: the declared model's wrench per unit change of each joint's
+        reading (same velocities and times), analytic from the sensor's Jacobians
+        (``ArmModel.sensor_jacobian``; ``physical.wrench_dq``)."""
+        J_v, J_w = self.arm.sensor_jacobian(self.q)
+        kin = ph.KinSeries(self.R_ws, self.g_s, self.a_s, self.omega_s, self.alpha_s, self.p_ws)
+        m, mc, I_O = ph.nominal_inertials(self.setup)
+        C = ph.wrench_dq(kin, J_v, J_w, self.qdot, self.clock, (m, mc, I_O))
+        if self.setup.contact.geometry != "none":  # a declared socket: its wrench moved with the sensor
+            C += contact_model.nominal_wrench_dq(self.setup, self.R_ws, self.p_ws, J_v, J_w)
+        return C
+
     def with_contact(self, contact: np.ndarray, offset: np.ndarray) -> "LogSignals":
         """The same log with another contact mask; ``offset`` (6,) is the free-space offset taken
         out of the contact force."""

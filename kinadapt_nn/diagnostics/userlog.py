@@ -267,10 +267,11 @@ def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray, rc: Row
     free = ~contact & ~excl if (~contact & ~excl).sum() > 20 else ~excl
     fitm = mount.fit(s, free, blocks, sigma)
     # the contact wrench: beyond the calibrated tool and a declared contact geometry's own wrench
-    w_c = s.wrench - (s.w_nom - ph_tool_wrench(s))
-    point = contact_point.estimate(w_c - mount.predict(fitm.x, s), contact & ~excl)
-    point = contact_point.with_calibration(point, w_c, lambda dx: mount.predict(mount.shifted(fitm.x, dx), s),
-                                           contact & ~excl, fitm.cov)
+    ci = np.flatnonzero(contact & ~excl)  # the contact samples: only they are needed here
+    w_c = s.wrench[ci] - (s.w_nom[ci] - ph_tool_wrench(s, ci))
+    point = contact_point.estimate(w_c - mount.predict(fitm.x, s, ci), np.ones(len(ci), bool))
+    point = contact_point.with_calibration(point, w_c, lambda dx: mount.predict(mount.shifted(fitm.x, dx), s, ci),
+                                           np.ones(len(ci), bool), fitm.cov)
     if not setup.sensor.mount_known:
         setup = setup.model_copy(update={"sensor": setup.sensor.model_copy(
             update={"rpy_flange_deg": tuple(float(v) for v in fitm.rpy_deg)})})
@@ -280,12 +281,14 @@ def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray, rc: Row
     return Calibration(fitm, s.with_contact(contact, off), setup, sigma, how, seg, point)
 
 
-def ph_tool_wrench(s: sg.LogSignals) -> np.ndarray:
-    """(n, 6) the declared tool's own wrench (``s.w_nom`` without a declared contact geometry's)."""
+def ph_tool_wrench(s: sg.LogSignals, idx: np.ndarray | None = None) -> np.ndarray:
+    """(n, 6) the declared tool's own wrench (``s.w_nom`` without a declared contact geometry's);
+    on the samples ``idx`` (m,) only when given (-> (m, 6))."""
     from kinadapt_nn.diagnostics import physical as ph
 
+    i = slice(None) if idx is None else idx
     m, mc, I_O = ph.nominal_inertials(s.setup)
-    kin = ph.KinSeries(s.R_ws, s.g_s, s.a_s, s.omega_s, s.alpha_s, s.p_ws)
+    kin = ph.KinSeries(s.R_ws[i], s.g_s[i], s.a_s[i], s.omega_s[i], s.alpha_s[i], s.p_ws[i])
     return ph.tool_wrench(kin, m, mc, I_O)
 
 
