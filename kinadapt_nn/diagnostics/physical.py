@@ -106,11 +106,11 @@ class ArmModel:
             Jr[i] = jacr[:, cols]
         return R_wf, x_w, Jp, Jr
 
-    def series(self, q: np.ndarray, qdot: np.ndarray, t_s: np.ndarray) -> KinSeries:
+    def series(self, q: np.ndarray, qdot: np.ndarray, t_s: np.ndarray, dt_s: float | None = None) -> KinSeries:
         """Sensor kinematics for (N, dof) joint positions/velocities at times (N,) -> ``KinSeries``.
 
         Velocities from the site Jacobian, accelerations by a Savitzky-Golay derivative of the
-        world-frame sensor twist (window ``ACC_WINDOW_S``)."""
+        world-frame sensor twist (window ``ACC_WINDOW_S``; ``dt_s`` as ``derivative``'s)."""
         self.check_joints(q)
         self.check_joints(qdot, "the joint velocity")
         n = len(q)
@@ -120,8 +120,8 @@ class ArmModel:
         p_ws = x_w + lever_w
         w_w = np.einsum("nij,nj->ni", Jr, qdot)
         v_w = np.einsum("nij,nj->ni", Jp, qdot) + np.cross(w_w, lever_w)
-        dv = derivative(v_w, t_s)
-        dw = derivative(w_w, t_s)
+        dv = derivative(v_w, t_s, dt_s=dt_s)
+        dw = derivative(w_w, t_s, dt_s=dt_s)
         rot = lambda x: np.einsum("nji,nj->ni", R_ws, x)  # noqa: E731  (world -> s)
         return KinSeries(R_ws, rot(np.broadcast_to(self.g_w, (n, 3))), rot(dv), rot(w_w), rot(dw), p_ws)
 
@@ -143,13 +143,15 @@ def _as_slice(idx: np.ndarray) -> slice | np.ndarray:
     return idx
 
 
-def derivative(x: np.ndarray, t_s: np.ndarray, window_s: float = ACC_WINDOW_S) -> np.ndarray:
+def derivative(x: np.ndarray, t_s: np.ndarray, window_s: float = ACC_WINDOW_S, dt_s: float | None = None
+               ) -> np.ndarray:
     """Smoothed time derivative of (N, k) samples: Savitzky-Golay (cubic) over ``window_s`` on
-    the median step (the readers refuse gaps), ``np.gradient`` for very short logs."""
+    the median step (the readers refuse gaps; ``dt_s``: that step, when ``x`` is a chunk of a
+    longer log), ``np.gradient`` for very short logs."""
     from scipy.signal import savgol_filter
 
     n = len(x)
-    dt = float(np.median(np.diff(t_s))) if n > 1 else 1.0
+    dt = float(dt_s) if dt_s is not None else float(np.median(np.diff(t_s))) if n > 1 else 1.0
     k = int(round(window_s / dt)) | 1
     if n < max(k, 7):
         return np.gradient(x, t_s, axis=0) if n > 1 else np.zeros_like(x)

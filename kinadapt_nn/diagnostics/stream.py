@@ -24,7 +24,6 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from kinadapt_nn.features.effect_library import moving_average
 
 #: samples per chunk (memory per chunk ~ chunk * 6 * columns * 8 B, plus the effects' own work)
 CHUNK_SAMPLES = 20_000
@@ -44,7 +43,7 @@ class RowMap(NamedTuple):
     tip_map: np.ndarray  #: (3, 6)
 
     def apply(self, x: np.ndarray) -> np.ndarray:
-        return self.rows_of(moving_average(x, self.k_smooth)[self.rows], self.contact)
+        return self.rows_of(mean_at(x, self.k_smooth, self.rows), self.contact)
 
     def rows_of(self, xs: np.ndarray, con: np.ndarray) -> np.ndarray:
         """Filtered sample columns at row times (r, 6, k) -> (free rows * 6 + contact rows * 3, k)."""
@@ -81,6 +80,31 @@ class BlockStats(NamedTuple):
     sources: list  #: the ``Source`` of each column group, in column order
 
 
+def mean_at(x: np.ndarray, k: int, idx: np.ndarray, chunk: int | None = None) -> np.ndarray:
+    """``moving_average(x, k)[idx]`` (the centred moving average of (n, ...) samples at the sorted
+    samples ``idx``), its running sums taken over one chunk of ``idx`` at a time (only the samples
+    those windows cover): memory O(chunk), equal to rounding (the order of the sums)."""
+    x = np.asarray(x)
+    n = len(x)
+    if k <= 1 or n < 2:
+        return np.asarray(x[idx], dtype=float)
+    idx = np.asarray(idx)
+    out = np.empty((len(idx), *x.shape[1:]))
+    step = int(chunk or CHUNK_SAMPLES)
+    for a in range(0, len(idx), step):
+        i = idx[a:a + step]
+        lo, hi = np.clip(i - k // 2, 0, n), np.clip(i + (k - k // 2), 0, n)
+        w0, w1 = int(lo[0]), int(hi[-1])
+        c = np.cumsum(np.concatenate([np.zeros((1, *x.shape[1:])), x[w0:w1]]), axis=0)
+        out[a:a + step] = (c[hi - w0] - c[lo - w0]) / (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
+    return out
+
+
+def smooth(x: np.ndarray, k: int, chunk: int | None = None) -> np.ndarray:
+    """``moving_average(x, k)`` of (n, ...) samples in chunks (``mean_at`` at every sample)."""
+    return mean_at(x, k, np.arange(len(x)), chunk)
+
+
 def halo_samples(s, k_smooth: int) -> int:
     """Samples on each side of a chunk that its rows' columns depend on (module docstring)."""
     from kinadapt_nn.diagnostics.physical import ACC_WINDOW_S
@@ -105,7 +129,7 @@ def slice_signals(s, a: int, b: int, w: dict | None = None):
         if f.name == "extra":
             out[f.name] = {k: x[a:b] for k, x in v.items()}
         elif f.name != "tip_map" and isinstance(v, np.ndarray) and v.ndim >= 1 and len(v) == s.n:
-            out[f.name] = v[a:b]
+            out[f.name] = v[a:b].astype(float) if v.dtype == np.float32 else v[a:b]  # compact storage: double here
     return dataclasses.replace(s, **out, whole=w if w is not None else getattr(s, "whole", None))
 
 
@@ -123,7 +147,7 @@ def _chunk_rows(s, rm: RowMap, sources: list[Source], a: int, b: int, halo: int,
     C = np.concatenate([np.asarray(src.columns(sub), dtype=float)[:, :, src.cols] for src in sources], axis=2)
     i0, i1 = np.searchsorted(rm.rows, [a, b])
     rows = rm.rows[i0:i1]
-    xs = moving_average(C, rm.k_smooth)[rows - lo]
+    xs = mean_at(C, rm.k_smooth, rows - lo)
     con = rm.contact[i0:i1]
     vals = rm.rows_of(xs, con)
     start = rm.positions()[i0:i1]
@@ -177,6 +201,17 @@ def combine_rows(s, rm: RowMap, sources: list[Source], P: np.ndarray, block: np.
     return out
 
 
+def row_values(s, rm: RowMap, source: Source, chunk: int | None = None) -> np.ndarray:
+    """(R, k) the rows of one column source (``RowMap.apply`` of its columns) from a chunked pass."""
+    nf = int((~rm.contact).sum())
+    out = np.zeros((6 * nf + 3 * (len(rm.rows) - nf), len(source.cols)))
+    halo, w = halo_samples(s, rm.k_smooth), whole(s)
+    for a, b in chunks(s.n, chunk or CHUNK_SAMPLES):
+        pos, vals, _ = _chunk_rows(s, rm, [source], a, b, halo, w)
+        out[pos] = vals
+    return out
+
+
 def sample_sum(s, sources: list[Source], coefs: list[np.ndarray], k_smooth: int = 1,
                chunk: int | None = None) -> np.ndarray:
     """(n, 6) the sum over ``sources`` of their kept columns times ``coefs`` (each (k,)), per sample,
@@ -194,4 +229,4 @@ def sample_sum(s, sources: list[Source], coefs: list[np.ndarray], k_smooth: int 
 
 
 __all__ = ["BlockStats", "CHUNK_SAMPLES", "RowMap", "Source", "block_stats", "chunks", "combine_rows",
-           "halo_samples", "sample_sum", "slice_signals", "whole"]
+           "halo_samples", "mean_at", "row_values", "sample_sum", "slice_signals", "smooth", "whole"]

@@ -26,7 +26,6 @@ from kinadapt_nn.diagnostics.contract import Effect, load_effect_files
 from kinadapt_nn.diagnostics.setup import SetupCfg
 from kinadapt_nn.errors import KinadaptError, did_you_mean
 from kinadapt_nn.diagnostics.stream import RowMap
-from kinadapt_nn.features.effect_library import moving_average
 
 FREE_CHANNELS = ("F_x", "F_y", "F_z", "M_x", "M_y", "M_z")  # sensor frame
 TIP_CHANNELS = ("Mtip_x", "Mtip_y", "Mtip_z")  # moment about the declared tip, sensor frame
@@ -87,7 +86,7 @@ def detect_contact(e: np.ndarray, t_s: np.ndarray, setup: SetupCfg, rc: RowCfg,
         off = np.median(e[ref], axis=0)
         return np.linalg.norm(e[:, :3] - off[:3], axis=1) > setup.contact.detect_force_N, off
     dt = float(np.median(np.diff(t_s)))
-    es = moving_average(e, max(1, int(round(rc.smooth_s / dt))))
+    es = stream.smooth(e, max(1, int(round(rc.smooth_s / dt))))  # in chunks: no whole-log running sums
     off = np.median(es[ref], axis=0)
     raw = np.linalg.norm(es[:, :3] - off[:3], axis=1) > setup.contact.detect_force_N
     k = int(round(setup.contact.margin_s / dt))
@@ -160,7 +159,7 @@ def build_design(s: sg.LogSignals, lib: dict[str, Effect], names: list[str], sig
     equations of the effects' columns from one chunked pass (``stream``; ``chunk`` samples per
     chunk), never the columns themselves. ``cols_cache`` gets each effect's column ``Source``."""
     rm = row_map(s, sigma, rc)
-    y = rm.apply((s.wrench - s.w_nom)[:, :, None])[:, 0]
+    y = stream.row_values(s, rm, stream.Source("_residual", _residual_columns, [0]), chunk)[:, 0]
     con = rm.contact
     nf, nc = int((~con).sum()), int(con.sum())
     channel = np.concatenate([np.tile(np.arange(6), nf), np.tile(np.arange(6, 9), nc)])
@@ -176,6 +175,11 @@ def build_design(s: sg.LogSignals, lib: dict[str, Effect], names: list[str], sig
     X = {nm: sel.Width((R, lib[nm].k)) for nm in names}
     return sel.Design(y, X, sel.Width((R, 6 if nuis else 0)), block, nb, {nm: lib[nm].relevant for nm in names},
                       {nm: lib[nm].one_of for nm in names}, W, channel, CHANNELS, tr, bs), rm
+
+
+def _residual_columns(s: sg.LogSignals) -> np.ndarray:
+    """The declared model's residual as one column (n, 6, 1): the rows' ``y``."""
+    return (s.wrench - s.w_nom)[:, :, None]
 
 
 def _offset_columns(s: sg.LogSignals) -> np.ndarray:
@@ -288,7 +292,7 @@ def ph_tool_wrench(s: sg.LogSignals, idx: np.ndarray | None = None) -> np.ndarra
 
     i = slice(None) if idx is None else idx
     m, mc, I_O = ph.nominal_inertials(s.setup)
-    kin = ph.KinSeries(s.R_ws[i], s.g_s[i], s.a_s[i], s.omega_s[i], s.alpha_s[i], s.p_ws[i])
+    kin = ph.KinSeries(*(np.asarray(x[i], dtype=float) for x in (s.R_ws, s.g_s, s.a_s, s.omega_s, s.alpha_s, s.p_ws)))
     return ph.tool_wrench(kin, m, mc, I_O)
 
 
