@@ -133,7 +133,7 @@ class ArmModel:
         self.check_joints(q)
         R_wf, _, Jp, Jr = self._frames(q)
         lever_w = R_wf @ self.p_fs  # (n, 3)
-        return Jp + np.cross(Jr, lever_w[:, :, None], axisa=1, axisb=1, axisc=1), Jr
+        return Jp + _x(Jr, lever_w[:, :, None]), Jr
 
 
 def _as_slice(idx: np.ndarray) -> slice | np.ndarray:
@@ -159,8 +159,11 @@ def derivative(x: np.ndarray, t_s: np.ndarray, window_s: float = ACC_WINDOW_S, d
 
 
 def _x(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross products along axis 1 of (n, 3[, k]) arrays (broadcast)."""
-    return np.cross(a, b, axisa=1, axisb=1, axisc=1)
+    """Cross products along axis 1 of (n, 3[, k]) arrays (broadcast; written out: ``np.cross``
+    with axis arguments copies its operands)."""
+    a0, a1, a2 = a[:, 0], a[:, 1], a[:, 2]
+    b0, b1, b2 = b[:, 0], b[:, 1], b[:, 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=1)
 
 
 def twist_dq(J_v: np.ndarray, J_w: np.ndarray, qdot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

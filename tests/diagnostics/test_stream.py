@@ -24,7 +24,7 @@ import math
 import numpy as np
 import pytest
 
-from kinadapt_nn.diagnostics import stream
+from kinadapt_nn.diagnostics import signals, stream
 from kinadapt_nn.diagnostics.readers import read_log
 from kinadapt_nn.diagnostics.setup import load_setup
 from kinadapt_nn.diagnostics.userlog import RowCfg, diagnose
@@ -73,16 +73,22 @@ def _max_rel(a, b) -> float:
     return 0.0
 
 
-def test_report_does_not_depend_on_the_chunking(drift_log):
+def test_report_does_not_depend_on_the_chunking(drift_log, monkeypatch):
+    """One chunk (the kinematics too) against two chunkings: odd chunks of 997 samples with the
+    kinematics in chunks of 1009 (neither a multiple of the row stride nor of the other, both
+    shorter than the contact windows), and a third of the log plus 7 (chunk edges inside the
+    derivatives' windows near the log's ends)."""
     log, setup = drift_log
     n = len(log.t_s)
+    monkeypatch.setattr(signals, "KIN_CHUNK", n)
     whole = diagnose(log, setup, rc=RowCfg(chunk_samples=n))  # one chunk: the unstreamed design
     rep0 = whole.report
     assert not rep0["model_complete"] and rep0["unexplained"]["hints"], "the hints must run (streamed) in this test"
     assert any(e["verdict"] == "present" for e in rep0["ranking"])
     assert rep0["contact"]["fraction"] > 0.05
     worst = 0.0
-    for chunk in (997, 4096 + 1, n // 3 + 7):
+    for chunk, kin_chunk in ((997, 1009), (n // 3 + 7, n)):
+        monkeypatch.setattr(signals, "KIN_CHUNK", kin_chunk)
         res = diagnose(log, setup, rc=RowCfg(chunk_samples=chunk))
         bad = _diff(rep0, res.report)
         assert not bad, f"chunk {chunk}: {bad[:5]}"
