@@ -266,7 +266,7 @@ class MountFit(NamedTuple):
     rpy_sd_deg: np.ndarray  #: (3,)
     angle_deg: float  #: rotation from the declared mount
     angle_sd_deg: float
-    residual: np.ndarray  #: (n, 6) [N, N m] measured - fitted on the free samples, SI
+    residual: np.ndarray | None  #: (n, 6) [N, N m] measured - fitted on the free samples, SI (None: not kept)
     report: dict  #: diagnosis.json "sensor_mount"
     cov: np.ndarray | None = None  #: (13, 13) of (local rotation, theta): the information correlation at ``sd``
 
@@ -280,10 +280,12 @@ def shifted(x: np.ndarray, dx: np.ndarray) -> np.ndarray:
     return np.concatenate([Rotation.from_matrix(D).as_rotvec(), x[3:] + dx[3:]])
 
 
-def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: int = 20) -> MountFit:
+def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: int = 20,
+        residual: bool = True) -> MountFit:
     """The calibration fit on the free-space samples ``free`` (n,) bool of ``LogSignals`` s.
     ``block`` (n,) the cross-validation block of every sample; ``sigma`` (6,) the per-channel
-    noise. -> ``MountFit`` (module docstring)."""
+    noise; ``residual``: keep the residual of every free sample (else ``MountFit.residual`` is
+    None: a long log's free samples). -> ``MountFit`` (module docstring)."""
     from scipy.spatial.transform import Rotation
 
     from kinadapt_nn.diagnostics.physical import nominal_inertials
@@ -369,7 +371,8 @@ def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: i
     res = r_free - predict(x, s, fidx)
     rep = report((x, sd), (rpy, rpy_sd), (float(np.rad2deg(th)), ang_sd), res, d._replace(r=r_free), s, rot_explains)
     corr = cov / np.sqrt(np.maximum(np.outer(np.diag(cov), np.diag(cov)), 1e-300))
-    return MountFit(x, sd, rpy, rpy_sd, float(np.rad2deg(th)), ang_sd, res, rep, corr * np.outer(sd, sd))
+    return MountFit(x, sd, rpy, rpy_sd, float(np.rad2deg(th)), ang_sd, res if residual else None, rep,
+                    corr * np.outer(sd, sd))
 
 
 def _resid_at(D: np.ndarray, theta: np.ndarray, d: MountData) -> np.ndarray:

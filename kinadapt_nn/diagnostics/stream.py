@@ -213,10 +213,10 @@ def row_values(s, rm: RowMap, source: Source, chunk: int | None = None) -> np.nd
 
 
 def sample_sum(s, sources: list[Source], coefs: list[np.ndarray], k_smooth: int = 1,
-               chunk: int | None = None) -> np.ndarray:
-    """(n, 6) the sum over ``sources`` of their kept columns times ``coefs`` (each (k,)), per sample,
-    unfiltered (a chunked pass)."""
-    out = np.zeros((s.n, 6))
+               chunk: int | None = None, channels: int = 6) -> np.ndarray:
+    """(n, channels) the sum over ``sources`` of their kept columns times ``coefs`` (each (k,)), per
+    sample, unfiltered (a chunked pass); ``channels`` = 3: the force only."""
+    out = np.zeros((s.n, channels))
     if not sources:
         return out
     halo, w = halo_samples(s, k_smooth), whole(s)
@@ -224,7 +224,7 @@ def sample_sum(s, sources: list[Source], coefs: list[np.ndarray], k_smooth: int 
         lo, hi = max(0, a - halo), min(s.n, b + halo)
         sub = slice_signals(s, lo, hi, w)
         for src, c in zip(sources, coefs):
-            out[a:b] += np.asarray(src.columns(sub), dtype=float)[a - lo:b - lo][:, :, src.cols] @ c
+            out[a:b] += np.asarray(src.columns(sub), dtype=float)[a - lo:b - lo][:, :channels][:, :, src.cols] @ c
     return out
 
 

@@ -72,8 +72,9 @@ def static_sigma(s: sg.LogSignals, residual: np.ndarray, rc: RowCfg) -> tuple[np
 
 def detect_contact(e: np.ndarray, t_s: np.ndarray, setup: SetupCfg, rc: RowCfg,
                    free: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Contact samples from the force the tool model does not explain (N, 6) -> (contact (N,)
-    bool, the offset taken out (6,)). The offset is the median of the residual over ``free`` (n,)
+    """Contact samples from the force the tool model does not explain (N, 6), or its force part
+    (N, 3), -> (contact (N,) bool, the offset taken out (6,): in a log in time, the force's only).
+    The offset is the median of the residual over ``free`` (n,)
     bool, the samples known to be free space (``segmentation``; all samples when not given --
     never the median of a log that may be mostly contact); contact = |force - offset| >
     ``detect_force_N`` after a 20 ms average, gaps shorter than 2 ``margin_s`` filled, then
@@ -86,9 +87,10 @@ def detect_contact(e: np.ndarray, t_s: np.ndarray, setup: SetupCfg, rc: RowCfg,
         off = np.median(e[ref], axis=0)
         return np.linalg.norm(e[:, :3] - off[:3], axis=1) > setup.contact.detect_force_N, off
     dt = float(np.median(np.diff(t_s)))
-    es = stream.smooth(e, max(1, int(round(rc.smooth_s / dt))))  # in chunks: no whole-log running sums
-    off = np.median(es[ref], axis=0)
-    raw = np.linalg.norm(es[:, :3] - off[:3], axis=1) > setup.contact.detect_force_N
+    es = stream.smooth(e[:, :3], max(1, int(round(rc.smooth_s / dt))))  # the force; in chunks
+    off = np.zeros(6)  # only the force's offset is used (the contact force)
+    off[:3] = np.median(es[ref], axis=0)
+    raw = np.linalg.norm(es - off[:3], axis=1) > setup.contact.detect_force_N
     k = int(round(setup.contact.margin_s / dt))
     if k > 0 and raw.any():
         c = np.convolve(raw.astype(float), np.ones(2 * k + 1), "same") > 0  # widen
@@ -261,15 +263,18 @@ def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray, rc: Row
     seg = segmentation.free_space(s, excluded_samples(s, setup))
     progress("sensor mount: rotation, mass, centre of mass and offset fitted jointly on free space")
     blocks = sample_blocks(s, rc)
-    fit0 = mount.fit(s, seg.free, blocks, sigma, max_blocks=0)  # the point only (no sd needed yet)
+    fit0 = mount.fit(s, seg.free, blocks, sigma, max_blocks=0, residual=s.static)  # the point only (no sd yet)
     how = "second differences of the reading"
     if s.static:
         sigma, how = static_sigma(s, fit0.residual, rc)
-    e_cal = s.wrench - mount.predict(fit0.x, s)
+    e_cal = np.empty((s.n, 3 if not s.static else 6))  # what the calibrated tool leaves (the force), in chunks
+    for a, b in stream.chunks(s.n, stream.CHUNK_SAMPLES):
+        e_cal[a:b] = (s.wrench[a:b] - mount.predict(fit0.x, s, np.arange(a, b)))[:, :e_cal.shape[1]]
     contact, _ = detect_contact(e_cal, s.t, setup, rc, seg.free)
+    del e_cal
     excl = excluded_samples(s, setup)
     free = ~contact & ~excl if (~contact & ~excl).sum() > 20 else ~excl
-    fitm = mount.fit(s, free, blocks, sigma)
+    fitm = mount.fit(s, free, blocks, sigma, residual=False)
     # the contact wrench: beyond the calibrated tool and a declared contact geometry's own wrench
     ci = np.flatnonzero(contact & ~excl)  # the contact samples: only they are needed here
     w_c = s.wrench[ci] - (s.w_nom[ci] - ph_tool_wrench(s, ci))
@@ -281,7 +286,9 @@ def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray, rc: Row
             update={"rpy_flange_deg": tuple(float(v) for v in fitm.rpy_deg)})})
         progress("kinematics again in the estimated sensor mount")
         s = sg.from_log(log, setup)
-    off = np.median((s.wrench - s.w_nom)[~contact], axis=0) if (~contact).any() else np.zeros(6)
+    off = np.zeros(6)  # the free-space offset of the force (``with_contact`` takes it out of the contact force)
+    if (~contact).any():
+        off[:3] = np.median(s.wrench[~contact, :3] - s.w_nom[~contact, :3], axis=0)
     return Calibration(fitm, s.with_contact(contact, off), setup, sigma, how, seg, point)
 
 
@@ -676,8 +683,10 @@ def _rank(rk: _RankCtx, s: sg.LogSignals, names: list[str]):
             break
         srcs = [rk.cache[n]._replace(cols=list(c)) for n, (c, _, _) in result.present.items()]
         fitted = stream.sample_sum(s, srcs, [p for _, p, _ in result.present.values()], rm.k_smooth,
-                                   des.stats.chunk)  # the columns this design was built from
-        new_contact, new_off = detect_contact(s.wrench - s.w_nom - fitted, s.t, setup, rk.rc, ~s.contact)
+                                   des.stats.chunk, channels=3)  # the force of the columns this design was built from
+        fitted -= s.wrench[:, :3]
+        fitted += s.w_nom[:, :3]
+        new_contact, new_off = detect_contact(-fitted, s.t, setup, rk.rc, ~s.contact)
         if np.mean(new_contact != s.contact) < 0.005:
             break
         s = s.with_contact(new_contact, new_off)
