@@ -27,6 +27,15 @@ import numpy as np
 
 #: samples per chunk (memory per chunk ~ chunk * 6 * columns * 8 B, plus the effects' own work)
 CHUNK_SAMPLES = 20_000
+#: [B] at most this much per chunk's column array (chunk * 6 * columns * 8 B): a design of many
+#: columns (the hints' shapes, ~200) runs in shorter chunks (measured: 1.7 GB peak at 20000 samples)
+CHUNK_BYTES = 32 * 2**20
+
+
+def chunk_for(chunk: int | None, k: int) -> int:
+    """Samples per chunk of a pass over ``k`` columns: ``chunk`` (default ``CHUNK_SAMPLES``) within
+    ``CHUNK_BYTES``, never below 1000."""
+    return max(1000, min(int(chunk or CHUNK_SAMPLES), CHUNK_BYTES // (48 * max(int(k), 1))))
 
 
 class RowMap(NamedTuple):
@@ -161,8 +170,8 @@ def block_stats(s, rm: RowMap, sources: list[Source], y: np.ndarray, block: np.n
     """One chunked pass: the per-block normal equations of ``sources``' columns (module docstring).
     ``y`` (R,), ``block`` (R,) the design's rows and their blocks; ``chunk`` samples per chunk
     (default ``CHUNK_SAMPLES``)."""
-    chunk = int(chunk or CHUNK_SAMPLES)
     K = sum(len(src.cols) for src in sources)
+    chunk = chunk_for(chunk, K)
     G, h = np.zeros((n_blocks, K, K)), np.zeros((n_blocks, K))
     yy = np.bincount(block, weights=y * y, minlength=n_blocks).astype(float)
     col_sq = np.zeros((6, K))
@@ -195,7 +204,7 @@ def combine_rows(s, rm: RowMap, sources: list[Source], P: np.ndarray, block: np.
     keep = np.concatenate([np.arange(offs[i], offs[i + 1]) for i in used])
     Pk = P[:, keep]
     halo, w = halo_samples(s, rm.k_smooth), whole(s)
-    for a, b in chunks(s.n, chunk or CHUNK_SAMPLES):
+    for a, b in chunks(s.n, chunk_for(chunk, len(keep))):
         pos, vals, _ = _chunk_rows(s, rm, [sources[i] for i in used], a, b, halo, w)
         out[pos] = np.einsum("rk,rk->r", vals, Pk[block[pos]])
     return out
@@ -206,7 +215,7 @@ def row_values(s, rm: RowMap, source: Source, chunk: int | None = None) -> np.nd
     nf = int((~rm.contact).sum())
     out = np.zeros((6 * nf + 3 * (len(rm.rows) - nf), len(source.cols)))
     halo, w = halo_samples(s, rm.k_smooth), whole(s)
-    for a, b in chunks(s.n, chunk or CHUNK_SAMPLES):
+    for a, b in chunks(s.n, chunk_for(chunk, len(source.cols))):
         pos, vals, _ = _chunk_rows(s, rm, [source], a, b, halo, w)
         out[pos] = vals
     return out
@@ -220,7 +229,7 @@ def sample_sum(s, sources: list[Source], coefs: list[np.ndarray], k_smooth: int 
     if not sources:
         return out
     halo, w = halo_samples(s, k_smooth), whole(s)
-    for a, b in chunks(s.n, chunk or CHUNK_SAMPLES):
+    for a, b in chunks(s.n, chunk_for(chunk, max(len(src.cols) for src in sources))):
         lo, hi = max(0, a - halo), min(s.n, b + halo)
         sub = slice_signals(s, lo, hi, w)
         for src, c in zip(sources, coefs):
@@ -228,5 +237,5 @@ def sample_sum(s, sources: list[Source], coefs: list[np.ndarray], k_smooth: int 
     return out
 
 
-__all__ = ["BlockStats", "CHUNK_SAMPLES", "RowMap", "Source", "block_stats", "chunks", "combine_rows",
+__all__ = ["BlockStats", "CHUNK_BYTES", "CHUNK_SAMPLES", "RowMap", "Source", "block_stats", "chunk_for", "chunks", "combine_rows",
            "halo_samples", "mean_at", "row_values", "sample_sum", "slice_signals", "smooth", "whole"]

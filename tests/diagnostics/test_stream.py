@@ -74,13 +74,16 @@ def _max_rel(a, b) -> float:
 
 
 def test_report_does_not_depend_on_the_chunking(drift_log, monkeypatch):
-    """One chunk (the kinematics too) against two chunkings: odd chunks of 997 samples with the
-    kinematics in chunks of 1009 (neither a multiple of the row stride nor of the other, both
-    shorter than the contact windows), and a third of the log plus 7 (chunk edges inside the
-    derivatives' windows near the log's ends)."""
+    """One chunk (the kinematics too, no byte cap) against two chunkings: odd chunks of 997 samples
+    with the kinematics in chunks of 1009 (neither a multiple of the row stride nor of the other,
+    both shorter than the contact windows), and a third of the log plus 7 (chunk edges inside the
+    derivatives' windows near the log's ends) under ``stream.CHUNK_BYTES`` (the hints' pass then
+    runs in shorter chunks of its own)."""
     log, setup = drift_log
     n = len(log.t_s)
+    cap = stream.CHUNK_BYTES
     monkeypatch.setattr(signals, "KIN_CHUNK", n)
+    monkeypatch.setattr(stream, "CHUNK_BYTES", 2**40)  # no cap on a chunk's columns either
     whole = diagnose(log, setup, rc=RowCfg(chunk_samples=n))  # one chunk: the unstreamed design
     rep0 = whole.report
     assert not rep0["model_complete"] and rep0["unexplained"]["hints"], "the hints must run (streamed) in this test"
@@ -89,6 +92,7 @@ def test_report_does_not_depend_on_the_chunking(drift_log, monkeypatch):
     worst = 0.0
     for chunk, kin_chunk in ((997, 1009), (n // 3 + 7, n)):
         monkeypatch.setattr(signals, "KIN_CHUNK", kin_chunk)
+        monkeypatch.setattr(stream, "CHUNK_BYTES", cap)  # the hints' ~200 columns: chunks of ~3000 samples
         res = diagnose(log, setup, rc=RowCfg(chunk_samples=chunk))
         bad = _diff(rep0, res.report)
         assert not bad, f"chunk {chunk}: {bad[:5]}"
