@@ -95,42 +95,67 @@ class MountData(NamedTuple):
 def _linear_part(D: np.ndarray, d: MountData) -> tuple[np.ndarray, np.ndarray]:
     """The model is linear in ``theta = [m, m c, b]`` (10,) for a fixed rotation ``D``:
     ``w = A theta + c`` with A (n, 6, 10) and c (n, 6) (the declared inertia's own terms)."""
-    ga, om, al = d.ga @ D, d.omega @ D, d.alpha @ D  # rows: D^T v
-    n = len(ga)
-    A = np.zeros((n, 6, 10))
-    A[:, :3, 0] = ga
-    So = _skews(om)
-    A[:, :3, 1:4] = -(_skews(al) + So @ So)  # -alpha x mc - omega x (omega x mc)
-    A[:, 3:, 1:4] = -_skews(ga)  # mc x ga
+    A1, c = _mass_part(D, d)
+    A = np.zeros((len(A1), 6, 10))
+    A[:, :, :4] = A1
     A[:, :, 4:] = np.eye(6)
-    c = np.zeros((n, 6))
-    c[:, 3:] = -al @ d.I_O.T - np.einsum("nij,nj->ni", So, om @ d.I_O.T)
     return A, c
 
 
-def _skews(v: np.ndarray) -> np.ndarray:
-    """(n, 3) -> (n, 3, 3) cross-product matrices."""
-    S = np.zeros((len(v), 3, 3))
-    S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
-    S[:, 1, 0], S[:, 2, 0], S[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
-    return S
+def _mass_part(D: np.ndarray, d: MountData) -> tuple[np.ndarray, np.ndarray]:
+    """``_linear_part``'s mass and first-moment columns A1 (n, 6, 4) and c (n, 6) (its offset columns
+    are the identity)::
+
+        F: m ga - (alpha x + omega x omega x) mc = m ga - ([alpha]x + omega omega^T - |omega|^2 1) mc
+        M: mc x ga = -[ga]x mc;   c_M = -I_O alpha - omega x (I_O omega)
+    """
+    ga, om, al = d.ga @ D, d.omega @ D, d.alpha @ D  # rows: D^T v
+    n = len(ga)
+    A = np.zeros((n, 6, 4))
+    A[:, :3, 0] = ga
+    M = A[:, :3, 1:]
+    M -= om[:, :, None] * om[:, None, :]
+    w2 = np.einsum("ni,ni->n", om, om)
+    for i in range(3):
+        M[:, i, i] += w2
+    M[:, 0, 1] += al[:, 2]
+    M[:, 0, 2] -= al[:, 1]
+    M[:, 1, 0] -= al[:, 2]
+    M[:, 1, 2] += al[:, 0]
+    M[:, 2, 0] += al[:, 1]
+    M[:, 2, 1] -= al[:, 0]
+    G = A[:, 3:, 1:]
+    G[:, 0, 1], G[:, 0, 2], G[:, 1, 2] = ga[:, 2], -ga[:, 1], ga[:, 0]
+    G[:, 1, 0], G[:, 2, 0], G[:, 2, 1] = -ga[:, 2], ga[:, 1], -ga[:, 0]
+    c = np.zeros((n, 6))
+    Iw = om @ d.I_O.T
+    c[:, 3:] = -al @ d.I_O.T - np.cross(om, Iw)
+    return A, c
 
 
 def _model(x: np.ndarray, d: MountData) -> np.ndarray:
     """(13,) [rotvec, m, mc, b] -> predicted wrench (n, 6)."""
-    A, c = _linear_part(rotvec_matrix(x[:3]), d)
-    return np.einsum("nik,k->ni", A, x[3:]) + c
+    A1, c = _mass_part(rotvec_matrix(x[:3]), d)
+    return np.einsum("nik,k->ni", A1, x[3:7]) + x[7:] + c
 
 
 def _project(D: np.ndarray, d: MountData, rw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The best ``theta`` for the rotation ``D`` (weighted least squares, robust row weights
-    ``rw`` (n, 6)) and the noise-weighted residual (n*6,)."""
-    A, c = _linear_part(D, d)
-    sw = d.w * np.sqrt(rw)  # (n, 6)
-    Aw = (A * sw[:, :, None]).reshape(-1, 10)
-    yw = ((d.r - c) * sw).reshape(-1)
-    theta = _normal_solve(Aw, yw)
-    return theta, ((d.r - c - np.einsum("nik,k->ni", A, theta)) * d.w).reshape(-1)
+    ``rw`` (n, 6)) and the noise-weighted residual (n*6,). The normal equations by blocks: the
+    offset's columns are the identity (``_mass_part``)."""
+    A1, c = _mass_part(D, d)
+    y = d.r - c
+    sw2 = d.w**2 * rw  # (n, 6) squared row weights
+    Aw = A1 * sw2[:, :, None]
+    H = np.empty((10, 10))
+    H[:4, :4] = Aw.reshape(-1, 4).T @ A1.reshape(-1, 4)
+    H[:4, 4:] = Aw.sum(0).T
+    H[4:, :4] = H[:4, 4:].T
+    H[4:, 4:] = np.diag(sw2.sum(0))
+    g = np.concatenate([np.einsum("nck,nc->k", Aw, y), (sw2 * y).sum(0)])
+    H[np.diag_indices_from(H)] += 1e-12 * max(float(np.trace(H)), 1e-300) / len(H)  # as _normal_solve
+    theta = np.linalg.solve(H, g)
+    return theta, ((y - np.einsum("nik,k->ni", A1, theta[:4]) - theta[4:]) * d.w).reshape(-1)
 
 
 def _normal_solve(A: np.ndarray, y: np.ndarray) -> np.ndarray:
