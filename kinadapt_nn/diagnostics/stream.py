@@ -83,7 +83,7 @@ class BlockStats(NamedTuple):
     h: np.ndarray  #: (B, K)
     yy: np.ndarray  #: (B,)
     combine: Callable
-    col_sq: np.ndarray  #: (6, K) sum over all samples (unfiltered) of each column's square
+    col_sq: np.ndarray | None  #: (6, K) sum over all samples (unfiltered) of each column's square (when asked)
     n_samples: int
     chunk: int  #: samples per chunk of the passes
     sources: list  #: the ``Source`` of each column group, in column order
@@ -91,8 +91,10 @@ class BlockStats(NamedTuple):
 
 def mean_at(x: np.ndarray, k: int, idx: np.ndarray, chunk: int | None = None) -> np.ndarray:
     """``moving_average(x, k)[idx]`` (the centred moving average of (n, ...) samples at the sorted
-    samples ``idx``), its running sums taken over one chunk of ``idx`` at a time (only the samples
-    those windows cover): memory O(chunk), equal to rounding (the order of the sums)."""
+    samples ``idx``; a window ``[i - k // 2, i + k - k // 2)`` clipped to the log): the sums over
+    the segments between consecutive window edges in one pass (``np.add.reduceat``), then their
+    running sum over the segments only -- never a running sum of every sample. One chunk of
+    ``idx`` at a time (memory O(chunk)); equal to rounding (the order of the sums)."""
     x = np.asarray(x)
     n = len(x)
     if k <= 1 or n < 2:
@@ -103,10 +105,22 @@ def mean_at(x: np.ndarray, k: int, idx: np.ndarray, chunk: int | None = None) ->
     for a in range(0, len(idx), step):
         i = idx[a:a + step]
         lo, hi = np.clip(i - k // 2, 0, n), np.clip(i + (k - k // 2), 0, n)
-        w0, w1 = int(lo[0]), int(hi[-1])
-        c = np.cumsum(np.concatenate([np.zeros((1, *x.shape[1:])), x[w0:w1]]), axis=0)
-        out[a:a + step] = (c[hi - w0] - c[lo - w0]) / (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
+        edges = np.unique(np.concatenate([lo, hi]))  # (e,) ascending; the last is hi.max()
+        seg = _segment_sums(np.asarray(x[edges[0]:edges[-1]], dtype=float), edges - edges[0])
+        P = np.concatenate([np.zeros((1, *x.shape[1:])), np.cumsum(seg, axis=0)])  # (e, ...) sums up to each edge
+        out[a:a + step] = (P[np.searchsorted(edges, hi)] - P[np.searchsorted(edges, lo)]) / \
+            (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
     return out
+
+
+def _segment_sums(x: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """(e - 1, ...) the sums of ``x`` over ``[edges[j], edges[j + 1])`` (``edges`` ascending from 0 to
+    ``len(x)``): equal segments (rows at a constant stride) by a reshape, others by ``reduceat``
+    (measured on (4000, 6, 219) columns: 1 us against 12 us a sample)."""
+    d = np.diff(edges)
+    if len(d) and np.all(d == d[0]):
+        return x.reshape(len(d), int(d[0]), *x.shape[1:]).sum(axis=1)
+    return np.add.reduceat(x, edges[:-1], axis=0)
 
 
 def smooth(x: np.ndarray, k: int, chunk: int | None = None) -> np.ndarray:
@@ -166,19 +180,20 @@ def _chunk_rows(s, rm: RowMap, sources: list[Source], a: int, b: int, halo: int,
 
 
 def block_stats(s, rm: RowMap, sources: list[Source], y: np.ndarray, block: np.ndarray, n_blocks: int,
-                chunk: int | None = None) -> BlockStats:
+                chunk: int | None = None, squares: bool = False) -> BlockStats:
     """One chunked pass: the per-block normal equations of ``sources``' columns (module docstring).
     ``y`` (R,), ``block`` (R,) the design's rows and their blocks; ``chunk`` samples per chunk
-    (default ``CHUNK_SAMPLES``)."""
+    (default ``CHUNK_SAMPLES``); ``squares``: also ``BlockStats.col_sq`` (else None)."""
     K = sum(len(src.cols) for src in sources)
     chunk = chunk_for(chunk, K)
     G, h = np.zeros((n_blocks, K, K)), np.zeros((n_blocks, K))
     yy = np.bincount(block, weights=y * y, minlength=n_blocks).astype(float)
-    col_sq = np.zeros((6, K))
+    col_sq = np.zeros((6, K)) if squares else None
     halo, w = halo_samples(s, rm.k_smooth), whole(s)
     for a, b in chunks(s.n, chunk):
         pos, vals, raw = _chunk_rows(s, rm, sources, a, b, halo, w)
-        col_sq += np.einsum("nck,nck->ck", raw, raw)
+        if squares:
+            col_sq += np.einsum("nck,nck->ck", raw, raw)
         blk = block[pos]
         for bb in np.unique(blk):
             m = blk == bb
