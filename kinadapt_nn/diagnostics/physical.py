@@ -196,7 +196,8 @@ def wrench_dq(kin: KinSeries, J_v: np.ndarray, J_w: np.ndarray, qdot: np.ndarray
     ddv = derivative(dv.reshape(n, 3 * dof), t_s).reshape(n, 3, dof)
     ddw = derivative(dw.reshape(n, 3 * dof), t_s).reshape(n, 3, dof)
     R = kin.R_ws
-    to_s = lambda x: np.einsum("nji,njk->nik", R, x)  # noqa: E731  (world -> s, (n, 3, dof))
+    Rt = R.transpose(0, 2, 1)
+    to_s = lambda x: np.matmul(Rt, x)  # noqa: E731  (world -> s, (n, 3, dof))
     zs = to_s(J_w)
     om, al = kin.omega_s[:, :, None], kin.alpha_s[:, :, None]
     d_om = to_s(dw) - _x(zs, om)
@@ -206,8 +207,7 @@ def wrench_dq(kin: KinSeries, J_v: np.ndarray, J_w: np.ndarray, qdot: np.ndarray
     C = np.empty((n, 6, dof))
     C[:, :3] = m * d_ga - _x(d_al, mcv) - _x(d_om, _x(om, mcv)) - _x(om, _x(d_om, mcv))
     I_om = np.einsum("ij,nj->ni", I_O, kin.omega_s)[:, :, None]
-    I_dom = np.einsum("ij,njk->nik", I_O, d_om)
-    C[:, 3:] = _x(mcv, d_ga) - np.einsum("ij,njk->nik", I_O, d_al) - _x(d_om, I_om) - _x(om, I_dom)
+    C[:, 3:] = _x(mcv, d_ga) - I_O @ d_al - _x(d_om, I_om) - _x(om, I_O @ d_om)
     return C
 
 
