@@ -6,8 +6,9 @@ a halo on both sides), filters it with the rows' moving average, maps the chunk'
 ``RowMap`` and adds each row's contribution to its cross-validation block's normal equations
 ``G_b = A_b^T A_b``, ``h_b = A_b^T y_b`` (columns unscaled, physical). Least squares, block
 cross-validation and the block jackknife need nothing else (``selection.Stats``); the few per-row
-series (held-out residual, the residual before/after ``--add``) come from a second pass that
-recomputes only the columns with a non-zero coefficient (``BlockStats.combine``).
+series (held-out residual, the residual before/after ``--add``) come from a second pass over only
+the columns with a non-zero coefficient (``BlockStats.combine``), whose rows are then kept for the
+next such series (``ROW_CACHE_BYTES``).
 
 Chunk-invariance: a sample's columns depend on the samples within ``halo_samples`` of it (the
 Savitzky-Golay derivative of the kinematics, the moving average), so every row sees the same
@@ -27,6 +28,9 @@ import numpy as np
 
 #: samples per chunk (memory per chunk ~ chunk * 6 * columns * 8 B, plus the effects' own work)
 CHUNK_SAMPLES = 20_000
+#: [B] a design's rows of the sources its predictions use, kept between passes (``combine_rows``);
+#: an hour at 1 kHz, its offset and one 4-parameter effect: 2.2e6 rows x 10 columns x 8 B = 170 MB
+ROW_CACHE_BYTES = 256 * 2**20
 #: [B] at most this much per chunk's column array (chunk * 6 * columns * 8 B): a design of many
 #: columns (the hints' shapes, ~200) runs in shorter chunks (measured: 1.7 GB peak at 20000 samples)
 CHUNK_BYTES = 32 * 2**20
@@ -201,21 +205,44 @@ def block_stats(s, rm: RowMap, sources: list[Source], y: np.ndarray, block: np.n
             G[bb] += Ab.T @ Ab
             h[bb] += Ab.T @ y[pos[m]]
 
+    cache: dict = {}
+
     def combine(P: np.ndarray) -> np.ndarray:
-        return combine_rows(s, rm, sources, P, block, len(y), chunk)
+        return combine_rows(s, rm, sources, P, block, len(y), chunk, cache)
 
     return BlockStats(G, h, yy, combine, col_sq, s.n, chunk, list(sources))
 
 
 def combine_rows(s, rm: RowMap, sources: list[Source], P: np.ndarray, block: np.ndarray, R: int,
-                 chunk: int | None = None) -> np.ndarray:
+                 chunk: int | None = None, cache: dict | None = None) -> np.ndarray:
     """(R,) each row's columns times its block's coefficients ``P`` (B, K); a pass over the log that
-    evaluates only the sources with a non-zero coefficient."""
+    evaluates only the sources with a non-zero coefficient. ``cache`` (a design's): each source's
+    rows (R, k) kept after its first pass, while they fit ``ROW_CACHE_BYTES``
+    (the held-out residual, the residual before and after ``--add`` and the tip check then take
+    one pass between them)."""
     out = np.zeros(R)
     offs = np.cumsum([0] + [len(src.cols) for src in sources])
     used = [i for i in range(len(sources)) if np.any(P[:, offs[i]:offs[i + 1]])]
     if not used:
         return out
+    if cache is not None:
+        new = [i for i in used if i not in cache]
+        k_new = int(sum(offs[i + 1] - offs[i] for i in new))
+        if new and sum(v.nbytes for v in cache.values()) + 8 * R * k_new <= ROW_CACHE_BYTES:
+            vals = np.zeros((R, k_new))
+            halo, w = halo_samples(s, rm.k_smooth), whole(s)
+            for a, b in chunks(s.n, chunk_for(chunk, vals.shape[1])):
+                pos, v, _ = _chunk_rows(s, rm, [sources[i] for i in new], a, b, halo, w)
+                vals[pos] = v
+            k0 = 0
+            for i in new:
+                k = int(offs[i + 1] - offs[i])
+                cache[i] = vals[:, k0:k0 + k]
+                k0 += k
+        if all(i in cache for i in used):
+            for i in used:
+                out += np.einsum("rk,rk->r", cache[i], P[block, offs[i]:offs[i + 1]])
+            return out
     keep = np.concatenate([np.arange(offs[i], offs[i + 1]) for i in used])
     Pk = P[:, keep]
     halo, w = halo_samples(s, rm.k_smooth), whole(s)
@@ -252,5 +279,5 @@ def sample_sum(s, sources: list[Source], coefs: list[np.ndarray], k_smooth: int 
     return out
 
 
-__all__ = ["BlockStats", "CHUNK_BYTES", "CHUNK_SAMPLES", "RowMap", "Source", "block_stats", "chunk_for", "chunks", "combine_rows",
+__all__ = ["BlockStats", "CHUNK_BYTES", "CHUNK_SAMPLES", "ROW_CACHE_BYTES", "RowMap", "Source", "block_stats", "chunk_for", "chunks", "combine_rows",
            "halo_samples", "mean_at", "row_values", "sample_sum", "slice_signals", "smooth", "whole"]

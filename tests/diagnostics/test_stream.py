@@ -136,4 +136,6 @@ def test_streamed_statistics_equal_the_columns():
             np.testing.assert_allclose(bs.G[b], X[m].T @ X[m], rtol=1e-10, atol=1e-9)
             np.testing.assert_allclose(bs.h[b], X[m].T @ y[m], rtol=1e-10, atol=1e-9)
         P = rng.normal(size=(7, 3))
-        np.testing.assert_allclose(bs.combine(P), np.einsum("rk,rk->r", X, P[block]), rtol=1e-10, atol=1e-9)
+        want = np.einsum("rk,rk->r", X, P[block])
+        np.testing.assert_allclose(bs.combine(P), want, rtol=1e-10, atol=1e-9)
+        np.testing.assert_allclose(bs.combine(2 * P), 2 * want, rtol=1e-10, atol=1e-9)  # from the cached rows
