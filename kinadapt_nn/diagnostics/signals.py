@@ -37,7 +37,9 @@ class LogSignals:
     t: np.ndarray  #: (n,) [s] from the first sample
     q: np.ndarray  #: (n, dof) [rad] encoder positions
     qdot: np.ndarray  #: (n, dof) [rad/s] (logged, or differentiated from q)
-    qddot: np.ndarray  #: (n, dof) [rad/s^2] (differentiated, Savitzky-Golay)
+    #: (n, dof) [rad/s^2] (differentiated, Savitzky-Golay); a log in time holds it per chunk only (None
+    #: on the whole log: ``stream.slice_signals`` differentiates each chunk's ``qdot``, as every effect sees it)
+    qddot: np.ndarray | None
     R_ws: np.ndarray  #: (n, 3, 3) sensor axes in the world (columns: s's x, y, z in w)
     p_ws: np.ndarray  #: (n, 3) [m] sensor origin in the world
     g_s: np.ndarray  #: (n, 3) [m/s^2] gravity in s
@@ -155,9 +157,9 @@ def _timed(arm: ph.ArmModel, setup, data: tuple, qdot_log, has_time: bool) -> Lo
     n, dof = q.shape
     arm.check_joints(q)
     dt = float(np.median(np.diff(t))) if n > 1 else 1.0
-    halo = 2 * max(int(round(ph.ACC_WINDOW_S / dt)) | 1, 7) + 2  # two derivatives deep (q -> qdot -> qddot)
+    halo = 2 * max(int(round(ph.ACC_WINDOW_S / dt)) | 1, 7) + 2  # two derivatives deep (q -> qdot -> acceleration)
     qdot = np.asarray(qdot_log, dtype=float) if qdot_log is not None else np.empty((n, dof), STORE)
-    out = {k: np.empty(shape, STORE) for k, shape in (("qddot", (n, dof)), ("R_ws", (n, 3, 3)), ("p_ws", (n, 3)),
+    out = {k: np.empty(shape, STORE) for k, shape in (("R_ws", (n, 3, 3)), ("p_ws", (n, 3)),
                                                     ("g_s", (n, 3)), ("a_s", (n, 3)), ("omega_s", (n, 3)),
                                                     ("alpha_s", (n, 3)), ("w_nom", (n, 6)))}
     m, mc, I_O = ph.nominal_inertials(setup)
@@ -169,14 +171,13 @@ def _timed(arm: ph.ArmModel, setup, data: tuple, qdot_log, has_time: bool) -> Lo
         keep = slice(a - lo, b - lo)
         if qdot_log is None:
             qdot[a:b] = qd[keep]
-        out["qddot"][a:b] = ph.derivative(qd, tc, dt_s=dt)[keep]
         for k in ("R_ws", "p_ws", "g_s", "a_s", "omega_s", "alpha_s"):
             out[k][a:b] = getattr(kin, k)[keep]
         out["w_nom"][a:b] = ph.tool_wrench(kin, m, mc, I_O)[keep]
     if setup.contact.geometry != "none":  # a socket's anchors are where its gate opens: the whole log at once
         out["w_nom"] += contact_model.nominal_wrench(setup, out["R_ws"].astype(float), out["p_ws"].astype(float))
     t0 = t[0] if has_time else 0.0
-    return LogSignals(t - t0 if t0 != 0.0 else t, q, qdot, out["qddot"], out["R_ws"], out["p_ws"], out["g_s"],
+    return LogSignals(t - t0 if t0 != 0.0 else t, q, qdot, None, out["R_ws"], out["p_ws"], out["g_s"],
                       out["a_s"], out["omega_s"], out["alpha_s"], r, np.zeros(n, bool), extra, setup, out["w_nom"],
                       np.zeros((n, 3), STORE), ph.tip_moment_map(setup.tool.tip_sensor_m), arm, False, has_time, None)
 

@@ -164,11 +164,12 @@ def build_design(s: sg.LogSignals, lib: dict[str, Effect], names: list[str], sig
     y = stream.row_values(s, rm, stream.Source("_residual", _residual_columns, [0]), chunk)[:, 0]
     con = rm.contact
     nf, nc = int((~con).sum()), int(con.sum())
-    channel = np.concatenate([np.tile(np.arange(6), nf), np.tile(np.arange(6, 9), nc)])
+    channel = np.concatenate([np.tile(np.arange(6, dtype=np.int8), nf), np.tile(np.arange(6, 9, dtype=np.int8), nc)])
     W = np.concatenate([np.tile(rm.w_free, nf), np.tile(rm.w_tip, nc)])
     t = s.clock  # a static log: the pose index (rows are in groups of similar poses)
     tr = np.concatenate([np.repeat(t[rm.rows][~con], 6), np.repeat(t[rm.rows][con], 3)]) - t[0]
     block, nb = _row_blocks(s, rm, tr, rc)
+    block = block.astype(np.int32)  # (R,): an hour's 2e6 rows
     for name in names:
         cols_cache[name] = stream.Source(name, lib[name].evaluate, list(range(lib[name].k)))
     nuis = [stream.Source("_offset", _offset_columns, list(range(6)))] if s.setup.log.tared else []
