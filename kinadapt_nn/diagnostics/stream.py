@@ -187,29 +187,64 @@ def _chunk_rows(s, rm: RowMap, sources: list[Source], a: int, b: int, halo: int,
     return pos, vals, C[a - lo:b - lo]
 
 
+class PassOpts(NamedTuple):
+    """What a ``block_stats`` pass keeps besides the normal equations."""
+
+    squares: bool = False  #: ``BlockStats.col_sq`` (else None)
+    #: the rows of the sources with the most columns, for ``combine`` (within ``ROW_CACHE_BYTES``): an
+    #: effect's later predictions then need no pass (``encoder_offset``'s kinematics, say)
+    keep: bool = False
+
+
+def _channels(rm: RowMap, pos: np.ndarray, vals: np.ndarray) -> np.ndarray:
+    """(q,) the channel (0-8) of each of a chunk's rows (``_chunk_rows``' order: free rows' six
+    channels, then contact rows' three tip moments)."""
+    nf = int(np.count_nonzero(pos < 6 * int((~rm.contact).sum())))
+    return np.concatenate([np.tile(np.arange(6), nf // 6), np.tile(np.arange(6, 9), (len(pos) - nf) // 3)])
+
+
+def _accumulate(G: np.ndarray, h: np.ndarray, A: np.ndarray, y: np.ndarray, key: np.ndarray) -> None:
+    """``G_b += A_b^T A_b``, ``h_b += A_b^T y_b`` per block b = ``key // 9``, one channel
+    (``key % 9``) at a time on the columns not zero in it: a column that lives in one channel (most
+    hint shapes: one channel's row of ``_per_channel``) costs nothing in the others."""
+    for kk in np.unique(key):
+        m = key == kk
+        Ab = A[m]
+        nz = np.flatnonzero(np.any(Ab, axis=0))
+        bb = int(kk) // 9
+        if len(nz) == A.shape[1]:
+            G[bb] += Ab.T @ Ab
+            h[bb] += Ab.T @ y[m]
+        elif len(nz):
+            Az = Ab[:, nz]
+            G[bb][np.ix_(nz, nz)] += Az.T @ Az
+            h[bb][nz] += Az.T @ y[m]
+
+
 def block_stats(s, rm: RowMap, sources: list[Source], y: np.ndarray, block: np.ndarray, n_blocks: int,
-                chunk: int | None = None, squares: bool = False) -> BlockStats:
+                chunk: int | None = None, opts: "PassOpts" = None) -> BlockStats:
     """One chunked pass: the per-block normal equations of ``sources``' columns (module docstring).
     ``y`` (R,), ``block`` (R,) the design's rows and their blocks; ``chunk`` samples per chunk
-    (default ``CHUNK_SAMPLES``); ``squares``: also ``BlockStats.col_sq`` (else None)."""
+    (default ``CHUNK_SAMPLES``); ``opts``: what else the pass keeps (``PassOpts``)."""
+    squares, keep = opts or PassOpts()
     K = sum(len(src.cols) for src in sources)
     chunk = chunk_for(chunk, K)
     G, h = np.zeros((n_blocks, K, K)), np.zeros((n_blocks, K))
     yy = np.bincount(block, weights=y * y, minlength=n_blocks).astype(float)
     col_sq = np.zeros((6, K)) if squares else None
+    offs = np.cumsum([0] + [len(src.cols) for src in sources])
+    cache: dict = {}
+    for i in sorted(range(len(sources)), key=lambda i: -len(sources[i].cols)) if keep else []:
+        if sum(v.nbytes for v in cache.values()) + 8 * len(y) * len(sources[i].cols) <= ROW_CACHE_BYTES:
+            cache[i] = np.zeros((len(y), len(sources[i].cols)))
     halo, w = halo_samples(s, rm.k_smooth), whole(s)
     for a, b in chunks(s.n, chunk):
         pos, vals, raw = _chunk_rows(s, rm, sources, a, b, halo, w)
         if squares:
             col_sq += np.einsum("nck,nck->ck", raw, raw)
-        blk = block[pos]
-        for bb in np.unique(blk):
-            m = blk == bb
-            Ab = vals[m]
-            G[bb] += Ab.T @ Ab
-            h[bb] += Ab.T @ y[pos[m]]
-
-    cache: dict = {}
+        _accumulate(G, h, vals, y[pos], block[pos] * 9 + _channels(rm, pos, vals))
+        for i, rows in cache.items():
+            rows[pos] = vals[:, offs[i]:offs[i + 1]]
 
     def combine(P: np.ndarray) -> np.ndarray:
         return combine_rows(s, rm, sources, P, block, len(y), chunk, cache)
@@ -283,5 +318,5 @@ def sample_sum(s, sources: list[Source], coefs: list[np.ndarray], k_smooth: int 
     return out
 
 
-__all__ = ["BlockStats", "CHUNK_BYTES", "CHUNK_SAMPLES", "ROW_CACHE_BYTES", "RowMap", "Source", "block_stats", "chunk_for", "chunks", "combine_rows",
+__all__ = ["BlockStats", "CHUNK_BYTES", "CHUNK_SAMPLES", "PassOpts", "ROW_CACHE_BYTES", "RowMap", "Source", "block_stats", "chunk_for", "chunks", "combine_rows",
            "halo_samples", "mean_at", "row_values", "sample_sum", "slice_signals", "smooth", "whole"]

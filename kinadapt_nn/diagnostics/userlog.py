@@ -173,7 +173,7 @@ def build_design(s: sg.LogSignals, lib: dict[str, Effect], names: list[str], sig
     for name in names:
         cols_cache[name] = stream.Source(name, lib[name].evaluate, list(range(lib[name].k)))
     nuis = [stream.Source("_offset", _offset_columns, list(range(6)))] if s.setup.log.tared else []
-    bs = stream.block_stats(s, rm, nuis + [cols_cache[n] for n in names], y, block, nb, chunk)
+    bs = stream.block_stats(s, rm, nuis + [cols_cache[n] for n in names], y, block, nb, chunk, stream.PassOpts(keep=True))
     R = len(y)
     X = {nm: sel.Width((R, lib[nm].k)) for nm in names}
     return sel.Design(y, X, sel.Width((R, 6 if nuis else 0)), block, nb, {nm: lib[nm].relevant for nm in names},
