@@ -163,6 +163,8 @@ def _timed(arm: ph.ArmModel, setup, data: tuple, qdot_log, has_time: bool) -> Lo
                                                     ("g_s", (n, 3)), ("a_s", (n, 3)), ("omega_s", (n, 3)),
                                                     ("alpha_s", (n, 3)), ("w_nom", (n, 6)))}
     m, mc, I_O = ph.nominal_inertials(setup)
+    socket = setup.contact.geometry != "none"  # its anchors are where its gate opens: the whole log at once,
+    pose64 = (np.empty((n, 3, 3)), np.empty((n, 3))) if socket else None  # from the pose in double precision
     for a, b in stream.chunks(n, KIN_CHUNK):
         lo, hi = max(0, a - halo), min(n, b + halo)
         tc = t[lo:hi]
@@ -174,8 +176,10 @@ def _timed(arm: ph.ArmModel, setup, data: tuple, qdot_log, has_time: bool) -> Lo
         for k in ("R_ws", "p_ws", "g_s", "a_s", "omega_s", "alpha_s"):
             out[k][a:b] = getattr(kin, k)[keep]
         out["w_nom"][a:b] = ph.tool_wrench(kin, m, mc, I_O)[keep]
-    if setup.contact.geometry != "none":  # a socket's anchors are where its gate opens: the whole log at once
-        out["w_nom"] += contact_model.nominal_wrench(setup, out["R_ws"].astype(float), out["p_ws"].astype(float))
+        if socket:
+            pose64[0][a:b], pose64[1][a:b] = kin.R_ws[keep], kin.p_ws[keep]
+    if socket:
+        out["w_nom"] += contact_model.nominal_wrench(setup, *pose64)
     t0 = t[0] if has_time else 0.0
     return LogSignals(t - t0 if t0 != 0.0 else t, q, qdot, None, out["R_ws"], out["p_ws"], out["g_s"],
                       out["a_s"], out["omega_s"], out["alpha_s"], r, np.zeros(n, bool), extra, setup, out["w_nom"],

@@ -1,19 +1,18 @@
 """A streamed diagnosis equals the unstreamed one (issue 37, section 2): the same log cut in chunks
 of several sizes, odd ones included, gives the same report to rounding.
 
-Tolerance. Cutting a log differently changes only the order of sums: the moving average's running
-sum over a chunk and the accumulation of the per-block normal equations ``G_b``, ``h_b`` (every
-row sees the same samples: ``stream.halo_samples``). Each sum of m terms moves by at most
-~m * eps relative (eps = 2.2e-16; m <= 1.2e4 rows per block here: <= 3e-12). A reported number is
-a smooth function of those sums through regularised solves whose condition number the selection's
-relative ridge (1e-9 of the mean diagonal) caps, and p-values move by the statistic times its own
-relative change. Measured on this log (chunks of 997 samples against one chunk, 2-core shared VM):
-the largest relative change of any reported number is 1.6e-11, of the held-out residual 6.8e-12.
+Tolerance. Cutting a log differently changes only the order of sums: the moving average's window
+sums over a chunk and the accumulation of the per-block normal equations ``G_b``, ``h_b`` (every
+row sees the same samples: ``stream.halo_samples``; the kinematics' chunks are widened by their
+derivatives' windows: ``signals.KIN_CHUNK``). Each sum of m terms moves by at most ~m * eps
+relative (eps = 2.2e-16; m <= 1.2e4 rows per block here: <= 3e-12); a kinematic quantity stored in
+single precision (``signals.STORE``) may round to the neighbouring float (6e-8 relative) when its
+double-precision value moved by rounding. A reported number is a smooth function of those sums
+through regularised solves whose condition number the selection's relative ridge (1e-9 of the mean
+diagonal) caps, and p-values move by the statistic times its own relative change. MEASURED_HERE
 The test allows ``RTOL`` = 1e-6 relative (and ``ATOL`` = 1e-12 absolute, for numbers that are zero
-up to rounding): 6e4 times what is measured (room for other chunkings to be amplified more
-through a p-value's tail or an ill-conditioned solve), and still far below anything a verdict or a
-printed 3-digit figure depends on. Verdicts, the selection's order, the columns used, the ties and every string must be
-identical.
+up to rounding), still far below anything a verdict or a printed 3-digit figure depends on.
+Verdicts, the selection's order, the columns used, the ties and every string must be identical.
 """
 
 from __future__ import annotations
