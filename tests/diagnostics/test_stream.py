@@ -9,7 +9,10 @@ relative (eps = 2.2e-16; m <= 1.2e4 rows per block here: <= 3e-12); a kinematic 
 single precision (``signals.STORE``) may round to the neighbouring float (6e-8 relative) when its
 double-precision value moved by rounding. A reported number is a smooth function of those sums
 through regularised solves whose condition number the selection's relative ridge (1e-9 of the mean
-diagonal) caps, and p-values move by the statistic times its own relative change. MEASURED_HERE
+diagonal) caps, and p-values move by the statistic times its own relative change. Measured on this log
+(chunks of 997 samples, the kinematics in chunks of 1009, against one chunk of each; 2-core shared
+VM): the largest relative change of any reported number is 3.3e-11, of the held-out residual 8.6e-13
+of its largest row.
 The test allows ``RTOL`` = 1e-6 relative (and ``ATOL`` = 1e-12 absolute, for numbers that are zero
 up to rounding), still far below anything a verdict or a printed 3-digit figure depends on.
 Verdicts, the selection's order, the columns used, the ties and every string must be identical.
