@@ -391,13 +391,38 @@ def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: i
     rpy_sd = np.maximum(np.sqrt(np.maximum(np.diag(G @ cov_loc @ G.T), 0.0)), rpy_sd_jk)
     ang_sd = max(float(np.rad2deg(np.sqrt(max(ga_ @ cov_loc @ ga_, 0.0)))), ang_sd_jk)
     # the fitted residual on every free sample (not only the subset)
-    fidx = np.flatnonzero(free)
-    r_free = s.wrench[fidx]
-    res = r_free - predict(x, s, fidx)
-    rep = report((x, sd), (rpy, rpy_sd), (float(np.rad2deg(th)), ang_sd), res, d._replace(r=r_free), s, rot_explains)
+    summary, res = _free_residual(x, s, free, residual)
+    rep = report((x, sd), (rpy, rpy_sd), (float(np.rad2deg(th)), ang_sd), summary, s, rot_explains)
     corr = cov / np.sqrt(np.maximum(np.outer(np.diag(cov), np.diag(cov)), 1e-300))
     return MountFit(x, sd, rpy, rpy_sd, float(np.rad2deg(th)), ang_sd, res if residual else None, rep,
                     corr * np.outer(sd, sd))
+
+
+class ResidualSummary(NamedTuple):
+    """The calibrated model's residual on the free samples, summarised (``report``)."""
+
+    rms: np.ndarray  #: (6,) [N, N m] per channel
+    peak: np.ndarray  #: (2,) [N, N m] the largest measured |F| and |M|
+    samples: int
+
+
+def _free_residual(x: np.ndarray, s, free: np.ndarray, keep: bool, chunk: int = 50_000
+                   ) -> tuple[ResidualSummary, np.ndarray | None]:
+    """The residual of the fit ``x`` on every free sample, in chunks: its summary, and the (m, 6)
+    residual itself when ``keep``."""
+    fidx = np.flatnonzero(free)
+    sq, peak, kept = np.zeros(6), np.zeros(2), []
+    for a in range(0, len(fidx), chunk):
+        i = fidx[a:a + chunk]
+        r = s.wrench[i]
+        e = r - predict(x, s, i)
+        sq += np.einsum("nc,nc->c", e, e)
+        peak = np.maximum(peak, [np.linalg.norm(r[:, :3], axis=1).max(), np.linalg.norm(r[:, 3:], axis=1).max()])
+        if keep:
+            kept.append(e)
+    rms = np.sqrt(sq / max(len(fidx), 1)) if len(fidx) else np.full(6, np.nan)
+    res = (np.concatenate(kept) if kept else np.zeros((0, 6))) if keep else None
+    return ResidualSummary(rms, peak, len(fidx)), res
 
 
 def _resid_at(D: np.ndarray, theta: np.ndarray, d: MountData) -> np.ndarray:
@@ -464,11 +489,12 @@ def plausibility(fitm: "MountFit", setup) -> list[str]:
     return out
 
 
-def report(fit: tuple, rpy: tuple, angle: tuple[float, float], res, d: MountData, s, rot_explains: float = 1.0) -> dict:
+def report(fit: tuple, rpy: tuple, angle: tuple[float, float], res: ResidualSummary, s, rot_explains: float = 1.0
+           ) -> dict:
     """The ``sensor_mount`` block of diagnosis.json (module docstring); offset/residual in the
     log's units and sign convention. ``fit`` = (x, sd) the fitted parameters and their sd, ``rpy``
     = (rpy, sd) the mount's roll/pitch/yaw [deg], ``angle`` = (angle, sd) its rotation from the
-    declared mount [deg]."""
+    declared mount [deg], ``res`` the residual on the free samples (``_free_residual``)."""
     (x, sd), (rpy, rpy_sd), (angle_deg, angle_sd) = fit, rpy, angle
     setup = s.setup
     scale = setup.log.wrench_scale()
@@ -480,11 +506,10 @@ def report(fit: tuple, rpy: tuple, angle: tuple[float, float], res, d: MountData
         c = x[4:7] / m
         com_sd = [float(abs(ci) * np.hypot(sd[4 + i] / max(abs(x[4 + i]), 1e-12), sd[3] / abs(m))) for i, ci in
                   enumerate(c)]
-    wf = np.concatenate([np.linalg.norm(d.r[:, :3], axis=1)[:, None].repeat(3, 1),
-                         np.linalg.norm(d.r[:, 3:], axis=1)[:, None].repeat(3, 1)], axis=1)
+    wf = np.repeat(res.peak, 3)  # (6,) the largest |F| (force channels) and |M| (moment channels)
     rel = np.array([setup.analysis.relevant_force_N] * 3 + [setup.analysis.relevant_moment_Nm] * 3)
     th = np.deg2rad(angle_deg)
-    second_order = float(np.max(wf.max(0) * th**2 / 2.0 / rel)) if len(wf) else 0.0
+    second_order = float(np.max(wf * th**2 / 2.0 / rel)) if res.samples else 0.0
     significant = angle_deg > SIGNIFICANT_SD * max(angle_sd, 1e-9)
     representable = angle_deg <= MAX_FIRST_ORDER_DEG and second_order < 1.0
     # a mount error is what the rotation explains: when it removes only part of what the declared mount
@@ -506,9 +531,9 @@ def report(fit: tuple, rpy: tuple, angle: tuple[float, float], res, d: MountData
         "offset_sd": [float(v) for v in sd[7:13] / scale],
         "offset_units": [setup.log.force_unit] * 3 + [setup.log.torque_unit] * 3,
         "offset_convention": setup.log.wrench_acts,
-        "residual_rms": [float(v) for v in np.sqrt(np.mean(res**2, axis=0)) / scale],
+        "residual_rms": [float(v) for v in res.rms / scale],
         "residual_units": [setup.log.force_unit] * 3 + [setup.log.torque_unit] * 3,
-        "samples": int(len(res)),
+        "samples": int(res.samples),
         "second_order_to_relevant": second_order,
         "rotation_explains": rot_explains,
         "method": "rotation, mass, first moment and offset fitted jointly (Gauss-Newton from a closed-form start "
