@@ -70,14 +70,17 @@ def _cross(st: sel.Stats, des: sel.Design, s, rm, y: np.ndarray, idx: np.ndarray
 
     bs = des.stats
     offs = np.cumsum([0] + [len(src.cols) for src in bs.sources])
-    srcs, where = [], []  # the sources of the columns idx, each with only those columns
+    kept = bs.rows or {}
+    srcs, where, out = [], [], {}  # the sources of the columns idx (not kept), each with only those columns
     for i, src in enumerate(bs.sources):
         mine = [int(c) for c in idx if offs[i] <= c < offs[i + 1]]
-        if mine:
+        if mine and i in kept:  # the design pass kept its rows: no pass
+            out.update(zip(mine, kept[i][:, [c - offs[i] for c in mine]].T @ y))
+        elif mine:
             srcs.append(src._replace(cols=[src.cols[c - offs[i]] for c in mine]))
             where += mine
-    h = stream.block_stats(s, rm, srcs, y, des.block, des.n_blocks, bs.chunk).h.sum(0)
-    out = dict(zip(where, h))
+    if srcs:
+        out.update(zip(where, stream.block_stats(s, rm, srcs, y, des.block, des.n_blocks, bs.chunk).h.sum(0)))
     return np.array([out[int(c)] for c in idx]) * st.col_scale[idx]
 
 

@@ -91,6 +91,7 @@ class BlockStats(NamedTuple):
     n_samples: int
     chunk: int  #: samples per chunk of the passes
     sources: list  #: the ``Source`` of each column group, in column order
+    rows: dict | None = None  #: source index -> its rows (R, k), where kept (``PassOpts.keep``, ``combine``)
 
 
 def mean_at(x: np.ndarray, k: int, idx: np.ndarray, chunk: int | None = None) -> np.ndarray:
@@ -249,7 +250,7 @@ def block_stats(s, rm: RowMap, sources: list[Source], y: np.ndarray, block: np.n
     def combine(P: np.ndarray) -> np.ndarray:
         return combine_rows(s, rm, sources, P, block, len(y), chunk, cache)
 
-    return BlockStats(G, h, yy, combine, col_sq, s.n, chunk, list(sources))
+    return BlockStats(G, h, yy, combine, col_sq, s.n, chunk, list(sources), cache)
 
 
 def combine_rows(s, rm: RowMap, sources: list[Source], P: np.ndarray, block: np.ndarray, R: int,
