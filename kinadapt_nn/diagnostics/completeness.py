@@ -351,7 +351,7 @@ def hint_design(s, des: sel.Design, rm, result, sh: list[Shape], rel9: np.ndarra
         nuis = [src for src in bs.sources if src.name == "_offset"]
         nuis += [src._replace(cols=pres[src.name]) for src in bs.sources if src.name in pres]
         srcs = [stream.Source(x.name, x.columns, list(range(len(x.params(s)[0])))) for x in sh]
-        st = stream.block_stats(s, rm, nuis + srcs, des.y, des.block, des.n_blocks, bs.chunk)
+        st = stream.block_stats(s, rm, nuis + srcs, des.y, des.block, des.n_blocks, bs.chunk, stream.PassOpts(squares=True))
         kz = sum(len(src.cols) for src in nuis)
         R, X, scale, k0 = len(des.y), {}, {}, kz
         for src in srcs:

@@ -118,5 +118,23 @@ def tip_derivative(setup, R_ws: np.ndarray, p_ws: np.ndarray, dtip_s) -> np.ndar
     df_s = np.einsum("nji,nj->ni", R_ws, -c.stiffness_lat_N_per_m * d_w)
     return np.concatenate([df_s, np.cross(tip, df_s) + np.cross(dtip, f_s)], axis=1)
 
+def nominal_wrench_dq(setup, R_ws: np.ndarray, p_ws: np.ndarray, J_v: np.ndarray, J_w: np.ndarray,
+                      eps: float = 1e-6) -> np.ndarray:
+    """(n, 6, dof) ``d nominal_wrench / d q_j``: joint j turns the sensor by ``J_w[:, :, j]`` and
+    moves its origin by ``J_v[:, :, j]`` (world, per unit ``q_j``); central differences of the
+    socket's wrench along that motion (the anchors are where the gate opens: not differentiable in
+    closed form)."""
+    n, _, dof = J_v.shape
+    C = np.zeros((n, 6, dof))
+    if setup.contact.geometry == "none":
+        return C
+    for j in range(dof):
+        w = []
+        for sgn in (1.0, -1.0):
+            Rj = Rotation.from_rotvec(sgn * eps * J_w[:, :, j]).as_matrix() @ R_ws
+            w.append(nominal_wrench(setup, Rj, p_ws + sgn * eps * J_v[:, :, j]))
+        C[:, :, j] = (w[0] - w[1]) / (2.0 * eps)
+    return C
 
-__all__ = ["SocketTerms", "socket_terms", "on_tool_to_sensor", "nominal_wrench", "tip_derivative", "RELEASE_M"]
+__all__ = ["SocketTerms", "socket_terms", "on_tool_to_sensor", "nominal_wrench", "nominal_wrench_dq", "tip_derivative",
+           "RELEASE_M"]

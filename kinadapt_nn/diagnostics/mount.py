@@ -115,49 +115,89 @@ def _inertia_columns(v: np.ndarray) -> np.ndarray:
 def _linear_part(D: np.ndarray, d: MountData) -> tuple[np.ndarray, np.ndarray]:
     """The model is linear in ``theta = [m, m c, b]`` (10,) -- and, when the samples turn the sensor
     (``_moves``), the six entries of the tool's inertia about the sensor origin beyond the declared
-    ``I_O`` (theta (16,); a payload changes the inertia too, and a fit that leaves it out biases
-    the mount and the centre of mass: the ten inertial parameters of Atkeson, An & Hollerbach 1986)
-    -- for a fixed rotation ``D``: ``w = A theta + c`` with A (n, 6, 10 or 16) and c (n, 6) (the
-    declared inertia's own terms). Only ``theta[:10]`` is reported; the inertia stays a nuisance
-    (the ``tool_inertia`` effect judges it against the declared tool)."""
-    ga, om, al = d.ga @ D, d.omega @ D, d.alpha @ D  # rows: D^T v
-    n = len(ga)
-    A = np.zeros((n, 6, N_THETA + (N_INERTIA if _moves(d) else 0)))
-    A[:, :3, 0] = ga
-    So = _skews(om)
-    A[:, :3, 1:4] = -(_skews(al) + So @ So)  # -alpha x mc - omega x (omega x mc)
-    A[:, 3:, 1:4] = -_skews(ga)  # mc x ga
+    ``I_O`` (theta (16,) = [m, m c, b, dI]; a payload changes the inertia too, and a fit that leaves
+    it out biases the mount and the centre of mass: the ten inertial parameters of Atkeson, An &
+    Hollerbach 1986) -- for a fixed rotation ``D``: ``w = A theta + c`` with A (n, 6, 10 or 16) and
+    c (n, 6) (the declared inertia's own terms). Only ``theta[:10]`` is reported; the inertia stays
+    a nuisance (the ``tool_inertia`` effect judges it against the declared tool)."""
+    Ad, c = _dense_part(D, d)
+    A = np.zeros((len(Ad), 6, N_THETA + Ad.shape[2] - 4))
+    A[:, :, :4] = Ad[:, :, :4]
     A[:, :, 4:N_THETA] = np.eye(6)
-    c = np.zeros((n, 6))
-    c[:, 3:] = -al @ d.I_O.T - np.einsum("nij,nj->ni", So, om @ d.I_O.T)
-    if A.shape[2] > N_THETA:  # - dI alpha - omega x (dI omega)
-        A[:, 3:, N_THETA:] = -(_inertia_columns(al) + So @ _inertia_columns(om))
+    A[:, :, N_THETA:] = Ad[:, :, 4:]
     return A, c
 
 
-def _skews(v: np.ndarray) -> np.ndarray:
-    """(n, 3) -> (n, 3, 3) cross-product matrices."""
-    S = np.zeros((len(v), 3, 3))
-    S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
-    S[:, 1, 0], S[:, 2, 0], S[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
-    return S
+def _mass_part(D: np.ndarray, d: MountData) -> tuple[np.ndarray, np.ndarray]:
+    """``_linear_part``'s mass and first-moment columns A1 (n, 6, 4) and c (n, 6) (its offset columns
+    are the identity)::
+
+        F: m ga - (alpha x + omega x omega x) mc = m ga - ([alpha]x + omega omega^T - |omega|^2 1) mc
+        M: mc x ga = -[ga]x mc;   c_M = -I_O alpha - omega x (I_O omega)
+    """
+    ga, om, al = d.ga @ D, d.omega @ D, d.alpha @ D  # rows: D^T v
+    n = len(ga)
+    A = np.zeros((n, 6, 4))
+    A[:, :3, 0] = ga
+    M = A[:, :3, 1:]
+    M -= om[:, :, None] * om[:, None, :]
+    w2 = np.einsum("ni,ni->n", om, om)
+    for i in range(3):
+        M[:, i, i] += w2
+    M[:, 0, 1] += al[:, 2]
+    M[:, 0, 2] -= al[:, 1]
+    M[:, 1, 0] -= al[:, 2]
+    M[:, 1, 2] += al[:, 0]
+    M[:, 2, 0] += al[:, 1]
+    M[:, 2, 1] -= al[:, 0]
+    G = A[:, 3:, 1:]
+    G[:, 0, 1], G[:, 0, 2], G[:, 1, 2] = ga[:, 2], -ga[:, 1], ga[:, 0]
+    G[:, 1, 0], G[:, 2, 0], G[:, 2, 1] = -ga[:, 2], ga[:, 1], -ga[:, 0]
+    c = np.zeros((n, 6))
+    Iw = om @ d.I_O.T
+    c[:, 3:] = -al @ d.I_O.T - np.cross(om, Iw)
+    return A, c
+
+
+def _dense_part(D: np.ndarray, d: MountData) -> tuple[np.ndarray, np.ndarray]:
+    """``_mass_part``'s columns (n, 6, 4) and, when the samples turn the sensor (``_moves``), the
+    inertia nuisance's six after them (n, 6, 10): ``- dI alpha - omega x (dI omega)`` in M. -> (A, c)."""
+    A1, c = _mass_part(D, d)
+    if not _moves(d):
+        return A1, c
+    om, al = d.omega @ D, d.alpha @ D
+    A = np.zeros((len(A1), 6, 4 + N_INERTIA))
+    A[:, :, :4] = A1
+    Lo = _inertia_columns(om)  # (n, 3, 6): omega x (dI omega) column by column
+    A[:, 3:, 4:] = -(_inertia_columns(al) + np.cross(om[:, None, :], Lo.transpose(0, 2, 1)).transpose(0, 2, 1))
+    return A, c
 
 
 def _model(x: np.ndarray, d: MountData) -> np.ndarray:
     """(13,) [rotvec, m, mc, b] -> predicted wrench (n, 6) (the declared inertia; no fitted nuisance)."""
-    A, c = _linear_part(rotvec_matrix(x[:3]), d)
-    return np.einsum("nik,k->ni", A[:, :, :N_THETA], x[3:3 + N_THETA]) + c
+    A1, c = _mass_part(rotvec_matrix(x[:3]), d)
+    return np.einsum("nik,k->ni", A1, x[3:7]) + x[7:13] + c
 
 
 def _project(D: np.ndarray, d: MountData, rw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The best ``theta`` for the rotation ``D`` (weighted least squares, robust row weights
-    ``rw`` (n, 6)) and the noise-weighted residual (n*6,)."""
-    A, c = _linear_part(D, d)
-    sw = d.w * np.sqrt(rw)  # (n, 6)
-    Aw = (A * sw[:, :, None]).reshape(-1, A.shape[2])
-    yw = ((d.r - c) * sw).reshape(-1)
-    theta = _normal_solve(Aw, yw)
-    return theta, ((d.r - c - np.einsum("nik,k->ni", A, theta)) * d.w).reshape(-1)
+    ``rw`` (n, 6)) and the noise-weighted residual (n*6,). The normal equations by blocks: the
+    offset's columns are the identity (``_dense_part``: the mass, first moment and inertia nuisance)."""
+    Ad, c = _dense_part(D, d)
+    k = Ad.shape[2]
+    y = d.r - c
+    sw2 = d.w**2 * rw  # (n, 6) squared row weights
+    Aw = Ad * sw2[:, :, None]
+    H = np.empty((k + 6, k + 6))
+    H[:k, :k] = Aw.reshape(-1, k).T @ Ad.reshape(-1, k)
+    H[:k, k:] = Aw.sum(0).T
+    H[k:, :k] = H[:k, k:].T
+    H[k:, k:] = np.diag(sw2.sum(0))
+    g = np.concatenate([np.einsum("nck,nc->k", Aw, y), (sw2 * y).sum(0)])
+    H[np.diag_indices_from(H)] += 1e-12 * max(float(np.trace(H)), 1e-300) / len(H)  # as _normal_solve
+    sol = np.linalg.solve(H, g)
+    theta = np.concatenate([sol[:4], sol[k:], sol[4:k]])  # [m, m c, b, dI]
+    return theta, ((y - np.einsum("nik,k->ni", Ad, sol[:k]) - sol[k:]) * d.w).reshape(-1)
 
 
 def _normal_solve(A: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -293,7 +333,7 @@ class MountFit(NamedTuple):
     rpy_sd_deg: np.ndarray  #: (3,)
     angle_deg: float  #: rotation from the declared mount
     angle_sd_deg: float
-    residual: np.ndarray  #: (n, 6) [N, N m] measured - fitted on the free samples, SI
+    residual: np.ndarray | None  #: (n, 6) [N, N m] measured - fitted on the free samples, SI (None: not kept)
     report: dict  #: diagnosis.json "sensor_mount"
     cov: np.ndarray | None = None  #: (13, 13) of (local rotation, theta): the information correlation at ``sd``
 
@@ -307,10 +347,12 @@ def shifted(x: np.ndarray, dx: np.ndarray) -> np.ndarray:
     return np.concatenate([Rotation.from_matrix(D).as_rotvec(), x[3:] + dx[3:]])
 
 
-def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: int = 20) -> MountFit:
+def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: int = 20,
+        residual: bool = True) -> MountFit:
     """The calibration fit on the free-space samples ``free`` (n,) bool of ``LogSignals`` s.
     ``block`` (n,) the cross-validation block of every sample; ``sigma`` (6,) the per-channel
-    noise. -> ``MountFit`` (module docstring)."""
+    noise; ``residual``: keep the residual of every free sample (else ``MountFit.residual`` is
+    None: a long log's free samples). -> ``MountFit`` (module docstring)."""
     from scipy.spatial.transform import Rotation
 
     from kinadapt_nn.diagnostics.physical import nominal_inertials
@@ -392,12 +434,38 @@ def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: i
     rpy_sd = np.maximum(np.sqrt(np.maximum(np.diag(G @ cov_loc @ G.T), 0.0)), rpy_sd_jk)
     ang_sd = max(float(np.rad2deg(np.sqrt(max(ga_ @ cov_loc @ ga_, 0.0)))), ang_sd_jk)
     # the fitted residual on every free sample (not only the subset)
-    dall = d._replace(ga=s.g_s[free] - s.a_s[free], omega=s.omega_s[free], alpha=s.alpha_s[free], r=s.wrench[free],
-                      block=block[free])
-    res = dall.r - _model(x, dall)
-    rep = report((x, sd), (rpy, rpy_sd), (float(np.rad2deg(th)), ang_sd), res, dall, s, rot_explains)
+    summary, res = _free_residual(x, s, free, residual)
+    rep = report((x, sd), (rpy, rpy_sd), (float(np.rad2deg(th)), ang_sd), summary, s, rot_explains)
     corr = cov / np.sqrt(np.maximum(np.outer(np.diag(cov), np.diag(cov)), 1e-300))
-    return MountFit(x, sd, rpy, rpy_sd, float(np.rad2deg(th)), ang_sd, res, rep, corr * np.outer(sd, sd))
+    return MountFit(x, sd, rpy, rpy_sd, float(np.rad2deg(th)), ang_sd, res if residual else None, rep,
+                    corr * np.outer(sd, sd))
+
+
+class ResidualSummary(NamedTuple):
+    """The calibrated model's residual on the free samples, summarised (``report``)."""
+
+    rms: np.ndarray  #: (6,) [N, N m] per channel
+    peak: np.ndarray  #: (2,) [N, N m] the largest measured |F| and |M|
+    samples: int
+
+
+def _free_residual(x: np.ndarray, s, free: np.ndarray, keep: bool, chunk: int = 50_000
+                   ) -> tuple[ResidualSummary, np.ndarray | None]:
+    """The residual of the fit ``x`` on every free sample, in chunks: its summary, and the (m, 6)
+    residual itself when ``keep``."""
+    fidx = np.flatnonzero(free)
+    sq, peak, kept = np.zeros(6), np.zeros(2), []
+    for a in range(0, len(fidx), chunk):
+        i = fidx[a:a + chunk]
+        r = s.wrench[i]
+        e = r - predict(x, s, i)
+        sq += np.einsum("nc,nc->c", e, e)
+        peak = np.maximum(peak, [np.linalg.norm(r[:, :3], axis=1).max(), np.linalg.norm(r[:, 3:], axis=1).max()])
+        if keep:
+            kept.append(e)
+    rms = np.sqrt(sq / max(len(fidx), 1)) if len(fidx) else np.full(6, np.nan)
+    res = (np.concatenate(kept) if kept else np.zeros((0, 6))) if keep else None
+    return ResidualSummary(rms, peak, len(fidx)), res
 
 
 def _block_costs(D: np.ndarray, theta: np.ndarray, d: MountData) -> np.ndarray:
@@ -431,13 +499,21 @@ def _resid_at(D: np.ndarray, theta: np.ndarray, d: MountData) -> np.ndarray:
     return ((d.r - c - np.einsum("nik,k->ni", A, theta)) * d.w).reshape(-1)
 
 
-def predict(x: np.ndarray, s) -> np.ndarray:
-    """The calibrated model's wrench (n, 6) [N, N m] on every sample of ``LogSignals`` s."""
+def predict(x: np.ndarray, s, idx: np.ndarray | None = None, chunk: int = 50_000) -> np.ndarray:
+    """The calibrated model's wrench (n, 6) [N, N m] on every sample of ``LogSignals`` s, or on the
+    samples ``idx`` (m,) only (-> (m, 6)); in chunks of ``chunk`` samples (the linear part is
+    (chunk, 6, 10))."""
     from kinadapt_nn.diagnostics.physical import nominal_inertials
 
     _, _, I_O = nominal_inertials(s.setup)
-    d = MountData(s.g_s - s.a_s, s.omega_s, s.alpha_s, s.wrench, np.ones(6), I_O, np.zeros(s.n, int))
-    return _model(x, d)
+    idx = np.arange(s.n) if idx is None else np.asarray(idx)
+    out = np.empty((len(idx), 6))
+    for a in range(0, len(idx), chunk):
+        i = idx[a:a + chunk]
+        d = MountData(s.g_s[i] - s.a_s[i], s.omega_s[i], s.alpha_s[i], s.wrench[i], np.ones(6), I_O,
+                      np.zeros(len(i), int))
+        out[a:a + chunk] = _model(x, d)
+    return out
 
 
 def refine_rotation(d: MountData, starts: list[np.ndarray], iters: int = 8) -> np.ndarray:
@@ -497,11 +573,12 @@ def heavier_than_declared(fitm: "MountFit", setup) -> str | None:
             f"{m_decl:g} kg: a payload the set-up lacks (see tool_gravity) or [tool] mass_kg is wrong")
 
 
-def report(fit: tuple, rpy: tuple, angle: tuple[float, float], res, d: MountData, s, rot_explains: float = 1.0) -> dict:
+def report(fit: tuple, rpy: tuple, angle: tuple[float, float], res: ResidualSummary, s, rot_explains: float = 1.0
+           ) -> dict:
     """The ``sensor_mount`` block of diagnosis.json (module docstring); offset/residual in the
     log's units and sign convention. ``fit`` = (x, sd) the fitted parameters and their sd, ``rpy``
     = (rpy, sd) the mount's roll/pitch/yaw [deg], ``angle`` = (angle, sd) its rotation from the
-    declared mount [deg]."""
+    declared mount [deg], ``res`` the residual on the free samples (``_free_residual``)."""
     (x, sd), (rpy, rpy_sd), (angle_deg, angle_sd) = fit, rpy, angle
     setup = s.setup
     scale = setup.log.wrench_scale()
@@ -513,11 +590,10 @@ def report(fit: tuple, rpy: tuple, angle: tuple[float, float], res, d: MountData
         c = x[4:7] / m
         com_sd = [float(abs(ci) * np.hypot(sd[4 + i] / max(abs(x[4 + i]), 1e-12), sd[3] / abs(m))) for i, ci in
                   enumerate(c)]
-    wf = np.concatenate([np.linalg.norm(d.r[:, :3], axis=1)[:, None].repeat(3, 1),
-                         np.linalg.norm(d.r[:, 3:], axis=1)[:, None].repeat(3, 1)], axis=1)
+    wf = np.repeat(res.peak, 3)  # (6,) the largest |F| (force channels) and |M| (moment channels)
     rel = np.array([setup.analysis.relevant_force_N] * 3 + [setup.analysis.relevant_moment_Nm] * 3)
     th = np.deg2rad(angle_deg)
-    second_order = float(np.max(wf.max(0) * th**2 / 2.0 / rel)) if len(wf) else 0.0
+    second_order = float(np.max(wf * th**2 / 2.0 / rel)) if res.samples else 0.0
     significant = angle_deg > SIGNIFICANT_SD * max(angle_sd, 1e-9)
     representable = angle_deg <= MAX_FIRST_ORDER_DEG and second_order < 1.0
     # a mount error is what the rotation explains: when it removes only part of what the declared mount
@@ -539,9 +615,9 @@ def report(fit: tuple, rpy: tuple, angle: tuple[float, float], res, d: MountData
         "offset_sd": [float(v) for v in sd[7:13] / scale],
         "offset_units": [setup.log.force_unit] * 3 + [setup.log.torque_unit] * 3,
         "offset_convention": setup.log.wrench_acts,
-        "residual_rms": [float(v) for v in np.sqrt(np.mean(res**2, axis=0)) / scale],
+        "residual_rms": [float(v) for v in res.rms / scale],
         "residual_units": [setup.log.force_unit] * 3 + [setup.log.torque_unit] * 3,
-        "samples": int(len(res)),
+        "samples": int(res.samples),
         "second_order_to_relevant": second_order,
         "rotation_explains": rot_explains,
         "method": "rotation, mass, first moment and offset fitted jointly (Gauss-Newton from a closed-form start "

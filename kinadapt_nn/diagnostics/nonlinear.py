@@ -45,7 +45,7 @@ def refine(result: sel.Selection, des: sel.Design, rm, s, lib: dict, cols: dict,
                 full[c] = p_phys[n]
                 rem += lib[n].exact(s, full) - _first_order(s, cols[n], full, des)
         y_rem = rm.apply(rem[:, :, None])[:, 0]  # (R,) the remainder as rows
-        p_phys = _split(st.solve(G, st.ht[idx] - _cross(st, des, s, rm, y_rem)[idx], rc.ridge) * scale, chosen, len(base))
+        p_phys = _split(st.solve(G, st.ht[idx] - _cross(st, des, s, rm, y_rem, idx), rc.ridge) * scale, chosen, len(base))
     return _with_params(result, p_phys)
 
 
@@ -60,16 +60,28 @@ def _first_order(s, src, full: np.ndarray, des: sel.Design) -> np.ndarray:
     return stream.sample_sum(s, [src._replace(cols=list(range(len(full))))], [full], 1, chunk)
 
 
-def _cross(st: sel.Stats, des: sel.Design, s, rm, y: np.ndarray) -> np.ndarray:
-    """(K,) the design's scaled columns times the rows ``y`` (R,): ``A^T y`` from the held columns,
-    or one chunked pass over the log for a streamed design."""
+def _cross(st: sel.Stats, des: sel.Design, s, rm, y: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """(len(idx),) the design's scaled columns ``idx`` times the rows ``y`` (R,): ``A^T y`` from the
+    held columns, or one chunked pass over the log that evaluates only the sources of those columns
+    (a streamed design)."""
     if st.A is not None:
-        return st.A.T @ y
+        return (st.A.T @ y)[idx]
     from kinadapt_nn.diagnostics import stream
 
     bs = des.stats
-    h = stream.block_stats(s, rm, bs.sources, y, des.block, des.n_blocks, bs.chunk).h
-    return h.sum(0) * st.col_scale
+    offs = np.cumsum([0] + [len(src.cols) for src in bs.sources])
+    kept = bs.rows or {}
+    srcs, where, out = [], [], {}  # the sources of the columns idx (not kept), each with only those columns
+    for i, src in enumerate(bs.sources):
+        mine = [int(c) for c in idx if offs[i] <= c < offs[i + 1]]
+        if mine and i in kept:  # the design pass kept its rows: no pass
+            out.update(zip(mine, kept[i][:, [c - offs[i] for c in mine]].T @ y))
+        elif mine:
+            srcs.append(src._replace(cols=[src.cols[c - offs[i]] for c in mine]))
+            where += mine
+    if srcs:
+        out.update(zip(where, stream.block_stats(s, rm, srcs, y, des.block, des.n_blocks, bs.chunk).h.sum(0)))
+    return np.array([out[int(c)] for c in idx]) * st.col_scale[idx]
 
 
 def _split(p: np.ndarray, chosen: list[tuple[str, list[int]]], k0: int) -> dict[str, np.ndarray]:

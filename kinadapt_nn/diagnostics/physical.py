@@ -81,13 +81,9 @@ class ArmModel:
         raise KinadaptError(f"{what} has {got} but {self.source} has {self.dof} joints between its base and the "
                             "flange; give one [log] q column per arm joint (base to flange) or fix [arm]")
 
-    def series(self, q: np.ndarray, qdot: np.ndarray, t_s: np.ndarray) -> KinSeries:
-        """Sensor kinematics for (N, dof) joint positions/velocities at times (N,) -> ``KinSeries``.
-
-        Velocities from the site Jacobian, accelerations by a Savitzky-Golay derivative of the
-        world-frame sensor twist (window ``ACC_WINDOW_S``)."""
-        self.check_joints(q)
-        self.check_joints(qdot, "the joint velocity")
+    def _frames(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """MuJoCo per sample: (R_wf (N, 3, 3), flange origin x_w (N, 3), site Jacobians Jp, Jr
+        (N, 3, dof)) of joint positions (N, dof)."""
         mj, m, d = self._mj, self.model, self.data
         n = len(q)
         xpos = d.site_xpos[self.site]
@@ -99,7 +95,7 @@ class ArmModel:
         x_w = np.empty((n, 3))
         Jp = np.empty((n, 3, self.dof))
         Jr = np.empty((n, 3, self.dof))
-        for i in range(n):  # MuJoCo per sample; everything else vectorised below
+        for i in range(n):  # MuJoCo per sample; everything else vectorised by the callers
             qpos[sl] = q[i]
             mj.mj_kinematics(m, d)
             mj.mj_comPos(m, d)
@@ -108,15 +104,36 @@ class ArmModel:
             x_w[i] = xpos
             Jp[i] = jacp[:, cols]
             Jr[i] = jacr[:, cols]
+        return R_wf, x_w, Jp, Jr
+
+    def series(self, q: np.ndarray, qdot: np.ndarray, t_s: np.ndarray, dt_s: float | None = None) -> KinSeries:
+        """Sensor kinematics for (N, dof) joint positions/velocities at times (N,) -> ``KinSeries``.
+
+        Velocities from the site Jacobian, accelerations by a Savitzky-Golay derivative of the
+        world-frame sensor twist (window ``ACC_WINDOW_S``; ``dt_s`` as ``derivative``'s)."""
+        self.check_joints(q)
+        self.check_joints(qdot, "the joint velocity")
+        n = len(q)
+        R_wf, x_w, Jp, Jr = self._frames(q)
         R_ws = R_wf @ self.R_fs
         lever_w = R_wf @ self.p_fs  # (n, 3) flange origin -> sensor origin, world
         p_ws = x_w + lever_w
         w_w = np.einsum("nij,nj->ni", Jr, qdot)
         v_w = np.einsum("nij,nj->ni", Jp, qdot) + np.cross(w_w, lever_w)
-        dv = derivative(v_w, t_s)
-        dw = derivative(w_w, t_s)
+        dv = derivative(v_w, t_s, dt_s=dt_s)
+        dw = derivative(w_w, t_s, dt_s=dt_s)
         rot = lambda x: np.einsum("nji,nj->ni", R_ws, x)  # noqa: E731  (world -> s)
         return KinSeries(R_ws, rot(np.broadcast_to(self.g_w, (n, 3))), rot(dv), rot(w_w), rot(dw), p_ws)
+
+    def sensor_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The sensor origin's Jacobians, world frame: (J_v, J_w), each (N, 3, dof): the velocity of
+        the sensor origin and the angular velocity per unit rate of each joint (a hinge's J_w column
+        is its axis, J_v = axis x (sensor origin - a point on the axis); a slide's J_w is 0, J_v its
+        axis)."""
+        self.check_joints(q)
+        R_wf, _, Jp, Jr = self._frames(q)
+        lever_w = R_wf @ self.p_fs  # (n, 3)
+        return Jp + _x(Jr, lever_w[:, :, None]), Jr
 
 
 def _as_slice(idx: np.ndarray) -> slice | np.ndarray:
@@ -126,17 +143,72 @@ def _as_slice(idx: np.ndarray) -> slice | np.ndarray:
     return idx
 
 
-def derivative(x: np.ndarray, t_s: np.ndarray, window_s: float = ACC_WINDOW_S) -> np.ndarray:
+def derivative(x: np.ndarray, t_s: np.ndarray, window_s: float = ACC_WINDOW_S, dt_s: float | None = None
+               ) -> np.ndarray:
     """Smoothed time derivative of (N, k) samples: Savitzky-Golay (cubic) over ``window_s`` on
-    the median step (the readers refuse gaps), ``np.gradient`` for very short logs."""
+    the median step (the readers refuse gaps; ``dt_s``: that step, when ``x`` is a chunk of a
+    longer log), ``np.gradient`` for very short logs."""
     from scipy.signal import savgol_filter
 
     n = len(x)
-    dt = float(np.median(np.diff(t_s))) if n > 1 else 1.0
+    dt = float(dt_s) if dt_s is not None else float(np.median(np.diff(t_s))) if n > 1 else 1.0
     k = int(round(window_s / dt)) | 1
     if n < max(k, 7):
         return np.gradient(x, t_s, axis=0) if n > 1 else np.zeros_like(x)
     return savgol_filter(x, max(k, 5), 3, deriv=1, delta=dt, axis=0, mode="interp")
+
+
+def _x(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross products along axis 1 of (n, 3[, k]) arrays (broadcast; written out: ``np.cross``
+    with axis arguments copies its operands)."""
+    a0, a1, a2 = a[:, 0], a[:, 1], a[:, 2]
+    b0, b1, b2 = b[:, 0], b[:, 1], b[:, 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=1)
+
+
+def twist_dq(J_v: np.ndarray, J_w: np.ndarray, qdot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(dv, dw), each (n, 3, dof): the world-frame velocity of the sensor origin and angular velocity
+    per unit change of each joint's position at fixed joint rates. Moving joint j turns (or shifts)
+    everything distal to it: the columns i > j turn about joint j's axis ``z_j`` (their derivative
+    ``z_j x col_i``) and the sensor origin moves by ``J_v[:, j]``, which the proximal rates i <= j see::
+
+        dw_j = z_j x sum_{i>j} J_w,i qd_i
+        dv_j = z_j x sum_{i>j} J_v,i qd_i + (sum_{i<=j} J_w,i qd_i) x J_v,j
+
+    (a serial chain, joints base first; a slide joint has z_j = 0)."""
+    wq = J_w * qdot[:, None, :]  # (n, 3, dof)
+    vq = J_v * qdot[:, None, :]
+    w_le, v_le = np.cumsum(wq, axis=2), np.cumsum(vq, axis=2)
+    w_gt, v_gt = w_le[:, :, -1:] - w_le, v_le[:, :, -1:] - v_le
+    return _x(J_w, v_gt) + _x(w_le, J_v), _x(J_w, w_gt)
+
+
+def wrench_dq(kin: KinSeries, J_v: np.ndarray, J_w: np.ndarray, qdot: np.ndarray, t_s: np.ndarray,
+              inertials: tuple[float, np.ndarray, np.ndarray]) -> np.ndarray:
+    """(n, 6, dof): ``d tool_wrench / d q_j`` (joint rates and times fixed), analytic. The sensor
+    frame turns by ``z_j`` (world) per unit ``q_j``, so a world vector seen in s changes by
+    ``-zs x x_s`` (``zs = R_ws^T z_j``) plus its own change; the accelerations are the same
+    Savitzky-Golay derivative (``derivative``) of the twist's change (``twist_dq``). ``inertials``
+    = (m, m c, I_O) of ``nominal_inertials``."""
+    m, mc, I_O = inertials
+    n, dof = qdot.shape
+    dv, dw = twist_dq(J_v, J_w, qdot)
+    ddv = derivative(dv.reshape(n, 3 * dof), t_s).reshape(n, 3, dof)
+    ddw = derivative(dw.reshape(n, 3 * dof), t_s).reshape(n, 3, dof)
+    R = kin.R_ws
+    Rt = R.transpose(0, 2, 1)
+    to_s = lambda x: np.matmul(Rt, x)  # noqa: E731  (world -> s, (n, 3, dof))
+    zs = to_s(J_w)
+    om, al = kin.omega_s[:, :, None], kin.alpha_s[:, :, None]
+    d_om = to_s(dw) - _x(zs, om)
+    d_al = to_s(ddw) - _x(zs, al)
+    d_ga = _x(zs, (kin.a_s - kin.g_s)[:, :, None]) - to_s(ddv)  # d(g_s - a_s)
+    mcv = np.broadcast_to(mc[None, :, None], zs.shape)
+    C = np.empty((n, 6, dof))
+    C[:, :3] = m * d_ga - _x(d_al, mcv) - _x(d_om, _x(om, mcv)) - _x(om, _x(d_om, mcv))
+    I_om = np.einsum("ij,nj->ni", I_O, kin.omega_s)[:, :, None]
+    C[:, 3:] = _x(mcv, d_ga) - I_O @ d_al - _x(d_om, I_om) - _x(om, I_O @ d_om)
+    return C
 
 
 def tool_wrench(kin: KinSeries, mass: float, mc_s: np.ndarray, I_O: np.ndarray) -> np.ndarray:

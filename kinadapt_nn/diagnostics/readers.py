@@ -10,7 +10,8 @@ Formats, chosen by the path:
 
 * ``*.csv``, ``*.csv.gz``: a header row with the column names, one row per sample; extra columns
   are ignored; the delimiter (``,``, ``;`` or tab) is taken from the header line.
-* ``*.parquet``, ``*.pq``: one column per name. A timestamp/duration time column is converted to
+* ``*.parquet``, ``*.pq``: one column per name, read in batches of ``PARQUET_BATCH_ROWS`` rows (only the
+  setup's columns). A timestamp/duration time column is converted to
   seconds by its own unit (``log.time_scale_s`` must then be 1).
 * A ROS 2 bag (a folder with ``metadata.yaml``, or a ``.mcap`` / ``.db3`` file):
   ``sensor_msgs/msg/JointState`` on ``log.joint_state_topic`` (``log.q`` are joint names; the
@@ -69,6 +70,7 @@ MIN_SAMPLES = 50  # fewer samples cannot be diagnosed
 MIN_POSES = 12  # fewer rows of a static log (poses at rest) cannot be diagnosed
 GAP_FACTOR = 5.0  # a time step over this many median steps is a gap
 _LIST_MAX = 25  # names listed in a "missing column" message
+PARQUET_BATCH_ROWS = 65_536  # a Parquet log is read this many rows at a time (only the setup's columns)
 
 Label = Callable[[int], str]  # 0-based sample index -> "line 12" / "sample 10"
 
@@ -303,10 +305,25 @@ def _numbers(path: Path, col: pa.ChunkedArray, name: str, label: Label, time: bo
 
 
 def _from_table(path: Path, table: pa.Table, log: LogCfg, label: Label, unit: str) -> UserLog:
-    """Pick the setup's columns out of a table (CSV or Parquet) and validate them."""
+    """Pick the setup's columns out of a table (CSV) and validate them."""
+    return _from_batches(path, _Columns(list(table.column_names), table.num_rows, lambda names: [table.select(names)]),
+                         log, label, unit)
+
+
+class _Columns(NamedTuple):
+    """A file's columns, read in batches: ``batches(names)`` yields tables of those columns, in row order."""
+
+    names: list  #: the file's column names (as stored)
+    rows: int
+    batches: Callable
+
+
+def _from_batches(path: Path, src: _Columns, log: LogCfg, label: Label, unit: str) -> UserLog:
+    """Pick the setup's columns out of a file read in batches (CSV: one; Parquet: row groups) and
+    validate them; only the setup's columns are read, each batch straight into the result."""
     from kinadapt_nn.diagnostics.setup import LogCfg
 
-    header = [str(c).strip() for c in table.column_names]
+    header = [str(c).strip() for c in src.names]
     if log.static and log.time == LogCfg.model_fields["time"].default and log.time not in header:
         log = log.model_copy(update={"time": ""})  # a static log's time is optional: the default column absent
     fields = ([("time", log.time)] if log.time else []) + [("q", c) for c in log.q] + \
@@ -319,14 +336,21 @@ def _from_table(path: Path, table: pa.Table, log: LogCfg, label: Label, unit: st
                         f"supported formats: {SUPPORTED})")
             raise KinadaptError(f"log '{path}' has no column '{c}' (log.{field} in the setup); its columns: "
                                 f"{_list_names(header)}; fix the name in the setup's [log] section{hint}")
-    _check_count(path, table.num_rows, unit, log.static)
-    col = {c: table.column(header.index(c)) for _, c in fields}
-    time, per_s = (_numbers(path, col[log.time], log.time, label, time=True, log=log) if log.time
-                   else (None, 1.0))  # a static log without time
+    _check_count(path, src.rows, unit, log.static)
+    raw = {c: src.names[header.index(c)] for _, c in fields}  # the stored name of each
     names = [*log.q, *log.qdot, *log.wrench, *log.extra]
-    cols = np.empty((table.num_rows, len(names)))  # (N, dof + n_qdot + 6 + n_extra) in the log's units
-    for j, c in enumerate(names):
-        cols[:, j] = _numbers(path, col[c], c, label)[0]
+    cols = np.empty((src.rows, len(names)))  # (N, dof + n_qdot + 6 + n_extra) in the log's units
+    times, per_s, a = [], 1.0, 0
+    for tab in src.batches(list(dict.fromkeys(raw.values()))):
+        m = tab.num_rows
+        at = (lambda i, a=a: label(i + a)) if a else label  # noqa: E731  (a row of the file, not of the batch)
+        if log.time:  # a static log may have none
+            tv, per_s = _numbers(path, tab.column(raw[log.time]), log.time, at, time=True, log=log)
+            times.append(tv)
+        for j, c in enumerate(names):
+            cols[a:a + m, j] = _numbers(path, tab.column(raw[c]), c, at)[0]
+        a += m
+    time = (np.concatenate(times) if len(times) > 1 else times[0]) if log.time else None
     return _build(path, time, per_s * log.time_scale_s, cols, _layout(log, names, len(log.qdot)), label, log.time)
 
 
@@ -409,10 +433,12 @@ def _read_parquet(path: Path, log: LogCfg) -> UserLog:
     import pyarrow.parquet as pq
 
     try:
-        table = pq.read_table(path)
+        pf = pq.ParquetFile(path)
+        src = _Columns(list(pf.schema_arrow.names), pf.metadata.num_rows, lambda names: (
+            pa.Table.from_batches([b]) for b in pf.iter_batches(batch_size=PARQUET_BATCH_ROWS, columns=names)))
+        return _from_batches(path, src, log, _sample_label, "samples")
     except (pa.ArrowException, OSError, EOFError, ValueError) as exc:
         raise _unreadable(path, "Parquet file", _first_line(exc)) from None
-    return _from_table(path, table, log, _sample_label, "samples")
 
 
 # --------------------------------------------------------------------------------------------- trace

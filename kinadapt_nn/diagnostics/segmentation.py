@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kinadapt_nn.features.effect_library import moving_average
+from kinadapt_nn.diagnostics.stream import smooth
 
 WINDOW_S = 0.1  #: [s] seed / growth window
 MIN_WINDOW = 5  #: samples in a window at least
@@ -185,7 +185,7 @@ def free_space(s, excluded: np.ndarray | None = None) -> Segmentation:
     L = max(MIN_WINDOW, int(round(WINDOW_S / dt)))
     if n < 3 * L:
         return everything(n, s.t, "too short to segment: every sample is a candidate")
-    F = moving_average(s.wrench[:, :3], max(1, int(round(SMOOTH_S / dt))))
+    F = smooth(s.wrench[:, :3], max(1, int(round(SMOOTH_S / dt))))  # in chunks
     u = s.g_s - s.a_s
     weight = setup.tool.mass_kg * setup.world.gravity_mps2
     cost = _seed_cost(F, ok, L, setup.log.tared, weight)

@@ -22,8 +22,12 @@ def sample_noise(r: np.ndarray) -> np.ndarray:
     its second differences (a smooth signal's cancel), no floor; zeros for fewer than 5 samples."""
     if len(r) < 5:
         return np.zeros(r.shape[1])
-    d2 = r[2:] - 2 * r[1:-1] + r[:-2]
-    return 1.4826 * np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0) / np.sqrt(6.0)
+    out = np.empty(r.shape[1])
+    for c in range(r.shape[1]):  # a channel at a time: the temporaries of one (n,) series
+        x = np.asarray(r[:, c], dtype=float)
+        d2 = x[2:] - 2 * x[1:-1] + x[:-2]
+        out[c] = 1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0)
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -33,7 +37,9 @@ class LogSignals:
     t: np.ndarray  #: (n,) [s] from the first sample
     q: np.ndarray  #: (n, dof) [rad] encoder positions
     qdot: np.ndarray  #: (n, dof) [rad/s] (logged, or differentiated from q)
-    qddot: np.ndarray  #: (n, dof) [rad/s^2] (differentiated, Savitzky-Golay)
+    #: (n, dof) [rad/s^2] (differentiated, Savitzky-Golay); a log in time holds it per chunk only (None
+    #: on the whole log: ``stream.slice_signals`` differentiates each chunk's ``qdot``, as every effect sees it)
+    qddot: np.ndarray | None
     R_ws: np.ndarray  #: (n, 3, 3) sensor axes in the world (columns: s's x, y, z in w)
     p_ws: np.ndarray  #: (n, 3) [m] sensor origin in the world
     g_s: np.ndarray  #: (n, 3) [m/s^2] gravity in s
@@ -71,16 +77,38 @@ class LogSignals:
         kin = self.arm.series(q, self.qdot, self.clock)
         return ph.tool_wrench(kin, m, mc, I_O) + contact_model.nominal_wrench(self.setup, kin.R_ws, kin.p_ws)
 
+    def nominal_wrench_dq(self) -> np.ndarray:
+        """(n, 6, dof) ``d w_nom / d q_j``: the declared model's wrench per unit change of each joint's
+        reading (same velocities and times), analytic from the sensor's Jacobians
+        (``ArmModel.sensor_jacobian``; ``physical.wrench_dq``)."""
+        J_v, J_w = self.arm.sensor_jacobian(self.q)
+        kin = ph.KinSeries(*(np.asarray(x, dtype=float) for x in (self.R_ws, self.g_s, self.a_s, self.omega_s,
+                                                                   self.alpha_s, self.p_ws)))
+        m, mc, I_O = ph.nominal_inertials(self.setup)
+        C = ph.wrench_dq(kin, J_v, J_w, np.asarray(self.qdot, dtype=float), self.clock, (m, mc, I_O))
+        if self.setup.contact.geometry != "none":  # a declared socket: its wrench moved with the sensor
+            C += contact_model.nominal_wrench_dq(self.setup, kin.R_ws, kin.p_ws, J_v, J_w)
+        return C
+
     def with_contact(self, contact: np.ndarray, offset: np.ndarray) -> "LogSignals":
         """The same log with another contact mask; ``offset`` (6,) is the free-space offset taken
         out of the contact force."""
-        e = self.wrench - self.w_nom - offset
-        return replace(self, contact=contact, contact_force_s=np.where(contact[:, None], e[:, :3], 0.0))
+        f_c = np.zeros((self.n, 3), self.contact_force_s.dtype)
+        f_c[contact] = self.wrench[contact, :3] - self.w_nom[contact, :3] - offset[:3]
+        return replace(self, contact=contact, contact_force_s=f_c)
 
 
 #: static logs: poses per cross-validation block (groups of similar gravity directions)
 POSES_PER_BLOCK = 8
 MAX_STATIC_BLOCKS = 30
+
+
+#: samples per chunk of the kinematics (its work arrays are ~1 kB per sample)
+KIN_CHUNK = 50_000
+#: storage of the whole log's derived series (kinematics, the nominal wrench): single precision
+#: (relative rounding 6e-8, far below any sensor's noise); a chunk (``stream.slice_signals``) is
+#: handed to the effects in double precision. The encoders, the time and the wrench stay double.
+STORE = np.float32
 
 
 def from_log(log, setup, progress=lambda msg: None) -> LogSignals:
@@ -89,41 +117,73 @@ def from_log(log, setup, progress=lambda msg: None) -> LogSignals:
     A static-pose log (``[log] static``): no derivatives are taken (velocities and accelerations
     are zero), and the rows are put in a canonical order that does not depend on the file's row
     order (sorted by the poses' values, then grouped by the direction of gravity in the sensor:
-    ``pose_block``), so that no verdict depends on the order the poses were logged in."""
+    ``pose_block``), so that no verdict depends on the order the poses were logged in. A log in
+    time: the kinematics in chunks of ``KIN_CHUNK`` samples (each widened by the derivatives'
+    windows, so every sample sees the same neighbours), stored as ``STORE``."""
     arm = ph.ArmModel(setup)
     static = bool(setup.log.static)
     q = np.asarray(log.q_rad, dtype=float)
     n = len(q)
     has_time = log.t_s is not None
     t = np.asarray(log.t_s, dtype=float) if has_time else np.arange(n, dtype=float)
-    r = setup.log.sign * np.asarray(log.wrench_log, dtype=float)
+    r = np.asarray(log.wrench_log, dtype=float)
+    r = r if setup.log.sign == 1 else setup.log.sign * r  # no copy of a log in the internal convention
     extra = {k: np.asarray(v, dtype=float) for k, v in (getattr(log, "extra", None) or {}).items()}
-    if static:
-        order = np.lexsort(np.concatenate([q, r], axis=1).T[::-1])  # canonical: by the values, not the file
-        q, r, t = q[order], r[order], t[order]
-        extra = {k: v[order] for k, v in extra.items()}
-        qdot = np.zeros_like(q)
-        clock = np.arange(n, dtype=float)
-    else:
-        qdot = np.asarray(log.qdot_rad_s, dtype=float) if log.qdot_rad_s is not None else ph.derivative(q, t)
-        clock = t
     progress(f"kinematics of {n} {'poses' if static else 'samples'}")
-    kin = arm.series(q, qdot, clock)
-    block = None
-    if static:
-        block = gravity_groups(kin.g_s, max(2, min(MAX_STATIC_BLOCKS, n // POSES_PER_BLOCK)))
-        order = np.argsort(block, kind="stable")
-        q, r, t, qdot, block = q[order], r[order], t[order], qdot[order], block[order]
-        extra = {k: v[order] for k, v in extra.items()}
-        kin = ph.KinSeries(*(None if x is None else x[order] for x in kin))
+    if not static:
+        return _timed(arm, setup, (t, q, r, extra), log.qdot_rad_s, has_time)
+    order = np.lexsort(np.concatenate([q, r], axis=1).T[::-1])  # canonical: by the values, not the file
+    q, r, t = q[order], r[order], t[order]
+    extra = {k: v[order] for k, v in extra.items()}
+    qdot = np.zeros_like(q)
+    kin = arm.series(q, qdot, np.arange(n, dtype=float))
+    block = gravity_groups(kin.g_s, max(2, min(MAX_STATIC_BLOCKS, n // POSES_PER_BLOCK)))
+    order = np.argsort(block, kind="stable")
+    q, r, t, qdot, block = q[order], r[order], t[order], qdot[order], block[order]
+    extra = {k: v[order] for k, v in extra.items()}
+    kin = ph.KinSeries(*(None if x is None else x[order] for x in kin))
     m, mc, I_O = ph.nominal_inertials(setup)
-    t0 = t[0] if (has_time and not static) else 0.0
-    qddot = np.zeros_like(q) if static else ph.derivative(qdot, t)
-    return LogSignals(t - t0, q, qdot, qddot, kin.R_ws, kin.p_ws, kin.g_s, kin.a_s, kin.omega_s,
+    return LogSignals(t, q, qdot, np.zeros_like(q), kin.R_ws, kin.p_ws, kin.g_s, kin.a_s, kin.omega_s,
                       kin.alpha_s, r, np.zeros(n, bool), extra, setup,
                       ph.tool_wrench(kin, m, mc, I_O) + contact_model.nominal_wrench(setup, kin.R_ws, kin.p_ws),
-                      np.zeros((n, 3)), ph.tip_moment_map(setup.tool.tip_sensor_m),
-                      arm, static, has_time, block)
+                      np.zeros((n, 3)), ph.tip_moment_map(setup.tool.tip_sensor_m), arm, True, has_time, block)
+
+
+def _timed(arm: ph.ArmModel, setup, data: tuple, qdot_log, has_time: bool) -> LogSignals:
+    """``from_log`` of a log in time: ``data`` = (t, q, r, extra); the kinematics chunk by chunk."""
+    from kinadapt_nn.diagnostics import stream
+
+    t, q, r, extra = data
+    n, dof = q.shape
+    arm.check_joints(q)
+    dt = float(np.median(np.diff(t))) if n > 1 else 1.0
+    halo = 2 * max(int(round(ph.ACC_WINDOW_S / dt)) | 1, 7) + 2  # two derivatives deep (q -> qdot -> acceleration)
+    qdot = np.asarray(qdot_log, dtype=float) if qdot_log is not None else np.empty((n, dof), STORE)
+    out = {k: np.empty(shape, STORE) for k, shape in (("R_ws", (n, 3, 3)), ("p_ws", (n, 3)),
+                                                    ("g_s", (n, 3)), ("a_s", (n, 3)), ("omega_s", (n, 3)),
+                                                    ("alpha_s", (n, 3)), ("w_nom", (n, 6)))}
+    m, mc, I_O = ph.nominal_inertials(setup)
+    socket = setup.contact.geometry != "none"  # its anchors are where its gate opens: the whole log at once,
+    pose64 = (np.empty((n, 3, 3)), np.empty((n, 3))) if socket else None  # from the pose in double precision
+    for a, b in stream.chunks(n, KIN_CHUNK):
+        lo, hi = max(0, a - halo), min(n, b + halo)
+        tc = t[lo:hi]
+        qd = qdot[lo:hi] if qdot_log is not None else ph.derivative(q[lo:hi], tc, dt_s=dt)
+        kin = arm.series(q[lo:hi], np.asarray(qd, dtype=float), tc, dt_s=dt)
+        keep = slice(a - lo, b - lo)
+        if qdot_log is None:
+            qdot[a:b] = qd[keep]
+        for k in ("R_ws", "p_ws", "g_s", "a_s", "omega_s", "alpha_s"):
+            out[k][a:b] = getattr(kin, k)[keep]
+        out["w_nom"][a:b] = ph.tool_wrench(kin, m, mc, I_O)[keep]
+        if socket:
+            pose64[0][a:b], pose64[1][a:b] = kin.R_ws[keep], kin.p_ws[keep]
+    if socket:
+        out["w_nom"] += contact_model.nominal_wrench(setup, *pose64)
+    t0 = t[0] if has_time else 0.0
+    return LogSignals(t - t0 if t0 != 0.0 else t, q, qdot, None, out["R_ws"], out["p_ws"], out["g_s"],
+                      out["a_s"], out["omega_s"], out["alpha_s"], r, np.zeros(n, bool), extra, setup, out["w_nom"],
+                      np.zeros((n, 3), STORE), ph.tip_moment_map(setup.tool.tip_sensor_m), arm, False, has_time, None)
 
 
 def gravity_groups(g_s: np.ndarray, k: int, iters: int = 30) -> np.ndarray:

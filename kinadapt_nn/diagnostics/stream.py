@@ -6,18 +6,16 @@ a halo on both sides), filters it with the rows' moving average, maps the chunk'
 ``RowMap`` and adds each row's contribution to its cross-validation block's normal equations
 ``G_b = A_b^T A_b``, ``h_b = A_b^T y_b`` (columns unscaled, physical). Least squares, block
 cross-validation and the block jackknife need nothing else (``selection.Stats``); the few per-row
-series (held-out residual, the residual before/after ``--add``) come from a second pass that
-recomputes only the columns with a non-zero coefficient (``BlockStats.combine``).
+series (held-out residual, the residual before/after ``--add``) come from a second pass over only
+the columns with a non-zero coefficient (``BlockStats.combine``), whose rows are then kept for the
+next such series (``ROW_CACHE_BYTES``).
 
 Chunk-invariance: a sample's columns depend on the samples within ``halo_samples`` of it (the
 Savitzky-Golay derivative of the kinematics, the moving average), so every row sees the same
 inputs whatever the chunk size; what changes with the chunking is only the order of the sums
 (the moving average's running sum and the Gram accumulation), i.e. rounding. Effects must be
 sample-local in that sense (built-ins are); the hint shapes that use whole-log numbers (the time
-span, the mean joint angle, an extra column's mean) read them from ``LogSignals.whole``. A declared
-socket is not sample-local (its springs are anchored where the tip entered): chunk boundaries are
-moved to samples with no engagement within a halo (``bounds``), so an engagement is never cut (a
-chunk then grows by at most the engagement it would have cut).
+span, the mean joint angle, an extra column's mean) read them from ``LogSignals.whole``.
 """
 
 from __future__ import annotations
@@ -27,10 +25,21 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from kinadapt_nn.features.effect_library import moving_average
 
 #: samples per chunk (memory per chunk ~ chunk * 6 * columns * 8 B, plus the effects' own work)
 CHUNK_SAMPLES = 20_000
+#: [B] a design's rows of the sources its predictions use, kept between passes (``combine_rows``);
+#: an hour at 1 kHz, its offset and one 4-parameter effect: 2.2e6 rows x 10 columns x 8 B = 170 MB
+ROW_CACHE_BYTES = 256 * 2**20
+#: [B] at most this much per chunk's column array (chunk * 6 * columns * 8 B): a design of many
+#: columns (the hints' shapes, ~200) runs in shorter chunks (measured: 1.7 GB peak at 20000 samples)
+CHUNK_BYTES = 32 * 2**20
+
+
+def chunk_for(chunk: int | None, k: int) -> int:
+    """Samples per chunk of a pass over ``k`` columns: ``chunk`` (default ``CHUNK_SAMPLES``) within
+    ``CHUNK_BYTES``, never below 1000."""
+    return max(1000, min(int(chunk or CHUNK_SAMPLES), CHUNK_BYTES // (48 * max(int(k), 1))))
 
 
 class RowMap(NamedTuple):
@@ -47,7 +56,7 @@ class RowMap(NamedTuple):
     tip_map: np.ndarray  #: (3, 6)
 
     def apply(self, x: np.ndarray) -> np.ndarray:
-        return self.rows_of(moving_average(x, self.k_smooth)[self.rows], self.contact)
+        return self.rows_of(mean_at(x, self.k_smooth, self.rows), self.contact)
 
     def rows_of(self, xs: np.ndarray, con: np.ndarray) -> np.ndarray:
         """Filtered sample columns at row times (r, 6, k) -> (free rows * 6 + contact rows * 3, k)."""
@@ -90,9 +99,50 @@ class BlockStats(NamedTuple):
     h: np.ndarray  #: (B, K)
     yy: np.ndarray  #: (B,)
     combine: Callable
-    col_sq: np.ndarray  #: (9, K) per channel of the rows, the sum of each column's square (``RowMap.channel_sq``)
+    col_sq: np.ndarray | None  #: (9, K) per channel of the rows, each column's square summed (``RowMap.channel_sq``; when asked)
+    n_samples: int
     chunk: int  #: samples per chunk of the passes
     sources: list  #: the ``Source`` of each column group, in column order
+    rows: dict | None = None  #: source index -> its rows (R, k), where kept (``PassOpts.keep``, ``combine``)
+
+
+def mean_at(x: np.ndarray, k: int, idx: np.ndarray, chunk: int | None = None) -> np.ndarray:
+    """``moving_average(x, k)[idx]`` (the centred moving average of (n, ...) samples at the sorted
+    samples ``idx``; a window ``[i - k // 2, i + k - k // 2)`` clipped to the log): the sums over
+    the segments between consecutive window edges in one pass (``np.add.reduceat``), then their
+    running sum over the segments only -- never a running sum of every sample. One chunk of
+    ``idx`` at a time (memory O(chunk)); equal to rounding (the order of the sums)."""
+    x = np.asarray(x)
+    n = len(x)
+    if k <= 1 or n < 2:
+        return np.asarray(x[idx], dtype=float)
+    idx = np.asarray(idx)
+    out = np.empty((len(idx), *x.shape[1:]))
+    step = int(chunk or CHUNK_SAMPLES)
+    for a in range(0, len(idx), step):
+        i = idx[a:a + step]
+        lo, hi = np.clip(i - k // 2, 0, n), np.clip(i + (k - k // 2), 0, n)
+        edges = np.unique(np.concatenate([lo, hi]))  # (e,) ascending; the last is hi.max()
+        seg = _segment_sums(np.asarray(x[edges[0]:edges[-1]], dtype=float), edges - edges[0])
+        P = np.concatenate([np.zeros((1, *x.shape[1:])), np.cumsum(seg, axis=0)])  # (e, ...) sums up to each edge
+        out[a:a + step] = (P[np.searchsorted(edges, hi)] - P[np.searchsorted(edges, lo)]) / \
+            (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
+    return out
+
+
+def _segment_sums(x: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """(e - 1, ...) the sums of ``x`` over ``[edges[j], edges[j + 1])`` (``edges`` ascending from 0 to
+    ``len(x)``): equal segments (rows at a constant stride) by a reshape, others by ``reduceat``
+    (measured on (4000, 6, 219) columns: 1 us against 12 us a sample)."""
+    d = np.diff(edges)
+    if len(d) and np.all(d == d[0]):
+        return x.reshape(len(d), int(d[0]), *x.shape[1:]).sum(axis=1)
+    return np.add.reduceat(x, edges[:-1], axis=0)
+
+
+def smooth(x: np.ndarray, k: int, chunk: int | None = None) -> np.ndarray:
+    """``moving_average(x, k)`` of (n, ...) samples in chunks (``mean_at`` at every sample)."""
+    return mean_at(x, k, np.arange(len(x)), chunk)
 
 
 def halo_samples(s, k_smooth: int) -> int:
@@ -119,7 +169,11 @@ def slice_signals(s, a: int, b: int, w: dict | None = None):
         if f.name == "extra":
             out[f.name] = {k: x[a:b] for k, x in v.items()}
         elif f.name != "tip_map" and isinstance(v, np.ndarray) and v.ndim >= 1 and len(v) == s.n:
-            out[f.name] = v[a:b]
+            out[f.name] = v[a:b].astype(float) if v.dtype == np.float32 else v[a:b]  # compact storage: double here
+    if getattr(s, "qddot", 0) is None and not s.static:  # held per chunk only (``LogSignals.qddot``)
+        from kinadapt_nn.diagnostics.physical import derivative
+
+        out["qddot"] = derivative(np.asarray(s.qdot[a:b], dtype=float), s.t[a:b])
     return dataclasses.replace(s, **out, whole=w if w is not None else getattr(s, "whole", None))
 
 
@@ -154,7 +208,7 @@ def _chunk_rows(s, rm: RowMap, sources: list[Source], a: int, b: int, halo: int,
     C = np.concatenate([np.asarray(src.columns(sub), dtype=float)[:, :, src.cols] for src in sources], axis=2)
     i0, i1 = np.searchsorted(rm.rows, [a, b])
     rows = rm.rows[i0:i1]
-    xs = moving_average(C, rm.k_smooth)[rows - lo]
+    xs = mean_at(C, rm.k_smooth, rows - lo)
     con = rm.contact[i0:i1]
     vals = rm.rows_of(xs, con)
     start = rm.positions()[i0:i1]
@@ -163,66 +217,137 @@ def _chunk_rows(s, rm: RowMap, sources: list[Source], a: int, b: int, halo: int,
     return pos, vals, rm.channel_sq(xs, con)
 
 
+class PassOpts(NamedTuple):
+    """What a ``block_stats`` pass keeps besides the normal equations."""
+
+    squares: bool = False  #: ``BlockStats.col_sq`` (else None)
+    #: the rows of the sources with the most columns, for ``combine`` (within ``ROW_CACHE_BYTES``): an
+    #: effect's later predictions then need no pass (``encoder_offset``'s kinematics, say)
+    keep: bool = False
+
+
+def _channels(rm: RowMap, pos: np.ndarray, vals: np.ndarray) -> np.ndarray:
+    """(q,) the channel (0-8) of each of a chunk's rows (``_chunk_rows``' order: free rows' six
+    channels, then contact rows' three tip moments)."""
+    nf = int(np.count_nonzero(pos < 6 * int((~rm.contact).sum())))
+    return np.concatenate([np.tile(np.arange(6), nf // 6), np.tile(np.arange(6, 9), (len(pos) - nf) // 3)])
+
+
+def _accumulate(G: np.ndarray, h: np.ndarray, A: np.ndarray, y: np.ndarray, key: np.ndarray) -> None:
+    """``G_b += A_b^T A_b``, ``h_b += A_b^T y_b`` per block b = ``key // 9``, one channel
+    (``key % 9``) at a time on the columns not zero in it: a column that lives in one channel (most
+    hint shapes: one channel's row of ``_per_channel``) costs nothing in the others."""
+    for kk in np.unique(key):
+        m = key == kk
+        Ab = A[m]
+        nz = np.flatnonzero(np.any(Ab, axis=0))
+        bb = int(kk) // 9
+        if len(nz) == A.shape[1]:
+            G[bb] += Ab.T @ Ab
+            h[bb] += Ab.T @ y[m]
+        elif len(nz):
+            Az = Ab[:, nz]
+            G[bb][np.ix_(nz, nz)] += Az.T @ Az
+            h[bb][nz] += Az.T @ y[m]
+
+
 def block_stats(s, rm: RowMap, sources: list[Source], y: np.ndarray, block: np.ndarray, n_blocks: int,
-                chunk: int | None = None) -> BlockStats:
+                chunk: int | None = None, opts: "PassOpts" = None) -> BlockStats:
     """One chunked pass: the per-block normal equations of ``sources``' columns (module docstring).
     ``y`` (R,), ``block`` (R,) the design's rows and their blocks; ``chunk`` samples per chunk
-    (default ``CHUNK_SAMPLES``)."""
-    chunk = int(chunk or CHUNK_SAMPLES)
+    (default ``CHUNK_SAMPLES``); ``opts``: what else the pass keeps (``PassOpts``)."""
+    squares, keep = opts or PassOpts()
     K = sum(len(src.cols) for src in sources)
+    chunk = chunk_for(chunk, K)
     G, h = np.zeros((n_blocks, K, K)), np.zeros((n_blocks, K))
     yy = np.bincount(block, weights=y * y, minlength=n_blocks).astype(float)
-    col_sq = np.zeros((9, K))
+    col_sq = np.zeros((9, K)) if squares else None
+    offs = np.cumsum([0] + [len(src.cols) for src in sources])
+    cache: dict = {}
+    for i in sorted(range(len(sources)), key=lambda i: -len(sources[i].cols)) if keep else []:
+        if sum(v.nbytes for v in cache.values()) + 8 * len(y) * len(sources[i].cols) <= ROW_CACHE_BYTES:
+            cache[i] = np.zeros((len(y), len(sources[i].cols)))
     halo, w = halo_samples(s, rm.k_smooth), whole(s)
     for a, b in bounds(s, chunk, halo):
         pos, vals, sq = _chunk_rows(s, rm, sources, a, b, halo, w)
-        col_sq += sq
-        blk = block[pos]
-        for bb in np.unique(blk):
-            m = blk == bb
-            Ab = vals[m]
-            G[bb] += Ab.T @ Ab
-            h[bb] += Ab.T @ y[pos[m]]
+        if squares:
+            col_sq += sq
+        _accumulate(G, h, vals, y[pos], block[pos] * 9 + _channels(rm, pos, vals))
+        for i, rows in cache.items():
+            rows[pos] = vals[:, offs[i]:offs[i + 1]]
 
     def combine(P: np.ndarray) -> np.ndarray:
-        return combine_rows(s, rm, sources, P, block, len(y), chunk)
+        return combine_rows(s, rm, sources, P, block, len(y), chunk, cache)
 
-    return BlockStats(G, h, yy, combine, col_sq, chunk, list(sources))
+    return BlockStats(G, h, yy, combine, col_sq, s.n, chunk, list(sources), cache)
 
 
 def combine_rows(s, rm: RowMap, sources: list[Source], P: np.ndarray, block: np.ndarray, R: int,
-                 chunk: int | None = None) -> np.ndarray:
+                 chunk: int | None = None, cache: dict | None = None) -> np.ndarray:
     """(R,) each row's columns times its block's coefficients ``P`` (B, K); a pass over the log that
-    evaluates only the sources with a non-zero coefficient."""
+    evaluates only the sources with a non-zero coefficient. ``cache`` (a design's): each source's
+    rows (R, k) kept after its first pass, while they fit ``ROW_CACHE_BYTES``
+    (the held-out residual, the residual before and after ``--add`` and the tip check then take
+    one pass between them)."""
     out = np.zeros(R)
     offs = np.cumsum([0] + [len(src.cols) for src in sources])
     used = [i for i in range(len(sources)) if np.any(P[:, offs[i]:offs[i + 1]])]
     if not used:
         return out
+    if cache is not None:
+        new = [i for i in used if i not in cache]
+        k_new = int(sum(offs[i + 1] - offs[i] for i in new))
+        if new and sum(v.nbytes for v in cache.values()) + 8 * R * k_new <= ROW_CACHE_BYTES:
+            vals = np.zeros((R, k_new))
+            halo, w = halo_samples(s, rm.k_smooth), whole(s)
+            for a, b in bounds(s, chunk_for(chunk, vals.shape[1]), halo):
+                pos, v, _ = _chunk_rows(s, rm, [sources[i] for i in new], a, b, halo, w)
+                vals[pos] = v
+            k0 = 0
+            for i in new:
+                k = int(offs[i + 1] - offs[i])
+                cache[i] = vals[:, k0:k0 + k]
+                k0 += k
+        if all(i in cache for i in used):
+            for i in used:
+                out += np.einsum("rk,rk->r", cache[i], P[block, offs[i]:offs[i + 1]])
+            return out
     keep = np.concatenate([np.arange(offs[i], offs[i + 1]) for i in used])
     Pk = P[:, keep]
     halo, w = halo_samples(s, rm.k_smooth), whole(s)
-    for a, b in bounds(s, chunk or CHUNK_SAMPLES, halo):
+    for a, b in bounds(s, chunk_for(chunk, len(keep)), halo):
         pos, vals, _ = _chunk_rows(s, rm, [sources[i] for i in used], a, b, halo, w)
         out[pos] = np.einsum("rk,rk->r", vals, Pk[block[pos]])
     return out
 
 
-def sample_sum(s, sources: list[Source], coefs: list[np.ndarray], k_smooth: int = 1,
-               chunk: int | None = None) -> np.ndarray:
-    """(n, 6) the sum over ``sources`` of their kept columns times ``coefs`` (each (k,)), per sample,
-    unfiltered (a chunked pass)."""
-    out = np.zeros((s.n, 6))
-    if not sources:
-        return out
-    halo, w = halo_samples(s, k_smooth), whole(s)
-    for a, b in bounds(s, chunk or CHUNK_SAMPLES, halo):
-        lo, hi = max(0, a - halo), min(s.n, b + halo)
-        sub = slice_signals(s, lo, hi, w)
-        for src, c in zip(sources, coefs):
-            out[a:b] += np.asarray(src.columns(sub), dtype=float)[a - lo:b - lo][:, :, src.cols] @ c
+def row_values(s, rm: RowMap, source: Source, chunk: int | None = None) -> np.ndarray:
+    """(R, k) the rows of one column source (``RowMap.apply`` of its columns) from a chunked pass."""
+    nf = int((~rm.contact).sum())
+    out = np.zeros((6 * nf + 3 * (len(rm.rows) - nf), len(source.cols)))
+    halo, w = halo_samples(s, rm.k_smooth), whole(s)
+    for a, b in bounds(s, chunk_for(chunk, len(source.cols)), halo):
+        pos, vals, _ = _chunk_rows(s, rm, [source], a, b, halo, w)
+        out[pos] = vals
     return out
 
 
-__all__ = ["BlockStats", "CHUNK_SAMPLES", "RowMap", "Source", "block_stats", "bounds", "chunks", "combine_rows",
-           "halo_samples", "sample_sum", "slice_signals", "whole"]
+def sample_sum(s, sources: list[Source], coefs: list[np.ndarray], k_smooth: int = 1,
+               chunk: int | None = None, channels: int = 6) -> np.ndarray:
+    """(n, channels) the sum over ``sources`` of their kept columns times ``coefs`` (each (k,)), per
+    sample, unfiltered (a chunked pass); ``channels`` = 3: the force only."""
+    out = np.zeros((s.n, channels))
+    if not sources:
+        return out
+    halo, w = halo_samples(s, k_smooth), whole(s)
+    for a, b in bounds(s, chunk_for(chunk, max(len(src.cols) for src in sources)), halo):
+        lo, hi = max(0, a - halo), min(s.n, b + halo)
+        sub = slice_signals(s, lo, hi, w)
+        for src, c in zip(sources, coefs):
+            out[a:b] += np.asarray(src.columns(sub), dtype=float)[a - lo:b - lo][:, :channels][:, :, src.cols] @ c
+    return out
+
+
+__all__ = ["BlockStats", "CHUNK_BYTES", "CHUNK_SAMPLES", "PassOpts", "ROW_CACHE_BYTES", "RowMap", "Source", "block_stats", "bounds",
+           "chunk_for", "chunks", "combine_rows",
+           "halo_samples", "mean_at", "row_values", "sample_sum", "slice_signals", "smooth", "whole"]

@@ -26,7 +26,6 @@ from kinadapt_nn.diagnostics.contract import Effect, load_effect_files
 from kinadapt_nn.diagnostics.setup import SetupCfg
 from kinadapt_nn.errors import KinadaptError, did_you_mean
 from kinadapt_nn.diagnostics.stream import RowMap
-from kinadapt_nn.features.effect_library import moving_average
 
 FREE_CHANNELS = ("F_x", "F_y", "F_z", "M_x", "M_y", "M_z")  # sensor frame
 TIP_CHANNELS = ("Mtip_x", "Mtip_y", "Mtip_z")  # moment about the declared tip, sensor frame
@@ -73,8 +72,9 @@ def static_sigma(s: sg.LogSignals, residual: np.ndarray, rc: RowCfg) -> tuple[np
 
 def detect_contact(e: np.ndarray, t_s: np.ndarray, setup: SetupCfg, rc: RowCfg,
                    free: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Contact samples from the force the tool model does not explain (N, 6) -> (contact (N,)
-    bool, the offset taken out (6,)). The offset is the median of the residual over ``free`` (n,)
+    """Contact samples from the force the tool model does not explain (N, 6), or its force part
+    (N, 3), -> (contact (N,) bool, the offset taken out (6,): in a log in time, the force's only).
+    The offset is the median of the residual over ``free`` (n,)
     bool, the samples known to be free space (``segmentation``; all samples when not given --
     never the median of a log that may be mostly contact); contact = |force - offset| >
     ``detect_force_N`` after a 20 ms average, gaps shorter than 2 ``margin_s`` filled, then
@@ -87,9 +87,10 @@ def detect_contact(e: np.ndarray, t_s: np.ndarray, setup: SetupCfg, rc: RowCfg,
         off = np.median(e[ref], axis=0)
         return np.linalg.norm(e[:, :3] - off[:3], axis=1) > setup.contact.detect_force_N, off
     dt = float(np.median(np.diff(t_s)))
-    es = moving_average(e, max(1, int(round(rc.smooth_s / dt))))
-    off = np.median(es[ref], axis=0)
-    raw = np.linalg.norm(es[:, :3] - off[:3], axis=1) > setup.contact.detect_force_N
+    es = stream.smooth(e[:, :3], max(1, int(round(rc.smooth_s / dt))))  # the force; in chunks
+    off = np.zeros(6)  # only the force's offset is used (the contact force)
+    off[:3] = np.median(es[ref], axis=0)
+    raw = np.linalg.norm(es - off[:3], axis=1) > setup.contact.detect_force_N
     k = int(round(setup.contact.margin_s / dt))
     if k > 0 and raw.any():
         c = np.convolve(raw.astype(float), np.ones(2 * k + 1), "same") > 0  # widen
@@ -160,22 +161,28 @@ def build_design(s: sg.LogSignals, lib: dict[str, Effect], names: list[str], sig
     equations of the effects' columns from one chunked pass (``stream``; ``chunk`` samples per
     chunk), never the columns themselves. ``cols_cache`` gets each effect's column ``Source``."""
     rm = row_map(s, sigma, rc)
-    y = rm.apply((s.wrench - s.w_nom)[:, :, None])[:, 0]
+    y = stream.row_values(s, rm, stream.Source("_residual", _residual_columns, [0]), chunk)[:, 0]
     con = rm.contact
     nf, nc = int((~con).sum()), int(con.sum())
-    channel = np.concatenate([np.tile(np.arange(6), nf), np.tile(np.arange(6, 9), nc)])
+    channel = np.concatenate([np.tile(np.arange(6, dtype=np.int8), nf), np.tile(np.arange(6, 9, dtype=np.int8), nc)])
     W = np.concatenate([np.tile(rm.w_free, nf), np.tile(rm.w_tip, nc)])
     t = s.clock  # a static log: the pose index (rows are in groups of similar poses)
     tr = np.concatenate([np.repeat(t[rm.rows][~con], 6), np.repeat(t[rm.rows][con], 3)]) - t[0]
     block, nb = _row_blocks(s, rm, tr, rc)
+    block = block.astype(np.int32)  # (R,): an hour's 2e6 rows
     for name in names:
         cols_cache[name] = stream.Source(name, lib[name].evaluate, list(range(lib[name].k)))
     nuis = [stream.Source("_offset", _offset_columns, list(range(6)))] if s.setup.log.tared else []
-    bs = stream.block_stats(s, rm, nuis + [cols_cache[n] for n in names], y, block, nb, chunk)
+    bs = stream.block_stats(s, rm, nuis + [cols_cache[n] for n in names], y, block, nb, chunk, stream.PassOpts(keep=True))
     R = len(y)
     X = {nm: sel.Width((R, lib[nm].k)) for nm in names}
     return sel.Design(y, X, sel.Width((R, 6 if nuis else 0)), block, nb, {nm: lib[nm].relevant for nm in names},
                       {nm: lib[nm].one_of for nm in names}, W, channel, CHANNELS, tr, bs), rm
+
+
+def _residual_columns(s: sg.LogSignals) -> np.ndarray:
+    """The declared model's residual as one column (n, 6, 1): the rows' ``y``."""
+    return (s.wrench - s.w_nom)[:, :, None]
 
 
 def _offset_columns(s: sg.LogSignals) -> np.ndarray:
@@ -257,35 +264,43 @@ def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray, rc: Row
     seg = segmentation.free_space(s, excluded_samples(s, setup))
     progress("sensor mount: rotation, mass, centre of mass and offset fitted jointly on free space")
     blocks = sample_blocks(s, rc)
-    fit0 = mount.fit(s, seg.free, blocks, sigma, max_blocks=0)  # the point only (no sd needed yet)
+    fit0 = mount.fit(s, seg.free, blocks, sigma, max_blocks=0, residual=s.static)  # the point only (no sd yet)
     how = "second differences of the reading"
     if s.static:
         sigma, how = static_sigma(s, fit0.residual, rc)
-    e_cal = s.wrench - mount.predict(fit0.x, s)
+    e_cal = np.empty((s.n, 3 if not s.static else 6))  # what the calibrated tool leaves (the force), in chunks
+    for a, b in stream.chunks(s.n, stream.CHUNK_SAMPLES):
+        e_cal[a:b] = (s.wrench[a:b] - mount.predict(fit0.x, s, np.arange(a, b)))[:, :e_cal.shape[1]]
     contact, _ = detect_contact(e_cal, s.t, setup, rc, seg.free)
+    del e_cal
     excl = excluded_samples(s, setup)
     free = ~contact & ~excl if (~contact & ~excl).sum() > 20 else ~excl
-    fitm = mount.fit(s, free, blocks, sigma)
+    fitm = mount.fit(s, free, blocks, sigma, residual=False)
     # the contact wrench: beyond the calibrated tool and a declared contact geometry's own wrench
-    w_c = s.wrench - (s.w_nom - ph_tool_wrench(s))
-    point = contact_point.estimate(w_c - mount.predict(fitm.x, s), contact & ~excl)
-    point = contact_point.with_calibration(point, w_c, lambda dx: mount.predict(mount.shifted(fitm.x, dx), s),
-                                           contact & ~excl, fitm.cov)
+    ci = np.flatnonzero(contact & ~excl)  # the contact samples: only they are needed here
+    w_c = s.wrench[ci] - (s.w_nom[ci] - ph_tool_wrench(s, ci))
+    point = contact_point.estimate(w_c - mount.predict(fitm.x, s, ci), np.ones(len(ci), bool))
+    point = contact_point.with_calibration(point, w_c, lambda dx: mount.predict(mount.shifted(fitm.x, dx), s, ci),
+                                           np.ones(len(ci), bool), fitm.cov)
     if not setup.sensor.mount_known:
         setup = setup.model_copy(update={"sensor": setup.sensor.model_copy(
             update={"rpy_flange_deg": tuple(float(v) for v in fitm.rpy_deg)})})
         progress("kinematics again in the estimated sensor mount")
         s = sg.from_log(log, setup)
-    off = np.median((s.wrench - s.w_nom)[~contact], axis=0) if (~contact).any() else np.zeros(6)
+    off = np.zeros(6)  # the free-space offset of the force (``with_contact`` takes it out of the contact force)
+    if (~contact).any():
+        off[:3] = np.median(s.wrench[~contact, :3] - s.w_nom[~contact, :3], axis=0)
     return Calibration(fitm, s.with_contact(contact, off), setup, sigma, how, seg, point)
 
 
-def ph_tool_wrench(s: sg.LogSignals) -> np.ndarray:
-    """(n, 6) the declared tool's own wrench (``s.w_nom`` without a declared contact geometry's)."""
+def ph_tool_wrench(s: sg.LogSignals, idx: np.ndarray | None = None) -> np.ndarray:
+    """(n, 6) the declared tool's own wrench (``s.w_nom`` without a declared contact geometry's);
+    on the samples ``idx`` (m,) only when given (-> (m, 6))."""
     from kinadapt_nn.diagnostics import physical as ph
 
+    i = slice(None) if idx is None else idx
     m, mc, I_O = ph.nominal_inertials(s.setup)
-    kin = ph.KinSeries(s.R_ws, s.g_s, s.a_s, s.omega_s, s.alpha_s, s.p_ws)
+    kin = ph.KinSeries(*(np.asarray(x[i], dtype=float) for x in (s.R_ws, s.g_s, s.a_s, s.omega_s, s.alpha_s, s.p_ws)))
     return ph.tool_wrench(kin, m, mc, I_O)
 
 
@@ -679,8 +694,10 @@ def _rank(rk: _RankCtx, s: sg.LogSignals, names: list[str]):
             break
         srcs = [rk.cache[n]._replace(cols=list(c)) for n, (c, _, _) in result.present.items()]
         fitted = stream.sample_sum(s, srcs, [p for _, p, _ in result.present.values()], rm.k_smooth,
-                                   des.stats.chunk)  # the columns this design was built from
-        new_contact, new_off = detect_contact(s.wrench - s.w_nom - fitted, s.t, setup, rk.rc, ~s.contact)
+                                   des.stats.chunk, channels=3)  # the force of the columns this design was built from
+        fitted -= s.wrench[:, :3]
+        fitted += s.w_nom[:, :3]
+        new_contact, new_off = detect_contact(-fitted, s.t, setup, rk.rc, ~s.contact)
         if np.mean(new_contact != s.contact) < 0.005:
             break
         s = s.with_contact(new_contact, new_off)

@@ -1,19 +1,21 @@
 """A streamed diagnosis equals the unstreamed one (issue 37, section 2): the same log cut in chunks
 of several sizes, odd ones included, gives the same report to rounding.
 
-Tolerance. Cutting a log differently changes only the order of sums: the moving average's running
-sum over a chunk and the accumulation of the per-block normal equations ``G_b``, ``h_b`` (every
-row sees the same samples: ``stream.halo_samples``). Each sum of m terms moves by at most
-~m * eps relative (eps = 2.2e-16; m <= 1.2e4 rows per block here: <= 3e-12). A reported number is
-a smooth function of those sums through regularised solves whose condition number the selection's
-relative ridge (1e-9 of the mean diagonal) caps, and p-values move by the statistic times its own
-relative change. Measured on this log (chunks of 997 samples against one chunk, 2-core shared VM):
-the largest relative change of any reported number is 1.6e-11, of the held-out residual 6.8e-12.
+Tolerance. Cutting a log differently changes only the order of sums: the moving average's window
+sums over a chunk and the accumulation of the per-block normal equations ``G_b``, ``h_b`` (every
+row sees the same samples: ``stream.halo_samples``; the kinematics' chunks are widened by their
+derivatives' windows: ``signals.KIN_CHUNK``). Each sum of m terms moves by at most ~m * eps
+relative (eps = 2.2e-16; m <= 1.2e4 rows per block here: <= 3e-12); a kinematic quantity stored in
+single precision (``signals.STORE``) may round to the neighbouring float (6e-8 relative) when its
+double-precision value moved by rounding. A reported number is a smooth function of those sums
+through regularised solves whose condition number the selection's relative ridge (1e-9 of the mean
+diagonal) caps, and p-values move by the statistic times its own relative change. Measured on this log
+(chunks of 997 samples, the kinematics in chunks of 1009, against one chunk of each; 2-core shared
+VM): the largest relative change of any reported number is 3.3e-11, of the held-out residual 8.6e-13
+of its largest row.
 The test allows ``RTOL`` = 1e-6 relative (and ``ATOL`` = 1e-12 absolute, for numbers that are zero
-up to rounding): 6e4 times what is measured (room for other chunkings to be amplified more
-through a p-value's tail or an ill-conditioned solve), and still far below anything a verdict or a
-printed 3-digit figure depends on. Verdicts, the selection's order, the columns used, the ties and every string must be
-identical.
+up to rounding), still far below anything a verdict or a printed 3-digit figure depends on.
+Verdicts, the selection's order, the columns used, the ties and every string must be identical.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from kinadapt_nn.diagnostics import stream
+from kinadapt_nn.diagnostics import signals, stream
 from kinadapt_nn.diagnostics.readers import read_log
 from kinadapt_nn.diagnostics.setup import load_setup
 from kinadapt_nn.diagnostics.userlog import RowCfg, diagnose
@@ -74,16 +76,26 @@ def _max_rel(a, b) -> float:
     return 0.0
 
 
-def test_report_does_not_depend_on_the_chunking(drift_log):
+def test_report_does_not_depend_on_the_chunking(drift_log, monkeypatch):
+    """One chunk (the kinematics too, no byte cap) against two chunkings: odd chunks of 997 samples
+    with the kinematics in chunks of 1009 (neither a multiple of the row stride nor of the other,
+    both shorter than the contact windows), and a third of the log plus 7 (chunk edges inside the
+    derivatives' windows near the log's ends) under ``stream.CHUNK_BYTES`` (the hints' pass then
+    runs in shorter chunks of its own)."""
     log, setup = drift_log
     n = len(log.t_s)
+    cap = stream.CHUNK_BYTES
+    monkeypatch.setattr(signals, "KIN_CHUNK", n)
+    monkeypatch.setattr(stream, "CHUNK_BYTES", 2**40)  # no cap on a chunk's columns either
     whole = diagnose(log, setup, rc=RowCfg(chunk_samples=n))  # one chunk: the unstreamed design
     rep0 = whole.report
     assert not rep0["model_complete"] and rep0["unexplained"]["hints"], "the hints must run (streamed) in this test"
     assert any(e["verdict"] == "present" for e in rep0["ranking"])
     assert rep0["contact"]["fraction"] > 0.05
     worst = 0.0
-    for chunk in (997, 4096 + 1, n // 3 + 7):
+    for chunk, kin_chunk in ((997, 1009), (n // 3 + 7, n)):
+        monkeypatch.setattr(signals, "KIN_CHUNK", kin_chunk)
+        monkeypatch.setattr(stream, "CHUNK_BYTES", cap)  # the hints' ~200 columns: chunks of ~3000 samples
         res = diagnose(log, setup, rc=RowCfg(chunk_samples=chunk))
         bad = _diff(rep0, res.report)
         assert not bad, f"chunk {chunk}: {bad[:5]}"
@@ -123,13 +135,15 @@ def test_streamed_statistics_equal_the_columns():
     block = np.minimum(np.arange(len(X)) * 7 // len(X), 6)
     src = [stream.Source("c", lambda sub: sub.c, [0, 1, 2])]
     for chunk in (n, 97, 331):
-        bs = stream.block_stats(s, rm, src, y, block, 7, chunk)
+        bs = stream.block_stats(s, rm, src, y, block, 7, chunk, stream.PassOpts(squares=True))
         for b in range(7):
             m = block == b
             np.testing.assert_allclose(bs.G[b], X[m].T @ X[m], rtol=1e-10, atol=1e-9)
             np.testing.assert_allclose(bs.h[b], X[m].T @ y[m], rtol=1e-10, atol=1e-9)
         P = rng.normal(size=(7, 3))
-        np.testing.assert_allclose(bs.combine(P), np.einsum("rk,rk->r", X, P[block]), rtol=1e-10, atol=1e-9)
+        want = np.einsum("rk,rk->r", X, P[block])
+        np.testing.assert_allclose(bs.combine(P), want, rtol=1e-10, atol=1e-9)
+        np.testing.assert_allclose(bs.combine(2 * P), 2 * want, rtol=1e-10, atol=1e-9)  # from the cached rows
         # the columns' squares per channel of the rows (the hints' relevant sizes): the weighted rows
         # of ``apply`` unweighted, summed per channel (free-space rows: 6 channels, contact rows: 3)
         nf = int((~con).sum())

@@ -1,8 +1,10 @@
 """A joint encoder's zero offset (one joint at a time): the true angle is the reading + offset.
 
-Columns: ``d w_nominal / d q_j``, the whole nominal model (gravity direction and the tool's
-inertial load) recomputed with joint j's reading moved by ``EPS_RAD`` (central difference). Whether
-a joint's offset can be seen at all comes from the data (its column), not from the arm's make.
+Columns: ``d w_nominal / d q_j``, the whole nominal model's change (gravity direction and the
+tool's inertial load) per unit change of joint j's reading, analytic from the sensor's Jacobians
+(``LogSignals.nominal_wrench_dq``: one kinematics pass, not two per joint; the tests check it
+against central differences of ``LogSignals.nominal_wrench``). Whether a joint's offset can be
+seen at all comes from the data (its column), not from the arm's make.
 One parameter per arm joint (``offset_joint1..offset_jointN``, N = the set-up's ``[log] q``):
 ``params_for``, the public form of set-up-dependent parameters.
 """
@@ -14,7 +16,6 @@ import numpy as np
 from kinadapt_nn.diagnostics.builtin.ft_frame_rotation import plausible_small_angle, report_deg
 from kinadapt_nn.diagnostics.contract import effect
 
-EPS_RAD = 1e-5
 RELEVANT_RAD = np.deg2rad(0.5)  #: the smallest offset worth reporting
 
 
@@ -39,10 +40,4 @@ def report(p, sd, setup) -> dict:
                "horizontal push against a fixture)",
         one_of=True, report=report, plausible=plausible_small_angle, uses_contact=False)
 def encoder_offset(s):
-    dof = s.q.shape[1]
-    C = np.zeros((s.n, 6, dof))
-    for j in range(dof):
-        dq = np.zeros(dof)
-        dq[j] = EPS_RAD
-        C[:, :, j] = (s.nominal_wrench(s.q + dq) - s.nominal_wrench(s.q - dq)) / (2 * EPS_RAD)
-    return C
+    return s.nominal_wrench_dq()
