@@ -94,12 +94,15 @@ class MountData(NamedTuple):
     w: np.ndarray  #: (6,) channel weights [1/N, 1/(N m)]
     I_O: np.ndarray  #: (3, 3) [kg m^2] declared inertia about the sensor origin
     block: np.ndarray  #: (n,) cross-validation block of each sample
+    #: fit the inertia beyond the declared one as a nuisance on a moving log (``_moves``); False: the
+    #: declared inertia holds (the units check: a free inertia would absorb a wrong torque unit's misfit)
+    inertia: bool = True
 
 
 def _moves(d: MountData) -> bool:
     """Whether the samples turn the sensor (omega or alpha not all zero): then the tool's inertia
     about the sensor origin beyond the declared one is fitted too (a nuisance of the fit)."""
-    return bool(np.any(d.omega) or np.any(d.alpha))
+    return bool(d.inertia and (np.any(d.omega) or np.any(d.alpha)))
 
 
 def _inertia_columns(v: np.ndarray) -> np.ndarray:

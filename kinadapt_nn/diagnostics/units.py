@@ -87,7 +87,7 @@ def _free_data(s, setup, sigma: np.ndarray) -> mount.MountData:
         idx = idx[np.linspace(0, len(idx) - 1, MAX_ROWS).round().astype(int)]
     _, _, I_O = nominal_inertials(setup)
     return mount.MountData(s.g_s[idx] - s.a_s[idx], s.omega_s[idx], s.alpha_s[idx], s.wrench[idx], 1.0 / sigma,
-                           I_O, np.zeros(len(idx), int))
+                           I_O, np.zeros(len(idx), int), inertia=False)  # the declared tool's inertia holds
 
 
 def _scale(fu: str, tu: str, setup) -> np.ndarray:
