@@ -2,7 +2,7 @@
 
 Prints, per features type (adjoint, rbf, neural; the neural pair last), a comment line and:
     step_latency_p50_us=<a> step_latency_p99_us=<b>
-    episode_wall_s=<x> sim_time_s=<t> raw_physics_s=<y> ratio=<x/y>
+    episode_wall_s=<x> sim_time_s=<t> raw_physics_s=<y> ratio=<median over rounds of x/y>
 
 Targets: adjoint (issues 2/3) <= 0.3 s wall per 5 s simulated, ratio <= 5, controller p99 <= 100 us;
 neural (issue 4) <= 0.6 s per 5 s episode, ratio <= 10.
@@ -104,29 +104,33 @@ def kinematics_cost_us(n: int = 20000) -> tuple[float, float]:
 
 
 def bench_one(features: str, repeats: int, extra: list[str]) -> None:
-    """Print the two lines for one features type."""
+    """Print the two lines for one features type: ``repeats`` alternating rounds (episode, then
+    the raw physics replaying it), so a shared machine's load falls on both alike; the ratio is
+    the median over rounds of episode wall / raw wall, the walls are the medians."""
     cfg = load_config(None, ["run.progress=false", "run.stop_after_seat_s=0.0", f"run.features={features}", *extra])
-    walls = []
+    run_episode(cfg)  # kernels loaded, first-call costs out of the rounds
+    walls, raws = [], []
     res = None
     for _ in range(repeats):
         t0 = time.perf_counter()
         res = run_episode(cfg)
         walls.append(time.perf_counter() - t0)
-    tr = res.trace
+        raws.append(raw_physics_seconds(cfg, res.trace["q_rad"], res.trace["q_ref_rad"]))
     steps = res.summary["steps"]
     sim_time = res.summary["sim_time_s"]
-    raw = min(raw_physics_seconds(cfg, tr["q_rad"], tr["q_ref_rad"]) for _ in range(repeats))
+    ratios = np.array(walls) / np.array(raws)
     lat = step_latencies_us(load_config(None, ["run.progress=false", "run.duration_s=5.0", f"run.features={features}", *extra]))
-    wall = min(walls)
+    wall, raw = float(np.median(walls)), float(np.median(raws))
     print(f"# features={features} n_params={res.summary['n_params']} success={res.summary['success']} "
-          f"seat_time_s={res.summary['seat_time_s']} steps={steps} wall_per_5s_sim={wall * 5.0 / sim_time:.3f}")
+          f"seat_time_s={res.summary['seat_time_s']} steps={steps} wall_per_5s_sim={wall * 5.0 / sim_time:.3f} "
+          f"rounds={repeats} ratio_spread={ratios.max() - ratios.min():.2f}")
     print(f"step_latency_p50_us={np.percentile(lat, 50):.1f} step_latency_p99_us={np.percentile(lat, 99):.1f}")
-    print(f"episode_wall_s={wall:.3f} sim_time_s={sim_time:.3f} raw_physics_s={raw:.3f} ratio={wall / raw:.2f}")
+    print(f"episode_wall_s={wall:.3f} sim_time_s={sim_time:.3f} raw_physics_s={raw:.3f} ratio={np.median(ratios):.2f}")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--repeats", type=int, default=3, help="best-of-N for the wall times")
+    ap.add_argument("--repeats", type=int, default=7, help="alternating rounds (episode, raw physics); medians")
     ap.add_argument("--features", nargs="+", default=["adjoint", "rbf", "neural"],
                     help="features types, one pair of lines each (the neural line last by default)")
     ap.add_argument("--set", action="append", default=[], help="config override key=value")

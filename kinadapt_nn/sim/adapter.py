@@ -30,6 +30,25 @@ from kinadapt_nn.sim.socket import N_STATE, socket_params, socket_step
 R_W_F_DOWN = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
 
 
+@nb.njit(cache=True)
+def contact_sums(sens, adr, found, e0, e1, e2, half_width):
+    """(face, bore, total normal force [N]) of the ``found`` peg <-> block contacts in the contact
+    sensor's slots of ``sens`` (its data from ``adr``; per contact 7 values: found, force in the
+    contact frame (3, the normal first), position (3), world [m]). A contact is on the block's top
+    face when it lies within 1.5 mm of the bore entrance's height ``e2`` and outside the square of
+    ``half_width`` [m] about the entrance (``e0``, ``e1``); otherwise on the bore."""
+    face = False
+    bore = False
+    fsum = 0.0
+    for i in range(found):
+        k = adr + 7 * i
+        fsum += abs(sens[k + 1])
+        on_top = abs(sens[k + 6] - e2) < 1.5e-3 and max(abs(sens[k + 4] - e0), abs(sens[k + 5] - e1)) > half_width
+        face |= on_top
+        bore |= not on_top
+    return face, bore, fsum
+
+
 class SensorSample(NamedTuple):
     """What a real robot hands a user program each control period."""
 
@@ -244,16 +263,14 @@ class PegInHoleSim:
         if found:
             hw = self._face_lat
             (e0, e1, e2) = self._entry_t
-            if found <= TRUTH_CONTACT_SLOTS:
-                vals = sensordata[adr:adr + 7 * found].tolist()  # per contact: found, force (3), pos (3)
-                rows = [(vals[i + 1], vals[i + 4], vals[i + 5], vals[i + 6]) for i in range(0, 7 * found, 7)]
+            if found <= TRUTH_CONTACT_SLOTS:  # the sensor's slots: one kernel call
+                face, bore, fsum = contact_sums(sensordata, adr, found, e0, e1, e2, hw)
             else:
-                rows = self._contact_scan(get_data())
-            for fn, px, py, pz in rows:
-                fsum += abs(fn)
-                on_top = abs(pz - e2) < 1.5e-3 and max(abs(px - e0), abs(py - e1)) > hw
-                face |= on_top
-                bore |= not on_top
+                for fn, px, py, pz in self._contact_scan(get_data()):
+                    fsum += abs(fn)
+                    on_top = abs(pz - e2) < 1.5e-3 and max(abs(px - e0), abs(py - e1)) > hw
+                    face |= on_top
+                    bore |= not on_top
         if self.has_socket:
             bore = bool(self._sock_st[0])
             fsum = float(self._sock_st[13])

@@ -32,7 +32,7 @@ import numpy as np
 from kinadapt_nn.config import ExperimentCfg
 from kinadapt_nn.errors import ConfigError
 from kinadapt_nn.robot import SERVO_KP, SERVO_KV
-from kinadapt_nn.sim.adapter import PegInHoleSim, SensorSample
+from kinadapt_nn.sim.adapter import PegInHoleSim, SensorSample, contact_sums
 from kinadapt_nn.sim.faults import SensorFaults
 
 #: the fields a socket contact reads and writes (``PegInHoleSim.bind_socket``)
@@ -69,7 +69,7 @@ def _servo(u, q_ref, qdot_ref, kv_over_kp, active):
 
 
 #: the scenes' numba kernels (a compile phase checks they are cached: ``controller.core.cache_probe``)
-KERNELS = (_gather, _servo)
+KERNELS = (_gather, _servo, contact_sums)
 
 
 def _bound(fn, args):
