@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -102,15 +103,29 @@ def compile_loop(cfg: ExperimentCfg, progress: bool = False) -> float:
     return phase.wall_s if phase.cold else 0.0
 
 
+class StepShare:
+    """A stand-in for the loop's step bar (``loop.run``'s ``bar``): each ``update(n)`` of n control
+    steps out of ``n_steps`` calls ``report(n / n_steps)`` -- the batch's progress as a fraction,
+    for a job runner's episode bar (``runs.jobs``) that should move while a batch steps."""
+
+    def __init__(self, n_steps: int, report: Callable[[float], None]) -> None:
+        self.n_steps, self.report = max(1, int(n_steps)), report
+
+    def update(self, n: int) -> None:
+        self.report(n / self.n_steps)
+
+
 def run_episodes(cfgs: list[ExperimentCfg], ctrls: list | None = None, keep_regressor: bool = False,
-                 nthread: int = 1, progress: bool = False) -> list[EpisodeResult]:
+                 nthread: int = 1, progress: bool = False,
+                 on_steps: Callable[[float], None] | None = None) -> list[EpisodeResult]:
     """Simulate the insertions ``cfgs`` together; each result (trace and summary) is the episode's
     own, whatever else shares the batch (deterministic for a given config). ``ctrls``: controllers
     to step from their current state (a work cell carries them from one insertion to the next),
     None or None entries for new ones; each ends in the state its episode leaves.
     ``keep_regressor``: also return the law's filtered regressor rows ``Phi_f^T`` of every logged
     step as ``trace.arrays["law_Phi_fT"]`` (N, p, m) (controller side: what a between-insertion
-    refit of theta needs). ``progress``: a bar of the steps (and of a cold compile).
+    refit of theta needs). ``progress``: a bar of the steps (and of a cold compile); else
+    ``on_steps(fraction)``, if given, as the steps go (every 250; :class:`StepShare`).
     ``wall_time_s``: the episode's share of the batch's wall time (set-up and loop, in proportion
     to its physics steps), without the one-time compile of a cold cache (``compile_time_s``). The cfgs share every KNOWN setting and ``run.duration_s``,
     ``run.log_every``, ``run.stop_after_seat_s`` (else a ``ConfigError`` saying which). BLAS runs
@@ -126,8 +141,10 @@ def run_episodes(cfgs: list[ExperimentCfg], ctrls: list | None = None, keep_regr
             from tqdm import tqdm
 
             bar = tqdm(total=lp.n_steps, unit="step", desc="episode", leave=False, mininterval=0.25)
+        elif on_steps is not None:
+            bar = StepShare(lp.n_steps, on_steps)
         run(lp, log, bar)
-        if bar is not None:
+        if progress:
             bar.close()
         return _episode_results(lp, log, time.perf_counter() - wall0 - lp.kn.compile_s, keep_regressor)
 

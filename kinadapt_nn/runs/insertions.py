@@ -59,7 +59,8 @@ def run_cells(cfgs: list[ExperimentCfg], counts, progress: bool = False,
     {k: result} per config, each what ``run_insertion_prefixes(cfg, counts)`` gives (to the last
     bit, but ``wall_time_s``: the insertion's share of the batch). Cells with other bores, bore
     order or refit settings, or any other known setting, get a ``ConfigError``. ``on_insertion(n)``
-    is called as each insertion ends, n = len(cfgs) episodes (a job runner's progress)."""
+    is called as each insertion's batch steps (n: the episodes' share of the steps done, a fraction
+    of len(cfgs)) and as it ends (the rest): a job runner's progress, in episodes."""
     tell = on_insertion or (lambda _n: None)
     counts = sorted({int(k) for k in counts})
     if not counts or counts[0] < 1:
@@ -72,9 +73,20 @@ def run_cells(cfgs: list[ExperimentCfg], counts, progress: bool = False,
         raise ConfigError("cells run together share cell.bores_w_m, their order and cell.between; these differ "
                           "-- run them separately")
     is_cell = bool(cfgs[0].cell.bores_w_m)
+    told = [0.0]  # episodes reported during the current insertion's batch
+
+    def share(f: float) -> None:
+        told[0] += len(cfgs) * f
+        tell(len(cfgs) * f)
+
+    def finish() -> None:  # the insertion's rest (its episodes may stop before the batch's last step)
+        tell(len(cfgs) - told[0])
+        told[0] = 0.0
+
+    steps = share if on_insertion is not None else None
     if n == 1 and not is_cell:
-        out = [{1: r} for r in _episodes(cfgs, [None] * len(cfgs), progress, keep_regressor=False)]
-        tell(len(cfgs))
+        out = [{1: r} for r in _episodes(cfgs, [None] * len(cfgs), progress, False, steps)]
+        finish()
         return out
     with core.compiling(progress) as phase:  # a first run's one-time compile: its own bar
         ctrls = [make_controller(c) for c in cfgs]
@@ -91,9 +103,9 @@ def run_cells(cfgs: list[ExperimentCfg], counts, progress: bool = False,
     keep = cells[0].refit is not None  # a refit between insertions needs the regressor rows
     for i in range(n):
         cfg_i = [_start_insertion(c, k, i) for c, k in zip(cfgs, ctrls)]
-        for cell, r in zip(cells, _episodes(cfg_i, ctrls, progress, keep)):
+        for cell, r in zip(cells, _episodes(cfg_i, ctrls, progress, keep, steps)):
             cell.after(i, r, counts, is_cell)
-        tell(len(cfgs))
+        finish()
         if bar is not None:
             bar.update(1)
     if bar is not None:
@@ -123,10 +135,12 @@ def judged_whole(summary: dict) -> dict:
     return out
 
 
-def _episodes(cfgs: list[ExperimentCfg], ctrls: list, progress: bool, keep_regressor: bool) -> list[EpisodeResult]:
+def _episodes(cfgs: list[ExperimentCfg], ctrls: list, progress: bool, keep_regressor: bool,
+              on_steps: Callable[[float], None] | None = None) -> list[EpisodeResult]:
     """One episode per (cfg, ctrl) (ctrl None: a new one), stepped as one batch (``run_episodes``;
-    the steps' progress bar for one episode alone); each result is the episode's own."""
-    return run_episodes(cfgs, ctrls, keep_regressor=keep_regressor, progress=progress and len(cfgs) == 1)
+    the steps' progress bar for one episode alone, else ``on_steps``); each result is the episode's own."""
+    return run_episodes(cfgs, ctrls, keep_regressor=keep_regressor, progress=progress and len(cfgs) == 1,
+                        on_steps=on_steps)
 
 
 def run_insertion(cfg: ExperimentCfg, ctrl: Controller, i: int, progress: bool = False,

@@ -244,7 +244,11 @@ class Runner:
             return None
         from tqdm import tqdm
 
-        return tqdm(total=total, initial=initial, desc=desc, unit=unit)
+        if unit != "episode":
+            return tqdm(total=total, initial=initial, desc=desc, unit=unit)
+        # episodes move in fractions as a batch steps (``runs.insertions.run_cells``' reports)
+        return tqdm(total=total, initial=initial, desc=desc, unit=unit,
+                    bar_format="{l_bar}{bar}| {n:.1f}/{total} {unit}s [{elapsed}<{remaining}]")
 
     def _completions(self, fn, tasks, order, bar, meanwhile):
         """(task index, results) as the tasks end; the bar credited with each reported episode."""

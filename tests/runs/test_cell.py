@@ -274,7 +274,12 @@ def test_cells_stepped_together_equal_each_cell_alone():
     base = ["run.progress=false", *SOCKET, "run.duration_s=1.5", "cell.between=refit", BORES,
             "cell.heldout_per_bore=2"]
     cfgs = [load_config(None, [*base, *tool_overrides(SweepCfg(), s)]) for s in range(3)]
-    together = run_cells(cfgs, [2, 1])
+    reports: list[float] = []
+    together = run_cells(cfgs, [2, 1], on_insertion=reports.append)
+    # the job runner's progress in episodes: fractions while each batch steps (every 250 of its
+    # 1500 steps), the rest as it ends; 2 insertions x 3 cells in all
+    assert len(reports) > 4 and all(0.0 <= r <= 3.0 for r in reports)
+    assert sum(reports) == pytest.approx(6.0, abs=1e-9)
     for cfg, both in zip(cfgs, together):
         alone = run_insertion_prefixes(cfg, [1, 2])
         assert sorted(both) == [1, 2]

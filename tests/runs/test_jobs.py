@@ -61,7 +61,7 @@ def test_runner_returns_results_in_task_order_and_counts_episodes(capsys):
         out = r.run(_reporting, tasks, "demo", on_done=lambda t, res: seen.append(res), done_before=2)
     assert out == [[-1, -2, -3], [-4]] and sorted(seen) == [[-4], [-1, -2, -3]]
     err = capsys.readouterr().err
-    assert re.search(r"demo: 100%.*\b6/6\b", err), err  # 2 before + 4 simulated, each counted once
+    assert re.search(r"demo: 100%.*\b6\.0/6 episodes\b", err), err  # 2 before + 4 simulated, each counted once
 
 
 def test_a_failing_task_is_raised_naming_its_job():
