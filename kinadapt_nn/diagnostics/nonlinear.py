@@ -38,15 +38,38 @@ def refine(result: sel.Selection, des: sel.Design, rm, s, lib: dict, cols: dict,
     G = st.Gt[np.ix_(idx, idx)]
     p_phys = _split(st.fit(idx, rc.ridge) * scale, chosen, len(base))
     for _ in range(iters):
-        rem = np.zeros_like(s.wrench)  # (n, 6) exact change less its first-order columns, per sample
-        for n, c in chosen:
-            if getattr(lib[n], "exact", None) is not None:
-                full = np.zeros(lib[n].k)
-                full[c] = p_phys[n]
-                rem += lib[n].exact(s, full) - _first_order(s, cols[n], full, des)
-        y_rem = rm.apply(rem[:, :, None])[:, 0]  # (R,) the remainder as rows
+        y_rem = _remainder_rows(s, rm, lib, [(n, c) for n, c in chosen if getattr(lib[n], "exact", None) is not None],
+                                cols, p_phys, des)  # (R,) the remainder as rows
         p_phys = _split(st.solve(G, st.ht[idx] - _cross(st, des, s, rm, y_rem, idx), rc.ridge) * scale, chosen, len(base))
     return _with_params(result, p_phys)
+
+
+def _remainder_rows(s, rm, lib: dict, exact: list[tuple[str, list[int]]], cols: dict, p_phys: dict,
+                    des: sel.Design) -> np.ndarray:
+    """(R,) the rows (``rm``) of the exact changes of the ``exact`` effects at ``p_phys`` less their
+    first-order columns. A streamed design: one chunked pass (``stream.row_values``; the remainder
+    is sample-local like any column), never an (n, 6) series of the whole log; held columns: per
+    sample, then mapped."""
+    fulls = {}
+    for n, c in exact:
+        fulls[n] = np.zeros(lib[n].k)
+        fulls[n][c] = p_phys[n]
+    if any(isinstance(cols[n], np.ndarray) for n, _ in exact):
+        rem = np.zeros_like(s.wrench)  # (n, 6) exact change less its first-order columns, per sample
+        for n, _ in exact:
+            rem += lib[n].exact(s, fulls[n]) - _first_order(s, cols[n], fulls[n], des)
+        return rm.apply(rem[:, :, None])[:, 0]
+    from kinadapt_nn.diagnostics import stream
+
+    def remainder(sub) -> np.ndarray:  # (m, 6, 1) of a chunk's signals
+        out = np.zeros((sub.n, 6))
+        for n, _ in exact:
+            full = fulls[n]
+            out += lib[n].exact(sub, full) - np.asarray(cols[n].columns(sub), dtype=float)[:, :, :len(full)] @ full
+        return out[:, :, None]
+
+    chunk = des.stats.chunk if des.stats is not None else None
+    return stream.row_values(s, rm, stream.Source("_remainder", remainder, [0]), chunk)[:, 0]
 
 
 def _first_order(s, src, full: np.ndarray, des: sel.Design) -> np.ndarray:

@@ -142,20 +142,25 @@ def _sample_label(i: int) -> str:
     return f"sample {i}"
 
 
-def _check_finite(path: Path, time: np.ndarray | None, cols: np.ndarray, names: Sequence[str], label: Label,
-                  time_name: str) -> None:
-    """The first non-finite time or value, as a one-line error naming its row and column."""
-    n = cols.shape[0]
-    bad = ~np.isfinite(cols)
-    bad_t = ~np.isfinite(time) if time is not None and time.dtype.kind == "f" else np.zeros(n, dtype=bool)
-    rows = np.flatnonzero(bad_t | bad.any(axis=1))
+def _check_finite(path: Path, time: np.ndarray | None, parts: Sequence[np.ndarray], names: Sequence[str],
+                  label: Label, time_name: str) -> None:
+    """The first non-finite time or value, as a one-line error naming its row and column. ``parts``:
+    (N, w) arrays (or (N,)) whose columns are ``names`` in order."""
+    cols2 = [p.reshape(len(p), -1) for p in parts]
+    n = len(cols2[0]) if cols2 else (0 if time is None else len(time))
+    bad_row = ~np.isfinite(time) if time is not None and time.dtype.kind == "f" else np.zeros(n, dtype=bool)
+    bad_t = bad_row.copy()
+    for c in cols2:  # one part at a time: no (N, all columns) temporary
+        bad_row |= ~np.isfinite(c).all(axis=1)
+    rows = np.flatnonzero(bad_row)
     if rows.size:
         r = int(rows[0])
         if bad_t[r]:
             name, value = time_name, time[r]
         else:
-            j = int(np.flatnonzero(bad[r])[0])
-            name, value = names[j], cols[r, j]
+            flat = np.concatenate([c[r] for c in cols2])
+            j = int(np.flatnonzero(~np.isfinite(flat))[0])
+            name, value = names[j], flat[j]
         raise KinadaptError(f"log '{path}', {label(r)}: column '{name}' is {value} (not finite); "
                             "fix or remove that row")
 
@@ -191,17 +196,25 @@ def _build(path: Path, time: np.ndarray | None, scale: float, cols: np.ndarray, 
     """Validate and assemble. ``time`` (N,) raw (integer or float) times or None (a static log
     without time), ``scale`` [s per unit]; ``cols`` (N, dof + n_qdot + 6 + len(extra)) float laid
     out as ``lay`` says, in the log's units."""
-    _check_count(path, cols.shape[0], static=lay.static)
-    _check_finite(path, time, cols, lay.names, label, time_name)
-    t = None if time is None else _seconds(path, time, scale, label, time_name, lay.static)
     d, k = lay.dof, lay.n_qdot
-    q = cols[:, :d]
-    qdot = cols[:, d : d + k] if k else None
-    wrench = cols[:, d + k : d + k + 6]
+    extra = {name: cols[:, d + k + 6 + j] for j, name in enumerate(lay.extra)}
+    return _build_parts(path, time, scale, (cols[:, :d], cols[:, d:d + k] if k else None, cols[:, d + k:d + k + 6],
+                                            extra), lay, label, time_name)
+
+
+def _build_parts(path: Path, time: np.ndarray | None, scale: float, parts: tuple, lay: _Layout, label: Label,
+                 time_name: str) -> UserLog:
+    """``_build`` of the columns as ``parts`` = (q (N, dof), qdot (N, n_qdot) or None, wrench (N, 6),
+    {extra name: (N,)}), in the log's units: each kept as it is where it already is float64 and
+    contiguous (a long log's reader fills them in place: no second copy of the log)."""
+    q, qdot, wrench, extra = parts
+    _check_count(path, len(q), static=lay.static)
+    _check_finite(path, time, [a for a in (q, qdot, wrench, *extra.values()) if a is not None], lay.names, label,
+                  time_name)
+    t = None if time is None else _seconds(path, time, scale, label, time_name, lay.static)
     if lay.wrench_scale is not None:
         wrench = wrench * lay.wrench_scale  # (N, 6) log units -> N, N m
-    extra_cols = {name: np.ascontiguousarray(cols[:, d + k + 6 + j], dtype=np.float64)
-                  for j, name in enumerate(lay.extra)}
+    extra_cols = {name: np.ascontiguousarray(v, dtype=np.float64) for name, v in extra.items()}
     if lay.angle_unit == "deg":
         q = np.deg2rad(q)
         qdot = None if qdot is None else np.deg2rad(qdot)
@@ -339,7 +352,13 @@ def _from_batches(path: Path, src: _Columns, log: LogCfg, label: Label, unit: st
     _check_count(path, src.rows, unit, log.static)
     raw = {c: src.names[header.index(c)] for _, c in fields}  # the stored name of each
     names = [*log.q, *log.qdot, *log.wrench, *log.extra]
-    cols = np.empty((src.rows, len(names)))  # (N, dof + n_qdot + 6 + n_extra) in the log's units
+    n = src.rows
+    # the final arrays, filled batch by batch (in the log's units): no (N, all columns) table besides them
+    q, wrench = np.empty((n, len(log.q))), np.empty((n, 6))
+    qdot = np.empty((n, len(log.qdot))) if log.qdot else None
+    extra = {c: np.empty(n) for c in log.extra}
+    dest = [(c, q, j) for j, c in enumerate(log.q)] + [(c, qdot, j) for j, c in enumerate(log.qdot)] + \
+        [(c, wrench, j) for j, c in enumerate(log.wrench)] + [(c, extra[c], None) for c in log.extra]
     times, per_s, a = [], 1.0, 0
     for tab in src.batches(list(dict.fromkeys(raw.values()))):
         m = tab.num_rows
@@ -347,11 +366,16 @@ def _from_batches(path: Path, src: _Columns, log: LogCfg, label: Label, unit: st
         if log.time:  # a static log may have none
             tv, per_s = _numbers(path, tab.column(raw[log.time]), log.time, at, time=True, log=log)
             times.append(tv)
-        for j, c in enumerate(names):
-            cols[a:a + m, j] = _numbers(path, tab.column(raw[c]), c, at)[0]
+        for c, arr, j in dest:
+            v = _numbers(path, tab.column(raw[c]), c, at)[0]
+            if j is None:
+                arr[a:a + m] = v
+            else:
+                arr[a:a + m, j] = v
         a += m
     time = (np.concatenate(times) if len(times) > 1 else times[0]) if log.time else None
-    return _build(path, time, per_s * log.time_scale_s, cols, _layout(log, names, len(log.qdot)), label, log.time)
+    return _build_parts(path, time, per_s * log.time_scale_s, (q, qdot, wrench, extra),
+                        _layout(log, names, len(log.qdot)), label, log.time)
 
 
 def _open_text(path: Path):

@@ -186,6 +186,37 @@ def _timed(arm: ph.ArmModel, setup, data: tuple, qdot_log, has_time: bool) -> Lo
                       np.zeros((n, 3), STORE), ph.tip_moment_map(setup.tool.tip_sensor_m), arm, False, has_time, None)
 
 
+def can_turn(s: LogSignals, setup) -> bool:
+    """Whether ``in_mount(s, setup)`` applies: a log in time, ``setup`` differs from ``s.setup`` only in
+    the sensor's orientation on the flange, and no contact geometry is declared (its wrench is
+    computed from the pose in double precision: ``from_log``)."""
+    if s.static or setup.contact.geometry != "none":
+        return False
+    a, b = s.setup.sensor, setup.sensor
+    return a.model_copy(update={"rpy_flange_deg": b.rpy_flange_deg}) == b and \
+        s.setup.model_copy(update={"sensor": b}) == setup
+
+
+def in_mount(s: LogSignals, setup) -> LogSignals:
+    """``from_log`` of the same log with the sensor turned on the flange to ``setup.sensor.rpy_flange_deg``
+    (``can_turn``): the sensor-frame series turned by ``D = R_fs_old^T R_fs_new`` (``R_ws D``; a vector in s
+    ``D^T v``; the sensor origin does not move), the declared tool's wrench computed again in the new
+    axes -- chunk by chunk, without a second pass of the arm's kinematics. Equal to ``from_log`` to the
+    rounding of the stored series (``STORE``)."""
+    from kinadapt_nn.diagnostics import stream
+
+    D = s.setup.sensor.R_fs().T @ setup.sensor.R_fs()
+    names = ("R_ws", "g_s", "a_s", "omega_s", "alpha_s")
+    out = {k: np.empty_like(getattr(s, k)) for k in (*names, "w_nom")}
+    m, mc, I_O = ph.nominal_inertials(setup)
+    for a, b in stream.chunks(s.n, KIN_CHUNK):
+        turned = [np.asarray(getattr(s, k)[a:b], dtype=float) @ D for k in names]
+        for k, v in zip(names, turned):
+            out[k][a:b] = v
+        out["w_nom"][a:b] = ph.tool_wrench(ph.KinSeries(*turned), m, mc, I_O)
+    return replace(s, setup=setup, arm=ph.ArmModel(setup), **out)
+
+
 def gravity_groups(g_s: np.ndarray, k: int, iters: int = 30) -> np.ndarray:
     """(n,) group of each pose: k-means on the direction of gravity in the sensor (n, 3), started
     from the farthest-point sequence of the rows' canonical order (deterministic). Groups are

@@ -251,14 +251,19 @@ def excluded_samples(s: sg.LogSignals, setup: SetupCfg) -> np.ndarray:
     return out
 
 
-def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray, rc: RowCfg,
+def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray | None, rc: RowCfg,
               progress: Callable[[str], None]) -> "Calibration":
     """The sensor-mount fit (``mount``) and what follows from it, before any effect is judged:
     fit on every sample (robust loss), contact detected against the calibrated model, fit again on
     free space; a static log's noise from that fit; with ``[sensor] mount_known = false`` the
     signals in the estimated mount. -> (fit, signals with contact, setup used, sigma, how sigma
-    was estimated) as ``Calibration``; the contact point estimated from the contact wrench."""
+    was estimated) as ``Calibration``; the contact point estimated from the contact wrench.
+    ``sigma`` (6,) the per-channel noise, None: from the reading (``noise_sigma``; a static log's
+    from the calibration fit)."""
     from kinadapt_nn.diagnostics import mount
+
+    if sigma is None:
+        sigma = noise_sigma(s.wrench, rc) if not s.static else np.array([1.0] * 3 + [0.1] * 3)
 
     progress("free space found from the data (segmentation)")
     seg = segmentation.free_space(s, excluded_samples(s, setup))
@@ -285,8 +290,8 @@ def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray, rc: Row
     if not setup.sensor.mount_known:
         setup = setup.model_copy(update={"sensor": setup.sensor.model_copy(
             update={"rpy_flange_deg": tuple(float(v) for v in fitm.rpy_deg)})})
-        progress("kinematics again in the estimated sensor mount")
-        s = sg.from_log(log, setup)
+        progress("the signals turned into the estimated sensor mount")
+        s = sg.in_mount(s, setup) if sg.can_turn(s, setup) else sg.from_log(log, setup)
     off = np.zeros(6)  # the free-space offset of the force (``with_contact`` takes it out of the contact force)
     if (~contact).any():
         off[:3] = np.median(s.wrench[~contact, :3] - s.w_nom[~contact, :3], axis=0)
@@ -456,9 +461,8 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
         setup = setup.model_copy(update={"log": setup.log.model_copy(update={"time": ""})})
     lib, names, add, forced = _library_for(log, setup, add, effects_files)
     declared = setup
-    s = sg.from_log(log, setup, progress)
-    sigma = noise_sigma(s.wrench, rc) if not s.static else np.array([1.0] * 3 + [0.1] * 3)
-    cal = calibrate(log, s, setup, sigma, rc, progress)
+    # the log's signals held by ``calibrate`` alone: it can let them go once it has them in the estimated mount
+    cal = calibrate(log, sg.from_log(log, setup, progress), setup, None, rc, progress)
     s, setup = _effective_tip(cal.signals, declared, cal.contact_point)
     cal = cal._replace(signals=s, setup=setup)
     chk = _checks(cal, declared)
