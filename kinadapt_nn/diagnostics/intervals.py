@@ -70,32 +70,42 @@ def honest_sd(G_blocks: np.ndarray, h_blocks: np.ndarray, yy_blocks: np.ndarray,
     """(k,) per parameter the larger of the white-noise and the block-robust sd (widened to the t quantile of
     B - k degrees of freedom, module docstring); the white-noise sd alone where there are too few blocks for
     the sandwich."""
-    from scipy.stats import norm, t
-
     var = np.diag(white_cov(G_blocks, h_blocks, yy_blocks, theta, rows, ridge))
     try:
         sw = np.diag(sandwich_cov(G_blocks, h_blocks, theta, ridge))
     except ValueError:
         return np.sqrt(np.clip(var, 0.0, None))
     B, k = int(sum(np.any(g) for g in np.asarray(G_blocks))), len(theta)
-    widen = (t.ppf(0.975, B - k) / norm.ppf(0.975)) ** 2  # the sandwich has B - k degrees of freedom
-    var = np.maximum(var, sw * widen)
+    var = np.maximum(var, sw * t_widen(B - k))  # the sandwich has B - k degrees of freedom
     return np.sqrt(np.clip(var, 0.0, None))
 
 
-__all__ = ["block_scores", "honest_sd", "sandwich_cov", "white_cov"]
+def t_widen(dof: int) -> float:
+    """``(t_dof(0.975) / z(0.975))^2``: the factor on a variance estimated with ``dof`` degrees of freedom
+    (a block jackknife over B blocks: B - 1; the sandwich: B - k) that makes ``estimate +- 1.96 sd`` the
+    95 % t interval. 1 for ``dof`` of 1000 or more; infinite below 1."""
+    from scipy.stats import norm, t
+
+    if dof < 1:
+        return float("inf")
+    return float((t.ppf(0.975, dof) / norm.ppf(0.975)) ** 2) if dof < 1000 else 1.0
 
 
-def given_significant(cv, sel_idx: np.ndarray, extra_idx: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+__all__ = ["block_scores", "given_significant", "honest_sd", "sandwich_cov", "t_widen", "white_cov"]
+
+
+def given_significant(cv, sel_idx: np.ndarray, extra_idx: list[np.ndarray]
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The selected columns' joint estimate and block-jackknife covariance with the columns of effects that are
     significant but not selected (``extra_idx``) fitted beside them: what such an effect (below the share of
     the residual that makes it a finding, say) would bias is then not in the selected effects' estimates, and
     their sd carries its uncertainty. ``cv(idx) -> (held-out SSE (B,), leave-one-block-out estimates (B, k),
-    estimate (k,))`` (``selection.Stats.cv``); -> (estimate (len(sel_idx),), covariance (len, len))."""
+    estimate (k,))`` (``selection.Stats.cv``); -> (estimate (len(sel_idx),), covariance (len, len), the
+    columns fitted (``sel_idx`` then the extra ones), the estimate of all of them)."""
     idx = np.concatenate([sel_idx, *extra_idx])
     _, reps, p = cv(idx)
     k = len(sel_idx)
     reps = reps[:, :k]
     B = len(reps)
     dev = reps - reps.mean(axis=0)
-    return p[:k], (B - 1) / max(B, 1) * dev.T @ dev
+    return p[:k], (B - 1) / max(B, 1) * dev.T @ dev, idx, p

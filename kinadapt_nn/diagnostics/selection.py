@@ -407,19 +407,34 @@ def _joint(st: Stats, des: Design, rc: SelCfg, base: np.ndarray, fw: _Forward) -
     sel_idx = np.concatenate([base, *[st.idx[s][c] for s, c in selected]]) if selected else base
     sse_fin, reps, p_all = st.cv(sel_idx, rc.ridge)
     cov_all = jackknife_cov(reps)
+    fit_idx, p_fit = sel_idx, p_all
     chosen = {s for s, _ in selected}  # significant effects left out: fitted beside the selected (intervals.py)
     extra = [st.idx[n][last[n].cols] for n in st.names if n not in chosen and last[n].p_adjusted < rc.alpha]
     if selected and extra:
-        p_all, cov_all = intervals.given_significant(lambda ii: st.cv(ii, rc.ridge), sel_idx, extra)
+        p_all, cov_all, fit_idx, p_fit = intervals.given_significant(lambda ii: st.cv(ii, rc.ridge), sel_idx, extra)
+    var = _honest_var(st, cov_all, len(reps), fit_idx, p_fit, len(sel_idx)) if selected else np.diag(cov_all)
     joint: dict[str, tuple] = {}
     i = len(base)
     for s, c in selected:
         sc = np.asarray(des.scale[s])[c]
         k = len(c)
-        joint[s] = (c, p_all[i:i + k] * sc, np.sqrt(np.clip(np.diag(cov_all)[i:i + k], 0, None)) * sc)
+        joint[s] = (c, p_all[i:i + k] * sc, np.sqrt(np.clip(var[i:i + k], 0, None)) * sc)
         i += k
     nuis = p_all[:len(base)] * st.z_scale if len(base) else np.zeros(0)
     return _Joint(sse_fin, sel_idx, joint, nuis)
+
+
+def _honest_var(st: Stats, cov_jk: np.ndarray, n_blocks: int, fit_idx: np.ndarray, p_fit: np.ndarray, k: int
+                ) -> np.ndarray:
+    """(k,) the variances reported for the first ``k`` of the fitted columns ``fit_idx`` (estimate ``p_fit``,
+    scaled units): the block jackknife's (``cov_jk``, its B - 1 degrees of freedom turned into a t interval,
+    ``intervals.t_widen``), at least the white-noise and the block-robust sandwich ones
+    (``intervals.honest_sd``): the same rule as ``refit``'s, so that a structured residual (a mostly-contact
+    log, a model that misfits) widens the interval instead of leaving it to the noise alone."""
+    var = np.diag(cov_jk)[:k] * intervals.t_widen(n_blocks - 1)
+    rows = int(st.des.y.shape[0])
+    var_h = intervals.honest_sd(st.G[:, fit_idx][:, :, fit_idx], st.h[:, fit_idx], st.yy, p_fit, rows) ** 2
+    return np.maximum(var, var_h[:k])
 
 
 class _EntryCtx(NamedTuple):

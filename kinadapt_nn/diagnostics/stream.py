@@ -309,8 +309,11 @@ def combine_rows(s, rm: RowMap, sources: list[Source], P: np.ndarray, block: np.
                 cache[i] = vals[:, k0:k0 + k]
                 k0 += k
         if all(i in cache for i in used):
+            step = int(chunk or CHUNK_SAMPLES) * 6  # rows at a time: no (R, k) copy of the coefficients
             for i in used:
-                out += np.einsum("rk,rk->r", cache[i], P[block, offs[i]:offs[i + 1]])
+                Pi = P[:, offs[i]:offs[i + 1]]
+                for a in range(0, R, step):
+                    out[a:a + step] += np.einsum("rk,rk->r", cache[i][a:a + step], Pi[block[a:a + step]])
             return out
     keep = np.concatenate([np.arange(offs[i], offs[i + 1]) for i in used])
     Pk = P[:, keep]

@@ -89,8 +89,10 @@ def detect_contact(e: np.ndarray, t_s: np.ndarray, setup: SetupCfg, rc: RowCfg,
     dt = float(np.median(np.diff(t_s)))
     es = stream.smooth(e[:, :3], max(1, int(round(rc.smooth_s / dt))))  # the force; in chunks
     off = np.zeros(6)  # only the force's offset is used (the contact force)
-    off[:3] = np.median(es[ref], axis=0)
-    raw = np.linalg.norm(es - off[:3], axis=1) > setup.contact.detect_force_N
+    off[:3] = [np.median(es[ref, j]) for j in range(3)]  # a column at a time: no (n, 3) copy
+    es -= off[:3]
+    raw = np.einsum("ij,ij->i", es, es) > setup.contact.detect_force_N ** 2  # |force - offset| > detect_force_N
+    del es
     k = int(round(setup.contact.margin_s / dt))
     if k > 0 and raw.any():
         c = np.convolve(raw.astype(float), np.ones(2 * k + 1), "same") > 0  # widen
@@ -702,9 +704,11 @@ def _rank(rk: _RankCtx, s: sg.LogSignals, names: list[str]):
         fitted -= s.wrench[:, :3]
         fitted += s.w_nom[:, :3]
         new_contact, new_off = detect_contact(-fitted, s.t, setup, rk.rc, ~s.contact)
+        del fitted
         if np.mean(new_contact != s.contact) < 0.005:
             break
         s = s.with_contact(new_contact, new_off)
+        des = rm = result = None  # this design (its kept rows) let go before the next is built
     return des, rm, result, s
 
 
