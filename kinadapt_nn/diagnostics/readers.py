@@ -71,6 +71,7 @@ MIN_POSES = 12  # fewer rows of a static log (poses at rest) cannot be diagnosed
 GAP_FACTOR = 5.0  # a time step over this many median steps is a gap
 _LIST_MAX = 25  # names listed in a "missing column" message
 PARQUET_BATCH_ROWS = 65_536  # a Parquet log is read this many rows at a time (only the setup's columns)
+PARQUET_BUFFER_BYTES = 1 << 20  # [B] read buffer of a Parquet file's column chunks
 
 Label = Callable[[int], str]  # 0-based sample index -> "line 12" / "sample 10"
 
@@ -257,7 +258,10 @@ def read_log(path: str | Path, setup: SetupCfg) -> UserLog:
     path = Path(path)
     kind = log_format(path)
     if kind == "csv":
-        return _read_csv(path, setup.log)
+        try:
+            return _read_csv(path, setup.log)
+        finally:  # the parsed table's Arrow memory back to the system (its pool keeps freed memory)
+            _import_pyarrow().default_memory_pool().release_unused()
     if kind == "parquet":
         return _read_parquet(path, setup.log)
     if kind == "bag":
@@ -457,12 +461,17 @@ def _read_parquet(path: Path, log: LogCfg) -> UserLog:
     import pyarrow.parquet as pq
 
     try:
-        pf = pq.ParquetFile(path)
+        # read as it is decoded: without pre-buffering, pyarrow reads every column chunk of the file
+        # into memory first (measured on an hour at 1 kHz, 300 row groups: 323 MB of Arrow memory
+        # against 22 MB streamed)
+        pf = pq.ParquetFile(path, pre_buffer=False, buffer_size=PARQUET_BUFFER_BYTES)
         src = _Columns(list(pf.schema_arrow.names), pf.metadata.num_rows, lambda names: (
             pa.Table.from_batches([b]) for b in pf.iter_batches(batch_size=PARQUET_BATCH_ROWS, columns=names)))
         return _from_batches(path, src, log, _sample_label, "samples")
     except (pa.ArrowException, OSError, EOFError, ValueError) as exc:
         raise _unreadable(path, "Parquet file", _first_line(exc)) from None
+    finally:
+        pa.default_memory_pool().release_unused()  # the decoded batches' memory back to the system
 
 
 # --------------------------------------------------------------------------------------------- trace
