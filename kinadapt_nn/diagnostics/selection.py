@@ -429,7 +429,7 @@ def _honest_var(st: Stats, cov_jk: np.ndarray, n_blocks: int, fit_idx: np.ndarra
     """(k,) the variances reported for the first ``k`` of the fitted columns ``fit_idx`` (estimate ``p_fit``,
     scaled units): the block jackknife's (``cov_jk``, its B - 1 degrees of freedom turned into a t interval,
     ``intervals.t_widen``), at least the white-noise and the block-robust sandwich ones
-    (``intervals.honest_sd``): the same rule as ``refit``'s, so that a structured residual (a mostly-contact
+    (``intervals.honest_sd``): ``refit``'s three sd (its jackknife without the t quantile), so that a structured residual (a mostly-contact
     log, a model that misfits) widens the interval instead of leaving it to the noise alone."""
     var = np.diag(cov_jk)[:k] * intervals.t_widen(n_blocks - 1)
     rows = int(st.des.y.shape[0])
