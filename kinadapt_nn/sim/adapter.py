@@ -263,14 +263,14 @@ class PegInHoleSim:
         if found:
             hw = self._face_lat
             (e0, e1, e2) = self._entry_t
-            if found <= TRUTH_CONTACT_SLOTS:  # the sensor's slots: one kernel call
+            if found <= TRUTH_CONTACT_SLOTS:  # the sensor's slots
                 face, bore, fsum = contact_sums(sensordata, adr, found, e0, e1, e2, hw)
-            else:
-                for fn, px, py, pz in self._contact_scan(get_data()):
-                    fsum += abs(fn)
-                    on_top = abs(pz - e2) < 1.5e-3 and max(abs(px - e0), abs(py - e1)) > hw
-                    face |= on_top
-                    bore |= not on_top
+            else:  # the contact array, laid out as the sensor's slots, through the same kernel
+                rows = self._contact_scan(get_data())
+                slots = np.zeros((len(rows), 7))
+                if rows:
+                    slots[:, [1, 4, 5, 6]] = rows
+                face, bore, fsum = contact_sums(slots.reshape(-1), 0, len(rows), e0, e1, e2, hw)
         if self.has_socket:
             bore = bool(self._sock_st[0])
             fsum = float(self._sock_st[13])
