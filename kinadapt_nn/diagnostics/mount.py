@@ -51,6 +51,9 @@ GN_ITERS = 300  #: Gauss-Newton iterations at most (a weakly turned sensor's cur
 MIRROR_COST = 4.5  #: robust cost (half chi^2) a positive-mass mirror fit may exceed the negative one by (3 sd)
 WEAK_SCANS = 4  #: scans along the least-determined rotation axis, each followed by Gauss-Newton
 HUBER_K = 3.0  #: [noise sd] the robust loss is quadratic up to this weighted residual
+#: [m/s^2] free space whose g_a moves less than this (~6 deg of turn) cannot calibrate: the declared mount and
+#: tool stand (``_declared_fit``); the sign check's and the segmentation's "turns" (``segmentation.TURN_MPS2``)
+TURN_MIN_MPS2 = 1.0
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -97,6 +100,12 @@ class MountData(NamedTuple):
     #: fit the inertia beyond the declared one as a nuisance on a moving log (``_moves``); False: the
     #: declared inertia holds (the units check: a free inertia would absorb a wrong torque unit's misfit)
     inertia: bool = True
+
+
+def _without(d: MountData, drop: np.ndarray) -> MountData:
+    """``d`` without the samples ``drop`` (n,) bool (a jackknife replicate)."""
+    keep = ~drop
+    return d._replace(ga=d.ga[keep], omega=d.omega[keep], alpha=d.alpha[keep], r=d.r[keep], block=d.block[keep])
 
 
 def _moves(d: MountData) -> bool:
@@ -184,8 +193,25 @@ def _model(x: np.ndarray, d: MountData) -> np.ndarray:
 
 def _project(D: np.ndarray, d: MountData, rw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The best ``theta`` for the rotation ``D`` (weighted least squares, robust row weights
-    ``rw`` (n, 6)) and the noise-weighted residual (n*6,). The normal equations by blocks: the
-    offset's columns are the identity (``_dense_part``: the mass, first moment and inertia nuisance)."""
+    ``rw`` (n, 6)) and the noise-weighted residual (n*6,). The normal equations row by row
+    (``mountkernel``: ``_dense_part``'s design, the offset's columns the identity)."""
+    from kinadapt_nn.diagnostics import mountkernel as mk
+
+    moves = _moves(d)
+    k = 4 + (N_INERTIA if moves else 0)
+    ga, om, al = (np.ascontiguousarray(v @ D) for v in (d.ga, d.omega, d.alpha))  # rows: D^T v
+    I_O = np.ascontiguousarray(d.I_O, dtype=float)
+    r, w, rw = (np.ascontiguousarray(v, dtype=float) for v in (d.r, d.w, rw))
+    H, g = mk.normal_equations(ga, om, al, I_O, r, w, rw, moves)
+    H[np.diag_indices_from(H)] += 1e-12 * max(float(np.trace(H)), 1e-300) / len(H)  # as _normal_solve
+    sol = np.linalg.solve(H, g)
+    theta = np.concatenate([sol[:4], sol[k:], sol[4:k]])  # [m, m c, b, dI]
+    return theta, mk.weighted_residual(ga, om, al, I_O, r, w, sol, moves)
+
+
+def _project_dense(D: np.ndarray, d: MountData, rw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``_project`` by the (n, 6, k) design array (numpy): the second implementation its kernel is
+    tested against."""
     Ad, c = _dense_part(D, d)
     k = Ad.shape[2]
     y = d.r - c
@@ -364,8 +390,11 @@ def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: i
     idx = np.flatnonzero(free)
     if len(idx) > MAX_ROWS:
         idx = idx[np.linspace(0, len(idx) - 1, MAX_ROWS).round().astype(int)]
-    _, _, I_O = nominal_inertials(setup)
+    m_decl, mc_decl, I_O = nominal_inertials(setup)
     d = MountData(s.g_s[idx] - s.a_s[idx], s.omega_s[idx], s.alpha_s[idx], s.wrench[idx], 1.0 / sigma, I_O, block[idx])
+    turn = _turn_mps2(d)
+    if turn < TURN_MIN_MPS2:  # the log cannot calibrate: nothing to search for
+        return _declared_fit(d, s, free, residual, (m_decl, mc_decl), turn)
     starts = [np.eye(3)]
     lin = _linear_start(d)
     if lin is not None and np.all(np.isfinite(lin)):
@@ -405,8 +434,7 @@ def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: i
     reps, devs, rpys, angs = [], [], [], []
     if len(groups) >= 3:
         for g in groups:
-            keep = ~np.isin(d.block, g)
-            db = d._replace(ga=d.ga[keep], omega=d.omega[keep], alpha=d.alpha[keep], r=d.r[keep], block=d.block[keep])
+            db = _without(d, np.isin(d.block, g))
             Db, thb, _ = _gauss_newton(db, D, iters=4)
             reps.append(thb[:N_THETA])
             devs.append(Rotation.from_matrix(D.T @ Db).as_rotvec())
@@ -442,6 +470,80 @@ def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: i
     corr = cov / np.sqrt(np.maximum(np.outer(np.diag(cov), np.diag(cov)), 1e-300))
     return MountFit(x, sd, rpy, rpy_sd, float(np.rad2deg(th)), ang_sd, res if residual else None, rep,
                     corr * np.outer(sd, sd))
+
+
+def _turn_mps2(d: MountData) -> float:
+    """[m/s^2] How far ``g_a`` moves in the sensor frame over the samples: the largest
+    ``|g_a - mean g_a|`` (rotation invariant: the same in any candidate mount)."""
+    return float(np.linalg.norm(d.ga - d.ga.mean(0), axis=1).max()) if len(d.ga) else 0.0
+
+
+def _mass_sd_at_declared(d: MountData, max_blocks: int = 20) -> float:
+    """[kg] The mass's sd with the mount held at the declared one: the larger of the information sd
+    and a delete-one-block jackknife's (as the fit's own). What the log says of the mass when it
+    cannot calibrate (``_declared_fit``)."""
+    theta, res = fit_at(np.eye(3), d)
+    ub = np.unique(d.block)
+    groups = np.array_split(ub, min(max_blocks, len(ub)))
+    m_jk = np.array([fit_at(np.eye(3), _without(d, np.isin(d.block, g)))[0][0] for g in groups]) if len(groups) >= 3 \
+        else np.zeros(1)
+    sd_jk = float(np.sqrt((len(m_jk) - 1) / len(m_jk) * np.sum((m_jk - m_jk.mean()) ** 2)))
+    A, _ = _linear_part(np.eye(3), d)
+    Jw = (A * d.w[None, :, None]).reshape(-1, A.shape[2])
+    e = (res * d.w).reshape(-1)
+    H = Jw.T @ Jw
+    H += np.eye(len(H)) * 1e-12 * max(float(np.trace(H)), 1e-300) / len(H)
+    s2 = float(e @ e) / max(len(e) - len(H), 1)
+    return max(float(np.sqrt(max(s2 * np.linalg.inv(H)[0, 0], 0.0))), sd_jk)
+
+
+def _declared_fit(d: MountData, s, free: np.ndarray, residual: bool, mass: tuple[float, np.ndarray],
+                  turn: float) -> MountFit:
+    """The calibration of a log whose free space does not turn the sensor against gravity (``turn``
+    [m/s^2] below ``TURN_MIN_MPS2``): a constant ``g_a`` lets any rotation and mass fit with a
+    matching offset (``m D^T g_a + b``), so the declared mount, mass and centre of mass stand and
+    only the offset ``b`` (6,) is fitted (robust mean of what the declared tool leaves). ``sd`` of
+    the rotation is pi (any rotation fits), of the mass what the log says of it at the declared
+    mount (``_mass_sd_at_declared``); ``cov`` is conditional on the declared values (zero for them,
+    the offset's own block)."""
+    m_decl, mc_decl = mass
+    mass_sd = _mass_sd_at_declared(d)
+    A1, c = _mass_part(np.eye(3), d)
+    y = d.r - c - np.einsum("nik,k->ni", A1, np.concatenate([[m_decl], mc_decl]))
+    b = np.median(y, axis=0)
+    for _ in range(8):  # Huber IRLS of a constant per channel
+        rw = _huber(((y - b) * d.w).reshape(-1))
+        b = (rw * y).sum(0) / np.maximum(rw.sum(0), 1e-300)
+    ub, inv = np.unique(d.block, return_inverse=True)
+    if len(ub) >= 3:  # the spread of the blocks' means: a correlated residual is not n independent samples
+        means = np.stack([(y - b)[inv == i].mean(0) for i in range(len(ub))])
+        b_sd = means.std(0, ddof=1) / np.sqrt(len(ub))
+    else:
+        b_sd = (y - b).std(0, ddof=1) / np.sqrt(max(len(y), 1))
+    x = np.concatenate([np.zeros(3), [m_decl], mc_decl, b])
+    c_decl = mc_decl / m_decl if m_decl > 0 else np.zeros(3)
+    sd = np.concatenate([np.full(3, np.pi), [mass_sd], mass_sd * np.abs(c_decl), b_sd])
+    cov = np.zeros((3 + N_THETA, 3 + N_THETA))
+    cov[7:, 7:] = np.diag(b_sd**2)
+    R_decl = s.setup.sensor.R_fs()
+    rpy = _rpy_deg(x, R_decl)
+    summary, res = _free_residual(x, s, free, residual)
+    rep = report((x, sd), (rpy, np.full(3, 180.0)), (0.0, 180.0), summary, s, 0.0)
+    rep.update({
+        "determined": False, "sd_deg": [None] * 3, "rotation_sd_deg": None, "declared_consistent": True,
+        "tool_mass_sd_kg": mass_sd, "tool_com_sd_m": [None] * 3,
+        "undetermined": [{"parameter": "the sensor mount's rotation and the tool's mass and centre of mass (the "
+                                       "declared ones used)", "sd": None, "unit": None,
+                          "why": f"the sensor turns against gravity by {turn:.2g} m/s^2 in free space, "
+                                 f"{TURN_MIN_MPS2:g} needed",
+                          "to_pin": "free-space poses with gravity along several directions in the sensor frame "
+                                    "(turn the wrist by 30 deg or more about two axes)"}],
+        "turn_mps2": turn,
+        "method": f"not determined by this log: the sensor turns against gravity by only {turn:.2g} m/s^2 in free "
+                  "space, so neither the mount's rotation nor the tool's mass can be fitted (any of them fits with a "
+                  "matching offset); the declared mount, mass and centre of mass are used and only the offset is "
+                  "fitted"})
+    return MountFit(x, sd, rpy, np.full(3, 180.0), 0.0, 180.0, res if residual else None, rep, cov)
 
 
 class ResidualSummary(NamedTuple):
@@ -626,6 +728,7 @@ def report(fit: tuple, rpy: tuple, angle: tuple[float, float], res: ResidualSumm
         "method": "rotation, mass, first moment and offset fitted jointly (Gauss-Newton from a closed-form start "
                   "and from the declared mount); sd = max(information, block jackknife)",
     }
+    out["determined"] = True  # False: ``_declared_fit`` (the log does not determine the calibration)
     out["paste"] = "[sensor] rpy_flange_deg = [" + ", ".join(f"{v:.2f}" for v in rpy) + "]"
     out["undetermined"] = undetermined(x, sd)
     return out

@@ -545,6 +545,10 @@ def _checks(cal: Calibration, declared: SetupCfg) -> Checks:
                      f"more than a first-order rotation can represent: the data say {sensor_mount['paste']} (± "
                      + ", ".join(f"{v:.2g}" for v in fitm.rpy_sd_deg) + " deg); paste it into the setup or set "
                      "[sensor] mount_known = false")
+    elif not declared.sensor.mount_known and not sensor_mount.get("determined", True):
+        mount_msg = ("the sensor mount cannot be estimated from this log ([sensor] mount_known = false): "
+                     + sensor_mount["undetermined"][0]["why"] + "; declare [sensor] rpy_flange_deg with mount_known = "
+                     "true, or record " + sensor_mount["undetermined"][0]["to_pin"])
     elif not declared.sensor.mount_known:
         sensor_mount["used"] = "the estimated rotation replaces [sensor] rpy_flange_deg for the whole diagnosis"
     block = None
@@ -755,6 +759,11 @@ def completeness_text(rep: dict) -> str:
     return txt
 
 
+def _why_undetermined(u: dict) -> str:
+    """An undetermined calibration parameter's reason: its sd, or why it was not fitted at all."""
+    return u["why"] if u.get("sd") is None else f"sd {u['sd']:.2g} {u['unit']}"
+
+
 def summary_text(rep: dict) -> str:
     """A paragraph a person reads first: the verdict on the model, then the effects."""
     chk = rep["sign_check"]
@@ -778,8 +787,7 @@ def summary_text(rep: dict) -> str:
         parts.append("WARNING: " + rep["tip_contact_check"]["message"] + ".")
     if sm and sm.get("undetermined"):
         parts.append("Undetermined by this log's motion (the rest stands): " + "; ".join(
-            f"{u['parameter']} (sd {u['sd']:.2g} {u['unit']}; to pin it: {u['to_pin']})" for u in sm["undetermined"])
-            + ".")
+            f"{u['parameter']} ({_why_undetermined(u)}; to pin it: {u['to_pin']})" for u in sm["undetermined"]) + ".")
     seg = rep.get("segmentation")
     if seg and seg.get("contact_onsets_s"):
         parts.append(f"Free space found from the data: {seg['free_span_s'][0]:.2f}–{seg['free_span_s'][1]:.2f} s "

@@ -81,3 +81,53 @@ def test_rpy_round_trip():
         assert np.allclose(mount.matrix_rpy(rpy_matrix(rpy)), rpy, atol=1e-9)
         v = rng.normal(size=3)
         assert np.allclose(mount.rotvec_matrix(v), Rotation.from_rotvec(v).as_matrix(), atol=1e-12)
+
+
+@pytest.mark.parametrize("moving", [True, False])
+def test_projection_kernel_equals_the_design_array(moving):
+    """The per-row kernel (``mountkernel``) against the numpy design (``_project_dense``): the same
+    theta and residual on a moving log (inertia nuisance) and a static one, with robust weights."""
+    rng = np.random.default_rng(3)
+    n = 300
+    om, al = (rng.normal(size=(n, 3)) * moving for _ in range(2))
+    I_O = np.array([[0.02, 0.001, -0.002], [0.001, 0.03, 0.0005], [-0.002, 0.0005, 0.01]])
+    d = mount.MountData(rng.normal(size=(n, 3)) * 9.8, om, al, rng.normal(size=(n, 6)), 1.0 / SIGMA, I_O,
+                        np.arange(n) % 10)
+    D = mount.rotvec_matrix(np.array([0.3, -1.1, 2.0]))
+    rw = rng.uniform(0.2, 1.0, size=(n, 6))
+    t1, e1 = mount._project(D, d, rw)
+    t2, e2 = mount._project_dense(D, d, rw)
+    assert len(t1) == (16 if moving else 10)
+    np.testing.assert_allclose(t1, t2, rtol=1e-9, atol=1e-12 * np.abs(t2).max())
+    np.testing.assert_allclose(e1, e2, rtol=1e-9, atol=1e-9 * np.abs(e2).max())
+
+
+def test_a_sensor_that_does_not_turn_keeps_the_declared_calibration():
+    """One orientation (gravity fixed in the sensor, 0.3 deg of wobble): any rotation and mass fit
+    with a matching offset, so none is fitted -- the declared mount and tool stand, the offset is
+    fitted (it is what the declared tool leaves), and the report says why and what would pin it."""
+    rng = np.random.default_rng(4)
+    n = 400
+    setup = load_setup(None, [f"tool.mass_kg={MASS}", f"tool.com_sensor_m=[{COM[0]}, {COM[1]}, {COM[2]}]"])
+    g = np.array([0.0, 0.0, -9.81]) + rng.normal(0.0, 0.03, (n, 3))  # the sensor hardly turns
+    F = MASS * g
+    w = np.concatenate([F, np.cross(COM, F)], axis=1) + BIAS + rng.normal(0.0, SIGMA, (n, 6))
+    z = np.zeros((n, 3))
+    s = SimpleNamespace(g_s=g, a_s=z, omega_s=z, alpha_s=z, wrench=w, setup=setup, n=n)
+    f = mount.fit(s, np.ones(n, bool), np.arange(n) % 20, SIGMA)
+    rep = f.report
+    assert rep["determined"] is False and rep["turn_mps2"] < mount.TURN_MIN_MPS2
+    assert np.allclose(f.x[:3], 0.0) and f.x[3] == MASS and rep["declared_consistent"]
+    assert np.all(np.abs(f.x[7:] - BIAS) < 4 * f.sd[7:]), (f.x[7:] - BIAS, f.sd[7:])
+    assert np.all(f.sd[7:] < SIGMA)  # the offset is determined by the mean of 400 samples
+    assert rep["sd_deg"] == [None] * 3 and "1 needed" in rep["undetermined"][0]["why"]
+    assert not mount.plausibility(f, setup)
+    # the same samples turned through 90 deg about x half of the time: now it calibrates
+    half = np.arange(n) < n // 2
+    g2 = g.copy()
+    g2[half] = g[half] @ mount.rotvec_matrix(np.array([np.pi / 2, 0.0, 0.0]))
+    F2 = MASS * g2
+    s2 = SimpleNamespace(g_s=g2, a_s=z, omega_s=z, alpha_s=z, setup=setup, n=n,
+                         wrench=np.concatenate([F2, np.cross(COM, F2)], axis=1) + BIAS + rng.normal(0.0, SIGMA, (n, 6)))
+    f2 = mount.fit(s2, np.ones(n, bool), np.arange(n) % 20, SIGMA)
+    assert f2.report["determined"] is True and abs(f2.x[3] - MASS) < 0.01
