@@ -124,3 +124,12 @@ def weighted_residual(ga, om, al, I_O, r, w, sol, moves):
 
 #: the diagnosis's numba kernels (compiled once per machine, then loaded from numba's cache)
 KERNELS = (normal_equations, weighted_residual)
+
+
+def cached() -> bool:
+    """False when a kernel still has to be compiled (the first diagnosis on a machine: ~5 s on 2
+    cores), so that the command can say so; True also when numba's cache cannot be read."""
+    try:
+        return all(bool(f._cache._cache_file._load_index()) for f in KERNELS)
+    except Exception:  # numba's cache internals moved: say nothing
+        return True
