@@ -61,6 +61,10 @@ class CompCfg(NamedTuple):
     max_dense: int = 12  #: a shape with more parameters has its entries selected sparsely
     max_entries: int = 8  #: at most this many entries of a sparse shape
     min_entry_gain: float = 0.01  #: [-] an entry must explain this share of what the final model leaves
+    #: the hint test's rows: at most this many row times (10 ms apart: 5 min); a longer log is tested on
+    #: every m-th span of ``hint_span_s`` (``hint_rows``), so that an hour costs what 5 minutes do
+    hint_max_row_times: int = 30_000
+    hint_span_s: float = 5.0  #: [s]
 
 
 class Shape(NamedTuple):
@@ -303,7 +307,7 @@ def hints(s, des: sel.Design, rm, result, sc: sel.SelCfg, cc: CompCfg = CompCfg(
 
     rel9 = np.array([s.setup.analysis.relevant_force_N] * 3 + [s.setup.analysis.relevant_moment_Nm] * 6)
     sh = [x for x in shapes(s, cc) if not (x.name == "sensor_constant" and s.setup.log.tared)]
-    hd = hint_design(s, des, rm, result, sh, rel9)
+    hd = hint_design(s, des, rm, result, sh, rel9, cc)
     info = {x.name: (x, None) for x in sh}
     scale, X = hd.scale, hd.X
     st = sel.Stats(hd)
@@ -338,14 +342,42 @@ def hints(s, des: sel.Design, rm, result, sc: sel.SelCfg, cc: CompCfg = CompCfg(
     return out
 
 
-def hint_design(s, des: sel.Design, rm, result, sh: list[Shape], rel9: np.ndarray) -> sel.Design:
+def hint_rows(des: sel.Design, rm, cc: CompCfg) -> tuple[object, np.ndarray | None]:
+    """The rows of the hint test: all of them, or on a log with more than ``cc.hint_max_row_times``
+    row times every m-th span of ``cc.hint_span_s`` (by row time from the log's start, so the same
+    whatever the chunking) -- a shape's test needs minutes of log, not hours. -> (the ``RowMap`` of
+    the rows kept, their positions in ``des`` (R',) ascending; None: every row)."""
+    n = len(rm.rows)
+    if n <= cc.hint_max_row_times:
+        return rm, None
+    m = -(-n // cc.hint_max_row_times)
+    free_t = des.t_s[des.channel < 6][::6]  # one time per row, in the design's order (free rows, then contact)
+    con_t = des.t_s[des.channel >= 6][::3]
+    row_t = np.empty(n)
+    row_t[~rm.contact], row_t[rm.contact] = free_t, con_t
+    keep = (np.floor(row_t / cc.hint_span_s).astype(np.int64) % m) == 0
+    sub = rm._replace(rows=rm.rows[keep], contact=rm.contact[keep])
+    start = rm.positions()[keep]
+    width = np.where(rm.contact[keep], 3, 6)
+    pos = np.sort(np.concatenate([start[width == 6][:, None] + np.arange(6), start[width == 3][:, None]
+                                  + np.arange(3)], axis=None) if len(start) else np.zeros(0, int))
+    return sub, pos.astype(np.int64)
+
+
+def hint_design(s, des: sel.Design, rm, result, sh: list[Shape], rel9: np.ndarray, cc: CompCfg = CompCfg()
+                ) -> sel.Design:
     """The design of the hint test: the shapes ``sh`` as candidates, the final model's columns
     (nuisance and present effects) as nuisance; each shape's parameters scaled by ``_relevant_of_sq``
     (``rel9`` (9,): the relevant size of the six free-space channels and the three tip moments).
-    A streamed ``des``: one chunked pass (``stream.block_stats``), never the shapes' columns."""
+    A streamed ``des``: one chunked pass (``stream.block_stats``), never the shapes' columns, on the
+    rows of ``hint_rows``."""
     if des.stats is not None:
         from kinadapt_nn.diagnostics import stream
 
+        rm, pos = hint_rows(des, rm, cc)
+        if pos is not None:
+            des = des._replace(y=des.y[pos], block=des.block[pos], W=des.W[pos], channel=des.channel[pos],
+                               t_s=des.t_s[pos])
         bs = des.stats
         pres = {n: list(c) for n, (c, _, _) in result.present.items()}
         nuis = [src for src in bs.sources if src.name == "_offset"]

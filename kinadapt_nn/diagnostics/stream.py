@@ -202,12 +202,16 @@ def bounds(s, chunk: int, halo: int) -> list[tuple[int, int]]:
 def _chunk_rows(s, rm: RowMap, sources: list[Source], a: int, b: int, halo: int, w: dict
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The rows of samples ``a:b``: (design positions (q,), row values (q, K), the columns' squares
-    per channel of these rows (9, K): ``RowMap.channel_sq``)."""
-    lo, hi = max(0, a - halo), min(s.n, b + halo)
-    sub = slice_signals(s, lo, hi, w)
-    C = np.concatenate([np.asarray(src.columns(sub), dtype=float)[:, :, src.cols] for src in sources], axis=2)
+    per channel of these rows (9, K): ``RowMap.channel_sq``). Only the samples within ``halo`` of
+    the chunk's rows are evaluated (none when it has no row: a ``RowMap`` of spans)."""
     i0, i1 = np.searchsorted(rm.rows, [a, b])
     rows = rm.rows[i0:i1]
+    K = sum(len(src.cols) for src in sources)
+    if not len(rows):
+        return np.zeros(0, np.int64), np.zeros((0, K)), np.zeros((9, K))
+    lo, hi = max(0, a - halo, int(rows[0]) - halo), min(s.n, b + halo, int(rows[-1]) + 1 + halo)
+    sub = slice_signals(s, lo, hi, w)
+    C = np.concatenate([np.asarray(src.columns(sub), dtype=float)[:, :, src.cols] for src in sources], axis=2)
     xs = mean_at(C, rm.k_smooth, rows - lo)
     con = rm.contact[i0:i1]
     vals = rm.rows_of(xs, con)
