@@ -114,16 +114,6 @@ def _moves(d: MountData) -> bool:
     return bool(d.inertia and (np.any(d.omega) or np.any(d.alpha)))
 
 
-def _inertia_columns(v: np.ndarray) -> np.ndarray:
-    """(n, 3) -> (n, 3, 6): ``I v`` = L(v) [I_xx, I_yy, I_zz, I_xy, I_xz, I_yz] for a symmetric I."""
-    L = np.zeros((len(v), 3, 6))
-    L[:, 0, 0], L[:, 1, 1], L[:, 2, 2] = v[:, 0], v[:, 1], v[:, 2]
-    L[:, 0, 3], L[:, 1, 3] = v[:, 1], v[:, 0]
-    L[:, 0, 4], L[:, 2, 4] = v[:, 2], v[:, 0]
-    L[:, 1, 5], L[:, 2, 5] = v[:, 2], v[:, 1]
-    return L
-
-
 def _linear_part(D: np.ndarray, d: MountData) -> tuple[np.ndarray, np.ndarray]:
     """The model is linear in ``theta = [m, m c, b]`` (10,) -- and, when the samples turn the sensor
     (``_moves``), the six entries of the tool's inertia about the sensor origin beyond the declared
@@ -180,9 +170,24 @@ def _dense_part(D: np.ndarray, d: MountData) -> tuple[np.ndarray, np.ndarray]:
     om, al = d.omega @ D, d.alpha @ D
     A = np.zeros((len(A1), 6, 4 + N_INERTIA))
     A[:, :, :4] = A1
-    Lo = _inertia_columns(om)  # (n, 3, 6): omega x (dI omega) column by column
-    A[:, 3:, 4:] = -(_inertia_columns(al) + np.cross(om[:, None, :], Lo.transpose(0, 2, 1)).transpose(0, 2, 1))
+    A[:, 3:, 4:] = -_inertia_moment(om, al)
     return A, c
+
+
+def _inertia_moment(om: np.ndarray, al: np.ndarray) -> np.ndarray:
+    """(n, 3) omega, alpha -> (n, 3, 6): ``dI alpha + omega x (dI omega)`` column by column of the
+    symmetric basis [xx, yy, zz, xy, xz, yz] (``I v`` = L(v) [I_xx, I_yy, I_zz, I_xy, I_xz, I_yz],
+    written out: the calibration fit builds it at every trial rotation)."""
+    o0, o1, o2 = om[:, 0], om[:, 1], om[:, 2]
+    a0, a1, a2 = al[:, 0], al[:, 1], al[:, 2]
+    out = np.empty((len(om), 3, 6))
+    out[:, 0, 0], out[:, 1, 0], out[:, 2, 0] = a0, o2 * o0, -o1 * o0  # v = (o0, 0, 0)
+    out[:, 0, 1], out[:, 1, 1], out[:, 2, 1] = -o2 * o1, a1, o0 * o1  # v = (0, o1, 0)
+    out[:, 0, 2], out[:, 1, 2], out[:, 2, 2] = o1 * o2, -o0 * o2, a2  # v = (0, 0, o2)
+    out[:, 0, 3], out[:, 1, 3], out[:, 2, 3] = a1 - o2 * o0, a0 + o2 * o1, o0 * o0 - o1 * o1  # (o1, o0, 0)
+    out[:, 0, 4], out[:, 1, 4], out[:, 2, 4] = a2 + o1 * o0, o2 * o2 - o0 * o0, a0 - o1 * o2  # (o2, 0, o0)
+    out[:, 0, 5], out[:, 1, 5], out[:, 2, 5] = o1 * o1 - o2 * o2, a2 - o0 * o1, a1 + o0 * o2  # (0, o2, o1)
+    return out
 
 
 def _model(x: np.ndarray, d: MountData) -> np.ndarray:
@@ -193,40 +198,26 @@ def _model(x: np.ndarray, d: MountData) -> np.ndarray:
 
 def _project(D: np.ndarray, d: MountData, rw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The best ``theta`` for the rotation ``D`` (weighted least squares, robust row weights
-    ``rw`` (n, 6)) and the noise-weighted residual (n*6,). The normal equations row by row
-    (``mountkernel``: ``_dense_part``'s design, the offset's columns the identity)."""
-    from kinadapt_nn.diagnostics import mountkernel as mk
-
-    moves = _moves(d)
-    k = 4 + (N_INERTIA if moves else 0)
-    ga, om, al = (np.ascontiguousarray(v @ D) for v in (d.ga, d.omega, d.alpha))  # rows: D^T v
-    I_O = np.ascontiguousarray(d.I_O, dtype=float)
-    r, w, rw = (np.ascontiguousarray(v, dtype=float) for v in (d.r, d.w, rw))
-    H, g = mk.normal_equations(ga, om, al, I_O, r, w, rw, moves)
-    H[np.diag_indices_from(H)] += 1e-12 * max(float(np.trace(H)), 1e-300) / len(H)  # as _normal_solve
-    sol = np.linalg.solve(H, g)
-    theta = np.concatenate([sol[:4], sol[k:], sol[4:k]])  # [m, m c, b, dI]
-    return theta, mk.weighted_residual(ga, om, al, I_O, r, w, sol, moves)
-
-
-def _project_dense(D: np.ndarray, d: MountData, rw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``_project`` by the (n, 6, k) design array (numpy): the second implementation its kernel is
-    tested against."""
+    ``rw`` (n, 6)) and the noise-weighted residual (n*6,). The normal equations by blocks: the
+    offset's columns are the identity (``_dense_part``: the mass, first moment and inertia nuisance).
+    (A numba kernel of this solve, tried, was 6x faster but loads LLVM into the diagnosis: +107 MiB
+    of resident memory, which the hour-long log's 2 GB budget does not have.)"""
     Ad, c = _dense_part(D, d)
-    k = Ad.shape[2]
+    n, k = len(Ad), Ad.shape[2]
+    A2 = Ad.reshape(-1, k)  # (n*6, k): BLAS products below, no einsum
     y = d.r - c
     sw2 = d.w**2 * rw  # (n, 6) squared row weights
-    Aw = Ad * sw2[:, :, None]
+    Aw = A2 * sw2.reshape(-1, 1)
     H = np.empty((k + 6, k + 6))
-    H[:k, :k] = Aw.reshape(-1, k).T @ Ad.reshape(-1, k)
-    H[:k, k:] = Aw.sum(0).T
+    H[:k, :k] = Aw.T @ A2
+    H[:k, k:] = Aw.reshape(n, 6, k).sum(0).T
     H[k:, :k] = H[:k, k:].T
     H[k:, k:] = np.diag(sw2.sum(0))
-    g = np.concatenate([np.einsum("nck,nc->k", Aw, y), (sw2 * y).sum(0)])
+    g = np.concatenate([Aw.T @ y.reshape(-1), (sw2 * y).sum(0)])
     H[np.diag_indices_from(H)] += 1e-12 * max(float(np.trace(H)), 1e-300) / len(H)  # as _normal_solve
     sol = np.linalg.solve(H, g)
     theta = np.concatenate([sol[:4], sol[k:], sol[4:k]])  # [m, m c, b, dI]
-    return theta, ((y - np.einsum("nik,k->ni", Ad, sol[:k]) - sol[k:]) * d.w).reshape(-1)
+    return theta, ((y - (A2 @ sol[:k]).reshape(n, 6) - sol[k:]) * d.w).reshape(-1)
 
 
 def _normal_solve(A: np.ndarray, y: np.ndarray) -> np.ndarray:

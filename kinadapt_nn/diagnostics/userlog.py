@@ -270,10 +270,6 @@ def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray | None, 
     progress("free space found from the data (segmentation)")
     seg = segmentation.free_space(s, excluded_samples(s, setup))
     progress("sensor mount: rotation, mass, centre of mass and offset fitted jointly on free space")
-    from kinadapt_nn.diagnostics import mountkernel
-
-    if not mountkernel.cached():
-        progress("compiling the calibration's kernels (once per machine, about 5 s)")
     blocks = sample_blocks(s, rc)
     fit0 = mount.fit(s, seg.free, blocks, sigma, max_blocks=0, residual=s.static)  # the point only (no sd yet)
     how = "second differences of the reading"

@@ -83,23 +83,18 @@ def test_rpy_round_trip():
         assert np.allclose(mount.rotvec_matrix(v), Rotation.from_rotvec(v).as_matrix(), atol=1e-12)
 
 
-@pytest.mark.parametrize("moving", [True, False])
-def test_projection_kernel_equals_the_design_array(moving):
-    """The per-row kernel (``mountkernel``) against the numpy design (``_project_dense``): the same
-    theta and residual on a moving log (inertia nuisance) and a static one, with robust weights."""
+def test_inertia_moment_columns_equal_the_cross_product_form():
+    """``_inertia_moment`` (written out) against ``dI alpha + omega x (dI omega)`` evaluated from
+    each symmetric basis matrix directly (``np.cross``), on random rates."""
     rng = np.random.default_rng(3)
-    n = 300
-    om, al = (rng.normal(size=(n, 3)) * moving for _ in range(2))
-    I_O = np.array([[0.02, 0.001, -0.002], [0.001, 0.03, 0.0005], [-0.002, 0.0005, 0.01]])
-    d = mount.MountData(rng.normal(size=(n, 3)) * 9.8, om, al, rng.normal(size=(n, 6)), 1.0 / SIGMA, I_O,
-                        np.arange(n) % 10)
-    D = mount.rotvec_matrix(np.array([0.3, -1.1, 2.0]))
-    rw = rng.uniform(0.2, 1.0, size=(n, 6))
-    t1, e1 = mount._project(D, d, rw)
-    t2, e2 = mount._project_dense(D, d, rw)
-    assert len(t1) == (16 if moving else 10)
-    np.testing.assert_allclose(t1, t2, rtol=1e-9, atol=1e-12 * np.abs(t2).max())
-    np.testing.assert_allclose(e1, e2, rtol=1e-9, atol=1e-9 * np.abs(e2).max())
+    om, al = rng.normal(size=(50, 3)), rng.normal(size=(50, 3))
+    basis = []
+    for i, j in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)):
+        E = np.zeros((3, 3))
+        E[i, j] = E[j, i] = 1.0
+        basis.append(E)
+    want = np.stack([al @ E.T + np.cross(om, om @ E.T) for E in basis], axis=2)
+    np.testing.assert_allclose(mount._inertia_moment(om, al), want, rtol=1e-13, atol=1e-13)
 
 
 def test_a_sensor_that_does_not_turn_keeps_the_declared_calibration():
