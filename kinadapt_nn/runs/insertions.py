@@ -181,8 +181,13 @@ class _Cell:
         if cfg.cell.between == "refit":
             from kinadapt_nn.runs.refit import Refit
 
+            neural = cfg.run.features == "neural"
+            cap = cfg.cell.refit_max_directions_neural if neural else 0
+            choice = cfg.cell.refit_neural_prior_choice if neural else 0.0
+            alt = ctrl.features.prior_cov("calibrated_arm") if choice > 0 else None
             self.refit = Refit(ctrl, cfg.cell.refit_channels, cfg.cell.refit_prior_weight,
-                               timing_sd_s=cfg.cell.refit_timing_sd_s)
+                               timing_sd_s=cfg.cell.refit_timing_sd_s, max_directions=cap, alt_prior_cov=alt,
+                               alt_evidence_per_insertion=choice)
         self.rows: list[dict] = []
         self.out: dict[int, EpisodeResult] = {}
 

@@ -28,6 +28,14 @@ is modelled as the prediction delta seconds later, ``y ~ H theta + delta W d(s_d
 the prior delta ~ N(0, timing_sd_s^2). On the simulated cell the measured F/T rate leads the
 encoders' prediction by about 0.75 ms (docs/cell.md): a bias proportional to the tip acceleration
 that the 12 neural directions otherwise absorb.
+
+Two options for the neural features (off by default; docs/cell.md "Five draws"):
+``max_directions > 0`` (``cell.refit_max_directions_neural``) acts on at most that many of the
+best-identified directions. ``alt_prior_cov`` with ``alt_evidence_per_insertion > 0``
+(``cell.refit_neural_prior_choice``; the checkpoint's calibrated-arm prior) solves the same data
+under that prior too. It acts on that estimate unless the features' own prior gains more than
+``alt_evidence_per_insertion`` x (insertions pooled) in log marginal likelihood, computed with the
+residual weights of the last pass.
 """
 
 from __future__ import annotations
@@ -42,7 +50,8 @@ class Refit:
     """Pooled refit of theta over a work cell's logged insertions (see the module docstring)."""
 
     def __init__(self, ctrl: Controller, channels=(1, 2), prior_weight: float = 1.0, decimate_s: float = 0.01,
-                 timing_sd_s: float = 0.0) -> None:
+                 timing_sd_s: float = 0.0, max_directions: int = 0, alt_prior_cov: np.ndarray | None = None,
+                 alt_evidence_per_insertion: float = 0.0) -> None:
         self.ctrl = ctrl
         ad = ctrl.known.adaptation
         self.P0 = np.asarray(prior_cov_of(ctrl.features), dtype=float)
@@ -55,6 +64,7 @@ class Refit:
         self.act_ratio = float(ad.act_sd_ratio)
         self.r_floor = float(ad.resid_floor_w)
         self.channels = np.asarray(channels, dtype=int)
+        self.max_directions = int(max_directions)  # > 0: act on at most this many best-identified directions
         self.prior_weight = float(prior_weight)
         self.data: list[tuple[np.ndarray, np.ndarray]] = []  # per insertion: H (N, m, p[+1]), y (N, m)
         # the sensor timing offset (F/T against encoders) as one more unknown, prior N(0, sd^2)
@@ -67,6 +77,19 @@ class Refit:
             self._P0inv_a[:p, :p] = self.prior_weight * self._P0inv
             self._P0inv_a[p, p] = 1.0 / self.timing_sd_s**2
         self.timing_s = 0.0  #: [s] the estimated lead of the F/T rate over the encoders' prediction
+        # A simpler prior (the neural checkpoint's calibrated-arm one: the tool offset only), used
+        # unless the measured data favour the features' own prior by more than
+        # ``alt_evidence_per_insertion`` x (insertions pooled) in log marginal likelihood.
+        self.alt = None
+        if alt_prior_cov is not None and alt_evidence_per_insertion > 0:
+            if self.timing_sd_s > 0:
+                raise ValueError("the refit's prior choice and its timing offset are not combined")
+            C = np.asarray(alt_prior_cov, dtype=float)
+            Lc = np.linalg.cholesky(C)
+            self.alt = {"P0inv": self.prior_weight * np.linalg.inv(C), "L": Lc, "Linv": np.linalg.inv(Lc),
+                        "per_insertion": float(alt_evidence_per_insertion)}
+        self.log_evidence_gain = float("nan")  #: own prior minus the simpler one (the last solve)
+        self.chose_alt = False  #: the last solve acted on the simpler prior's estimate
 
     def add(self, trace) -> int:
         """Keep one insertion's contact samples (``trace`` from ``run_episode(keep_regressor=True)``;
@@ -97,6 +120,8 @@ class Refit:
         for _ in range(3):  # residual levels at the current solution
             Lam = self._P0inv_a.copy()
             eta = np.zeros(len(prior))
+            G = np.zeros_like(Lam)
+            quad = 0.0
             for H, y in data:
                 if not len(y):
                     continue
@@ -104,11 +129,29 @@ class Refit:
                 R = np.mean(r * r, axis=0) + self.r_floor  # (m,) bias included
                 w = 1.0 / (R * self.n_eff)
                 Hw = H * w[None, :, None]
-                Lam += np.einsum("kmp,kmq->pq", Hw, H)
-                eta += np.einsum("kmp,km->p", Hw, y - np.einsum("kmp,p->km", H, prior))
+                yc = y - np.einsum("kmp,p->km", H, prior)
+                G += np.einsum("kmp,kmq->pq", Hw, H)
+                eta += np.einsum("kmp,km->p", Hw, yc)
+                quad += float(np.sum(yc * yc * w[None, :]))
+            Lam += G
             theta = prior + np.linalg.solve(Lam, eta)
         P = np.linalg.inv(Lam)
         P = 0.5 * (P + P.T)
+        if self.alt is not None and len(data):  # the same data and weights under the simpler prior
+            lam_a = self.alt["P0inv"] + G
+            gain = self._log_evidence(quad, eta, Lam, G, self._L / np.sqrt(self.prior_weight)) \
+                - self._log_evidence(quad, eta, lam_a, G, self.alt["L"] / np.sqrt(self.prior_weight))
+            self.log_evidence_gain = float(gain)
+            self.chose_alt = gain <= self.alt["per_insertion"] * len(data)
+            if self.chose_alt:
+                theta = prior + np.linalg.solve(lam_a, eta)
+                P = np.linalg.inv(lam_a)
+                P = 0.5 * (P + P.T)
+                lo, hi = self.ctrl.consts.pv[0], self.ctrl.consts.pv[1]
+                theta = np.clip(theta, lo, hi)
+                A = np.empty_like(P)
+                kalman.identified_projector(np.ascontiguousarray(P), self.alt["L"], self.alt["Linv"], self.act_ratio, A)
+                return theta, P, self.theta_prior + A @ (theta - self.theta_prior)
         if len(theta) > p:  # the timing offset: kept for the report; theta's marginal covariance
             self.timing_s = float(theta[p])
             theta, P = theta[:p], np.ascontiguousarray(P[:p, :p])
@@ -116,9 +159,24 @@ class Refit:
         theta = np.clip(theta, lo, hi)  # Proj_Omega, as the law
         return theta, P, self.theta_prior + self._identified(P) @ (theta - self.theta_prior)
 
+    @staticmethod
+    def _log_evidence(quad: float, eta: np.ndarray, Lam: np.ndarray, G: np.ndarray, Lp: np.ndarray) -> float:
+        """log p(y) of the linear-Gaussian model with fixed residual weights, up to the terms that
+        do not depend on the prior: -1/2 yc'R^-1 yc + 1/2 eta' Lam^-1 eta - 1/2 log det(I + Lp' G Lp)
+        (prior covariance Lp Lp', G = sum H'R^-1 H, eta = sum H'R^-1 yc, Lam = prior^-1 + G)."""
+        p = len(eta)
+        return float(-0.5 * quad + 0.5 * eta @ np.linalg.solve(Lam, eta)
+                     - 0.5 * np.linalg.slogdet(np.eye(p) + Lp.T @ G @ Lp)[1])
+
     def _identified(self, P: np.ndarray) -> np.ndarray:
         """Projector (p, p) onto the identified directions: the kalman law's own
         (``kalman.identified_projector`` on the prior's Cholesky factor)."""
+        if 0 < self.max_directions < len(P):  # the cap: the k best-identified of those past the threshold
+            M = self._Linv @ P @ self._Linv.T
+            lam, V = np.linalg.eigh(0.5 * (M + M.T))  # ascending: the best-identified first
+            sel = (lam < self.act_ratio**2) & (np.arange(len(lam)) < self.max_directions)
+            U = V[:, sel]
+            return self._L @ U @ U.T @ self._Linv
         A = np.empty_like(P)
         kalman.identified_projector(np.ascontiguousarray(P), self._L, self._Linv, self.act_ratio, A)
         return A
@@ -140,4 +198,7 @@ class Refit:
         row = {"samples": n, "insertions_pooled": len(self.data), "identified": ident}
         if self.timing_sd_s > 0:
             row["timing_offset_s"] = self.timing_s
+        if self.alt is not None:
+            row["log_evidence_gain"] = self.log_evidence_gain
+            row["simpler_prior"] = bool(self.chose_alt)
         return row

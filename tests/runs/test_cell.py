@@ -343,3 +343,47 @@ def test_compare_batches_single_episodes_with_the_rows_of_single_runs(tmp_path, 
         tables[mode] = [{k: v for k, v in r.items() if k != "wall_time_s_median"} for r in rows]
     _same(tables["batch"], tables["single"])
     assert len(tables["batch"]) == 4 + 4 * 4 and all(r["episodes"] == 2 for r in tables["batch"])  # two: all, 0, 1, 2
+
+
+def test_refit_prior_choice_is_the_gaussian_evidence_difference():
+    """With a second prior, Refit's log-evidence gain equals the difference of the two dense
+    Gaussian marginal likelihoods N(yc; 0, H P H' + R/w) at the weights of its last pass, and the
+    refit acts on the simpler prior's estimate exactly when the gain is below the threshold."""
+    cfg = load_config(None, [BORES, "cell.heldout_per_bore=1"])
+    ctrl = make_controller(cfg)
+    rng = np.random.default_rng(1)
+    P0 = np.asarray(Refit(ctrl).P0)
+    alt = np.diag(np.diag(P0)) * np.array([1.0, 1e-6, 1e-6])  # a narrower prior
+    rf = Refit(ctrl, channels=(1, 2), prior_weight=2.0, alt_prior_cov=alt, alt_evidence_per_insertion=1e9)
+    th_true = rf.theta_prior + np.array([0.002, -0.001, 0.003])
+    for _ in range(2):
+        H = rng.normal(size=(30, 2, 3)) * 30.0
+        y = np.einsum("kmp,p->km", H, th_true) + rng.normal(size=(30, 2)) * 0.01
+        rf.data.append((H, y))
+    theta_alt, _, _ = rf.solve()
+    gain = rf.log_evidence_gain
+    assert rf.chose_alt
+    th = rf.theta_prior.copy()  # the weights of the last pass, re-derived
+    for it in range(3):
+        ws = []
+        for H, y in rf.data:
+            r = y - np.einsum("kmp,p->km", H, th)
+            ws.append(1.0 / ((np.mean(r * r, axis=0) + rf.r_floor) * rf.n_eff))
+        if it < 2:
+            Lam = rf.prior_weight * rf._P0inv + sum(np.einsum("kmp,kmq->pq", H * w[None, :, None], H)
+                                                   for (H, _), w in zip(rf.data, ws))
+            eta = sum(np.einsum("kmp,km->p", H * w[None, :, None], y - np.einsum("kmp,p->km", H, rf.theta_prior))
+                      for (H, y), w in zip(rf.data, ws))
+            th = rf.theta_prior + np.linalg.solve(Lam, eta)
+    Hs = np.concatenate([H.reshape(-1, 3) for H, _ in rf.data])
+    yc = np.concatenate([(y - np.einsum("kmp,p->km", H, rf.theta_prior)).reshape(-1) for H, y in rf.data])
+    Rd = np.concatenate([np.tile(1.0 / w, len(H)) for (H, _), w in zip(rf.data, ws)])
+
+    def loglik(C):
+        S = Hs @ (C / rf.prior_weight) @ Hs.T + np.diag(Rd)
+        return -0.5 * (yc @ np.linalg.solve(S, yc) + np.linalg.slogdet(S)[1])
+
+    assert gain == pytest.approx(loglik(P0) - loglik(alt), rel=1e-8, abs=1e-6)
+    rf.alt["per_insertion"] = (gain - 1.0) / len(rf.data)  # below the gain: the refit's own prior
+    theta_own, _, _ = rf.solve()
+    assert not rf.chose_alt and not np.allclose(theta_own, theta_alt)
