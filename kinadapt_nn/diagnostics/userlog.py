@@ -358,6 +358,8 @@ def effective_setup(declared: SetupCfg, used: SetupCfg, fitm, point) -> dict:
     out = {"sensor_rpy_flange_deg": [float(v) for v in used.sensor.rpy_flange_deg],
            "mount": "estimated" if not declared.sensor.mount_known else "declared",
            "tool_mass_kg": m, "tool_mass_sd_kg": float(fitm.sd[3]),
+           "tool": ("estimated (sensor-mount fit)" if fitm.report.get("determined", True) else
+                    "declared (the log does not turn the sensor enough to calibrate: sensor_mount.undetermined)"),
            "tool_com_sensor_m": [float(v) for v in fitm.x[4:7] / m] if abs(m) > 1e-9 else None,
            "contact_point": None if point is None else point.to_json()}
     if point is not None:
