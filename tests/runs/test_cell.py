@@ -88,18 +88,24 @@ def test_cell_error_is_zero_for_the_true_offset_on_the_nominal_arm_and_not_with_
     assert CellJacobianError(cfg_a, ctrl_a).median(ctrl_a, true) > 1e-3
 
 
+def _synthetic_insertions(rf, rng, insertions: int, rows: int) -> np.ndarray:
+    """Logged insertions for ``rf`` (``Refit``): regressors H (rows, 2, 3) and rates y = H theta_true
+    plus noise, theta_true 2-3 mm from the prior. -> theta_true (3,)."""
+    th_true = rf.theta_prior + np.array([0.002, -0.001, 0.003])
+    for _ in range(insertions):
+        H = rng.normal(size=(rows, 2, 3)) * 30.0
+        y = np.einsum("kmp,p->km", H, th_true) + rng.normal(size=(rows, 2)) * 0.01
+        rf.data.append((H, y))
+    return th_true
+
+
 def test_refit_is_the_stacked_least_squares_solution():
     """Refit.solve (information form, per-insertion residual weights) equals an independent stacked,
     whitened least-squares solve with the prior as extra rows, at the weights of its last pass."""
     cfg = load_config(None, [BORES, "cell.heldout_per_bore=1"])
     ctrl = make_controller(cfg)
     rf = Refit(ctrl, channels=(1, 2), prior_weight=2.0)
-    rng = np.random.default_rng(0)
-    th_true = rf.theta_prior + np.array([0.002, -0.001, 0.003])
-    for _ in range(3):
-        H = rng.normal(size=(200, 2, 3)) * 30.0
-        y = np.einsum("kmp,p->km", H, th_true) + rng.normal(size=(200, 2)) * 0.01
-        rf.data.append((H, y))
+    th_true = _synthetic_insertions(rf, np.random.default_rng(0), insertions=3, rows=200)
     theta, P, _ = rf.solve()
     # the independent solve: weights from the residuals at the previous pass (re-derived here)
     th = rf.theta_prior.copy()
@@ -355,11 +361,7 @@ def test_refit_prior_choice_is_the_gaussian_evidence_difference():
     P0 = np.asarray(Refit(ctrl).P0)
     alt = np.diag(np.diag(P0)) * np.array([1.0, 1e-6, 1e-6])  # a narrower prior
     rf = Refit(ctrl, channels=(1, 2), prior_weight=2.0, alt_prior_cov=alt, alt_evidence_per_insertion=1e9)
-    th_true = rf.theta_prior + np.array([0.002, -0.001, 0.003])
-    for _ in range(2):
-        H = rng.normal(size=(30, 2, 3)) * 30.0
-        y = np.einsum("kmp,p->km", H, th_true) + rng.normal(size=(30, 2)) * 0.01
-        rf.data.append((H, y))
+    _synthetic_insertions(rf, rng, insertions=2, rows=30)
     theta_alt, _, _ = rf.solve()
     gain = rf.log_evidence_gain
     assert rf.chose_alt
