@@ -9,7 +9,7 @@ import numpy as np
 
 VERDICT_COLORS = {"present": "C3", "cannot_decide": "C1", "absent": "0.6"}
 #: at most about this many points per plotted series (a long log's series are decimated): a panel is
-#: ~500 px wide, so 2000 min/max bins (4 a pixel) draw what every sample would; 20 000 took 7.4 s of
+#: ~500 px wide, so 2000 min/max bins (4 a pixel) draw what every sample would; 20 000 took 7.4 s (cProfile) of
 #: ``savefig`` on a 5-minute 1 kHz log
 MAX_POINTS = 4_000
 
