@@ -342,19 +342,16 @@ def hints(s, des: sel.Design, rm, result, sc: sel.SelCfg, cc: CompCfg = CompCfg(
     return out
 
 
-def hint_rows(des: sel.Design, rm, cc: CompCfg) -> tuple[object, np.ndarray | None]:
-    """The rows of the hint test: all of them, or on a log with more than ``cc.hint_max_row_times``
+def hint_rows(s, rm, cc: CompCfg) -> tuple[object, np.ndarray | None]:
+    """The rows of the hint test on ``LogSignals`` s: all of them, or on a log with more than ``cc.hint_max_row_times``
     row times every m-th span of ``cc.hint_span_s`` (by row time from the log's start, so the same
     whatever the chunking) -- a shape's test needs minutes of log, not hours. -> (the ``RowMap`` of
-    the rows kept, their positions in ``des`` (R',) ascending; None: every row)."""
+    the rows kept, their positions in the design built on ``rm`` (R',) ascending; None: every row)."""
     n = len(rm.rows)
     if n <= cc.hint_max_row_times:
         return rm, None
     m = -(-n // cc.hint_max_row_times)
-    free_t = des.t_s[des.channel < 6][::6]  # one time per row, in the design's order (free rows, then contact)
-    con_t = des.t_s[des.channel >= 6][::3]
-    row_t = np.empty(n)
-    row_t[~rm.contact], row_t[rm.contact] = free_t, con_t
+    row_t = s.clock[rm.rows] - s.clock[0]  # as the design's ``t_s``
     keep = (np.floor(row_t / cc.hint_span_s).astype(np.int64) % m) == 0
     sub = rm._replace(rows=rm.rows[keep], contact=rm.contact[keep])
     start = rm.positions()[keep]
@@ -374,7 +371,7 @@ def hint_design(s, des: sel.Design, rm, result, sh: list[Shape], rel9: np.ndarra
     if des.stats is not None:
         from kinadapt_nn.diagnostics import stream
 
-        rm, pos = hint_rows(des, rm, cc)
+        rm, pos = hint_rows(s, rm, cc)
         if pos is not None:
             des = des._replace(y=des.y[pos], block=des.block[pos], W=des.W[pos], channel=des.channel[pos],
                                t_s=des.t_s[pos])

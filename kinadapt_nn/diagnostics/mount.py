@@ -108,6 +108,30 @@ def _without(d: MountData, drop: np.ndarray) -> MountData:
     return d._replace(ga=d.ga[keep], omega=d.omega[keep], alpha=d.alpha[keep], r=d.r[keep], block=d.block[keep])
 
 
+def _info_cov(J: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """The information-limited covariance ``s^2 (J^T J)^-1`` of a weighted least-squares fit with
+    Jacobian ``J`` (N, p) and residual ``e`` (N,); a tiny relative ridge, never a pseudo-inverse: an
+    unexcited direction gets a large, finite sd."""
+    p = J.shape[1]
+    H = J.T @ J
+    H += np.eye(p) * 1e-12 * max(float(np.trace(H)), 1e-300) / p
+    return float(e @ e) / max(len(e) - p, 1) * np.linalg.inv(H)
+
+
+def _jackknife_groups(d: MountData, max_blocks: int) -> list[np.ndarray]:
+    """The cross-validation blocks of ``d`` in at most ``max_blocks`` groups, each left out once by
+    the delete-one-block jackknife; none when fewer than 3 groups (or ``max_blocks`` 0)."""
+    ub = np.unique(d.block)
+    groups = np.array_split(ub, min(max_blocks, len(ub))) if max_blocks > 0 else []
+    return groups if len(groups) >= 3 else []
+
+
+def _jackknife_sd(reps) -> np.ndarray:
+    """(k,) the delete-one-group jackknife sd of replicates (B, k) (or (B,))."""
+    a = np.asarray(reps, dtype=float).reshape(len(reps), -1)
+    return np.sqrt((len(a) - 1) / len(a) * np.sum((a - a.mean(0)) ** 2, axis=0))
+
+
 def _moves(d: MountData) -> bool:
     """Whether the samples turn the sensor (omega or alpha not all zero): then the tool's inertia
     about the sensor origin beyond the declared one is fitted too (a nuisance of the fit)."""
@@ -411,35 +435,23 @@ def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: i
         J[:, k] = (_resid_at(D @ rotvec_matrix(dv), theta, d) - e) / 1e-6
     A, _ = _linear_part(D, d)
     J[:, 3:] = -(A * d.w[None, :, None]).reshape(-1, A.shape[2])
-    s2 = float(e @ e) / max(len(e) - npar, 1)
-    H = J.T @ J
-    H += np.eye(npar) * 1e-12 * max(np.trace(H), 1e-300) / npar  # never a pseudo-inverse: large, finite sd
-    cov = (s2 * np.linalg.inv(H))[:3 + N_THETA, :3 + N_THETA]
+    cov = _info_cov(J, e)[:3 + N_THETA, :3 + N_THETA]
     sd_info = np.sqrt(np.maximum(np.diag(cov), 0.0))
     # delete-one-block jackknife (correlated residuals of a moving log make the information sd small)
-    ub = np.unique(d.block)
-    groups = np.array_split(ub, min(max_blocks, len(ub))) if max_blocks > 0 else []
+    groups = _jackknife_groups(d, max_blocks)
     R_decl = setup.sensor.R_fs()
     rpy = _rpy_deg(x, R_decl)
     th = rotation_angle(D)
     reps, devs, rpys, angs = [], [], [], []
-    if len(groups) >= 3:
-        for g in groups:
-            db = _without(d, np.isin(d.block, g))
-            Db, thb, _ = _gauss_newton(db, D, iters=4)
-            reps.append(thb[:N_THETA])
-            devs.append(Rotation.from_matrix(D.T @ Db).as_rotvec())
-            rpys.append(_wrap_deg(np.rad2deg(matrix_rpy(R_decl @ Db)) - rpy))
-            angs.append(np.rad2deg(rotation_angle(Db)))
-    nb = len(reps)
-
-    def jk(a):
-        a = np.asarray(a, dtype=float).reshape(nb, -1)
-        return np.sqrt((nb - 1) / nb * np.sum((a - a.mean(0)) ** 2, axis=0))
-
-    if nb:
-        sd_jk = np.concatenate([jk(devs), jk(reps)])
-        rpy_sd_jk, ang_sd_jk = jk(rpys), float(jk(angs)[0])
+    for g in groups:
+        Db, thb, _ = _gauss_newton(_without(d, np.isin(d.block, g)), D, iters=4)
+        reps.append(thb[:N_THETA])
+        devs.append(Rotation.from_matrix(D.T @ Db).as_rotvec())
+        rpys.append(_wrap_deg(np.rad2deg(matrix_rpy(R_decl @ Db)) - rpy))
+        angs.append(np.rad2deg(rotation_angle(Db)))
+    if reps:
+        sd_jk = np.concatenate([_jackknife_sd(devs), _jackknife_sd(reps)])
+        rpy_sd_jk, ang_sd_jk = _jackknife_sd(rpys), float(_jackknife_sd(angs)[0])
     else:
         sd_jk, rpy_sd_jk, ang_sd_jk = np.zeros(13), np.zeros(3), 0.0
     sd = np.maximum(sd_info, sd_jk)
@@ -474,18 +486,11 @@ def _mass_sd_at_declared(d: MountData, max_blocks: int = 20) -> float:
     and a delete-one-block jackknife's (as the fit's own). What the log says of the mass when it
     cannot calibrate (``_declared_fit``)."""
     theta, res = fit_at(np.eye(3), d)
-    ub = np.unique(d.block)
-    groups = np.array_split(ub, min(max_blocks, len(ub)))
-    m_jk = np.array([fit_at(np.eye(3), _without(d, np.isin(d.block, g)))[0][0] for g in groups]) if len(groups) >= 3 \
-        else np.zeros(1)
-    sd_jk = float(np.sqrt((len(m_jk) - 1) / len(m_jk) * np.sum((m_jk - m_jk.mean()) ** 2)))
+    m_jk = [fit_at(np.eye(3), _without(d, np.isin(d.block, g)))[0][0] for g in _jackknife_groups(d, max_blocks)]
+    sd_jk = float(_jackknife_sd(m_jk)[0]) if m_jk else 0.0
     A, _ = _linear_part(np.eye(3), d)
-    Jw = (A * d.w[None, :, None]).reshape(-1, A.shape[2])
-    e = (res * d.w).reshape(-1)
-    H = Jw.T @ Jw
-    H += np.eye(len(H)) * 1e-12 * max(float(np.trace(H)), 1e-300) / len(H)
-    s2 = float(e @ e) / max(len(e) - len(H), 1)
-    return max(float(np.sqrt(max(s2 * np.linalg.inv(H)[0, 0], 0.0))), sd_jk)
+    cov = _info_cov((A * d.w[None, :, None]).reshape(-1, A.shape[2]), (res * d.w).reshape(-1))
+    return max(float(np.sqrt(max(cov[0, 0], 0.0))), sd_jk)
 
 
 def _declared_fit(d: MountData, s, free: np.ndarray, residual: bool, mass: tuple[float, np.ndarray],

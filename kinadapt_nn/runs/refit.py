@@ -90,6 +90,7 @@ class Refit:
                         "per_insertion": float(alt_evidence_per_insertion)}
         self.log_evidence_gain = float("nan")  #: own prior minus the simpler one (the last solve)
         self.chose_alt = False  #: the last solve acted on the simpler prior's estimate
+        self.identified = 0  #: directions the last solve acts on (the trace of its projector)
 
     def add(self, trace) -> int:
         """Keep one insertion's contact samples (``trace`` from ``run_episode(keep_regressor=True)``;
@@ -135,8 +136,7 @@ class Refit:
                 quad += float(np.sum(yc * yc * w[None, :]))
             Lam += G
             theta = prior + np.linalg.solve(Lam, eta)
-        P = np.linalg.inv(Lam)
-        P = 0.5 * (P + P.T)
+        L, Linv = self._L, self._Linv  # the prior acted on: the features' own, or the simpler one
         if self.alt is not None and len(data):  # the same data and weights under the simpler prior
             lam_a = self.alt["P0inv"] + G
             gain = self._log_evidence(quad, eta, Lam, G, self._L / np.sqrt(self.prior_weight)) \
@@ -144,20 +144,18 @@ class Refit:
             self.log_evidence_gain = float(gain)
             self.chose_alt = gain <= self.alt["per_insertion"] * len(data)
             if self.chose_alt:
-                theta = prior + np.linalg.solve(lam_a, eta)
-                P = np.linalg.inv(lam_a)
-                P = 0.5 * (P + P.T)
-                lo, hi = self.ctrl.consts.pv[0], self.ctrl.consts.pv[1]
-                theta = np.clip(theta, lo, hi)
-                A = np.empty_like(P)
-                kalman.identified_projector(np.ascontiguousarray(P), self.alt["L"], self.alt["Linv"], self.act_ratio, A)
-                return theta, P, self.theta_prior + A @ (theta - self.theta_prior)
+                Lam, L, Linv = lam_a, self.alt["L"], self.alt["Linv"]
+                theta = prior + np.linalg.solve(Lam, eta)
+        P = np.linalg.inv(Lam)
+        P = 0.5 * (P + P.T)
         if len(theta) > p:  # the timing offset: kept for the report; theta's marginal covariance
             self.timing_s = float(theta[p])
             theta, P = theta[:p], np.ascontiguousarray(P[:p, :p])
         lo, hi = self.ctrl.consts.pv[0], self.ctrl.consts.pv[1]
         theta = np.clip(theta, lo, hi)  # Proj_Omega, as the law
-        return theta, P, self.theta_prior + self._identified(P) @ (theta - self.theta_prior)
+        A = self._identified(P, L, Linv)
+        self.identified = int(round(float(np.trace(A))))  #: directions acted on at the last solve
+        return theta, P, self.theta_prior + A @ (theta - self.theta_prior)
 
     @staticmethod
     def _log_evidence(quad: float, eta: np.ndarray, Lam: np.ndarray, G: np.ndarray, Lp: np.ndarray) -> float:
@@ -168,17 +166,17 @@ class Refit:
         return float(-0.5 * quad + 0.5 * eta @ np.linalg.solve(Lam, eta)
                      - 0.5 * np.linalg.slogdet(np.eye(p) + Lp.T @ G @ Lp)[1])
 
-    def _identified(self, P: np.ndarray) -> np.ndarray:
+    def _identified(self, P: np.ndarray, L: np.ndarray, Linv: np.ndarray) -> np.ndarray:
         """Projector (p, p) onto the identified directions: the kalman law's own
-        (``kalman.identified_projector`` on the prior's Cholesky factor)."""
+        (``kalman.identified_projector`` on the Cholesky factor ``L`` of the prior acted on)."""
         if 0 < self.max_directions < len(P):  # the cap: the k best-identified of those past the threshold
-            M = self._Linv @ P @ self._Linv.T
+            M = Linv @ P @ Linv.T
             lam, V = np.linalg.eigh(0.5 * (M + M.T))  # ascending: the best-identified first
             sel = (lam < self.act_ratio**2) & (np.arange(len(lam)) < self.max_directions)
             U = V[:, sel]
-            return self._L @ U @ U.T @ self._Linv
+            return L @ U @ U.T @ Linv
         A = np.empty_like(P)
-        kalman.identified_projector(np.ascontiguousarray(P), self._L, self._Linv, self.act_ratio, A)
+        kalman.identified_projector(np.ascontiguousarray(P), L, Linv, self.act_ratio, A)
         return A
 
     def after_insertion(self, trace) -> dict:
@@ -194,8 +192,7 @@ class Refit:
             law.blocks["theta_kf"][0] = theta_kf
             law.blocks["theta_prior"][0] = self.theta_prior  # the refit's prior is the law's
             law.counters["kf_init"][0] = 1
-        ident = int(round(float(np.trace(self._identified(P)))))
-        row = {"samples": n, "insertions_pooled": len(self.data), "identified": ident}
+        row = {"samples": n, "insertions_pooled": len(self.data), "identified": self.identified}
         if self.timing_sd_s > 0:
             row["timing_offset_s"] = self.timing_s
         if self.alt is not None:

@@ -171,7 +171,7 @@ def test_hints_on_spans_of_a_long_log_name_the_same_shape_at_any_chunking(drift_
     hints = spans.report["unexplained"]["hints"]
     assert hints and hints[0]["shape"] == full[0]["shape"], ([h["shape"] for h in hints], [h["shape"] for h in full])
     assert hints[0]["explains"] != full[0]["explains"]  # a different set of rows was tested
-    rm, pos = cp.hint_rows(spans.design, _row_map(spans), d[1]._replace(hint_max_row_times=600, hint_span_s=0.5))
+    rm, pos = cp.hint_rows(spans.signals, _row_map(spans), d[1]._replace(hint_max_row_times=600, hint_span_s=0.5))
     t = spans.design.t_s[pos]
     assert np.all(np.floor(t / 0.5).astype(int) % 2 == 0) and 0.4 < len(pos) / len(spans.design.y) < 0.6
     odd = diagnose(log, setup, rc=RowCfg(chunk_samples=997)).report["unexplained"]["hints"]
