@@ -25,8 +25,8 @@ import numpy as np
 
 def _bread(G_blocks: np.ndarray, ridge: float) -> np.ndarray:
     G = np.asarray(G_blocks, float).sum(axis=0)
-    lam = ridge * (np.trace(G) / max(len(G), 1) + 1e-300)
-    return np.linalg.pinv(G + lam * np.eye(len(G)))
+    lam = ridge * np.diagonal(G) + 1e-300  # per column: a large column does not shrink a small one
+    return np.linalg.pinv(G + np.diag(lam))
 
 
 def block_scores(G_blocks: np.ndarray, h_blocks: np.ndarray, theta: np.ndarray) -> np.ndarray:

@@ -40,7 +40,7 @@ def refine(result: sel.Selection, des: sel.Design, rm, s, lib: dict, cols: dict,
     for _ in range(iters):
         y_rem = _remainder_rows(s, rm, lib, [(n, c) for n, c in chosen if getattr(lib[n], "exact", None) is not None],
                                 cols, p_phys, des)  # (R,) the remainder as rows
-        p_phys = _split(st.solve(G, st.ht[idx] - _cross(st, des, s, rm, y_rem, idx), rc.ridge) * scale, chosen, len(base))
+        p_phys = _split(st.solve(idx, G, st.ht[idx] - _cross(st, des, s, rm, y_rem, idx), rc.ridge) * scale, chosen, len(base))
     return _with_params(result, p_phys)
 
 

@@ -137,19 +137,33 @@ class Stats:
         B, K = self.G.shape[0], self.G.shape[1]
         self.Gt, self.ht, self.yyt = self.G.sum(0), self.h.sum(0), float(self.yy.sum())
         self.present = np.array([self.yy[b] > 0 or np.any(self.G[b]) for b in range(B)])
-        #: absolute ridge floor: a column whose energy is this small (relative to the average
-        #: relevant-size column) is unexcited and its parameter stays at 0
-        self.ridge_abs = 1e-9 * (float(np.trace(self.Gt)) / max(K, 1) + 1e-300)
+        #: (K,) absolute ridge floor of each column: an effect column whose energy is this small
+        #: (relative to the median relevant-size effect column) is unexcited and its parameter stays
+        #: at 0; the nuisance columns (unit norm, always fitted) have none. A median, not a mean: one
+        #: column whose energy grows with the log (a drift rate over an hour: ~T^3) must not set the
+        #: floor of the others (a mean-based floor shrank a tared log's offset by 8 % at 6 min)
+        diag = np.diagonal(self.Gt)
+        eff = np.ones(K, bool)
+        eff[self.z_idx] = False
+        ref = float(np.median(diag[eff])) if eff.any() else 0.0
+        self.floor = np.where(eff, 1e-9 * (ref + 1e-300), 0.0)
         self.B = int(self.present.sum())
 
-    def solve(self, G: np.ndarray, h: np.ndarray, ridge: float) -> np.ndarray:
+    def lam(self, idx: np.ndarray, G: np.ndarray, ridge: float) -> np.ndarray:
+        """(len(idx),) the Tikhonov term of the columns ``idx`` (``G`` their Gram): ``ridge`` times
+        each column's own energy (scale-free: a large column does not shrink a small one) plus the
+        column's floor."""
+        return ridge * np.diagonal(G) + self.floor[idx]
+
+    def solve(self, idx: np.ndarray, G: np.ndarray, h: np.ndarray, ridge: float) -> np.ndarray:
+        """The ridge solution of the columns ``idx`` with Gram ``G`` (k, k) and ``h`` (k,) -> (k,)."""
         if len(h) == 0:
             return np.zeros(0)
-        lam = ridge * (np.trace(G) / len(G)) + self.ridge_abs
+        Gr = G + np.diag(self.lam(idx, G, ridge))
         try:
-            return np.linalg.solve(G + lam * np.eye(len(G)), h)
+            return np.linalg.solve(Gr, h)
         except np.linalg.LinAlgError:
-            return np.linalg.lstsq(G + lam * np.eye(len(G)), h, rcond=None)[0]
+            return np.linalg.lstsq(Gr, h, rcond=None)[0]
 
     def cv(self, idx: np.ndarray, ridge: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Leave-one-block-out fits of the columns ``idx``: (held-out SSE per block (B,), the
@@ -161,10 +175,10 @@ class Stats:
             if not self.present[b]:
                 continue
             Gb, hb = self.G[b][np.ix_(idx, idx)], self.h[b][idx]
-            p = self.solve(G - Gb, h - hb, ridge)
+            p = self.solve(idx, G - Gb, h - hb, ridge)
             reps[b] = p
             sse[b] = self.yy[b] - 2.0 * p @ hb + p @ Gb @ p
-        return sse, reps[self.present], self.solve(G, h, ridge)
+        return sse, reps[self.present], self.solve(idx, G, h, ridge)
 
     def predict(self, idx: np.ndarray, P: np.ndarray) -> np.ndarray:
         """(R,) each row's columns ``idx`` times its block's coefficients ``P`` (B, len(idx)),
@@ -181,7 +195,7 @@ class Stats:
         return float(self.yyt - 2.0 * p @ h + p @ G @ p)
 
     def fit(self, idx: np.ndarray, ridge: float) -> np.ndarray:
-        return self.solve(self.Gt[np.ix_(idx, idx)], self.ht[idx], ridge)
+        return self.solve(idx, self.Gt[np.ix_(idx, idx)], self.ht[idx], ridge)
 
     def schur(self, cand: np.ndarray, base: np.ndarray) -> np.ndarray:
         """Gram of ``cand`` columns with ``base`` columns projected out (scaled units)."""
@@ -190,8 +204,8 @@ class Stats:
             return Gcc
         Gbb = self.Gt[np.ix_(base, base)]
         Gbc = self.Gt[np.ix_(base, cand)]
-        lam = 1e-12 * (np.trace(Gbb) / len(Gbb) + 1e-300)
-        return Gcc - Gbc.T @ np.linalg.solve(Gbb + lam * np.eye(len(Gbb)), Gbc)
+        lam = 1e-12 * np.diagonal(Gbb) + 1e-300  # per column: a large column does not shrink a small one
+        return Gcc - Gbc.T @ np.linalg.solve(Gbb + np.diag(lam), Gbc)
 
 
 def wald_pvalue(p: np.ndarray, cov: np.ndarray, B: int) -> float:
@@ -596,7 +610,7 @@ def heldout_residual(st: Stats, des: Design, idx: np.ndarray, rc: SelCfg) -> np.
         m = des.block == b
         if not m.any() or len(idx) == 0:
             continue
-        p = st.solve(G - st.G[b][np.ix_(idx, idx)], h - st.h[b][idx], rc.ridge)
+        p = st.solve(idx, G - st.G[b][np.ix_(idx, idx)], h - st.h[b][idx], rc.ridge)
         if st.A is None:
             P[b] = p
         else:
@@ -655,8 +669,7 @@ def refit(des: Design, names: list[str], rc: SelCfg = SelCfg(), cols: dict | Non
     var_j = np.diag(jackknife_cov(reps)) if len(reps) > 1 else np.zeros(len(ii))
     G = st.Gt[np.ix_(ii, ii)]
     s2 = float(after @ after) / max(len(after) - len(ii), 1)
-    lam = rc.ridge * (np.trace(G) / max(len(G), 1)) + st.ridge_abs
-    var_ls = s2 * np.diag(np.linalg.pinv(G + lam * np.eye(len(G)))) if len(G) else np.zeros(0)
+    var_ls = s2 * np.diag(np.linalg.pinv(G + np.diag(st.lam(ii, G, rc.ridge)))) if len(G) else np.zeros(0)
     var_h = intervals.honest_sd(st.G[:, ii][:, :, ii], st.h[:, ii], st.yy, p, len(after)) ** 2 if len(ii) else np.zeros(0)
     sd_all = np.sqrt(np.maximum.reduce([var_j, var_ls, var_h]))
     out, i = {}, len(base)

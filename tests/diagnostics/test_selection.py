@@ -116,3 +116,22 @@ def test_refit_reports_the_fall():
     assert fitted["j"][0] == [1]
     np.testing.assert_allclose(fitted["j"][1], [0.0, 3.0], atol=0.05)
     assert np.sqrt(np.mean(after**2)) < 0.15 < np.sqrt(np.mean(before**2))
+
+
+def test_a_column_that_grows_with_the_log_does_not_shrink_the_nuisance():
+    """A drift column (rate x time) over a long log has an energy ~T^3 times the others'; the ridge
+    is per column, so it neither shrinks the unit-norm offset nor biases the other effects: the
+    selection's estimates equal ordinary least squares on [offset, a] (an hour-long tared log
+    gave a wrong tool mass and a false frame rotation while one large column set a common ridge)."""
+    rng = np.random.default_rng(8)
+    R = 4000
+    t = np.linspace(0.0, 3600.0, R)[:, None]  # [s] an hour
+    X = {"a": _smooth_cols(rng, R, 2), "drift": t, "c": _smooth_cols(rng, R, 1)}
+    Z = np.ones((R, 1))
+    y = 4.0 + X["a"] @ np.array([2.0, -1.5]) + rng.normal(0, 0.3, R)
+    res = sel.select(_design(y, X, Z=Z))
+    v = {e["effect"]: e["verdict"] for e in res.entries}
+    assert v == {"a": "present", "drift": "absent", "c": "absent"}
+    ls = np.linalg.lstsq(np.column_stack([Z, X["a"]]), y, rcond=None)[0]
+    np.testing.assert_allclose(res.present["a"][1], ls[1:], rtol=1e-6)
+    np.testing.assert_allclose(res.nuisance, ls[:1], rtol=1e-6)
