@@ -417,6 +417,7 @@ def cmd_diagnose_run(args: argparse.Namespace) -> int:
     """``kinadapt diagnose RUN``: a package run through the same stages as a robot's log, its set-up
     generated from its config (``diagnostics.ownrun``); ``--baseline RUN``: the tip calibrated there;
     ``--rerun``: the online run again with the ``--add`` effects in its model."""
+    import dataclasses
     import time
 
     from kinadapt_nn.config import load_config
@@ -448,7 +449,7 @@ def cmd_diagnose_run(args: argparse.Namespace) -> int:
     if args.rerun:
         progress("re-running the episode with the effects adapted online (--rerun)")
         rerun = ownrun.rerun_with_effects(src, list(args.add))
-        res.report["rerun"] = rerun[2]
+        res = dataclasses.replace(res, report=res.report.with_section("rerun", rerun[2]))
     progress("writing diagnosis.json and the figures")
     prov = Provenance("package_run", log.source, "generated from the run's config")
     _write_diagnosis(out, args, [(None, log, res)], setup, prov, t0, rerun)

@@ -21,6 +21,7 @@ with a ready effect file (``hint_files``) in the public contract.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Callable, NamedTuple
 
 import numpy as np
@@ -461,10 +462,23 @@ def _fitted(shape: str, names, units, p, sd, rel, cols, cc: CompCfg) -> dict:
     return {names[i]: q(i) for i in order}
 
 
+@dataclass(frozen=True)
+class Completeness:
+    """The completeness stage's outcome: is the final model complete, what it leaves, the hints."""
+
+    model_complete: bool
+    unexplained: dict  #: the ``unexplained`` section (``hints`` included)
+    files: dict  #: the hints' effect files {file name: Python source}
+
+    def sections(self) -> dict:
+        """The report's sections of this stage: ``model_complete``, ``unexplained``."""
+        return {"model_complete": self.model_complete, "unexplained": self.unexplained}
+
+
 def assess(ranked, sc: sel.SelCfg, sigma: np.ndarray, stride_s: float, with_hints: bool = True,
-           cc: CompCfg = CompCfg(), source: str = "the log") -> tuple[dict, dict[str, str]]:
-    """``model_complete`` and the ``unexplained`` section (with ``hints`` when incomplete), and
-    the hints' effect files ``{file name: Python source}``. ``ranked``: the ranking's outcome (its
+           cc: CompCfg = CompCfg(), source: str = "the log") -> Completeness:
+    """Is the final model complete; the ``unexplained`` section (with ``hints`` when incomplete)
+    and the hints' effect files (``Completeness``). ``ranked``: the ranking's outcome (its
     signals ``s``, design ``des``, row map ``rm`` and selection ``result``); ``sigma`` (6,): the
     per-sample noise of the wrench channels; ``stride_s``: the row spacing [s]."""
     s, des, rm, result = ranked.s, ranked.des, ranked.rm, ranked.result
@@ -481,19 +495,23 @@ def assess(ranked, sc: sel.SelCfg, sigma: np.ndarray, stride_s: float, with_hint
             name, text = effect_file(h, source)
             files[name] = text
             un["hints"].append({**public(h), "effect_file": name})
-    return {"model_complete": bool(complete), "unexplained": un}, files
+    return Completeness(bool(complete), un, files)
 
 
-def caveat_present(report: dict) -> None:
-    """When the model stays incomplete, every ``present`` verdict carries its share and a warning."""
-    if report.get("model_complete", True):
-        return
-    for e in report["ranking"]:
+def caveated(ranking: list[dict], complete: bool) -> list[dict]:
+    """The ranking's entries; when the model stays incomplete, each ``present`` one (a new dict) with
+    its share and a warning."""
+    if complete:
+        return list(ranking)
+    out = []
+    for e in ranking:
         if e.get("verdict") == "present":
-            e["explains_share"] = e.get("explained_fraction")
-            e["warning"] = ("the model stays incomplete: this effect explains "
-                            f"{100 * (e.get('explained_fraction') or 0):.0f}% of the residual and may stand in for "
-                            "part of what is unexplained")
+            e = {**e, "explains_share": e.get("explained_fraction"),
+                 "warning": ("the model stays incomplete: this effect explains "
+                             f"{100 * (e.get('explained_fraction') or 0):.0f}% of the residual and may stand in for "
+                             "part of what is unexplained")}
+        out.append(e)
+    return out
 
 
-__all__ = ["CompCfg", "SHAPES", "assess", "caveat_present", "hints", "shapes", "unexplained", "WORDS"]
+__all__ = ["CompCfg", "Completeness", "SHAPES", "assess", "caveated", "hints", "shapes", "unexplained", "WORDS"]

@@ -1,16 +1,21 @@
 """``diagnosis.json``: the one format of every diagnosis (a user's log, a package run, pooled logs).
 
-The stages fill the report (``userlog.diagnose`` -> ``Result.report``); this module owns how it
-is written: the header (``format``, ``version``, ``kind``, where the log and its set-up came from),
-the summary first, then the report's keys, then the wall time. The CLI only writes what these
-return. Version 4: the keys of ``userlog._base_report`` plus completeness, ``--add`` and (package
-runs) ``rerun``.
+The stages (``userlog.diagnose``: read -> signals -> segmentation -> calibration -> checks -> rows
+and selection -> completeness) each return a frozen result; their sections are put together once
+into a ``Report`` -- read-only, nothing writes into it afterwards -- and the report writes itself
+(``Report.to_json``): the header (``format``, ``version``, ``kind``, where the log and its set-up
+came from), the summary first, then the sections, then the wall time. The CLI only writes what
+this returns. Version 4: the sections of ``userlog._base_report`` plus completeness, ``--add`` and
+(package runs) ``rerun``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Literal
+import copy
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any, Callable, Literal
 
 FORMAT = "kinadapt-diagnosis"
 VERSION = 4
@@ -25,14 +30,48 @@ class Provenance:
     setup_file: str  #: the setup file, or how the set-up was made (a package run: from its config)
 
 
-def diagnosis_json(report: dict, prov: Provenance, wall_time_s: float) -> dict:
-    """One log's ``diagnosis.json`` content: header, summary, the report's keys, wall time."""
-    return {"format": FORMAT, "version": VERSION, "kind": prov.kind, "source": prov.source,
-            "setup_file": prov.setup_file, "summary": report["summary"],
-            **{k: v for k, v in report.items() if k != "summary"}, "wall_time_s": wall_time_s}
+@dataclass(frozen=True)
+class Report(Mapping):
+    """One log's diagnosis: its sections (``diagnosis.json``'s keys after the header) and the summary
+    made from them, read-only. A ``Mapping`` (``report["ranking"]``, ``report.get(...)``); a new
+    section gives a new report (``with_section``)."""
+
+    sections: Mapping[str, Any] = field(repr=False)  #: section name -> its content (JSON types)
+    summary: str = ""  #: the paragraph a person reads first
+
+    @classmethod
+    def of(cls, sections: Mapping[str, Any], summary: Callable[[Mapping[str, Any]], str]) -> Report:
+        """The report of ``sections`` (copied) with ``summary(sections)`` as its summary."""
+        sec = MappingProxyType(copy.deepcopy(dict(sections)))
+        return cls(sec, summary(sec))
+
+    def with_section(self, name: str, content: Any) -> Report:
+        """This report with one more section (the summary kept): a package run's ``rerun``."""
+        return Report(MappingProxyType({**self.sections, name: copy.deepcopy(content)}), self.summary)
+
+    def __getitem__(self, key: str) -> Any:
+        return self.summary if key == "summary" else self.sections[key]
+
+    def __iter__(self) -> Iterator[str]:
+        yield "summary"
+        yield from self.sections
+
+    def __len__(self) -> int:
+        return len(self.sections) + 1
+
+    def to_json(self, prov: Provenance, wall_time_s: float) -> dict:
+        """``diagnosis.json``'s content: header, summary, the sections (plain dicts), wall time."""
+        return {"format": FORMAT, "version": VERSION, "kind": prov.kind, "source": prov.source,
+                "setup_file": prov.setup_file, "summary": self.summary,
+                **copy.deepcopy(dict(self.sections)), "wall_time_s": wall_time_s}
 
 
-def pooled_json(logs: list[tuple[str, str, dict]], setup_file: str, wall_time_s: float) -> dict:
+def diagnosis_json(report: Report, prov: Provenance, wall_time_s: float) -> dict:
+    """One log's ``diagnosis.json`` content (``Report.to_json``)."""
+    return report.to_json(prov, wall_time_s)
+
+
+def pooled_json(logs: list[tuple[str, str, Mapping]], setup_file: str, wall_time_s: float) -> dict:
     """The top-level ``diagnosis.json`` of several logs of one set-up (``pooled``): ``logs`` =
     [(folder name, source, report)], each log's own diagnosis in its folder."""
     from kinadapt_nn.diagnostics.pooled import pool, summary_text
@@ -45,4 +84,4 @@ def pooled_json(logs: list[tuple[str, str, dict]], setup_file: str, wall_time_s:
             "wall_time_s": wall_time_s}
 
 
-__all__ = ["FORMAT", "VERSION", "Provenance", "diagnosis_json", "pooled_json"]
+__all__ = ["FORMAT", "VERSION", "Provenance", "Report", "diagnosis_json", "pooled_json"]

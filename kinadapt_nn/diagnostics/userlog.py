@@ -1,16 +1,32 @@
 """``kinadapt diagnose LOG --setup SETUP.toml``: a user's own robot log against the physical
 nominal model of their set-up (``physical``), effects ranked with verdicts (``selection``).
 
-Pipeline: read (``readers``) -> signals (``signals.LogSignals``: sensor kinematics from the
-encoders, the declared tool's wrench) -> contact detection -> the effect library (the built-ins of
-``builtin`` and the user's effect files, one registry) -> rows (free space: the six wrench
-channels; contact: the moment about the declared tip) -> forward selection with verdicts
-(``selection``) -> joint re-estimate of the present effects -> (once) contact re-detected with
-the present effects in the model -> completeness of the final model and hints at the shape of
-what it misses (``completeness``) -> one report. ``diagnose`` is the one library call; the CLI
-only writes and prints its report.
-"""
+Stages, each a function that returns a frozen result (a package run goes through the same ones,
+its set-up generated from its config: ``ownrun``):
 
+==================  =================================  ======================================
+stage               function                           result
+==================  =================================  ======================================
+read                ``readers.read_log``               ``readers.UserLog``
+signals             ``signals.from_log``               ``signals.LogSignals`` (sensor kinematics
+                                                       from the encoders, the declared tool's
+                                                       wrench)
+segmentation        ``segmentation.free_space``        ``segmentation.Segmentation``
+calibration         ``calibrate``                      ``Calibration`` (mount, tool, offset;
+                                                       contact detected against it)
+checks              ``_checks``                        ``Checks`` (sign, units, mount)
+rows + selection    ``_ranked``                        ``Ranked`` (the effect library's columns
+                                                       as per-block normal equations; forward
+                                                       selection with verdicts; contact
+                                                       re-detected once with the present effects)
+completeness        ``completeness.assess``            ``completeness.Completeness`` (and hints)
+report              ``report.Report.of``               ``report.Report`` (read-only; writes
+                                                       ``diagnosis.json`` itself)
+==================  =================================  ======================================
+
+``diagnose`` runs them and returns ``Result`` (the report and what the figures draw); the CLI
+only parses, prints and writes.
+"""
 from __future__ import annotations
 
 import dataclasses
@@ -23,6 +39,7 @@ from kinadapt_nn.diagnostics import selection as sel
 from kinadapt_nn.diagnostics import signals as sg
 from kinadapt_nn.diagnostics.builtin import BUILTINS, CONTACT_MODEL_EFFECTS
 from kinadapt_nn.diagnostics.contract import Effect, load_effect_files
+from kinadapt_nn.diagnostics.report import Report
 from kinadapt_nn.diagnostics.setup import SetupCfg
 from kinadapt_nn.errors import KinadaptError, did_you_mean
 from kinadapt_nn.diagnostics.stream import RowMap
@@ -311,7 +328,8 @@ def ph_tool_wrench(s: sg.LogSignals, idx: np.ndarray | None = None) -> np.ndarra
     return ph.tool_wrench(kin, m, mc, I_O)
 
 
-class Calibration(NamedTuple):
+@dataclasses.dataclass(frozen=True)
+class Calibration:
     """What ``calibrate`` found before any effect is judged."""
 
     fit: object  #: ``mount.MountFit`` on free space
@@ -373,8 +391,11 @@ def effective_setup(declared: SetupCfg, used: SetupCfg, fitm, point) -> dict:
     return out
 
 
-class Result(NamedTuple):
-    report: dict  #: diagnosis.json content (without the header)
+@dataclasses.dataclass(frozen=True)
+class Result:
+    """The diagnosis of one log: its report and what the figures draw."""
+
+    report: Report  #: diagnosis.json's sections and summary (``Report.to_json`` adds the header)
     design: sel.Design
     before: np.ndarray | None  #: (R,) rows before --add (nuisance fitted), or None
     after: np.ndarray | None  #: (R,) rows after --add
@@ -468,23 +489,25 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
     # the log's signals held by ``calibrate`` alone: it can let them go once it has them in the estimated mount
     cal = calibrate(log, sg.from_log(log, setup, progress), setup, None, rc, progress)
     s, setup = _effective_tip(cal.signals, declared, cal.contact_point)
-    cal = cal._replace(signals=s, setup=setup)
+    cal = dataclasses.replace(cal, signals=s, setup=setup)
     chk = _checks(cal, declared)
     excite = {n: lib[n].excite for n in names}
     excite["_params"] = {n: lib[n].params for n in names}
     rk = _RankCtx(lib, cal.sigma, rc, sc, excite, chk.block, {}, progress)
     ranked = _ranked(rk, s, names)
-    report = _base_report(log, declared, cal, chk, ranked, rk)
+    sections = _base_report(log, declared, cal, chk, ranked, rk)
     progress("completeness of the final model" + (" and hints" if hints else ""))
-    comp, files = cp.assess(ranked, sc, cal.sigma, rc.stride_s,
-                            with_hints=hints and chk.block is None, source=str(getattr(log, "source", "the log")))
-    report.update(comp)
-    cp.caveat_present(report)
-    before = after = None
-    if add:
-        before, after = _added(report, ranked, add, forced, lib, setup, sc)
-    report["summary"] = summary_text(report)
-    return Result(report, ranked.des, before, after, ranked.s, ranked.s.contact, ranked.result.heldout, lib, files)
+    comp = cp.assess(ranked, sc, cal.sigma, rc.stride_s, with_hints=hints and chk.block is None,
+                     source=str(getattr(log, "source", "the log")))
+    sections.update(comp.sections())
+    sections["ranking"] = cp.caveated(sections["ranking"], comp.model_complete)
+    added = _added(ranked, add, forced, lib, setup, sc) if add else None
+    if added is not None:
+        sections.update(added.sections)
+        sections["warnings"] = [*sections["warnings"], *added.warnings]
+    report = Report.of(sections, summary_text)
+    return Result(report, ranked.des, None if added is None else added.before, None if added is None else added.after,
+                  ranked.s, ranked.s.contact, ranked.result.heldout, lib, comp.files)
 
 
 def check_request(setup: SetupCfg, add: list[str] | None, effects_files=()) -> tuple[dict, list[str], list[str], dict]:
@@ -516,7 +539,8 @@ def _library_for(log, setup: SetupCfg, add: list[str] | None, effects_files) -> 
     return lib, names, add, forced
 
 
-class Checks(NamedTuple):
+@dataclasses.dataclass(frozen=True)
+class Checks:
     """The checks of the set-up before any effect is judged."""
 
     sign: dict  #: ``sign_check``
@@ -578,7 +602,8 @@ class _RankCtx(NamedTuple):
     progress: Callable
 
 
-class Ranked(NamedTuple):
+@dataclasses.dataclass(frozen=True)
+class Ranked:
     """The ranking's outcome."""
 
     des: sel.Design
@@ -649,17 +674,23 @@ def _base_report(log, declared: SetupCfg, cal: Calibration, chk: Checks, rd: Ran
     }
 
 
-def _added(report: dict, rd: Ranked, add: list[str], forced: dict, lib: dict, setup: SetupCfg, sc: sel.SelCfg
-           ) -> tuple[np.ndarray, np.ndarray]:
-    """``--add``: the named effects refitted on all rows; writes ``residual_rms_before/after`` and
-    ``added`` into ``report``. -> (rows before (R,), rows after (R,))."""
+@dataclasses.dataclass(frozen=True)
+class Added:
+    """``--add``: the named effects refitted on all rows."""
+
+    sections: dict  #: ``residual_rms_before``, ``residual_rms_after``, ``added`` (the report's sections)
+    warnings: list  #: a physically impossible refit, one line each
+    before: np.ndarray  #: (R,) rows before (nuisance fitted)
+    after: np.ndarray  #: (R,) rows after
+
+
+def _added(rd: Ranked, add: list[str], forced: dict, lib: dict, setup: SetupCfg, sc: sel.SelCfg) -> Added:
+    """``--add``: the named effects refitted on all rows (``Added``)."""
     des = rd.des
     named = {e["effect"]: e["columns_used"] for e in rd.result.entries}  # a one-of effect: the column the ranking named
     named.update(forced)  # or the one the user named (--add encoder_offset:joint5)
     before, after, fitted_add = sel.refit(des, add, sc, named)
-    report["residual_rms_before"] = _rms_by_channel(des, before)
-    report["residual_rms_after"] = _rms_by_channel(des, after)
-    report["added"] = {}
+    added, warnings = {}, []
     for n, (c, full, sd) in fitted_add.items():
         eff = lib[n]
         est = to_log_units(eff.user_report(full, sd, setup), setup)
@@ -669,9 +700,10 @@ def _added(report: dict, rd: Ranked, add: list[str], forced: dict, lib: dict, se
         why = eff.why_impossible(full, setup)
         if why:
             entry["warning"] = f"physically impossible estimate: {why}; not a finding"
-            report["warnings"].append(f"--add {n}: {entry['warning']}")
-        report["added"][n] = entry
-    return before, after
+            warnings.append(f"--add {n}: {entry['warning']}")
+        added[n] = entry
+    return Added({"residual_rms_before": _rms_by_channel(des, before), "residual_rms_after": _rms_by_channel(des, after),
+                  "added": added}, warnings, before, after)
 
 
 def _parse_add(add: list[str], lib: dict[str, Effect]) -> tuple[list[str], dict[str, list[int]]]:

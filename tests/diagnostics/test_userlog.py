@@ -253,3 +253,32 @@ def test_setup_template_loads_as_the_defaults(tmp_path, capsys):
     assert load_setup(p) == load_setup(None)
     for f in sorted((ROOT / "examples" / "setups").glob("*.toml")):
         load_setup(f)
+
+
+def test_the_report_is_read_only_and_writes_itself(cases, tmp_path):
+    """The stages' results are frozen and the report is put together once: nothing can write into
+    it afterwards; ``to_json`` gives the header, the summary first, every section, the wall time --
+    the same content ``kinadapt diagnose`` writes."""
+    import dataclasses
+
+    from kinadapt_nn.diagnostics.report import FORMAT, VERSION, Provenance
+
+    d, _, rep = cases["tool_gravity"]
+    with pytest.raises(TypeError):
+        rep["ranking"] = []
+    setup = load_setup(d / "setup_csv.toml")
+    res = diagnose(read_log(d / "log.csv.gz", setup), setup, add=["tool_gravity"], hints=False)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        res.report = None
+    js = res.report.to_json(Provenance("user_log", "log.csv.gz", "setup_csv.toml"), 1.5)
+    assert list(js)[:6] == ["format", "version", "kind", "source", "setup_file", "summary"]
+    assert (js["format"], js["version"], js["wall_time_s"]) == (FORMAT, VERSION, 1.5)
+    assert js["summary"] == res.report["summary"] and "With tool_gravity added" in js["summary"]
+    assert set(js) - {"format", "version", "kind", "source", "setup_file", "wall_time_s"} == set(res.report)
+    js["ranking"][0]["verdict"] = "changed"  # a copy: the report stays as it was
+    assert res.report["ranking"][0]["verdict"] != "changed"
+    out = tmp_path / "d"
+    assert main(["diagnose", str(d / "log.csv.gz"), "--setup", str(d / "setup_csv.toml"), "--out", str(out),
+                 "--add", "tool_gravity", "--quiet"]) == 0
+    written = json.loads((out / "diagnosis.json").read_text())
+    assert set(written) == set(js) and written["ranking"] == json.loads(json.dumps(res.report["ranking"]))
