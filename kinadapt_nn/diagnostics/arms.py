@@ -42,6 +42,7 @@ class Arm(NamedTuple):
     qpos_adr: np.ndarray  #: (n,) qpos address of each, base to flange
     dof_adr: np.ndarray  #: (n,) velocity (Jacobian column) address of each
     source: str  #: what it was built from, for messages ("URDF 'ur5e.urdf'")
+    joint_ids: np.ndarray  #: (n,) MuJoCo joint id of each
 
 
 def load_arm(arm: ArmDeclCfg) -> Arm:
@@ -271,7 +272,8 @@ def _chain(model: mujoco.MjModel, site: int, source: str) -> Arm:
         raise KinadaptError(f"{source} has no joint between the world and the flange (fix the flange: "
                             "[arm] flange_site / flange_link)")
     idx = np.array(joints, dtype=int)
-    return Arm(model, site, len(joints), model.jnt_qposadr[idx].astype(int), model.jnt_dofadr[idx].astype(int), source)
+    return Arm(model, site, len(joints), model.jnt_qposadr[idx].astype(int), model.jnt_dofadr[idx].astype(int), source,
+               idx)
 
 
 def _first_line(exc: Exception) -> str:

@@ -41,6 +41,9 @@ from kinadapt_nn.errors import KinadaptError
 
 #: [s] Savitzky-Golay window of the velocity derivative (accelerations)
 ACC_WINDOW_S = 0.1
+#: configurations per call of MuJoCo's batched kinematics (``ArmModel._frames``; about half the CPU
+#: time of a per-sample loop from Python: ``python benchmarks/arm_kinematics.py``)
+FRAMES_BATCH = 4096
 
 
 class KinSeries(NamedTuple):
@@ -66,7 +69,9 @@ class ArmModel:
         arm = load_arm(setup.arm)
         self.model, self.site, self.dof, self.source = arm.model, arm.site, arm.dof, arm.source
         self._qpos, self._cols = _as_slice(arm.qpos_adr), _as_slice(arm.dof_adr)  # qpos / Jacobian columns
-        self.data = mujoco.MjData(self.model)
+        self._jnt = np.asarray(arm.joint_ids, dtype=int)  # (dof,) joint ids, base to flange
+        self._hinge = self.model.jnt_type[self._jnt] == int(mujoco.mjtJoint.mjJNT_HINGE)  # else a slide
+        self._batch = None  #: ``_mj_batch``, made on first use
         self.R_fs = setup.sensor.R_fs()
         self.p_fs = np.asarray(setup.sensor.position_flange_m, dtype=float)
         self.g_w = setup.world.g_w()  #: (3,) [m/s^2] gravity in the world
@@ -82,29 +87,49 @@ class ArmModel:
                             "flange; give one [log] q column per arm joint (base to flange) or fix [arm]")
 
     def _frames(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """MuJoCo per sample: (R_wf (N, 3, 3), flange origin x_w (N, 3), site Jacobians Jp, Jr
-        (N, 3, dof)) of joint positions (N, dof)."""
-        mj, m, d = self._mj, self.model, self.data
+        """MuJoCo's forward kinematics of joint positions (N, dof), ``FRAMES_BATCH`` configurations at
+        a time (``mujoco.batch.Batch``, one thread, contacts and constraints off: position stage
+        only): (R_wf (N, 3, 3), flange origin x_w (N, 3), site Jacobians Jp, Jr (N, 3, dof)). The
+        Jacobian of the site from the joints' world axes and anchors, as ``mj_jacSite`` forms it
+        (a hinge: ``Jr = axis``, ``Jp = axis x (site - anchor)``; a slide: ``Jp = axis``, ``Jr = 0``)."""
         n = len(q)
-        xpos = d.site_xpos[self.site]
-        jacp = np.zeros((3, m.nv))
-        jacr = np.zeros((3, m.nv))
-        qpos, sl, cols = d.qpos, self._qpos, self._cols
-        xmat = d.site_xmat[self.site]
+        if self._batch is None:
+            self._batch = self._mj_batch()
+        b, qpos = self._batch, self._batch_qpos
         R_wf = np.empty((n, 3, 3))
         x_w = np.empty((n, 3))
         Jp = np.empty((n, 3, self.dof))
         Jr = np.empty((n, 3, self.dof))
-        for i in range(n):  # MuJoCo per sample; everything else vectorised by the callers
-            qpos[sl] = q[i]
-            mj.mj_kinematics(m, d)
-            mj.mj_comPos(m, d)
-            mj.mj_jacSite(m, d, jacp, jacr, self.site)
-            R_wf[i] = xmat.reshape(3, 3)
-            x_w[i] = xpos
-            Jp[i] = jacp[:, cols]
-            Jr[i] = jacr[:, cols]
+        for a in range(0, n, FRAMES_BATCH):
+            m = min(FRAMES_BATCH, n - a)
+            qpos[:m, self._qpos] = q[a:a + m]
+            b.forward(stage=int(self._mj.mjtStage.mjSTAGE_POS))
+            site = b.bind("site_xpos")[:m, self.site]
+            R_wf[a:a + m] = b.bind("site_xmat")[:m, self.site].reshape(m, 3, 3)
+            x_w[a:a + m] = site
+            axis = b.bind("xaxis")[:m][:, self._jnt].transpose(0, 2, 1)  # (m, 3, dof)
+            arm = site[:, :, None] - b.bind("xanchor")[:m][:, self._jnt].transpose(0, 2, 1)
+            hinge = self._hinge[None, None, :]
+            Jr[a:a + m] = np.where(hinge, axis, 0.0)
+            Jp[a:a + m] = np.where(hinge, _x(axis, arm), axis)
         return R_wf, x_w, Jp, Jr
+
+    def _mj_batch(self):
+        """A one-thread ``mujoco.batch.Batch`` of ``FRAMES_BATCH`` copies of the arm with contacts and
+        constraints off (only the kinematics is read); its ``qpos`` bound."""
+        import copy
+
+        import mujoco.batch
+
+        mj = self._mj
+        m = copy.copy(self.model)
+        m.opt.disableflags |= int(mj.mjtDisableBit.mjDSBL_CONTACT) | int(mj.mjtDisableBit.mjDSBL_CONSTRAINT)
+        b = mujoco.batch.Batch(m, FRAMES_BATCH, 1, False)
+        self._batch_qpos = b.bind("qpos")
+        self._batch_qpos[:] = self.model.qpos0[None, :]
+        for name in ("site_xpos", "site_xmat", "xaxis", "xanchor"):  # outputs: registered before the first call
+            b.bind(name)
+        return b
 
     def series(self, q: np.ndarray, qdot: np.ndarray, t_s: np.ndarray, dt_s: float | None = None) -> KinSeries:
         """Sensor kinematics for (N, dof) joint positions/velocities at times (N,) -> ``KinSeries``.

@@ -326,3 +326,37 @@ def test_params_for_errors_are_one_line():
         def nothing(s):
             return np.zeros((s.n, 6, 1))
     assert "params" in _one_line(exc)
+
+
+def test_batched_kinematics_equal_mujocos_per_sample_site_jacobian(tmp_path):
+    """``ArmModel._frames`` (MuJoCo's batched kinematics, the Jacobian from the joints' axes and
+    anchors) equals a per-sample ``mj_kinematics`` + ``mj_comPos`` + ``mj_jacSite`` to rounding on
+    every kind of arm -- the Panda's MJCF, the UR5e's URDF and DH, a URDF with a slide joint -- over
+    more samples than one batch holds."""
+    slide = tmp_path / "slide.urdf"
+    slide.write_text(
+        "<robot name='s'>" + "".join(f"<link name='{n}'/>" for n in ("base", "l1", "l2", "l3"))
+        + "<joint name='j1' type='revolute'><parent link='base'/><child link='l1'/><origin xyz='0 0 0.3'/>"
+          "<axis xyz='0 0 1'/><limit lower='-3' upper='3' effort='1' velocity='1'/></joint>"
+        + "<joint name='j2' type='prismatic'><parent link='l1'/><child link='l2'/><origin xyz='0.1 0 0' rpy='0.3 0 0'/>"
+          "<axis xyz='1 0 0'/><limit lower='-3' upper='3' effort='1' velocity='1'/></joint>"
+        + "<joint name='j3' type='revolute'><parent link='l2'/><child link='l3'/><origin xyz='0 0.2 0.05'/>"
+          "<axis xyz='0 1 0'/><limit lower='-3' upper='3' effort='1' velocity='1'/></joint></robot>")
+    rng = np.random.default_rng(11)
+    for setup in (load_setup(None), _urdf(ARMS / "ur5e.urdf"), load_setup(ARMS / "ur5e_dh.toml"),
+                  _urdf(slide, 'log.q=["a", "b", "c"]')):
+        arm = ph.ArmModel(setup)
+        q = rng.uniform(-2.5, 2.5, (ph.FRAMES_BATCH + 500, arm.dof))
+        R, x, Jp, Jr = arm._frames(q)
+        m, d = arm.model, mujoco.MjData(arm.model)
+        jp, jr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
+        for i in range(0, len(q), 37):
+            d.qpos[arm._qpos] = q[i]
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            mujoco.mj_jacSite(m, d, jp, jr, arm.site)
+            np.testing.assert_allclose(x[i], d.site_xpos[arm.site], atol=1e-12)
+            np.testing.assert_allclose(R[i], d.site_xmat[arm.site].reshape(3, 3), atol=1e-12)
+            np.testing.assert_allclose(Jp[i], jp[:, arm._cols], atol=1e-12)
+            np.testing.assert_allclose(Jr[i], jr[:, arm._cols], atol=1e-12)
+        assert not arm._hinge.all() or setup.arm.urdf != str(slide)
