@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from types import SimpleNamespace
 
 import numpy as np
@@ -48,7 +49,7 @@ def drift_log(tmp_path_factory):
 
 def _diff(a, b, path: str = "") -> list[str]:
     """Where two reports differ beyond the tolerance (module docstring)."""
-    if isinstance(a, dict):
+    if isinstance(a, Mapping):
         if set(a) != set(b):
             return [f"{path}: keys {sorted(set(a) ^ set(b))}"]
         return [d for k in a for d in _diff(a[k], b[k], f"{path}.{k}")]
@@ -67,7 +68,7 @@ def _diff(a, b, path: str = "") -> list[str]:
 
 
 def _max_rel(a, b) -> float:
-    if isinstance(a, dict):
+    if isinstance(a, Mapping):
         return max([_max_rel(a[k], b[k]) for k in a] + [0.0])
     if isinstance(a, (list, tuple)):
         return max([_max_rel(x, y) for x, y in zip(a, b)] + [0.0])
