@@ -54,6 +54,7 @@ class RowMap(NamedTuple):
     w_free: np.ndarray  #: (6,) weights of the free-space channels [1/N, 1/(N m)]
     w_tip: np.ndarray  #: (3,) weights of the tip-moment channels
     tip_map: np.ndarray  #: (3, 6)
+    span_every: int = 1  #: the rows lie in every m-th span of ``RowCfg.span_s`` (1: every row time of the log)
 
     def apply(self, x: np.ndarray) -> np.ndarray:
         return self.rows_of(mean_at(x, self.k_smooth, self.rows), self.contact)
@@ -209,10 +210,16 @@ def _chunk_rows(s, rm: RowMap, sources: list[Source], a: int, b: int, halo: int,
     K = sum(len(src.cols) for src in sources)
     if not len(rows):
         return np.zeros(0, np.int64), np.zeros((0, K)), np.zeros((9, K))
-    lo, hi = max(0, a - halo, int(rows[0]) - halo), min(s.n, b + halo, int(rows[-1]) + 1 + halo)
-    sub = slice_signals(s, lo, hi, w)
-    C = np.concatenate([np.asarray(src.columns(sub), dtype=float)[:, :, src.cols] for src in sources], axis=2)
-    xs = mean_at(C, rm.k_smooth, rows - lo)
+    # runs of rows: a gap wider than two halos (the spans of a long log) is not evaluated
+    cut = np.flatnonzero(np.diff(rows) > 2 * halo + 1) + 1
+    parts = []
+    for run in np.split(rows, cut):
+        lo, hi = max(0, a - halo, int(run[0]) - halo), min(s.n, b + halo, int(run[-1]) + 1 + halo)
+        sub = slice_signals(s, lo, hi, w)
+        C = np.concatenate([np.asarray(src.columns(sub), dtype=float)[:, :, src.cols] for src in sources], axis=2)
+        parts.append(mean_at(C, rm.k_smooth, run - lo))
+        del C, sub
+    xs = parts[0] if len(parts) == 1 else np.concatenate(parts, axis=0)
     con = rm.contact[i0:i1]
     vals = rm.rows_of(xs, con)
     start = rm.positions()[i0:i1]

@@ -58,6 +58,11 @@ class RowCfg(NamedTuple):
     edge_s: float = 0.06  #: [s] rows this close to the log's ends are left out (derivative edges)
     force_floor_N: float = 0.01  #: [N] smallest per-sample force noise used for the channel weights
     moment_floor_Nm: float = 0.001  #: [N m] the same for moments
+    #: a log with more row times than this is ranked on every m-th span of ``span_s`` (by time from
+    #: its start: the same whatever the chunking): an hour at 1 kHz on 20 minutes of rows spread over
+    #: the whole hour (``RowMap.span_every``; the report's ``method.rows_cover_s``)
+    max_row_times: int = 120_000
+    span_s: float = 5.0  #: [s]
     chunk_samples: int = stream.CHUNK_SAMPLES  #: samples per chunk of the design's passes (not in the report)
 
 
@@ -165,13 +170,17 @@ def row_map(s: sg.LogSignals, sigma: np.ndarray, rc: RowCfg) -> RowMap:
     if setup.contact.mode == "exclude":
         ok &= ~s.contact
     rows = np.flatnonzero(ok)[::stride]
+    every = 1
+    if not s.static and len(rows) > rc.max_row_times:  # a long log: every m-th span (``RowCfg.max_row_times``)
+        every = -(-len(rows) // rc.max_row_times)
+        rows = rows[(np.floor((s.clock[rows] - s.clock[0]) / rc.span_s).astype(np.int64) % every) == 0]
     if len(rows) < (12 if s.static else 20):
         raise KinadaptError(f"the log leaves {len(rows)} {'poses' if s.static else 'rows'} after [analysis] exclude_s"
                             f"{', contact' if s.static else ' and the ends'}; give a longer log or exclude less")
     tip = np.asarray(setup.tool.tip_sensor_m, dtype=float)
     sig_tip = np.sqrt(sigma[3:] ** 2 + float(tip @ tip) * np.mean(sigma[:3] ** 2))
     k_smooth = 1 if s.static else max(1, int(round(rc.smooth_s / dt)))
-    return RowMap(rows, s.contact[rows], k_smooth, 1.0 / sigma, 1.0 / sig_tip, s.tip_map)
+    return RowMap(rows, s.contact[rows], k_smooth, 1.0 / sigma, 1.0 / sig_tip, s.tip_map, every)
 
 
 def build_design(s: sg.LogSignals, lib: dict[str, Effect], names: list[str], sigma: np.ndarray, rc: RowCfg,
@@ -669,6 +678,7 @@ def _base_report(log, declared: SetupCfg, cal: Calibration, chk: Checks, rd: Ran
         "residual_rms_by_channel": _rms_by_channel(des, des.y),
         "explained_by_present": float(1.0 - result.sse_after / max(result.sse_total, 1e-300)),
         "method": {"rows": {k: v for k, v in rk.rc._asdict().items() if k != "chunk_samples"},
+                   "rows_cover_s": _rows_cover(s, rd.rm, rk.rc),
                    "selection": rk.sc._asdict(), "blocks": des.n_blocks,
                    "nuisance": "constant offset (tared log)" if s.setup.log.tared else "none"},
     }
@@ -682,6 +692,17 @@ class Added:
     warnings: list  #: a physically impossible refit, one line each
     before: np.ndarray  #: (R,) rows before (nuisance fitted)
     after: np.ndarray  #: (R,) rows after
+
+
+def _rows_cover(s: sg.LogSignals, rm: RowMap, rc: RowCfg) -> dict:
+    """How much of the log the ranking's rows cover: every row time, or every m-th span of a long
+    log (``RowCfg.max_row_times``)."""
+    dur = float(s.clock[-1] - s.clock[0])
+    if rm.span_every == 1:
+        return {"span_every": 1, "covered_s": dur, "of_s": dur}
+    spans = np.unique(np.floor((s.clock[rm.rows] - s.clock[0]) / rc.span_s))
+    return {"span_every": int(rm.span_every), "span_s": rc.span_s, "covered_s": float(len(spans) * rc.span_s),
+            "of_s": dur}
 
 
 def _added(rd: Ranked, add: list[str], forced: dict, lib: dict, setup: SetupCfg, sc: sel.SelCfg) -> Added:
@@ -866,8 +887,19 @@ def summary_text(rep: dict) -> str:
     nj = [e["effect"] for e in rep["ranking"] if not e.get("judged", True)]
     if nj:
         parts.append("Not judged (no contact geometry declared): " + ", ".join(nj) + ".")
+    parts.append(_spans_text(rep.get("method", {}).get("rows_cover_s") or {}))
     if "residual_rms_after" in rep:
         b, a = rep["residual_rms_before"]["total_w"], rep["residual_rms_after"]["total_w"]
         parts.append(f"With {', '.join(rep['added'])} added, the residual falls from {b:.3g} to {a:.3g} "
                      "(noise-weighted RMS, all rows).")
-    return " ".join(parts)
+    return " ".join(p for p in parts if p)
+
+
+def _spans_text(cov: dict) -> str:
+    """A long log ranked on spans (``method.rows_cover_s``) in words; "" when every row time was used."""
+    m = int(cov.get("span_every", 1))
+    if m == 1:
+        return ""
+    nth = f"{m}{ {1: 'st', 2: 'nd', 3: 'rd'}.get(m % 10 if m % 100 not in (11, 12, 13) else 0, 'th')}"
+    return (f"A long log: ranked on every {nth} {cov['span_s']:g} s span ({cov['covered_s']:.0f} s of "
+            f"{cov['of_s']:.0f} s, spread over the whole log).")

@@ -105,9 +105,11 @@ def test_report_does_not_depend_on_the_chunking(drift_log, monkeypatch):
     assert worst < RTOL  # the measured worst relative change (the docstring's figure) stays below the tolerance
 
 
-def test_streamed_statistics_equal_the_columns():
+@pytest.mark.parametrize("spans", [False, True])
+def test_streamed_statistics_equal_the_columns(spans):
     """The per-block normal equations of a chunked pass equal those of the full columns (an
-    independent computation: ``RowMap.apply`` on the whole (n, 6, k) array), for odd chunk sizes."""
+    independent computation: ``RowMap.apply`` on the whole (n, 6, k) array), for odd chunk sizes;
+    also with rows in spans whose gaps are wider than the halos (each run evaluated on its own)."""
     rng = np.random.default_rng(0)
     n = 1500
     C = rng.normal(size=(n, 6, 3)).cumsum(axis=0)
@@ -129,7 +131,10 @@ def test_streamed_statistics_equal_the_columns():
 
     s = Sig(np.arange(n) * 1e-3, C, np.zeros((n, 7)), {})
     rows = np.arange(60, n - 60, 10)
-    con = (rows > 700) & (rows < 900)
+    if spans:  # two runs 600 samples apart (the halo: 20 + 2 * 101 + 8 = 230 samples a side)
+        rows = np.concatenate([np.arange(60, 400, 10), np.arange(1000, n - 60, 10)])
+        assert np.diff(rows).max() > 2 * stream.halo_samples(s, 20) + 1
+    con = (rows > 700) & (rows < 900) if not spans else (rows > 1100) & (rows < 1200)
     rm = stream.RowMap(rows, con, 20, rng.uniform(1, 2, 6), rng.uniform(1, 2, 3), rng.normal(size=(3, 6)))
     X = rm.apply(C)
     y = rng.normal(size=len(X))
@@ -177,6 +182,25 @@ def test_hints_on_spans_of_a_long_log_name_the_same_shape_at_any_chunking(drift_
     assert np.all(np.floor(t / 0.5).astype(int) % 2 == 0) and 0.4 < len(pos) / len(spans.design.y) < 0.6
     odd = diagnose(log, setup, rc=RowCfg(chunk_samples=997)).report["unexplained"]["hints"]
     bad = _diff(hints, odd)
+    assert not bad, bad[:5]
+
+
+def test_a_long_log_is_ranked_on_spans_the_same_at_any_chunking(drift_log):
+    """A log with more than ``RowCfg.max_row_times`` row times is ranked on every m-th span (here
+    600 row times and 1 s spans on the 12 s log: every other second): the rows lie in those spans
+    only, the report says how much of the log they cover, and it is the same at any chunking (the
+    runs of rows evaluated one by one: the gaps are wider than the halos)."""
+    log, setup = drift_log
+    rc = RowCfg(max_row_times=600, span_s=1.0)
+    res = diagnose(log, setup, rc=rc)
+    cov = res.report["method"]["rows_cover_s"]
+    assert cov["span_every"] == 2 and abs(cov["covered_s"] - cov["of_s"] / 2) <= 1.0, cov
+    assert np.all(np.floor(res.design.t_s / 1.0).astype(int) % 2 == 0)
+    assert "every 2nd 1 s span" in res.report["summary"]
+    full = diagnose(log, setup)
+    assert full.report["method"]["rows_cover_s"]["span_every"] == 1 and len(full.design.y) > 1.8 * len(res.design.y)
+    odd = diagnose(log, setup, rc=rc._replace(chunk_samples=997))
+    bad = _diff(res.report, odd.report)
     assert not bad, bad[:5]
 
 
