@@ -24,6 +24,9 @@ import numpy as np
 MIN_FORCE_N = 2.0  #: [N] contact samples with a weaker contact force are not used
 MIN_SAMPLES = 20
 UNDETERMINED_M = 0.01  #: [m] a direction of the point with a larger sd is undetermined
+#: the calibration's share of the point's sd (``with_calibration``: the point's derivative in each
+#: calibration parameter) from at most this many contact samples, evenly spaced (``sensitivity_samples``)
+SENSITIVITY_SAMPLES = 50_000
 BLOCKS = 10
 
 
@@ -90,6 +93,15 @@ def estimate(w_contact_s: np.ndarray, contact: np.ndarray) -> ContactPoint | Non
                         float(np.sqrt(np.mean(np.sum(f**2, axis=1)))))
 
 
+def sensitivity_samples(idx: np.ndarray) -> np.ndarray:
+    """Of the contact samples ``idx`` (m,), at most ``SENSITIVITY_SAMPLES`` evenly spaced (by position,
+    so the same whatever the chunking): the derivative of ``with_calibration`` is a property of the
+    motion, not of every sample, and 27 model evaluations on an hour's contact would dominate it."""
+    if len(idx) <= SENSITIVITY_SAMPLES:
+        return idx
+    return idx[np.linspace(0, len(idx) - 1, SENSITIVITY_SAMPLES).round().astype(int)]
+
+
 def with_calibration(point: ContactPoint | None, w_meas_s: np.ndarray, model_at, contact: np.ndarray,
                      cov_x: np.ndarray | None) -> ContactPoint | None:
     """The point with the calibration's covariance added to its sd: the point is fitted to the measured
@@ -113,4 +125,4 @@ def with_calibration(point: ContactPoint | None, w_meas_s: np.ndarray, model_at,
     return replace(point, sd_m=sd)
 
 
-__all__ = ["ContactPoint", "estimate", "with_calibration"]
+__all__ = ["ContactPoint", "SENSITIVITY_SAMPLES", "estimate", "sensitivity_samples", "with_calibration"]

@@ -123,7 +123,9 @@ def mean_at(x: np.ndarray, k: int, idx: np.ndarray, chunk: int | None = None) ->
     for a in range(0, len(idx), step):
         i = idx[a:a + step]
         lo, hi = np.clip(i - k // 2, 0, n), np.clip(i + (k - k // 2), 0, n)
-        edges = np.unique(np.concatenate([lo, hi]))  # (e,) ascending; the last is hi.max()
+        e = np.concatenate([lo, hi])
+        e.sort(kind="stable")  # two ascending runs: merged in one pass (np.unique would sort from scratch)
+        edges = e[np.r_[True, e[1:] != e[:-1]]]  # (e,) ascending, distinct; the last is hi.max()
         seg = _segment_sums(np.asarray(x[edges[0]:edges[-1]], dtype=float), edges - edges[0])
         P = np.concatenate([np.zeros((1, *x.shape[1:])), np.cumsum(seg, axis=0)])  # (e, ...) sums up to each edge
         out[a:a + step] = (P[np.searchsorted(edges, hi)] - P[np.searchsorted(edges, lo)]) / \

@@ -97,7 +97,9 @@ def _scale(fu: str, tu: str, setup) -> np.ndarray:
     return np.array([kf] * 3 + [kt] * 3)
 
 
-def _candidate(fu: str, tu: str, d: mount.MountData, D: np.ndarray, s, setup, pinned: bool) -> UnitCandidate:
+def _candidate(fu: str, tu: str, d: mount.MountData, D: np.ndarray, s, setup, pinned: bool,
+               peaks: tuple[float, float]) -> UnitCandidate:
+    """One unit pair (``peaks``: the largest |force| and |moment| the log reads, in its units)."""
     k = _scale(fu, tu, setup)
     dk = d._replace(r=d.r * k, w=d.w / k)
     theta, res = mount.fit_at(D, dk, iters=5)
@@ -115,7 +117,7 @@ def _candidate(fu: str, tu: str, d: mount.MountData, D: np.ndarray, s, setup, pi
         dist += abs(math.log10(max(com, 1e-12) / math.sqrt(lo * hi)))
     rated = (setup.sensor.range_force_N, setup.sensor.range_torque_Nm)
     for j, rng in enumerate(rated):
-        peak = float(np.max(np.abs(s.wrench[:, 3 * j:3 * j + 3]))) * k[3 * j]
+        peak = peaks[j] * k[3 * j]
         if rng > 0 and peak > 0:
             score += max(0.0, math.log10(peak / (RANGE_FACTOR * rng)))
     return UnitCandidate(fu, tu, m, com, misfit, score, dist)
@@ -142,6 +144,7 @@ def check(fitm: mount.MountFit, s, setup, sigma: np.ndarray) -> UnitCheck:
     mc_sd = float(np.linalg.norm(fitm.sd[4:7]))
     pinned = float(np.linalg.norm(fitm.x[4:7])) > SIGNIFICANT_SD * mc_sd
     cands = []
+    peaks = (float(np.max(np.abs(s.wrench[:, :3]))), float(np.max(np.abs(s.wrench[:, 3:]))))
     for tu in TORQUE_UNITS:
         Dt = D
         if not s.static and tu != setup.log.torque_unit:
@@ -149,7 +152,7 @@ def check(fitm: mount.MountFit, s, setup, sigma: np.ndarray) -> UnitCheck:
             # fitted again for this unit (a static log's fit does not depend on a unit)
             k = _scale(setup.log.force_unit, tu, setup)
             Dt = mount.refine_rotation(d._replace(r=d.r * k, w=d.w / k), [D, np.eye(3)])
-        cands += [_candidate(fu, tu, d, Dt, s, setup, pinned) for fu in FORCE_UNITS]
+        cands += [_candidate(fu, tu, d, Dt, s, setup, pinned, peaks) for fu in FORCE_UNITS]
     if not s.static:
         cands = _with_misfit(cands)
     lf, lt = setup.log.force_unit, setup.log.torque_unit

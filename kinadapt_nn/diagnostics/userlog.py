@@ -313,8 +313,10 @@ def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray | None, 
     ci = np.flatnonzero(contact & ~excl)  # the contact samples: only they are needed here
     w_c = s.wrench[ci] - (s.w_nom[ci] - ph_tool_wrench(s, ci))
     point = contact_point.estimate(w_c - mount.predict(fitm.x, s, ci), np.ones(len(ci), bool))
-    point = contact_point.with_calibration(point, w_c, lambda dx: mount.predict(mount.shifted(fitm.x, dx), s, ci),
-                                           np.ones(len(ci), bool), fitm.cov)
+    cj = contact_point.sensitivity_samples(ci)  # the calibration's share of the point's sd
+    wj = w_c[np.searchsorted(ci, cj)]
+    point = contact_point.with_calibration(point, wj, lambda dx: mount.predict(mount.shifted(fitm.x, dx), s, cj),
+                                           np.ones(len(cj), bool), fitm.cov)
     if not setup.sensor.mount_known:
         setup = setup.model_copy(update={"sensor": setup.sensor.model_copy(
             update={"rpy_flange_deg": tuple(float(v) for v in fitm.rpy_deg)})})

@@ -210,3 +210,17 @@ def _row_map(res):
 
     sigma = np.array([res.report["noise_sigma"][k] for k in ("F_x", "F_y", "F_z", "M_x", "M_y", "M_z")])
     return row_map(res.signals, sigma, RowCfg())
+
+
+def test_mean_at_equals_the_moving_average_at_its_samples():
+    """``stream.mean_at`` (segment sums between window edges, in chunks) against
+    ``effect_library.moving_average`` over the whole array, at every sample, at a stride and at
+    random samples, for even and odd windows and odd chunks."""
+    from kinadapt_nn.features.effect_library import moving_average
+
+    rng = np.random.default_rng(1)
+    x = rng.normal(size=(5000, 3)).cumsum(axis=0)
+    for k in (1, 2, 7, 20):
+        for idx in (np.arange(5000), np.sort(rng.choice(5000, 800, replace=False)), np.arange(3, 5000, 10)):
+            np.testing.assert_allclose(stream.mean_at(x, k, idx, chunk=333), moving_average(x, k)[idx], rtol=1e-12,
+                                       atol=1e-9)
