@@ -37,9 +37,9 @@ class LogSignals:
     t: np.ndarray  #: (n,) [s] from the first sample
     q: np.ndarray  #: (n, dof) [rad] encoder positions
     qdot: np.ndarray  #: (n, dof) [rad/s] (logged, or differentiated from q)
-    #: (n, dof) [rad/s^2] (differentiated, Savitzky-Golay); a log in time holds it per chunk only (None
-    #: on the whole log: ``stream.slice_signals`` differentiates each chunk's ``qdot``, as every effect sees it)
-    qddot: np.ndarray | None
+    #: (n, dof) [rad/s^2] held, or None: ``qddot`` differentiates ``qdot`` (Savitzky-Golay) when first
+    #: read -- a log in time holds it per chunk only (``stream.slice_signals``), each chunk's own
+    _qddot: np.ndarray | None
     R_ws: np.ndarray  #: (n, 3, 3) sensor axes in the world (columns: s's x, y, z in w)
     p_ws: np.ndarray  #: (n, 3) [m] sensor origin in the world
     g_s: np.ndarray  #: (n, 3) [m/s^2] gravity in s
@@ -64,6 +64,15 @@ class LogSignals:
     @property
     def n(self) -> int:
         return len(self.t)
+
+    @property
+    def qddot(self) -> np.ndarray:
+        """(n, dof) [rad/s^2] the joint accelerations: held (a static log's zeros), or the Savitzky-Golay
+        derivative of ``qdot`` on ``clock``, made when first read (no built-in effect reads it; a
+        user's may) and kept."""
+        if self._qddot is None:
+            object.__setattr__(self, "_qddot", ph.derivative(np.asarray(self.qdot, dtype=float), self.clock))
+        return self._qddot
 
     @property
     def clock(self) -> np.ndarray:

@@ -173,10 +173,8 @@ def slice_signals(s, a: int, b: int, w: dict | None = None):
             out[f.name] = {k: x[a:b] for k, x in v.items()}
         elif f.name != "tip_map" and isinstance(v, np.ndarray) and v.ndim >= 1 and len(v) == s.n:
             out[f.name] = v[a:b].astype(float) if v.dtype == np.float32 else v[a:b]  # compact storage: double here
-    if getattr(s, "qddot", 0) is None and not s.static:  # held per chunk only (``LogSignals.qddot``)
-        from kinadapt_nn.diagnostics.physical import derivative
-
-        out["qddot"] = derivative(np.asarray(s.qdot[a:b], dtype=float), s.t[a:b])
+    if hasattr(s, "_qddot") and not s.static:  # each chunk its own, made when first read (``LogSignals.qddot``)
+        out["_qddot"] = None
     return dataclasses.replace(s, **out, whole=w if w is not None else getattr(s, "whole", None))
 
 

@@ -224,3 +224,16 @@ def test_mean_at_equals_the_moving_average_at_its_samples():
         for idx in (np.arange(5000), np.sort(rng.choice(5000, 800, replace=False)), np.arange(3, 5000, 10)):
             np.testing.assert_allclose(stream.mean_at(x, k, idx, chunk=333), moving_average(x, k)[idx], rtol=1e-12,
                                        atol=1e-9)
+
+
+def test_a_chunks_joint_accelerations_are_its_own_derivative_made_when_read(drift_log):
+    """``LogSignals.qddot`` of a chunk (what a user's effect reads as ``s.qddot``): the Savitzky-Golay
+    derivative of the chunk's own ``qdot``, made on first read only (no built-in reads it)."""
+    from kinadapt_nn.diagnostics.physical import derivative
+
+    log, setup = drift_log
+    s = signals.from_log(log, setup)
+    c = stream.slice_signals(s, 1000, 3000)
+    assert c._qddot is None
+    np.testing.assert_array_equal(c.qddot, derivative(np.asarray(s.qdot[1000:3000], float), s.t[1000:3000]))
+    assert c._qddot is not None and c.qddot is c._qddot
