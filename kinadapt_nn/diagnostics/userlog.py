@@ -27,6 +27,7 @@ report              ``report.Report.of``               ``report.Report`` (read-o
 ``diagnose`` runs them and returns ``Result`` (the report and what the figures draw); the CLI
 only parses, prints and writes.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -699,6 +700,8 @@ class Added:
 def _rows_cover(s: sg.LogSignals, rm: RowMap, rc: RowCfg) -> dict:
     """How much of the log the ranking's rows cover: every row time, or every m-th span of a long
     log (``RowCfg.max_row_times``)."""
+    if s.static or not s.has_time:  # poses, not a clock: every pose is a row
+        return {"span_every": 1, "covered_s": None, "of_s": None}
     dur = float(s.clock[-1] - s.clock[0])
     if rm.span_every == 1:
         return {"span_every": 1, "covered_s": dur, "of_s": dur}
