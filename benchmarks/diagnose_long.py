@@ -1,7 +1,7 @@
 """A long recording through ``kinadapt diagnose``: peak memory and wall time against one pass that
 reads the same file and runs the arm's kinematics on every sample (issue 37, section 2).
 
-    python benchmarks/diagnose_long.py [--minutes 60] [--case tool_gravity] [--out DIR] [--keep]
+    python benchmarks/diagnose_long.py [--minutes 60] [--case tool_gravity] [--out DIR] [--json FILE]
 
 The log comes from the independent foreign rig B (``examples/foreign_rig.py --rig B``: MuJoCo's
 inverse dynamics of a 12 s experiment at 1 kHz, free-space moves then a tip pressed and circled on
@@ -16,6 +16,8 @@ kinematics on every sample (``readers.read_log`` + ``signals.from_log``), (b) th
 (``python -m kinadapt_nn.app.cli diagnose LOG --setup SETUP --out DIR``). Prints the wall time,
 the CPU time and the peak memory of both and the ratios (b)/(a); on a shared, loaded machine the
 CPU-time ratio is the one that measures the code (the wall time measures the neighbours too).
+It also prints whether the verdicts are right: the present effects against the rig's hidden ones
+(``foreign_rig._effects_truth``), and each true parameter's error in units of its reported sd.
 """
 
 from __future__ import annotations
@@ -110,7 +112,7 @@ def _child(cmd: list[str]) -> tuple[float, float, float, str]:
     return wall, cpu, after.ru_maxrss / 1024.0, res.stdout
 
 
-def measure(log_path: Path, setup_path: Path, out: Path) -> dict:
+def measure(log_path: Path, setup_path: Path, out: Path, case: str = "tool_gravity") -> dict:
     """(a) read + kinematics and (b) the whole ``diagnose`` command, each in a fresh child process.
     -> {"read_kinematics": {...}, "diagnose": {...}, "ratio_wall": float}."""
     py = sys.executable
@@ -118,11 +120,25 @@ def measure(log_path: Path, setup_path: Path, out: Path) -> dict:
     wall_b, cpu_b, rss_b, _ = _child([py, "-m", "kinadapt_nn.app.cli", "diagnose", str(log_path), "--setup",
                                       str(setup_path), "--out", str(out / "diagnosis"), "--overwrite", "--quiet"])
     rep = json.loads((out / "diagnosis" / "diagnosis.json").read_text())
-    return {"read_kinematics": {"wall_s": wall_a, "cpu_s": cpu_a, "peak_rss_MB": rss_a,
+    return {"truth": truth_check(rep, case),"read_kinematics": {"wall_s": wall_a, "cpu_s": cpu_a, "peak_rss_MB": rss_a,
                                 "samples": int(stdout_a.split()[0])},
             "diagnose": {"wall_s": wall_b, "cpu_s": cpu_b, "peak_rss_MB": rss_b,
                          "verdicts": {e["effect"]: e["verdict"] for e in rep["ranking"] if e.get("judged", True)}},
             "ratio_wall": wall_b / wall_a, "ratio_cpu": cpu_b / cpu_a}
+
+
+def truth_check(rep: dict, case: str) -> dict:
+    """The diagnosis against rig B's hidden effects of ``case``: {"present": [...], "truth": [...],
+    "right": bool, "errors_sd": {effect: {param: (estimate - truth) / sd}}}."""
+    fr = _rig()
+    truth = fr._effects_truth(fr._hidden(case, "B"))
+    present = sorted(e["effect"] for e in rep["ranking"] if e["verdict"] == "present")
+    errors = {}
+    for name, params in truth.items():
+        est = next((e.get("estimate") or {} for e in rep["ranking"] if e["effect"] == name), {})
+        errors[name] = {k: (est[k]["value"] - v) / est[k]["sd"] for k, v in params.items()
+                        if isinstance(est.get(k), dict) and est[k].get("value") is not None and est[k].get("sd")}
+    return {"present": present, "truth": sorted(truth), "right": present == sorted(truth), "errors_sd": errors}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -138,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
         log_path, setup_path, n = write_long_log(out, args.minutes, args.case)
         print(f"log: {n} samples ({args.minutes:g} min at {RATE_HZ:g} Hz, rig B case '{args.case}'), "
               f"{log_path.stat().st_size / 1e6:.0f} MB Parquet, written in {time.perf_counter() - t0:.0f} s")
-        res = measure(log_path, setup_path, out)
+        res = measure(log_path, setup_path, out, args.case)
     b = res["diagnose"]
     res.update(minutes=args.minutes, case=args.case)
     for key, what in (("read_kinematics", "(a) read + kinematics of every sample"),
@@ -148,6 +164,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"ratio (b)/(a): wall {res['ratio_wall']:.2f}, CPU {res['ratio_cpu']:.2f} (target <= 3); peak (b) "
           f"{b['peak_rss_MB'] / 1024:.2f} GB (target <= 2 GB)")
     print("verdicts: " + ", ".join(f"{k} {v}" for k, v in b["verdicts"].items()))
+    tc = res["truth"]
+    print(f"present {tc['present']}, the rig's hidden effects {tc['truth']}: {'right' if tc['right'] else 'WRONG'}; "
+          "errors in sd: " + "; ".join(f"{n} " + ", ".join(f"{k} {v:+.1f}" for k, v in ps.items())
+                                       for n, ps in tc["errors_sd"].items()))
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
     return 0
