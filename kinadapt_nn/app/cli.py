@@ -465,7 +465,7 @@ def _write_diagnosis(out: Path, args: argparse.Namespace, results: list, setup, 
     import time
 
     from kinadapt_nn.diagnostics import userfigures as uf
-    from kinadapt_nn.diagnostics.report import diagnosis_json, pooled_json
+    from kinadapt_nn.diagnostics.report import pooled_json
     from kinadapt_nn.diagnostics.setup import setup_to_toml
     from kinadapt_nn.runio import staged_output, write_json
 
@@ -473,7 +473,7 @@ def _write_diagnosis(out: Path, args: argparse.Namespace, results: list, setup, 
         for name, text in (res.hint_files or {}).items():
             (stage / name).write_text(text)
         (stage / "setup.toml").write_text(setup_to_toml(setup))
-        write_json(stage / "diagnosis.json", diagnosis_json(res.report, dataclasses.replace(prov, source=source),
+        write_json(stage / "diagnosis.json", res.report.to_json(dataclasses.replace(prov, source=source),
                                                             time.perf_counter() - t0))
         uf.model_vs_measurement(res, setup, stage / "residual.png")
         uf.effects_figure(res, stage / "effects.png")

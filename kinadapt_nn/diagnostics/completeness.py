@@ -348,12 +348,11 @@ def hint_rows(s, rm, cc: CompCfg) -> tuple[object, np.ndarray | None]:
     row times every m-th span of ``cc.hint_span_s`` (by row time from the log's start, so the same
     whatever the chunking) -- a shape's test needs minutes of log, not hours. -> (the ``RowMap`` of
     the rows kept, their positions in the design built on ``rm`` (R',) ascending; None: every row)."""
-    n = len(rm.rows)
-    if n <= cc.hint_max_row_times:
+    from kinadapt_nn.diagnostics.stream import every_mth_span
+
+    keep, _ = every_mth_span(s.clock[rm.rows] - s.clock[0], cc.hint_max_row_times, cc.hint_span_s)  # the design's t_s
+    if keep is None:
         return rm, None
-    m = -(-n // cc.hint_max_row_times)
-    row_t = s.clock[rm.rows] - s.clock[0]  # as the design's ``t_s``
-    keep = (np.floor(row_t / cc.hint_span_s).astype(np.int64) % m) == 0
     sub = rm._replace(rows=rm.rows[keep], contact=rm.contact[keep])
     start = rm.positions()[keep]
     width = np.where(rm.contact[keep], 3, 6)

@@ -93,13 +93,13 @@ def estimate(w_contact_s: np.ndarray, contact: np.ndarray) -> ContactPoint | Non
                         float(np.sqrt(np.mean(np.sum(f**2, axis=1)))))
 
 
-def sensitivity_samples(idx: np.ndarray) -> np.ndarray:
-    """Of the contact samples ``idx`` (m,), at most ``SENSITIVITY_SAMPLES`` evenly spaced (by position,
-    so the same whatever the chunking): the derivative of ``with_calibration`` is a property of the
+def sensitivity_samples(m: int) -> np.ndarray:
+    """Positions of at most ``SENSITIVITY_SAMPLES`` of ``m`` contact samples, evenly spaced (so the
+    same whatever the chunking): the derivative of ``with_calibration`` is a property of the
     motion, not of every sample, and 27 model evaluations on an hour's contact would dominate it."""
-    if len(idx) <= SENSITIVITY_SAMPLES:
-        return idx
-    return idx[np.linspace(0, len(idx) - 1, SENSITIVITY_SAMPLES).round().astype(int)]
+    if m <= SENSITIVITY_SAMPLES:
+        return np.arange(m)
+    return np.linspace(0, m - 1, SENSITIVITY_SAMPLES).round().astype(int)
 
 
 def with_calibration(point: ContactPoint | None, w_meas_s: np.ndarray, model_at, contact: np.ndarray,

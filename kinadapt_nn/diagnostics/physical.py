@@ -71,7 +71,7 @@ class ArmModel:
         self._qpos, self._cols = _as_slice(arm.qpos_adr), _as_slice(arm.dof_adr)  # qpos / Jacobian columns
         self._jnt = np.asarray(arm.joint_ids, dtype=int)  # (dof,) joint ids, base to flange
         self._hinge = self.model.jnt_type[self._jnt] == int(mujoco.mjtJoint.mjJNT_HINGE)  # else a slide
-        self._batch = None  #: ``_mj_batch``, made on first use
+        self._batch = self._batch_qpos = None  #: ``_mj_batch`` and its bound ``qpos``, made on first use
         self.R_fs = setup.sensor.R_fs()
         self.p_fs = np.asarray(setup.sensor.position_flange_m, dtype=float)
         self.g_w = setup.world.g_w()  #: (3,) [m/s^2] gravity in the world
@@ -94,7 +94,7 @@ class ArmModel:
         (a hinge: ``Jr = axis``, ``Jp = axis x (site - anchor)``; a slide: ``Jp = axis``, ``Jr = 0``)."""
         n = len(q)
         if self._batch is None:
-            self._batch = self._mj_batch()
+            self._batch, self._batch_qpos = self._mj_batch()
         b, qpos = self._batch, self._batch_qpos
         R_wf = np.empty((n, 3, 3))
         x_w = np.empty((n, 3))
@@ -116,7 +116,7 @@ class ArmModel:
 
     def _mj_batch(self):
         """A one-thread ``mujoco.batch.Batch`` of ``FRAMES_BATCH`` copies of the arm with contacts and
-        constraints off (only the kinematics is read); its ``qpos`` bound."""
+        constraints off (only the kinematics is read), and its bound ``qpos`` (FRAMES_BATCH, nq)."""
         import copy
 
         import mujoco.batch
@@ -125,11 +125,11 @@ class ArmModel:
         m = copy.copy(self.model)
         m.opt.disableflags |= int(mj.mjtDisableBit.mjDSBL_CONTACT) | int(mj.mjtDisableBit.mjDSBL_CONSTRAINT)
         b = mujoco.batch.Batch(m, FRAMES_BATCH, 1, False)
-        self._batch_qpos = b.bind("qpos")
-        self._batch_qpos[:] = self.model.qpos0[None, :]
+        qpos = b.bind("qpos")
+        qpos[:] = self.model.qpos0[None, :]
         for name in ("site_xpos", "site_xmat", "xaxis", "xanchor"):  # outputs: registered before the first call
             b.bind(name)
-        return b
+        return b, qpos
 
     def series(self, q: np.ndarray, qdot: np.ndarray, t_s: np.ndarray, dt_s: float | None = None) -> KinSeries:
         """Sensor kinematics for (N, dof) joint positions/velocities at times (N,) -> ``KinSeries``.

@@ -66,11 +66,6 @@ class Report(Mapping):
                 **copy.deepcopy(dict(self.sections)), "wall_time_s": wall_time_s}
 
 
-def diagnosis_json(report: Report, prov: Provenance, wall_time_s: float) -> dict:
-    """One log's ``diagnosis.json`` content (``Report.to_json``)."""
-    return report.to_json(prov, wall_time_s)
-
-
 def pooled_json(logs: list[tuple[str, str, Mapping]], setup_file: str, wall_time_s: float) -> dict:
     """The top-level ``diagnosis.json`` of several logs of one set-up (``pooled``): ``logs`` =
     [(folder name, source, report)], each log's own diagnosis in its folder."""
@@ -84,4 +79,4 @@ def pooled_json(logs: list[tuple[str, str, Mapping]], setup_file: str, wall_time
             "wall_time_s": wall_time_s}
 
 
-__all__ = ["FORMAT", "VERSION", "Provenance", "Report", "diagnosis_json", "pooled_json"]
+__all__ = ["FORMAT", "VERSION", "Provenance", "Report", "pooled_json"]

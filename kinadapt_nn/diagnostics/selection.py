@@ -141,7 +141,7 @@ class Stats:
         #: (relative to the median relevant-size effect column) is unexcited and its parameter stays
         #: at 0; the nuisance columns (unit norm, always fitted) have none. A median, not a mean: one
         #: column whose energy grows with the log (a drift rate over an hour: ~T^3) must not set the
-        #: floor of the others (a mean-based floor shrank a tared log's offset by 8 % at 6 min)
+        #: floor of the others (a mean-based floor was 0.079 of a tared log's unit-norm offset columns at 6 min)
         diag = np.diagonal(self.Gt)
         eff = np.ones(K, bool)
         eff[self.z_idx] = False

@@ -133,6 +133,23 @@ def mean_at(x: np.ndarray, k: int, idx: np.ndarray, chunk: int | None = None) ->
     return out
 
 
+def span_index(t_rel_s: np.ndarray, span_s: float) -> np.ndarray:
+    """(r,) the span of ``span_s`` [s] each row time ``t_rel_s`` (r,) [s from the log's start] lies in."""
+    return np.floor(np.asarray(t_rel_s) / span_s).astype(np.int64)
+
+
+def every_mth_span(t_rel_s: np.ndarray, max_rows: int, span_s: float) -> tuple[np.ndarray | None, int]:
+    """Rows at the times ``t_rel_s`` (r,) [s from the log's start], at most about ``max_rows`` of them:
+    None and m = 1 when r <= ``max_rows``, else (the (r,) bool mask of the rows in every m-th span of
+    ``span_s``, m = ceil(r / max_rows)). Chosen by time, so the same whatever the chunking (the
+    ranking's rows of a long log, ``userlog.row_map``; the hint test's, ``completeness.hint_rows``)."""
+    r = len(t_rel_s)
+    if r <= max_rows:
+        return None, 1
+    m = -(-r // max_rows)
+    return span_index(t_rel_s, span_s) % m == 0, m
+
+
 def _segment_sums(x: np.ndarray, edges: np.ndarray) -> np.ndarray:
     """(e - 1, ...) the sums of ``x`` over ``[edges[j], edges[j + 1])`` (``edges`` ascending from 0 to
     ``len(x)``): equal segments (rows at a constant stride) by a reshape, others by ``reduceat``
@@ -362,6 +379,6 @@ def sample_sum(s, sources: list[Source], coefs: list[np.ndarray], k_smooth: int 
     return out
 
 
-__all__ = ["BlockStats", "CHUNK_BYTES", "CHUNK_SAMPLES", "PassOpts", "ROW_CACHE_BYTES", "RowMap", "Source", "block_stats", "bounds",
+__all__ = ["BlockStats", "every_mth_span", "span_index", "CHUNK_BYTES", "CHUNK_SAMPLES", "PassOpts", "ROW_CACHE_BYTES", "RowMap", "Source", "block_stats", "bounds",
            "chunk_for", "chunks", "combine_rows",
            "halo_samples", "mean_at", "row_values", "sample_sum", "slice_signals", "smooth", "whole"]

@@ -172,9 +172,9 @@ def row_map(s: sg.LogSignals, sigma: np.ndarray, rc: RowCfg) -> RowMap:
         ok &= ~s.contact
     rows = np.flatnonzero(ok)[::stride]
     every = 1
-    if not s.static and len(rows) > rc.max_row_times:  # a long log: every m-th span (``RowCfg.max_row_times``)
-        every = -(-len(rows) // rc.max_row_times)
-        rows = rows[(np.floor((s.clock[rows] - s.clock[0]) / rc.span_s).astype(np.int64) % every) == 0]
+    if not s.static:  # a long log: every m-th span (``RowCfg.max_row_times``)
+        keep, every = stream.every_mth_span(s.clock[rows] - s.clock[0], rc.max_row_times, rc.span_s)
+        rows = rows if keep is None else rows[keep]
     if len(rows) < (12 if s.static else 20):
         raise KinadaptError(f"the log leaves {len(rows)} {'poses' if s.static else 'rows'} after [analysis] exclude_s"
                             f"{', contact' if s.static else ' and the ends'}; give a longer log or exclude less")
@@ -314,10 +314,9 @@ def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray | None, 
     ci = np.flatnonzero(contact & ~excl)  # the contact samples: only they are needed here
     w_c = s.wrench[ci] - (s.w_nom[ci] - ph_tool_wrench(s, ci))
     point = contact_point.estimate(w_c - mount.predict(fitm.x, s, ci), np.ones(len(ci), bool))
-    cj = contact_point.sensitivity_samples(ci)  # the calibration's share of the point's sd
-    wj = w_c[np.searchsorted(ci, cj)]
-    point = contact_point.with_calibration(point, wj, lambda dx: mount.predict(mount.shifted(fitm.x, dx), s, cj),
-                                           np.ones(len(cj), bool), fitm.cov)
+    j = contact_point.sensitivity_samples(len(ci))  # the calibration's share of the point's sd
+    point = contact_point.with_calibration(point, w_c[j], lambda dx: mount.predict(mount.shifted(fitm.x, dx), s, ci[j]),
+                                           np.ones(len(j), bool), fitm.cov)
     if not setup.sensor.mount_known:
         setup = setup.model_copy(update={"sensor": setup.sensor.model_copy(
             update={"rpy_flange_deg": tuple(float(v) for v in fitm.rpy_deg)})})
@@ -705,7 +704,7 @@ def _rows_cover(s: sg.LogSignals, rm: RowMap, rc: RowCfg) -> dict:
     dur = float(s.clock[-1] - s.clock[0])
     if rm.span_every == 1:
         return {"span_every": 1, "covered_s": dur, "of_s": dur}
-    spans = np.unique(np.floor((s.clock[rm.rows] - s.clock[0]) / rc.span_s))
+    spans = np.unique(stream.span_index(s.clock[rm.rows] - s.clock[0], rc.span_s))
     return {"span_every": int(rm.span_every), "span_s": rc.span_s, "covered_s": float(len(spans) * rc.span_s),
             "of_s": dur}
 
