@@ -25,9 +25,25 @@ Vec3 = tuple[float, float, float]
 Vec6 = tuple[float, float, float, float, float, float]
 
 
+def _arrays_as_tuples(value: Any) -> Any:
+    """TOML arrays (lists, nested too) as tuples: strict mode takes a tuple field only as a tuple."""
+    if isinstance(value, list):
+        return tuple(_arrays_as_tuples(v) for v in value)
+    return value
+
+
 class _Cfg(BaseModel):
+    # strict=True: a TOML value of the wrong type is an error, never coerced ("no" or 0 is not a bool,
+    # "0.4" is not a number); an integer is still taken where a float is expected (mass_kg = 1).
     # allow_inf_nan=False: every float, nested tuples included, must be finite
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=False, validate_default=True, allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, validate_default=True, allow_inf_nan=False)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _tuples(cls, data: Any) -> Any:
+        if isinstance(data, dict):
+            return {k: _arrays_as_tuples(v) for k, v in data.items()}
+        return data
 
 
 def _within(v: tuple[float, ...], lo: tuple[float, ...] | float, hi: tuple[float, ...] | float, unit: str) -> tuple:
@@ -493,6 +509,16 @@ def _dotted_keys(model: type[BaseModel], prefix: str = "") -> list[str]:
     return keys
 
 
+#: pydantic's strict type errors -> the TOML type a key expects
+_EXPECTED_TYPE = {"bool_type": "a boolean (true or false)", "float_type": "a number (e.g. 0.4)",
+                  "int_type": "an integer (e.g. 3)", "string_type": 'a string (in quotes, e.g. "rad")',
+                  "tuple_type": "an array ([...])", "model_type": "a table ([section] or { ... })",
+                  "dict_type": "a table ([section] or { ... })"}
+#: Python types of parsed TOML values -> their TOML names
+_TOML_TYPE = {str: "a string", bool: "a boolean", int: "an integer", float: "a float", list: "an array",
+              tuple: "an array", dict: "a table"}
+
+
 def _format_validation_error(err: ValidationError, model: type[BaseModel]) -> str:
     first = err.errors()[0]
     loc = "".join(f"[{x}]" if isinstance(x, int) else f".{x}" for x in first["loc"]).lstrip(".") or "<root>"
@@ -505,10 +531,14 @@ def _format_validation_error(err: ValidationError, model: type[BaseModel]) -> st
     msg = " ".join(str(first["msg"]).split()).removeprefix("Value error, ")
     if kind == "finite_number":
         msg = "must be a finite number (not nan or inf)"
+    if kind in _EXPECTED_TYPE:  # a wrong TOML type: say what was given and what is expected
+        given = _TOML_TYPE.get(type(first.get("input")), type(first.get("input")).__name__)
+        msg = f"expects {_EXPECTED_TYPE[kind]}, not {given}"
     if kind == "literal_error" and isinstance(first.get("input"), str):  # a misspelt name (effect, law, ...)
         hint = did_you_mean(first["input"], re.findall(r"'([^']*)'", str(first.get("ctx", {}).get("expected", ""))))
         msg += f"; {hint}" if hint else ""
     got = repr(first.get("input"))
+    got = got.lower() if isinstance(first.get("input"), bool) else got  # as TOML writes it
     return f"config key '{loc}': {msg} (got {got if len(got) <= 80 else got[:77] + '...'})"
 
 

@@ -88,6 +88,16 @@ def _float_in(lo: float, hi: float):
     return parse
 
 
+class _Once(argparse.Action):
+    """argparse action of an option that takes one value: given twice it is an error, not silently the last."""
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        if getattr(namespace, self.dest, None) is not None:
+            raise argparse.ArgumentError(self, f"given twice ({getattr(namespace, self.dest)!r} and {values!r}); "
+                                               "give it once")
+        setattr(namespace, self.dest, values)
+
+
 def _progress(args: argparse.Namespace, name: str):
     """A ``progress(msg)`` callable: one time-stamped line on stderr per step, silent with --quiet."""
     t0 = time.perf_counter()
@@ -611,9 +621,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "trace.npz -- several logs of one set-up are pooled (one tool and mount; the logs that "
                     "contradict the others named); without: a run folder, a trace.npz, or a CSV in this package's "
                     "format (kinadapt_nn/diagnostics/importers.py), its set-up generated from its config")
-    dg.add_argument("--setup", metavar="SETUP.toml", help="your set-up: columns, wrench convention, sensor mount, tool "
+    dg.add_argument("--setup", action=_Once, metavar="SETUP.toml", help="your set-up: columns, wrench convention, sensor mount, tool "
                     "(template: kinadapt setup-template; examples: examples/setups/)")
-    dg.add_argument("--config", help="a package run's config, the set-up is generated from it (default: the run's "
+    dg.add_argument("--config", action=_Once, help="a package run's config, the set-up is generated from it (default: the run's "
                     "config.toml, else built-in defaults)")
     dg.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a set-up key (with --setup) or a "
                     "config key (a package run)")
