@@ -31,6 +31,7 @@ only parses, prints and writes.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Callable, NamedTuple
 
 import numpy as np
@@ -823,6 +824,26 @@ def _why_undetermined(u: dict) -> str:
     return u["why"] if u.get("sd") is None else f"sd {u['sd']:.2g} {u['unit']}"
 
 
+#: the summary names at most this many parameters of an effect (the rest: "… (+k more)")
+SUMMARY_PARAMETERS = 4
+
+
+def _estimate_text(est: dict) -> str:
+    """An effect's parameters for the summary: the ``SUMMARY_PARAMETERS`` largest by |value / sd|
+    (the best-determined, so the largest is never hidden) in the estimate's own order, then how many
+    are left out (``… (+2 more)``; diagnosis.json has them all)."""
+    keys = [k for k in est if not k.startswith("total_") and est[k]["value"] is not None]
+
+    def z(k: str) -> float:
+        v, sd = abs(float(est[k]["value"])), float(est[k]["sd"] or 0.0)
+        return v / sd if sd > 0 else (math.inf if v > 0 else 0.0)
+
+    shown = set(sorted(keys, key=z, reverse=True)[:SUMMARY_PARAMETERS])
+    text = ", ".join(f"{k} {est[k]['value']:.3g} ± {est[k]['sd']:.2g} {est[k]['unit']}" for k in keys if k in shown)
+    hidden = len(keys) - len(shown)
+    return text + (f", … (+{hidden} more)" if hidden else "")
+
+
 def summary_text(rep: dict) -> str:
     """A paragraph a person reads first: the verdict on the model, then the effects."""
     chk = rep["sign_check"]
@@ -867,10 +888,7 @@ def summary_text(rep: dict) -> str:
     if pres:
         txt = []
         for e in pres:
-            est = e["estimate"]
-            keys = [k for k in est if not k.startswith("total_") and est[k]["value"] is not None][:4]
-            txt.append(f"{e['effect']} (" + ", ".join(f"{k} {est[k]['value']:.3g} ± {est[k]['sd']:.2g} {est[k]['unit']}"
-                                                     for k in keys) + ")")
+            txt.append(f"{e['effect']} ({_estimate_text(e['estimate'])})")
         parts.append("Present: " + "; ".join(txt) + f" — together {100 * rep['explained_by_present']:.0f}% of the "
                      "residual of the declared model, held-out.")
         if not rep.get("model_complete", True):

@@ -282,3 +282,21 @@ def test_the_report_is_read_only_and_writes_itself(cases, tmp_path):
                  "--add", "tool_gravity", "--quiet"]) == 0
     written = json.loads((out / "diagnosis.json").read_text())
     assert set(written) == set(js) and written["ranking"] == json.loads(json.dumps(res.report["ranking"]))
+
+
+def test_the_summary_never_hides_the_largest_parameter_and_says_how_many_are_left_out():
+    """YuMi: ft_offset printed fx, fy, fz, tx and hid ty = 147.6 N mm, the largest; no "…" said so."""
+    from kinadapt_nn.diagnostics.userlog import summary_text
+
+    names = ["fx", "fy", "fz", "tx", "ty", "tz"]
+    values = [0.11, -0.2, 0.3, 1.0, 147.6, 2.0]
+    est = {n: {"value": v, "sd": 0.1, "unit": "N" if n[0] == "f" else "N mm"} for n, v in zip(names, values)}
+    rep = {"sign_check": {"ok": True}, "tip_contact_check": {"ok": True}, "explained_by_present": 0.9,
+           "ranking": [{"effect": "ft_offset", "verdict": "present", "estimate": est}]}
+    txt = summary_text(rep)
+    assert "ty 148 ± 0.1 N mm" in txt, txt
+    assert "… (+2 more)" in txt, txt
+    assert "fx 0.11" not in txt  # the smallest |value / sd| are the ones left out
+    small = {n: est[n] for n in names[:4]}
+    txt = summary_text({**rep, "ranking": [{**rep["ranking"][0], "estimate": small}]})
+    assert "more)" not in txt and all(f"{n} " in txt for n in names[:4]), txt
