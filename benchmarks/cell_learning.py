@@ -1,16 +1,18 @@
 """The work cell's learning curve (issue 21) and its done-when checks, from ``kinadapt compare``.
 
-    python benchmarks/cell_learning.py [--seeds 1000 2000] [--out runs/cell_learning] [--figure docs/figures/cell_learning.png]
-        [--draws-figure docs/figures/cell_learning_draws.png]
+    python benchmarks/cell_learning.py [--seeds 1000 2000] [--out runs/cell_learning] [--figure PNG]
+        [--draws-figure PNG]
 
 Runs ``kinadapt compare --config online/compare_cell.toml --set seed=S`` for every seed (or reads
 finished compare folders with ``--from DIR ...``) and prints, per seed and family, the median over
 tools of the cell Jacobian error (held-out configurations, truth side) before the first insertion
 and after each, per features type; the ratio neural / adjoint at the last insertion; the largest
 rise from one insertion to the next (the never-worse check, 2 % allowed); and whether every
-insertion seated; then issue 40's four checks per draw (``goals``). The first seed's
-``cell_learning.png`` is copied to ``--figure``; with several seeds ``--draws-figure`` draws the
-median and range over the draws (``draws_figure``).
+insertion seated; then issue 40's four checks per draw (``goals``). It writes only where it is told:
+the compare folders under ``--out``; the first seed's ``cell_learning.png`` copied to ``--figure``
+and, with several seeds, the median and range over the draws (``draws_figure``) to
+``--draws-figure`` only when those are given (the README's figures:
+``--figure docs/figures/cell_learning.png``, ``--draws-figure docs/figures/cell_learning_draws.png``).
 """
 
 from __future__ import annotations
@@ -117,7 +119,8 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[1000, 2000])
     ap.add_argument("--out", default=str(ROOT / "runs" / "cell_learning"))
     ap.add_argument("--from", dest="from_", nargs="+", default=None, metavar="DIR", help="finished compare folders")
-    ap.add_argument("--figure", default=str(ROOT / "docs" / "figures" / "cell_learning.png"))
+    ap.add_argument("--figure", default=None, metavar="PNG",
+                    help="copy the first seed's cell_learning.png here (e.g. docs/figures/cell_learning.png)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="extra compare override")
     ap.add_argument("--draws-figure", default=None, metavar="PNG",
                     help="with several seeds: the curves' median and range over the draws, to this file")
@@ -141,6 +144,8 @@ def main() -> None:
         Path(a.figure).parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(fig, a.figure)
         print(f"copied {fig} -> {a.figure}")
+    elif fig.is_file():
+        print(f"the figure: {fig} (--figure PNG copies it elsewhere)")
 
 
 if __name__ == "__main__":
