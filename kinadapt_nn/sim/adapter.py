@@ -10,6 +10,7 @@ evaluation only and never reaches the controller.
 from __future__ import annotations
 
 from collections.abc import Callable
+from types import SimpleNamespace
 from typing import NamedTuple
 
 import mujoco
@@ -22,7 +23,9 @@ from kinadapt_nn.geometry import rotvec_from_matrix, tilt_rotation
 from kinadapt_nn.known import BORE_AXIS_W
 from kinadapt_nn.robot import JOINT_LIMITS_RAD, Q_HOME_RAD, SERVO_KP, SERVO_KV
 from kinadapt_nn.sim.effects import SensorEffects, truth_config
-from kinadapt_nn.sim.scene import TRUTH_CONTACT_SLOTS, SceneIds, build_model
+from kinadapt_nn.sim.ft_sensor import FIELDS as FT_FIELDS
+from kinadapt_nn.sim.ft_sensor import RealisedSensor, sensor_chain
+from kinadapt_nn.sim.scene import FORCE_SENSOR, TORQUE_SENSOR, TRUTH_CONTACT_SLOTS, SceneIds, build_model
 from kinadapt_nn.sim.socket import N_STATE, socket_params, socket_step
 
 #: Flange "down" orientation: z_f along the bore axis, x_f along x_w (peg square aligned with
@@ -131,7 +134,12 @@ class PegInHoleSim:
         self._q_v = d.qpos[_as_slice(a.qpos_adr)]  # a copy (refreshed in sense) if not contiguous
         self._qdot_v = d.qvel[_as_slice(a.dof_adr)]
         self._views = isinstance(_as_slice(a.qpos_adr), slice) and isinstance(_as_slice(a.dof_adr), slice)
-        self._wrench_v = d.sensordata[a.force_adr : a.force_adr + 6] if a.torque_adr == a.force_adr + 3 else None
+        #: the F/T reading for the motion each step realises (``sim.ft_sensor``), MuJoCo's own at rest
+        self.ft_chain = sensor_chain(self.model, FORCE_SENSOR, TORQUE_SENSOR)
+        self.ft = RealisedSensor(SimpleNamespace(**{f: getattr(d, f)[None] for f in FT_FIELDS}), self.ft_chain,
+                                 cfg.run.dt_s)
+        self._wrench_v = self.ft.wrench[0]
+        self._row0 = np.zeros(1, dtype=np.int64)
         self._ctrl_v = d.ctrl
         self._tip_v = d.site_xpos[a.tip_site]
         self._sens_v = d.sensordata
@@ -164,18 +172,15 @@ class PegInHoleSim:
         self.data.qpos[self.ids.qpos_adr] = self.q_start
         self.data.ctrl[:] = self.q_start
         mujoco.mj_forward(self.model, self.data)
+        self.ft.reset()
         return self.sense()
 
     # -- the interface a real robot offers ---------------------------------------------
     def sense(self) -> SensorSample:
-        """Encoders and the raw F/T reading (copies)."""
+        """Encoders and the raw F/T reading (copies): the reading of the last step's start state with
+        the acceleration the step realised (``sim.ft_sensor``), one physics step behind the encoders."""
         d, a = self.data, self.ids
-        if self._wrench_v is not None:  # force and torque adjacent in sensordata (the scene's order)
-            wrench = self._wrench_v.copy()
-        else:
-            wrench = np.concatenate(
-                [d.sensordata[a.force_adr : a.force_adr + 3], d.sensordata[a.torque_adr : a.torque_adr + 3]]
-            )
+        wrench = self._wrench_v.copy()
         if self.sensor_effects.active:
             self.sensor_effects(float(d.time), wrench)
         if self._views:
@@ -184,7 +189,7 @@ class PegInHoleSim:
 
     def sense_into(self, q: np.ndarray, qdot: np.ndarray, wrench: np.ndarray) -> None:
         """``sense()`` written into the caller's arrays (no new arrays)."""
-        if not (self._views and self._wrench_v is not None):
+        if not self._views:
             o = self.sense()
             q[:], qdot[:], wrench[:] = o.q_rad, o.qdot_rad_s, o.wrench_raw_f
             return
@@ -202,7 +207,9 @@ class PegInHoleSim:
         """One physics step (``mj_step``), the socket contact's wrench applied first when it is on."""
         if self._socket_step is not None:
             self._socket_step(float(self.data.time))
+        self.ft.before_step()
         mujoco.mj_step(self.model, self.data)
+        self.ft.after_step(self._row0)
 
     def bind_socket(self, src) -> Callable[[float], None] | None:
         """The socket contact's wrench for one physics step, ``f(t)``, on this scene's socket state,

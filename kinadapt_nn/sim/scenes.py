@@ -9,7 +9,7 @@ per-call copies. Either way the loop sees the same (B, ...) arrays.
 What it offers the loop, and nothing else:
 
 * :meth:`sense_into` -- what a real robot's sensors hand the controller: encoders and the raw
-  F/T reading, with the hidden sensor effects (``sim.effects.SensorEffects``) and simulated
+  F/T reading (for the motion each step realised: ``sim.ft_sensor``), with the hidden sensor effects (``sim.effects.SensorEffects``) and simulated
   faults (``sim.faults.SensorFaults``) applied, (B, 2n+6) rows;
 * :meth:`apply` and :meth:`step` -- the joint servo set-points, then one physics step (the socket
   contact's wrench first, where that contact model is on);
@@ -34,6 +34,9 @@ from kinadapt_nn.errors import ConfigError
 from kinadapt_nn.robot import SERVO_KP, SERVO_KV
 from kinadapt_nn.sim.adapter import PegInHoleSim, SensorSample, contact_sums
 from kinadapt_nn.sim.faults import SensorFaults
+from kinadapt_nn.sim import ft_sensor
+from kinadapt_nn.sim.ft_sensor import FIELDS as FT_FIELDS
+from kinadapt_nn.sim.ft_sensor import RealisedSensor
 
 #: the fields a socket contact reads and writes (``PegInHoleSim.bind_socket``)
 _SOCKET_FIELDS = ("site_xpos", "xmat", "xipos", "cvel", "subtree_com", "xfrc_applied")
@@ -47,15 +50,16 @@ class StepTruth(NamedTuple):
 
 
 @nb.njit(cache=True)
-def _gather(qpos, qvel, sens, qadr, vadr, fadr, inp):
-    """The controller's input rows [q; qdot; raw F/T] (B, 2n+6) from the (B, .) state buffers."""
+def _gather(qpos, qvel, wrench, qadr, vadr, inp):
+    """The controller's input rows [q; qdot; raw F/T] (B, 2n+6) from the (B, .) state buffers and
+    the (B, 6) F/T readings."""
     n = qadr.shape[0]
     for b in range(inp.shape[0]):
         for j in range(n):
             inp[b, j] = qpos[b, qadr[j]]
             inp[b, n + j] = qvel[b, vadr[j]]
         for j in range(6):
-            inp[b, 2 * n + j] = sens[b, fadr[j]]
+            inp[b, 2 * n + j] = wrench[b, j]
 
 
 @nb.njit(cache=True)
@@ -69,7 +73,7 @@ def _servo(u, q_ref, qdot_ref, kv_over_kp, active):
 
 
 #: the scenes' numba kernels (a compile phase checks they are cached: ``controller.core.cache_probe``)
-KERNELS = (_gather, _servo, contact_sums)
+KERNELS = (_gather, _servo, contact_sums, *ft_sensor.KERNELS)
 
 
 def _bound(fn, args):
@@ -100,12 +104,15 @@ class SceneBatch:
             src = types.SimpleNamespace(**{f: getattr(d, f)[None] for f in ("qpos", "qvel", "ctrl", "sensordata",
                                                                             *_SOCKET_FIELDS)})
             self._data_of = [lambda: d]
+            self.ft = s0.ft  # the F/T reading for the realised motion (``sim.ft_sensor``)
         else:
             self.physics = self._batch(nthread, nthread > 1 if persistent is None else persistent)
             src = types.SimpleNamespace(**{f: self.physics.bind(f) for f in ("qpos", "qvel", "ctrl", "sensordata",
                                                                             *_SOCKET_FIELDS, "ncon", "time")})
             dbuf = mujoco.MjData(s0.model)  # one episode's whole MjData, copied out when needed
             self._data_of = [lambda b=b: self.physics.get_data(b, dbuf) for b in range(self.B)]
+            self.ft = RealisedSensor(types.SimpleNamespace(**{f: self.physics.bind(f) for f in FT_FIELDS}),
+                                     s0.ft_chain, s0.model.opt.timestep)
         self.qpos, self.qvel, self.ctrl, self.sensordata = src.qpos, src.qvel, src.ctrl, src.sensordata
         self._src = src
         #: (B, 3) the true tips, world [m]: a live view (truth side: evaluation only, never the controller's)
@@ -148,7 +155,7 @@ class SceneBatch:
     def _init_kernels(self) -> None:
         ids = self.ids
         self._qadr, self._vadr = np.ascontiguousarray(ids.qpos_adr), np.ascontiguousarray(ids.dof_adr)
-        self._fadr = np.r_[np.arange(ids.force_adr, ids.force_adr + 3), np.arange(ids.torque_adr, ids.torque_adr + 3)]
+        self._all = np.arange(self.B, dtype=np.int64)
         self._kv_over_kp = SERVO_KV / SERVO_KP
         self._gather = None  # bound to the caller's input rows at the first sense_into
         self._servo = None
@@ -159,9 +166,8 @@ class SceneBatch:
         ``inp`` (B, 2n+6), as a real robot gives it: the hidden sensor effects and the simulated
         faults applied to the ``active`` (B,) bool episodes' samples at time ``t`` [s]."""
         if self._gather is None:
-            self._gather = _bound(_gather, (self.qpos, self.qvel, self.sensordata, self._qadr, self._vadr,
-                                            self._fadr, inp))
-        self._gather(self.qpos, self.qvel, self.sensordata, self._qadr, self._vadr, self._fadr, inp)
+            self._gather = _bound(_gather, (self.qpos, self.qvel, self.ft.wrench, self._qadr, self._vadr, inp))
+        self._gather(self.qpos, self.qvel, self.ft.wrench, self._qadr, self._vadr, inp)
         n = self.n
         for b, fx, faults in self._sensor_side:
             if active[b]:
@@ -190,11 +196,18 @@ class SceneBatch:
         if self.physics is None:
             if every_one or active[0]:
                 s = self.sims[0]
+                s.ft.before_step()
                 mujoco.mj_step(s.model, s.data)
-        elif every_one:
+                s.ft.after_step(self._all)
+            return
+        self.ft.before_step()
+        if every_one:
             self.physics.step(None)
+            self.ft.after_step(self._all)
         else:
-            self.physics.step(np.flatnonzero(active))
+            rows = np.flatnonzero(active)
+            self.physics.step(rows)
+            self.ft.after_step(rows.astype(np.int64))
 
     # -- ground truth (evaluation only) -------------------------------------------------------
     def truth_into(self, rows, truth: StepTruth) -> None:
