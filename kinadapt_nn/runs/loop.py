@@ -41,6 +41,7 @@ from kinadapt_nn.runs.monitor import seat_step
 from kinadapt_nn.runs.outcome import sensor_reason, warning_reason
 from kinadapt_nn.sensing import channel_metric
 from kinadapt_nn.sim import scenes
+from kinadapt_nn.sim.adapter import contact_sums
 from kinadapt_nn.sim.scenes import SceneBatch
 
 #: one row per episode: what the watch keeps (:func:`_watch`)
@@ -149,6 +150,30 @@ def _log_sample(j, every_one, active, inp, io):
 
 # a compile phase is cold (and shown) while these are not in numba's cache either
 core.cache_probe((_watch, _log_rows, _log_sample, *scenes.KERNELS))
+
+#: probed kernels that a warm-up's two free-space control steps (``batch.compile_loop``) do not
+#: call -- the contact truth's sums run at a contact only -- with the numba types they are called
+#: with; left out, the cache stays "cold" after the warm-up and every later phase of the process
+#: counted as a (near-zero) compile of its own
+UNREACHED_BY_WARMUP = ((contact_sums, (nb.float64[::1], nb.int64, nb.int64, nb.float64, nb.float64, nb.float64,
+                                       nb.float64)),)
+
+
+def compile_unreached() -> None:
+    """Compile (or load from numba's cache) :data:`UNREACHED_BY_WARMUP` for their types."""
+    for fn, sig in UNREACHED_BY_WARMUP:
+        fn.compile(sig)
+
+
+def new_controllers(cfgs: list[ExperimentCfg], ctrls: list) -> list:
+    """``ctrls`` with each None entry replaced by a new controller of its config, its kernels
+    compiled (or loaded from the cache); inside the caller's compile phase."""
+    out = list(ctrls)
+    for i, (c, k) in enumerate(zip(cfgs, out)):
+        if k is None:
+            out[i] = make_controller(c)
+            out[i].compile_kernels()
+    return out
 
 
 def _entry(fn, args):

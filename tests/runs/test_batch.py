@@ -134,3 +134,40 @@ def test_run_episodes_refuses_configs_that_cannot_share_a_batch():
         run_episodes([load_config(None, []), load_config(None, ["control.gain_trans=2.0"])])
     with pytest.raises(ConfigError, match="scene's structure"):  # the paper's contact: no pairs, pyramidal cone
         run_episodes([load_config(None, []), load_config(None, ["scene.contact_friction_timeconst_s=0"])])
+
+
+def test_a_cold_first_run_prints_and_records_its_compile_once(monkeypatch, tmp_path, capsys):
+    """A cold cache's compile is one phase: one "compiled ... in N s" line, and the record
+    (kinadapt_compile_s.json, which bench_first_run reads) holds the summary's ``compile_time_s``
+    -- not a second, near-zero phase's ("compiled ... in 23 s", then "... in 0 s", record 0.01)."""
+    import json
+
+    from kinadapt_nn.controller import core
+    from kinadapt_nn.runs.batch import run_episodes
+
+    record = tmp_path / "compile.json"
+    monkeypatch.setattr(core, "_compile_record_path", lambda: record)  # not this machine's record
+    monkeypatch.setattr(core, "kernels_cached", lambda: False)  # every phase cold, as a first run's
+    cfg = load_config(None, ["run.tensorboard=false", "run.figure=false", "run.duration_s=0.05"])
+    s = run_episodes([cfg], progress=True)[0].summary
+    err = capsys.readouterr().err
+    assert err.count("compiled the controller's kernels in") == 1, err
+    assert json.loads(record.read_text())["seconds"] == round(s["compile_time_s"], 2) > 0.0
+
+
+def test_the_warm_up_compiles_every_probed_kernel():
+    """After ``compile_loop``'s warm-up (two free-space steps) every kernel a compile phase probes
+    is compiled -- the contact's too -- so the cache reads warm for the rest of the process (a
+    fresh process: nothing else has called them)."""
+    import subprocess
+    import sys
+
+    code = ("from kinadapt_nn.config import load_config\n"
+            "from kinadapt_nn.controller import core\n"
+            "from kinadapt_nn.runs import batch\n"
+            "core.kernels_cached = lambda: False\n"
+            "core._compile_record_path = lambda: None\n"  # not this machine's record
+            "batch.compile_loop(load_config(None, ['run.progress=false']))\n"
+            "print([f.__name__ for f in core._CACHE_PROBES if not f.signatures])\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
+    assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout + out.stderr
