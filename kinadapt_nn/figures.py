@@ -310,8 +310,9 @@ def rollout_figure(trace: Trace, summary: dict, cfg: ExperimentCfg) -> plt.Figur
 
 
 def _rollout_texts(r: _Rollout) -> tuple[str, str]:
-    """The suptitle and the footer (sensed contact's share and switching rate; what was and was
-    not identified, and why, in plain words: the summary's line)."""
+    """The suptitle and the footer (sensed contact's share; the contact's share and switching rate
+    as summary.json records them; what was and was not identified, and why, in plain words: the
+    summary's line)."""
     import textwrap
 
     s = r.summary
@@ -323,17 +324,26 @@ def _rollout_texts(r: _Rollout) -> tuple[str, str]:
     if r.held and theta.shape[1] == 3 and len(theta):
         title += (f"\ntheta held fixed at ({', '.join(f'{1e3 * v:.1f}' for v in theta[-1])}) mm, "
                   f"true offset ({', '.join(f'{1e3 * v:.1f}' for v in r.true_offset)}) mm")
-    t, g = r.t, r.gate
-    duration_s = float(t[-1] - t[0]) if len(t) > 1 else 0.0
-    switches = int(np.count_nonzero(g[1:] != g[:-1]))
-    rate = switches / duration_s if duration_s else 0.0
+    g = r.gate
     share = 100 * g.mean() if len(g) else 0.0
     what = "sensed contact" if r.held else "sensed contact (the law adapts)"
-    lines = [f"{what}: {share:.0f} % of the run, {switches} on/off switches ({rate:.3g} per s)"]
+    lines = ["; ".join(w for w in (f"{what}: {share:.0f} % of the run", _contact_words(s)) if w)]
     ident = (s.get("identification") or {}).get("text")
     if ident:
         lines += textwrap.wrap("identification: " + ident, 190)
     return title, "\n".join(lines)
+
+
+def _contact_words(summary: dict) -> str:
+    """How the peg touched, as summary.json says it (``runs.evaluate.contact_quality``: the
+    simulator's contact from the first touch on) -- the footer's numbers are the record's."""
+    if "contact_transitions_per_s" not in summary:  # a summary from before the field
+        return ""
+    rate = summary["contact_transitions_per_s"]
+    if rate is None:
+        return "no contact (simulator truth)"
+    return (f"contact (simulator truth, from the first touch): {100 * summary['contact_fraction']:.0f} % of the "
+            f"time, {rate:.3g} on/off switches per s, longest {summary['longest_contact_span_s']:.2f} s")
 
 
 def _rollout_axes(held: bool, title_lines: int, footer_lines: int) -> tuple[plt.Figure, np.ndarray]:

@@ -231,3 +231,18 @@ def test_effects_figure_bars_readable_and_before_after_panels_filled():
     assert force.get_ylim()[1] < 100 and _clipped_marks(force)
     assert {"faint: before", *CHANNELS[:3]} <= set(_legend_texts(force))
     plt.close(fig)
+
+
+def test_rollout_footer_says_the_summarys_contact_numbers(default_episode):
+    """The footer's switching rate is summary.json's ``contact_transitions_per_s`` (one
+    computation), not a second count over another signal (it said 0.752 per s, the record 0.488)."""
+    import matplotlib.pyplot as plt
+
+    cfg = load_config(None, ["run.progress=false"])
+    s = default_episode.summary
+    fig = rollout_figure(default_episode.trace, s, cfg)
+    footer = fig.texts[-1].get_text().splitlines()[0]
+    assert f"{s['contact_transitions_per_s']:.3g} on/off switches per s" in footer, footer
+    assert f"{100 * s['contact_fraction']:.0f} % of the time" in footer, footer
+    assert footer.count("per s") == 1, footer
+    plt.close(fig)
