@@ -40,6 +40,11 @@ def _plt():
     return plt
 
 
+#: the x axis of a static log's panels (``[log] static``: its rows, poses at rest, have no clock; the
+#: diagnosis orders them by the direction of gravity in the sensor, ``signals.from_log``)
+STATIC_XLABEL = "pose (grouped by gravity direction)"
+
+
 def _shade(ax, t, mask) -> None:
     if mask.any():
         k = every(len(t), 4 * MAX_POINTS)
@@ -67,21 +72,28 @@ def _mvm_fig(res, setup):
 
     plt = _plt()
     sig = res.signals
-    t = sig.t - sig.t[0]
+    static = bool(getattr(sig, "static", False))  # poses at rest: no clock, no order between rows
+    t = sig.clock if static else sig.t - sig.t[0]  # a static log: the pose index, as the design's rows
+    xlabel = STATIC_XLABEL if static else "time [s]"
     fig, ax_all = plt.subplots(3, 3, figsize=(15, 11), sharex=True, constrained_layout=True)
     ax = ax_all[:2]
     names = ("F_x", "F_y", "F_z", "M_x", "M_y", "M_z")
-    _unexplained_row(ax_all[2], res, setup)
+    _unexplained_row(ax_all[2], res, setup, xlabel)
     for i, a in enumerate(ax.ravel()):
         unit = "N" if i < 3 else "N m"
         _shade(a, t, res.contact)
-        a.plot(*envelope(t, sig.wrench[:, i]), lw=0.6, color="0.3", label="measured")
-        a.plot(*envelope(t, sig.w_nom[:, i]), lw=1.0, color="C0", label="declared tool (model)")
+        if static:  # each pose a point: a line would join poses that are not neighbours in anything
+            k = every(len(t))
+            a.plot(t[k], sig.wrench[k, i], ".", ms=3, color="0.3", label="measured")
+            a.plot(t[k], sig.w_nom[k, i], "x", ms=3, color="C0", label="declared tool (model)")
+        else:
+            a.plot(*envelope(t, sig.wrench[:, i]), lw=0.6, color="0.3", label="measured")
+            a.plot(*envelope(t, sig.w_nom[:, i]), lw=1.0, color="C0", label="declared tool (model)")
         set_robust_ylim(a, t, [sig.wrench[:, i], sig.w_nom[:, i]], unit=unit)
         a.set_ylabel(f"{names[i]} [{unit}]")
         a.set_title(names[i], fontsize=10)
         a.tick_params(labelbottom=True)
-        a.set_xlabel("time [s]")
+        a.set_xlabel(xlabel)
     shared: dict = {}
     for a in ax.ravel():
         hs, ls = a.get_legend_handles_labels()
@@ -97,7 +109,7 @@ def _mvm_fig(res, setup):
     return fig
 
 
-def _unexplained_row(axes, res, setup) -> None:
+def _unexplained_row(axes, res, setup, xlabel: str = "time [s]") -> None:
     """The bottom row of ``model_vs_measurement`` (its docstring)."""
     from kinadapt_nn.figures import set_robust_ylim
 
@@ -133,7 +145,7 @@ def _unexplained_row(axes, res, setup) -> None:
         a.set_title(f"{title}: " + (f"UNEXPLAINED in {', '.join(bad)}" if bad else "explained"), fontsize=9,
                     color="C3" if bad else "k")
         a.set_ylabel(f"residual [{unit}]")
-        a.set_xlabel("time [s]")
+        a.set_xlabel(xlabel)
         if pooled:
             a.legend(fontsize=7, ncol=3, loc="upper left", markerscale=5,
                      title=f"faint: declared model; solid: {what}; dashed: relevant size", title_fontsize=6)

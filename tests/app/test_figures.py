@@ -246,3 +246,28 @@ def test_rollout_footer_says_the_summarys_contact_numbers(default_episode):
     assert f"{100 * s['contact_fraction']:.0f} % of the time" in footer, footer
     assert footer.count("per s") == 1, footer
     plt.close(fig)
+
+
+def test_a_static_logs_residual_figure_is_points_against_the_pose_index():
+    """A static log (``[log] static``: poses at rest, no clock, rows in the diagnosis's canonical
+    order) is drawn against the pose index as points -- not against "time [s]" (its times ran from
+    -2000 to 14000 s) with lines joining poses that are neighbours in nothing."""
+    import matplotlib.pyplot as plt
+
+    n = 60
+    res = _synthetic_result(n=n, spike_at=7)
+    rng = np.random.default_rng(1)
+    t_file = rng.permutation(np.linspace(-2000.0, 14000.0, n))  # the rows' times, in no order
+    res.signals = SimpleNamespace(t=t_file, clock=np.arange(n, dtype=float), static=True, wrench=res.signals.wrench,
+                                  w_nom=res.signals.w_nom)
+    rows = np.arange(0, n, 10)
+    res.design.t_s = np.concatenate([np.repeat(rows, 6), np.repeat(rows, 3)]).astype(float)
+    fig = uf._mvm_fig(res, load_setup(None, ["log.static=true", 'log.time=""']))
+    for a in _visible(fig):
+        assert "pose" in a.get_xlabel() and "time" not in a.get_xlabel(), a.get_xlabel()
+        for ln in a.lines:
+            if ln.get_label() in ("measured", "declared tool (model)"):
+                assert ln.get_linestyle() == "None" and ln.get_marker() not in ("", "None"), ln.get_label()
+                x = np.asarray(ln.get_xdata(), dtype=float)
+                assert x.min() >= 0 and x.max() <= n - 1
+    plt.close(fig)
