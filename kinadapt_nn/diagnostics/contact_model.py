@@ -79,6 +79,23 @@ def socket_terms(contact, R_ws: np.ndarray, p_ws: np.ndarray, tip_s) -> SocketTe
     return SocketTerms(gate, tip_w, disp, rot, n_ax)
 
 
+def declared_contact(setup, R_ws: np.ndarray, p_ws: np.ndarray) -> np.ndarray | None:
+    """(n,) bool: where the declared geometry says the tool can touch -- a declared socket's
+    engagement and/or ``[contact] zone = "entrance"`` (the declared tip below the entrance plane or
+    within ``zone_m`` above it); None when the set-up declares neither. ``R_ws`` (n, 3, 3),
+    ``p_ws`` (n, 3) [m]: the sensor's pose, world."""
+    c = setup.contact
+    tip = np.asarray(setup.tool.tip_sensor_m, dtype=float)
+    out = socket_terms(c, R_ws, p_ws, tip).gate if c.geometry == "socket" else None
+    if c.zone == "entrance":
+        n_ax = np.asarray(c.axis_w, dtype=float)
+        n_ax = n_ax / np.linalg.norm(n_ax)
+        depth = (p_ws + R_ws @ tip - np.asarray(c.entry_w_m, dtype=float)) @ n_ax
+        near = depth >= -c.zone_m
+        out = near if out is None else out | near
+    return out
+
+
 def on_tool_to_sensor(R_ws: np.ndarray, tip_s, f_w: np.ndarray, tau_w: np.ndarray) -> np.ndarray:
     """An environment wrench on the tool (force ``f_w`` (n, 3) [N] at the tip, couple ``tau_w``
     (n, 3) [N m], world) as the change of the wrench the tool exerts on the sensor: (n, 6), sensor

@@ -12,9 +12,15 @@ set-up             from the run's config (what the cell's integrator knows)
 [log]              raw reading, the flange's wrench on the tool (``wrench_acts = "sensor_on_tool"``),
                    not tared (the package tares inside its controller, the log is raw)
 [tool]             the peg (``tool.mass_kg``, a ``side_m`` x ``side_m`` x ``length_m`` box) on the
-                   NOMINAL axis, its tip at the nominal offset ``sensing.nominal_offset_f_m``
-[contact]          ``geometry = "socket"``: the known bore entrance and axis, the nominal map's
-                   stiffnesses ``sensing.stiffness_lat_N_per_m`` / ``stiffness_rot_Nm_per_rad``
+                   NOMINAL axis, its tip at the nominal offset ``sensing.nominal_offset_f_m`` as a
+                   first guess (``tip_known = false``: the controller adapts the tool, so where the
+                   contact wrench pins the tip, the diagnosis uses that point and reports it)
+[contact]          a socket scene (``scene.contact_model = "socket"``): ``geometry = "socket"``, the
+                   known bore entrance and axis, the nominal map's stiffnesses
+                   ``sensing.stiffness_lat_N_per_m`` / ``stiffness_rot_Nm_per_rad``; a bore scene:
+                   ``mode = "exclude"``, ``zone = "entrance"`` (the bore's contacts act along the
+                   peg's side and at the entrance edge, not through the tip, and are often under
+                   the detection threshold: every row where the tip can touch is contact, left out)
 =================  ===========================================================================
 
 The hidden effects (``[effects]``) and the true tool pose are not read: the set-up is the
@@ -57,13 +63,17 @@ def setup_of_run(cfg: ExperimentCfg, effects_files=(), tip_sensor_m=None) -> Set
     dof = 7
     log = LogCfg(q=tuple(f"q{j}" for j in range(1, dof + 1)), qdot=tuple(f"qd{j}" for j in range(1, dof + 1)),
                  wrench_acts="sensor_on_tool", tared=False)
-    contact = ContactDeclCfg(mode="tip", geometry="socket", entry_w_m=tuple(float(v) for v in cfg.scene.bore_entry_w_m),
-                             axis_w=tuple(float(v) for v in BORE_AXIS_W),
-                             stiffness_lat_N_per_m=cfg.sensing.stiffness_lat_N_per_m,
-                             stiffness_rot_Nm_per_rad=cfg.sensing.stiffness_rot_Nm_per_rad)
-    tool = _tool(cfg)
-    if tip_sensor_m is not None:
-        tool = tool.model_copy(update={"tip_sensor_m": tuple(float(v) for v in tip_sensor_m)})
+    entry, axis = tuple(float(v) for v in cfg.scene.bore_entry_w_m), tuple(float(v) for v in BORE_AXIS_W)
+    if cfg.scene.contact_model == "socket":  # the nominal map's own contact model
+        contact = ContactDeclCfg(mode="tip", geometry="socket", entry_w_m=entry, axis_w=axis,
+                                 stiffness_lat_N_per_m=cfg.sensing.stiffness_lat_N_per_m,
+                                 stiffness_rot_Nm_per_rad=cfg.sensing.stiffness_rot_Nm_per_rad)
+    else:  # a rigid bore: its contacts act along the peg's side and at the entrance edge, not through the
+        # tip, and are often lighter than the detection threshold: counted wherever the tip can touch, left out
+        contact = ContactDeclCfg(mode="exclude", zone="entrance", entry_w_m=entry, axis_w=axis)
+    tool = _tool(cfg).model_copy(update={"tip_known": False})  # the controller's nominal tip: a first guess
+    if tip_sensor_m is not None:  # a calibrated tip (a baseline run's): declared known
+        tool = tool.model_copy(update={"tip_sensor_m": tuple(float(v) for v in tip_sensor_m), "tip_known": True})
     setup = SetupCfg(log=log, sensor=SensorCfg(), tool=tool,
                      arm=ArmDeclCfg(mjcf=str(arm_mjcf_path(cfg.scene)), flange_site="flange"), contact=contact)
     if effects_files:

@@ -40,6 +40,7 @@ default; ``examples/setups/`` has complete ones)::
     com_sensor_m = [0.0, 0.0, 0.0]
     inertia_com_kg_m2 = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]   # ixx, iyy, izz, ixy, ixz, iyz about the COM, s axes
     tip_sensor_m = [0.0, 0.0, 0.0]
+    tip_known = true           # false: tip_sensor_m is a first guess; where the contact wrench pins a point, it is the tip
     [arm]                      # one of mjcf / urdf / dh ("" and no dh = the shipped Panda)
     mjcf = ""                  # a MuJoCo MJCF file
     flange_site = "flange"     # MJCF: the site whose frame is the flange
@@ -58,6 +59,8 @@ default; ``examples/setups/`` has complete ones)::
     geometry = "none"          # "socket": a declared compliant contact (its effects are judged, see contact_model)
     entry_w_m = [0.0, 0.0, 0.0]          # socket: a point of its entrance plane, world [m]
     axis_w = [0.0, 0.0, -1.0]            # socket: its axis into the fixture, world (unit)
+    zone = "none"              # "entrance": contact counted wherever the declared tip is below entry_w_m's plane (a bore)
+    zone_m = 0.002             # "entrance": ... or within this above it [m]
     stiffness_lat_N_per_m = 0.0          # socket: lateral spring at the tip [N/m]
     stiffness_rot_Nm_per_rad = 0.0       # socket: angular spring [N m/rad]
     [analysis]
@@ -194,6 +197,10 @@ class ToolDeclCfg(_Cfg):
     com_sensor_m: Vec3 = (0.0, 0.0, 0.0)  # [m] centre of mass in s
     inertia_com_kg_m2: Vec6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # [kg m^2] ixx, iyy, izz, ixy, ixz, iyz about the COM, s axes
     tip_sensor_m: Vec3 = (0.0, 0.0, 0.0)  # [m] the tip (where contacts act) in s
+    #: false: ``tip_sensor_m`` is a first guess (a tool whose geometry is not known, e.g. the one the
+    #: package's controller adapts): where the contact wrench pins a point, that point is the tip for
+    #: the whole diagnosis and its offset from the guess is reported as a finding about the tool
+    tip_known: bool = True
 
     @field_validator("mass_kg", "com_sensor_m", "inertia_com_kg_m2", "tip_sensor_m")
     @classmethod
@@ -320,15 +327,25 @@ class ContactDeclCfg(_Cfg):
     axis_w: Vec3 = (0.0, 0.0, -1.0)  # socket: the axis into the fixture, world (normalised)
     stiffness_lat_N_per_m: float = Field(0.0, ge=0.0)  # [N/m] socket: lateral spring at the tip
     stiffness_rot_Nm_per_rad: float = Field(0.0, ge=0.0)  # [N m/rad] socket: angular spring
+    #: the declared geometry's own account of contact, beside the data's (``detect_force_N``): the
+    #: report uses contact where EITHER says so and names the windows they dispute. "entrance": a
+    #: rigid fixture (a bore) can touch while the declared tip is below its entrance plane
+    #: (``entry_w_m``, ``axis_w``) or within ``zone_m`` above it -- light contacts under the detection
+    #: threshold are then never taken for free space; "none": the data's alone (a declared socket's
+    #: engagement counts in either case)
+    zone: Literal["none", "entrance"] = "none"
+    zone_m: float = Field(0.002, ge=0.0)  # [m] "entrance": the declared tip's distance above the plane that counts
 
     @field_validator("detect_force_N", "margin_s", "entry_w_m", "axis_w", "stiffness_lat_N_per_m",
-                     "stiffness_rot_Nm_per_rad")
+                     "stiffness_rot_Nm_per_rad", "zone_m")
     @classmethod
     def _fin(cls, v):
         return _finite(v, "the value")
 
     @model_validator(mode="after")
     def _socket(self):
+        if self.zone == "entrance" and np.linalg.norm(self.axis_w) < 1e-9:
+            raise ValueError('zone = "entrance" needs axis_w (the fixture\'s axis into it, world; not zero)')
         if self.geometry == "socket":
             if self.mode != "tip":
                 raise ValueError('geometry = "socket" needs mode = "tip" (the socket acts through the declared tip)')

@@ -36,7 +36,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from kinadapt_nn.diagnostics import contact_point, nonlinear, segmentation, stream
+from kinadapt_nn.diagnostics import contact_model, contact_point, nonlinear, segmentation, stream
 from kinadapt_nn.diagnostics import selection as sel
 from kinadapt_nn.diagnostics import signals as sg
 from kinadapt_nn.diagnostics.builtin import BUILTINS, CONTACT_MODEL_EFFECTS
@@ -296,7 +296,10 @@ def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray | None, 
         sigma = noise_sigma(s.wrench, rc) if not s.static else np.array([1.0] * 3 + [0.1] * 3)
 
     progress("free space found from the data (segmentation)")
-    seg = segmentation.free_space(s, excluded_samples(s, setup))
+    declared = contact_model.declared_contact(setup, s.R_ws, s.p_ws)  # the declared geometry's account
+    excl = excluded_samples(s, setup)
+    # one account: the data's free span never takes rows where the declared geometry can touch
+    seg = segmentation.free_space(s, excl if declared is None else excl | declared)
     progress("sensor mount: rotation, mass, centre of mass and offset fitted jointly on free space")
     blocks = sample_blocks(s, rc)
     fit0 = mount.fit(s, seg.free, blocks, sigma, max_blocks=0, residual=s.static)  # the point only (no sd yet)
@@ -308,7 +311,8 @@ def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray | None, 
         e_cal[a:b] = (s.wrench[a:b] - mount.predict(fit0.x, s, np.arange(a, b)))[:, :e_cal.shape[1]]
     contact, _ = detect_contact(e_cal, s.t, setup, rc, seg.free)
     del e_cal
-    excl = excluded_samples(s, setup)
+    accounts = ContactAccounts.of(contact, declared, s.t, setup)
+    contact = accounts.used
     free = ~contact & ~excl if (~contact & ~excl).sum() > 20 else ~excl
     fitm = mount.fit(s, free, blocks, sigma, residual=False)
     # the contact wrench: beyond the calibrated tool and a declared contact geometry's own wrench
@@ -323,10 +327,7 @@ def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray | None, 
             update={"rpy_flange_deg": tuple(float(v) for v in fitm.rpy_deg)})})
         progress("the signals turned into the estimated sensor mount")
         s = sg.in_mount(s, setup) if sg.can_turn(s, setup) else sg.from_log(log, setup)
-    off = np.zeros(6)  # the free-space offset of the force (``with_contact`` takes it out of the contact force)
-    if (~contact).any():
-        off[:3] = np.median(s.wrench[~contact, :3] - s.w_nom[~contact, :3], axis=0)
-    return Calibration(fitm, s.with_contact(contact, off), setup, sigma, how, seg, point)
+    return Calibration(fitm, s.with_contact(contact, _free_offset(s, contact)), setup, sigma, how, seg, point, accounts)
 
 
 def ph_tool_wrench(s: sg.LogSignals, idx: np.ndarray | None = None) -> np.ndarray:
@@ -351,6 +352,40 @@ class Calibration:
     sigma_how: str  #: how ``sigma`` was estimated
     segmentation: segmentation.Segmentation  #: the free-space span found from the data
     contact_point: contact_point.ContactPoint | None  #: where contacts act (None: too little contact)
+    accounts: "ContactAccounts | None" = None  #: the data's and the declared geometry's contact
+
+
+@dataclasses.dataclass(frozen=True)
+class ContactAccounts:
+    """One account of free space and contact: the data's (the force beyond the calibrated tool,
+    ``detect_contact``) and the declared geometry's (``contact_model.declared_contact``); the rows
+    used as contact are those either calls contact, so that no row is fitted as free space while
+    one account says it touches."""
+
+    used: np.ndarray  #: (n,) bool contact as used
+    report: dict  #: the report's ``contact.accounts``
+    data: np.ndarray  #: (n,) bool the data's account
+
+    @staticmethod
+    def of(data: np.ndarray, declared: np.ndarray | None, t: np.ndarray, setup: SetupCfg) -> "ContactAccounts":
+        if declared is None:
+            return ContactAccounts(data, {"data_windows_s": _windows(data, t), "declared": None,
+                                          "used": "the data's (no contact geometry declared)"}, data)
+        used = data | declared
+        only_geom, only_data = declared & ~data, data & ~declared
+        why = []
+        if only_geom.any():
+            why.append(f"{only_geom.mean():.0%} of the log is contact by the declared geometry but under the data's "
+                       f"detection threshold ({setup.contact.detect_force_N:g} N): taken as contact (light contacts "
+                       "there are not free space)")
+        if only_data.any():
+            why.append(f"{only_data.mean():.0%} shows a force beyond the tool model where the declared geometry cannot "
+                       "touch: taken as contact (something touched outside the declared geometry)")
+        return ContactAccounts(used, {
+            "data_windows_s": _windows(data, t), "declared_windows_s": _windows(declared, t),
+            "disputed_windows_s": _windows(only_geom | only_data, t),
+            "used": "contact where either account says so" + ("; " + "; ".join(why) if why else
+                                                              " (the two agree)")}, data)
 
 
 def _tip_consistent(declared: SetupCfg, point) -> tuple[bool, float]:
@@ -365,20 +400,42 @@ def _tip_consistent(declared: SetupCfg, point) -> tuple[bool, float]:
     return bool(z < 3.0 or np.linalg.norm(d) < 0.002), float(np.linalg.norm(d))
 
 
-def _effective_tip(s: sg.LogSignals, declared: SetupCfg, point) -> tuple[sg.LogSignals, SetupCfg]:
+def _effective_tip(log, cal: "Calibration", declared: SetupCfg) -> "Calibration":
     """The tip the contact rows use: the declared one; where none is declared ([tool] tip_sensor_m
-    left at 0) and the contact wrench pins a point (every direction determined), that point
-    (``effective_setup.tip_used``), and the tip check tests it."""
-    setup = s.setup
+    left at 0) or it is a first guess ([tool] tip_known = false) and the contact wrench pins a point
+    (every direction determined), that point (``effective_setup.tip_used``), and the tip check tests
+    it. A declared contact geometry's wrench is computed again at the point (its lever and anchor
+    move with the tip). A known declared tip is kept (and tested): the point is estimated before any
+    effect, so it would absorb an effect that acts in contact (crosstalk)."""
+    s, setup, point = cal.signals, cal.setup, cal.contact_point
     if point is None or point.undetermined_along_s is not None or setup.contact.mode != "tip":
-        return s, setup
-    if any(declared.tool.tip_sensor_m):  # a declared tip is kept (and tested): the point is estimated
-        return s, setup  # before any effect, so it would absorb an effect that acts in contact (crosstalk)
+        return cal
+    if any(declared.tool.tip_sensor_m) and declared.tool.tip_known:
+        return cal
     from kinadapt_nn.diagnostics.physical import tip_moment_map
 
     tip = tuple(float(v) for v in point.point_s_m)
     setup = setup.model_copy(update={"tool": setup.tool.model_copy(update={"tip_sensor_m": tip})})
-    return dataclasses.replace(s, setup=setup, tip_map=tip_moment_map(np.asarray(tip))), setup
+    acc = cal.accounts
+    if acc is not None and "declared_windows_s" in acc.report:
+        # the declared geometry's account at the point
+        acc = ContactAccounts.of(acc.data, contact_model.declared_contact(setup, s.R_ws, s.p_ws), s.t, setup)
+        s = s.with_contact(acc.used, _free_offset(s, acc.used))
+    if setup.contact.declared_geometry:  # its anchor and lever at the point: the signals again
+        contact = s.contact
+        s = sg.from_log(log, setup)
+        s = s.with_contact(contact, _free_offset(s, contact))
+    else:
+        s = dataclasses.replace(s, setup=setup, tip_map=tip_moment_map(np.asarray(tip)))
+    return dataclasses.replace(cal, signals=s, setup=setup, accounts=acc)
+
+
+def _free_offset(s: sg.LogSignals, contact: np.ndarray) -> np.ndarray:
+    """(6,) the free-space offset of the force beyond the declared model (``LogSignals.with_contact``)."""
+    off = np.zeros(6)
+    if (~contact).any():
+        off[:3] = np.median(s.wrench[~contact, :3] - s.w_nom[~contact, :3], axis=0)
+    return off
 
 
 def effective_setup(declared: SetupCfg, used: SetupCfg, fitm, point) -> dict:
@@ -398,8 +455,16 @@ def effective_setup(declared: SetupCfg, used: SetupCfg, fitm, point) -> dict:
         out["contact_point"]["declared_tip_distance_m"] = dist
         out["contact_point"]["declared_tip_consistent"] = ok
     out["tip_used_sensor_m"] = [float(v) for v in used.tool.tip_sensor_m]
-    out["tip_used"] = ("the declared tip" if tuple(used.tool.tip_sensor_m) == tuple(declared.tool.tip_sensor_m)
-                       else "the estimated contact point (the declared tip contradicts it)")
+    same = tuple(used.tool.tip_sensor_m) == tuple(declared.tool.tip_sensor_m)
+    out["tip_used"] = ("the declared tip" if same else
+                       "the estimated contact point ([tool] tip_known = false: the declared tip is a first guess)"
+                       if not declared.tool.tip_known else "the estimated contact point (no tip declared)")
+    if not same and point is not None:  # a finding about the tool: where its tip is, against the declared
+        d = np.asarray(used.tool.tip_sensor_m) - np.asarray(declared.tool.tip_sensor_m)
+        out["tool_tip"] = {"tip_sensor_m": [float(v) for v in used.tool.tip_sensor_m],
+                           "sd_m": [float(v) for v in point.sd_m],
+                           "declared_sensor_m": [float(v) for v in declared.tool.tip_sensor_m],
+                           "difference_m": [float(v) for v in d], "distance_m": float(np.linalg.norm(d))}
     return out
 
 
@@ -500,8 +565,8 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
     declared = setup
     # the log's signals held by ``calibrate`` alone: it can let them go once it has them in the estimated mount
     cal = calibrate(log, sg.from_log(log, setup, progress), setup, None, rc, progress)
-    s, setup = _effective_tip(cal.signals, declared, cal.contact_point)
-    cal = dataclasses.replace(cal, signals=s, setup=setup)
+    cal = _effective_tip(log, cal, declared)
+    s, setup = cal.signals, cal.setup
     chk = _checks(cal, declared)
     excite = {n: lib[n].excite for n in names}
     excite["_params"] = {n: lib[n].params for n in names}
@@ -665,7 +730,7 @@ def _base_report(log, declared: SetupCfg, cal: Calibration, chk: Checks, rd: Ran
         "library": {n: {"source": lib[n].source, "doc": lib[n].doc,
                         "params": dict(zip(lib[n].params, lib[n].units)), "judged": n in rd.names} for n in lib},
         "contact": {"fraction": float(s.contact.mean()), "windows_s": _windows(s.contact, s.t),
-                    "rows": rd.contact_rows},
+                    "rows": rd.contact_rows, "accounts": None if cal.accounts is None else cal.accounts.report},
         "segmentation": cal.segmentation.to_json(),
         "effective_setup": effective_setup(declared, setup, cal.fit, cal.contact_point),
         "noise_sigma": dict(zip(FREE_CHANNELS, (float(v) for v in cal.sigma))),
@@ -769,6 +834,9 @@ def _rank(rk: _RankCtx, s: sg.LogSignals, names: list[str]):
         fitted += s.w_nom[:, :3]
         new_contact, new_off = detect_contact(-fitted, s.t, setup, rk.rc, ~s.contact)
         del fitted
+        declared = contact_model.declared_contact(setup, s.R_ws, s.p_ws)
+        if declared is not None:  # the declared geometry's account stands (``ContactAccounts``)
+            new_contact |= declared
         if np.mean(new_contact != s.contact) < 0.005:
             break
         s = s.with_contact(new_contact, new_off)
@@ -883,6 +951,7 @@ def summary_text(rep: dict) -> str:
                         "barely changed direction)" if cpt["undetermined_along_sensor"] else "")
                      + ("" if cpt["declared_tip_consistent"] else
                         f", {1000 * cpt['declared_tip_distance_m']:.0f} mm from the declared tip") + ".")
+    parts.extend(_accounts_text(rep))
     pres = [e for e in rep["ranking"] if e["verdict"] == "present"]
     und = [e for e in rep["ranking"] if e["verdict"] == "cannot_decide" and e.get("judged", True)]
     if pres:
@@ -915,6 +984,21 @@ def summary_text(rep: dict) -> str:
         parts.append(f"With {', '.join(rep['added'])} added, the residual falls from {b:.3g} to {a:.3g} "
                      "(noise-weighted RMS, all rows).")
     return " ".join(p for p in parts if p)
+
+
+def _accounts_text(rep: dict) -> list[str]:
+    """The tool's tip where the data put it, and the contact account where the two accounts disagree."""
+    out = []
+    tt = (rep.get("effective_setup") or {}).get("tool_tip")
+    if tt:
+        out.append("The tool's tip is there, not at the declared first guess ([tool] tip_known = false): "
+                   + ", ".join(f"{a} {1000 * v:+.2f} ± {1000 * e:.2g} mm" for a, v, e in
+                               zip("xyz", tt["difference_m"], tt["sd_m"]))
+                   + " from it; contact effects are judged at it.")
+    acc = (rep.get("contact") or {}).get("accounts")
+    if acc and acc.get("disputed_windows_s"):
+        out.append("Free space and contact: " + acc["used"] + ".")
+    return out
 
 
 def _spans_text(cov: dict) -> str:
