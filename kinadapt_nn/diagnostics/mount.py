@@ -619,10 +619,13 @@ def predict(x: np.ndarray, s, idx: np.ndarray | None = None, chunk: int = 50_000
 
 def refine_rotation(d: MountData, starts: list[np.ndarray], iters: int = 8) -> np.ndarray:
     """The rotation ``D`` (3, 3) of the fit on ``d``: Gauss-Newton (as the fit, ``iters`` steps)
-    from each start and from the closed-form start of the forces; the lowest robust cost wins."""
+    from each start and from the closed-form start of the forces; the lowest robust cost with a
+    positive mass wins (a weakly turned sensor leaves a mirror branch, ``D`` turned by 180 deg and
+    ``-m``, as in ``fit``), the lowest of all where none has one."""
     lin = _linear_start(d)
     starts = [*starts, *([lin] if lin is not None and np.all(np.isfinite(lin)) else [])]
-    return min((_gauss_newton(d, D0, iters) for D0 in starts), key=lambda r: r[2])[0]
+    ends = [_gauss_newton(d, D0, iters) for D0 in starts]
+    return min(ends, key=lambda r: (r[1][0] <= 0, r[2]))[0]
 
 
 def fit_at(D: np.ndarray, d: MountData, iters: int = 8) -> tuple[np.ndarray, np.ndarray]:

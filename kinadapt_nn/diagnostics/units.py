@@ -11,8 +11,13 @@ plausible (``score``, the sum of):
 
 * the tool's mass within a factor ``DECLARED_FACTOR`` of ``[tool] mass_kg`` (not declared:
   within ``MASS_RANGE_KG``);
-* its centre of mass within ``DECLARED_FACTOR`` of ``|[tool] com_sensor_m|`` (not declared: within
-  ``COM_RANGE_M``), where the log pins it (``|m c|`` beyond ``SIGNIFICANT_SD`` sd);
+* its centre of mass -- the moment arm of its weight, ``|m c| / m`` -- within ``DECLARED_FACTOR`` of
+  ``|[tool] com_sensor_m|`` (not declared: within ``COM_RANGE_M``), where the log pins it (``|m c|``
+  beyond ``SIGNIFICANT_SD`` sd). ``m c`` is read from the torques alone (``moment_arm``: ``M = m c x
+  g_a + b_M`` and, on a moving log, a free inertia's moments), whose significance no unit changes:
+  the joint fit also reads ``m c`` from the forces a moving tool's turn exerts, and under a torque
+  unit a thousand times off the two disagree and the robust fit drops the torques (a moving log's
+  first moment then looked undetermined, its moment arm of 39 m unseen);
 * a moving log: the free-space wrench fitted within ``MISFIT_OK`` times the smallest rms misfit
   any pair leaves, or the log's own sample noise (second differences, ``signals.sample_noise``,
   scaled with the unit) if larger. The declared inertia's moments ``I_O alpha + omega x I_O omega``
@@ -97,9 +102,60 @@ def _scale(fu: str, tu: str, setup) -> np.ndarray:
     return np.array([kf] * 3 + [kt] * 3)
 
 
-def _candidate(fu: str, tu: str, d: mount.MountData, D: np.ndarray, s, setup, pinned: bool,
+class MomentArm(NamedTuple):
+    """The tool's first moment as the torques alone see it (``moment_arm``), in the declared units."""
+
+    mc: np.ndarray  #: (3,) [kg m as declared] m c in the sensor frame
+    sd: np.ndarray  #: (3,) its sd (the larger of the information and a delete-one-block jackknife)
+
+    @property
+    def pinned(self) -> bool:
+        """``|m c|`` beyond ``SIGNIFICANT_SD`` sd: the log determines the moment arm (unit-free)."""
+        return bool(np.linalg.norm(self.mc) > SIGNIFICANT_SD * np.linalg.norm(self.sd))
+
+
+def moment_arm(D: np.ndarray, d: mount.MountData, blocks: int = 10) -> MomentArm:
+    """The first moment from the torques alone at the rotation ``D`` (3, 3): ``M = (m c) x g_a + b_M``
+    and, where the samples turn the sensor, ``- I alpha - omega x (I omega)`` with the inertia about
+    the sensor origin free (Atkeson, An & Hollerbach 1986, the moment rows); least squares, Huber
+    reweighted. A torque unit scales ``m c`` and its sd alike: whether it is pinned does not depend
+    on the unit, and ``|m c| / m`` under each candidate is the tool's moment arm in metres."""
+    ga, om, al = d.ga @ D, d.omega @ D, d.alpha @ D  # (n, 3) rows: D^T v
+    n = len(ga)
+    moves = bool(np.any(om) or np.any(al))
+    A = np.zeros((n, 3, 12 if moves else 6))  # [m c, b_M, I (6, moving logs)]
+    A[:, 0, 1], A[:, 0, 2], A[:, 1, 2] = ga[:, 2], -ga[:, 1], ga[:, 0]  # (m c) x g_a = -[g_a]x (m c)
+    A[:, 1, 0], A[:, 2, 0], A[:, 2, 1] = -ga[:, 2], ga[:, 1], -ga[:, 0]
+    A[:, :, 3:6] = np.eye(3)
+    if moves:
+        A[:, :, 6:] = -mount._inertia_moment(om, al)
+    w = d.w[3:]
+    y = d.r[:, 3:]
+
+    def solve(i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        rw = np.ones((len(i), 3))
+        for _ in range(4):
+            sw = w * np.sqrt(rw)
+            x = mount._normal_solve((A[i] * sw[:, :, None]).reshape(-1, A.shape[2]), (y[i] * sw).reshape(-1))
+            e = ((y[i] - np.einsum("nik,k->ni", A[i], x)) * w).reshape(-1)
+            a = np.abs(e)
+            rw = np.where(a <= mount.HUBER_K, 1.0, mount.HUBER_K / np.maximum(a, 1e-300)).reshape(-1, 3)
+        return x, e
+
+    x, e = solve(np.arange(n))
+    J = (A * w[None, :, None]).reshape(-1, A.shape[2])
+    sd = np.sqrt(np.maximum(np.diag(mount._info_cov(J, e))[:3], 0.0))
+    groups = np.array_split(np.arange(n), blocks) if n >= 4 * blocks else []
+    if groups:  # contiguous samples: a moving log's correlated residual makes the information sd small
+        reps = [solve(np.setdiff1d(np.arange(n), g))[0][:3] for g in groups]
+        sd = np.maximum(sd, mount._jackknife_sd(reps))
+    return MomentArm(x[:3], sd)
+
+
+def _candidate(fu: str, tu: str, d: mount.MountData, D: np.ndarray, s, setup, arm: MomentArm,
                peaks: tuple[float, float]) -> UnitCandidate:
-    """One unit pair (``peaks``: the largest |force| and |moment| the log reads, in its units)."""
+    """One unit pair (``arm``: the torques' first moment as declared; ``peaks``: the largest |force|
+    and |moment| the log reads, in its units)."""
     k = _scale(fu, tu, setup)
     dk = d._replace(r=d.r * k, w=d.w / k)
     theta, res = mount.fit_at(D, dk, iters=5)
@@ -110,7 +166,7 @@ def _candidate(fu: str, tu: str, d: mount.MountData, D: np.ndarray, s, setup, pi
     m_decl, c_decl = float(setup.tool.mass_kg), float(np.linalg.norm(setup.tool.com_sensor_m))
     lo, hi = _band(m_decl, MASS_RANGE_KG)
     score, dist = _outside(m, lo, hi), abs(math.log10(m / math.sqrt(lo * hi)))
-    com = float(np.linalg.norm(theta[1:4]) / m) if pinned else None
+    com = float(np.linalg.norm(arm.mc) * k[3] / m) if arm.pinned else None  # the moment arm of the weight [m]
     if com is not None:
         lo, hi = _band(c_decl, COM_RANGE_M)
         score += _outside(max(com, 1e-12), lo, hi)
@@ -141,8 +197,7 @@ def check(fitm: mount.MountFit, s, setup, sigma: np.ndarray) -> UnitCheck:
     noise = np.asarray(sigma, dtype=float) if s.static else sample_noise(s.wrench)
     noise = np.where(noise > 0, noise, sigma)
     d = _free_data(s, setup, noise)
-    mc_sd = float(np.linalg.norm(fitm.sd[4:7]))
-    pinned = float(np.linalg.norm(fitm.x[4:7])) > SIGNIFICANT_SD * mc_sd
+    arm = moment_arm(D, d)
     cands = []
     peaks = (float(np.max(np.abs(s.wrench[:, :3]))), float(np.max(np.abs(s.wrench[:, 3:]))))
     for tu in TORQUE_UNITS:
@@ -152,7 +207,7 @@ def check(fitm: mount.MountFit, s, setup, sigma: np.ndarray) -> UnitCheck:
             # fitted again for this unit (a static log's fit does not depend on a unit)
             k = _scale(setup.log.force_unit, tu, setup)
             Dt = mount.refine_rotation(d._replace(r=d.r * k, w=d.w / k), [D, np.eye(3)])
-        cands += [_candidate(fu, tu, d, Dt, s, setup, pinned, peaks) for fu in FORCE_UNITS]
+        cands += [_candidate(fu, tu, d, Dt, s, setup, arm, peaks) for fu in FORCE_UNITS]
     if not s.static:
         cands = _with_misfit(cands)
     lf, lt = setup.log.force_unit, setup.log.torque_unit
@@ -194,4 +249,4 @@ def _message(declared: UnitCandidate, likely: UnitCandidate, setup) -> str:
             + " and ".join(fix))
 
 
-__all__ = ["UnitCandidate", "UnitCheck", "check"]
+__all__ = ["MomentArm", "UnitCandidate", "UnitCheck", "check", "moment_arm"]

@@ -25,10 +25,12 @@ def _skew(v):
     return np.cross(np.eye(3), v)
 
 
-def _log(units_logged=("N", "N m"), declared=("N", "N m"), moving=False, tool=TOOL, mass=MASS, com=COM, n=600, seed=0):
+def _signals(units_logged=("N", "N m"), declared=("N", "N m"), moving=False, tool=TOOL, mass=MASS, com=COM, n=600,
+             seed=0):
     """Samples of the tool's wrench on the sensor in ``units_logged``, with a setup declaring
     ``declared``. Static: random orientations at rest. Moving: 500 Hz, gravity turning through s
-    while the sensor spins and accelerates (smooth, so that second differences see the noise)."""
+    while the sensor spins and accelerates (smooth, so that second differences see the noise). -> (signals, noise
+    sigma (6,) in the declared units)."""
     rng = np.random.default_rng(seed)
     z = np.zeros((n, 3))
     if moving:
@@ -53,9 +55,14 @@ def _log(units_logged=("N", "N m"), declared=("N", "N m"), moving=False, tool=TO
                               f"log.static={'false' if moving else 'true'}", *(() if moving else ['log.time=""'])])
     s = SimpleNamespace(g_s=g, a_s=acc, omega_s=omega, alpha_s=alpha, wrench=wrench, setup=setup, n=n,
                         static=not moving, contact=np.zeros(n, bool))
-    sigma = SIGMA * as_declared / per_unit
-    fitm = mount.fit(s, np.ones(n, bool), np.arange(n) % 20, sigma, max_blocks=0)
-    return units.check(fitm, s, setup, sigma)
+    return s, SIGMA * as_declared / per_unit
+
+
+def _log(*args, **kwargs) -> units.UnitCheck:
+    """The units check of ``_signals(*args, **kwargs)``."""
+    s, sigma = _signals(*args, **kwargs)
+    fitm = mount.fit(s, np.ones(s.n, bool), np.arange(s.n) % 20, sigma, max_blocks=0)
+    return units.check(fitm, s, s.setup, sigma)
 
 
 @pytest.mark.parametrize("moving", [False, True])
@@ -101,3 +108,16 @@ def test_a_sensor_range_rules_out_a_unit():
     """Torques in N mm read as N m exceed a 10 N m sensor's range a thousandfold."""
     c = _log(("N", "N mm"), ("N", "N m"), tool=[*TOOL, "sensor.range_torque_Nm=10.0"])
     assert c.declared.score > 3 and c.likely.torque_unit == "N mm"
+
+
+def test_the_moment_arm_is_read_from_the_torques_whatever_their_unit():
+    """``moment_arm``: the first moment from the torques alone; a torque unit scales it and its sd
+    alike (pinned either way), and it is the tool's ``m c`` -- the centre of mass is its arm against
+    the weight (a moving log: the inertia's moments fitted beside it)."""
+    for moving in (False, True):
+        s, _ = _signals(moving=moving)
+        for k in (1.0, 1000.0):
+            d = units._free_data(s, s.setup, SIGMA)
+            d = d._replace(r=d.r * np.r_[1, 1, 1, k, k, k], w=d.w / np.r_[1, 1, 1, k, k, k])
+            arm = units.moment_arm(np.eye(3), d)
+            assert arm.pinned and np.allclose(arm.mc / k, MASS * COM, atol=3e-3), (moving, k, arm)
