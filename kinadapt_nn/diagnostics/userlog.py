@@ -567,7 +567,7 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
     cal = calibrate(log, sg.from_log(log, setup, progress), setup, None, rc, progress)
     cal = _effective_tip(log, cal, declared)
     s, setup = cal.signals, cal.setup
-    chk = _checks(cal, declared)
+    chk = _checks(cal, declared, log)
     excite = {n: lib[n].excite for n in names}
     excite["_params"] = {n: lib[n].params for n in names}
     rk = _RankCtx(lib, cal.sigma, rc, sc, excite, chk.block, {}, progress)
@@ -625,17 +625,21 @@ class Checks:
     unit_msg: str | None  #: the wrench units look wrong
     mount_msg: str | None  #: the declared mount is off by more than a first-order rotation
     block: str | None  #: the reason every verdict is ``cannot_decide`` (None: judge)
+    time_msg: str | None = None  #: the time column's unit looks wrong (``timeunit``)
 
 
-def _checks(cal: Calibration, declared: SetupCfg) -> Checks:
-    """Sign, units and the mount's plausibility (``Checks``)."""
-    from kinadapt_nn.diagnostics import mount, units
+def _checks(cal: Calibration, declared: SetupCfg, log=None) -> Checks:
+    """Sign, the time and wrench units (``log``: the log as read, for its time) and the mount's
+    plausibility (``Checks``)."""
+    from kinadapt_nn.diagnostics import mount, timeunit, units
 
     fitm, s, setup = cal.fit, cal.signals, cal.setup
     check = sign_check(fitm, s, setup)
     sensor_mount = dict(fitm.report)
     why_not = mount.plausibility(fitm, setup)
     unit_msg = units.check(fitm, s, setup, cal.sigma).message
+    time_chk = None if log is None else timeunit.check(log, declared)
+    time_msg = None if time_chk is None else time_chk.message
     sensor_mount["plausible"] = not why_not
     heavy = mount.heavier_than_declared(fitm, setup)
     if heavy:
@@ -657,13 +661,15 @@ def _checks(cal: Calibration, declared: SetupCfg) -> Checks:
     block = None
     if not check["ok"]:
         block = "the sign check failed: " + check["message"]
+    elif time_msg:
+        block = "the time unit looks wrong: " + time_msg
     elif unit_msg:
         block = "the wrench units look wrong: " + unit_msg
     elif why_not:
         block = sensor_mount["warning"]
     elif mount_msg:
         block = mount_msg
-    return Checks(check, sensor_mount, unit_msg, mount_msg, block)
+    return Checks(check, sensor_mount, unit_msg, mount_msg, block, time_msg)
 
 
 class _RankCtx(NamedTuple):
@@ -738,8 +744,8 @@ def _base_report(log, declared: SetupCfg, cal: Calibration, chk: Checks, rd: Ran
         "sensor_mount": chk.sensor_mount,
         "sign_check": chk.sign,
         "tip_contact_check": rd.fit_check,
-        "warnings": [m for m in (chk.sign.get("message"), chk.unit_msg, chk.sensor_mount.get("warning"), chk.mount_msg,
-                                 chk.sensor_mount.get("mass_note"), rd.fit_check.get("message")) if m],
+        "warnings": [m for m in (chk.sign.get("message"), chk.time_msg, chk.unit_msg, chk.sensor_mount.get("warning"),
+                                 chk.mount_msg, chk.sensor_mount.get("mass_note"), rd.fit_check.get("message")) if m],
         "blocked": chk.block,
         "ranking": entries + [_not_judged(n) for n in CONTACT_MODEL_EFFECTS if n not in rd.names],
         "not_judged": [{"effect": n, "reason": NOT_JUDGED} for n in CONTACT_MODEL_EFFECTS if n not in rd.names],

@@ -148,6 +148,8 @@ def _check(path: Path, tmp_path: Path) -> None:
     cp = rep["effective_setup"]["contact_point"]  # where contacts act: estimated with its sd, not assumed
     assert cp is not None and np.all(np.isfinite(cp["sd_m"])) and cp["samples"] > 500
     assert np.linalg.norm(cp["point_sensor_m"]) < 0.3  # on a tool the hand holds
+    # declared right: neither the wrench units nor the time unit is called wrong
+    assert not any("torque_unit" in w or "force_unit" in w or "time_scale_s" in w for w in rep["warnings"]), rep["warnings"]
 
 
 @pytest.mark.parametrize("name", ["20160930-HIRO_ERROR-02", "20160930-HIRO_ERROR-06"])
@@ -196,3 +198,46 @@ def test_cli_pools_several_logs_and_names_the_odd_one(tmp_path):
     assert [c["log"] for c in p["contradicting"]] == ["20160930-HIRO_ERROR-02"]
     assert sorted(p["agreeing"]) == ["20160930-HIRO_ERROR-06", "20160930-HIRO_ERROR-10"]
     assert 0.40 < p["pooled"]["tool_mass_kg"] < 0.48
+
+
+def _scaled(name: str, tmp_path: Path, torque: float = 1.0, time: float = 1.0) -> Path:
+    """Trial ``name`` with its torque columns times ``torque`` and its time column times ``time``."""
+    src = REAL / "logs" / f"{name}.csv"
+    d = np.loadtxt(src, delimiter=",", skiprows=1)
+    d[:, 0] *= time
+    d[:, 10:13] *= torque
+    out = tmp_path / f"{name}-t{time:g}-m{torque:g}.csv"
+    np.savetxt(out, d, delimiter=",", header=src.read_text().splitlines()[0], comments="", fmt="%.10g")
+    return out
+
+
+def _unit_check(path: Path, tmp_path: Path):
+    from kinadapt_nn.diagnostics import readers, signals, units
+    from kinadapt_nn.diagnostics.setup import load_setup
+    from kinadapt_nn.diagnostics.userlog import RowCfg, calibrate
+
+    f = tmp_path / "hiro.toml"
+    f.write_text(SETUP.format(urdf=URDF.as_posix()))
+    setup = load_setup(f)
+    log = readers.read_log(path, setup)
+    cal = calibrate(log, signals.from_log(log, setup), setup, None, RowCfg(), lambda msg: None)
+    return units.check(cal.fit, cal.signals, cal.setup, cal.sigma)
+
+
+def test_torques_in_n_mm_declared_n_m_are_named_on_a_moving_trial(tmp_path):
+    """Trial 03 (free space ~0.6 N from any gravity model: the misfit cannot tell a torque unit) with
+    its torques x1000 and declared in N m: the tool's weight acts 39 m from the sensor as declared,
+    40 mm in N mm -- named; the trial as logged draws no warning (moment arm 40 mm)."""
+    name = "20160930-HIRO_ERROR-03"
+    wrong = _unit_check(_scaled(name, tmp_path, torque=1000.0), tmp_path)
+    assert wrong.message is not None and 'torque_unit = "N mm"' in wrong.message, wrong
+    assert wrong.declared.com_m > 10.0 and 0.02 < wrong.likely.com_m < 0.08
+    right = _unit_check(REAL / "logs" / f"{name}.csv", tmp_path)
+    assert right.message is None and 0.02 < right.declared.com_m < 0.08, right
+
+
+def test_time_in_ms_declared_as_seconds_is_named(tmp_path):
+    """Trial 06 with its time column in ms read as seconds: 0.2 samples per s and joints at
+    0.0002 rad/s -- the diagnosis is blocked with the setting that fits."""
+    rep = _diagnose(_scaled("20160930-HIRO_ERROR-06", tmp_path, time=1000.0), tmp_path)
+    assert rep["blocked"] and "time_scale_s = 0.001" in rep["blocked"], rep["blocked"]
