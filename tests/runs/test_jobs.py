@@ -95,3 +95,28 @@ def test_a_local_ray_is_the_runners_own_and_stops_with_it():
     assert not ray.is_initialized()
     gone, alive = psutil.wait_procs(own, timeout=30)
     assert not alive
+
+
+def test_the_bar_says_what_it_waits_for_at_once_and_times_the_work_only(capsys):
+    """``WorkBar``: the waiting line comes before any work (the workers' start-up is no part of the
+    bar's clock: the bar starts at the first credited work), and the remaining time shows only
+    once ETA_AFTER of the work is done -- never a rate from the first sliver of an episode."""
+    from kinadapt_nn.runs.jobs import ETA_AFTER, WorkBar
+
+    bar = WorkBar("demo", 100, 0, "episode", "starting 2 worker processes")
+    first = capsys.readouterr().err
+    assert first == "demo: starting 2 worker processes ...\n" and bar.bar is None  # no bar, no clock yet
+    bar.update(0.001)
+    assert bar.bar is not None and "<" not in bar.bar.bar_format
+    bar.update(100 * ETA_AFTER)
+    assert "<{remaining}" in bar.bar.bar_format
+    bar.close()
+    err = capsys.readouterr().err
+    assert "100.0/100" not in err and re.search(r"demo:\s+\d+%.*5\.0/100 episodes \[\d\d:\d\d<", err), err
+
+
+def test_a_run_prints_its_waiting_line_before_its_bar(capsys):
+    with Runner(1, progress=True) as r:
+        r.run(_reporting, [Task(jobs=(1, 2), episodes=2)], "demo")
+    err = capsys.readouterr().err
+    assert err.index("demo: starting 1 worker process ...") < err.index("demo:  ")
