@@ -259,18 +259,22 @@ def part_qp(out: Path, ex: Runner) -> dict:
 
 
 # -------------------------------------------------------------------------------------- video
-def part_video(out: Path, ex: Runner) -> dict:
-    """Render the default run in a fresh process (MUJOCO_GL must be set before mujoco loads)."""
+def part_video(out: Path, ex: Runner, progress: Callable[[str], None] | None = None) -> dict:
+    """Render the default run in a fresh process (MUJOCO_GL must be set before mujoco loads);
+    ``progress(msg)`` told as each of its two steps (simulate, render) starts."""
     import os
     import subprocess
     import sys
 
+    say = progress or (lambda msg: None)
     run = out / "run_adjoint"
+    say("video: simulating the default run (kinadapt online)")
     rc = subprocess.run([sys.executable, "-m", "kinadapt_nn.app.cli", "online", "--out", str(run), "--quiet",
                          "--overwrite", "--set", "run.tensorboard=false"], capture_output=True, text=True).returncode
     env = dict(os.environ)
     env.setdefault("MUJOCO_GL", "egl")
     env.pop("DISPLAY", None)
+    say("video: rendering rollout.gif (kinadapt view)")
     p = subprocess.run([sys.executable, "-m", "kinadapt_nn.app.cli", "view", str(run), "--out", str(out / "rollout.gif"),
                         "--fps", "12.5", "--width", "400", "--height", "300", "--quiet", "--overwrite"],
                        env=env, capture_output=True, text=True)
@@ -331,11 +335,13 @@ def run_reproduce(out: Path, only: str | None = None, jobs: int = 2,
                   progress: Callable[[str], None] | None = None) -> dict:
     """Run the parts (all, or ``only``) on ``jobs`` worker processes into ``out``; ``progress(msg)``
     is told when each part starts."""
+    from functools import partial
+
     from kinadapt_nn.runio import write_json
 
     parts = [only] if only else list(PARTS)
     funcs = {"rollout": part_rollout, "observability": part_observability, "gain_sweep": part_gain_sweep,
-             "ablations": part_ablations, "qp": part_qp, "video": part_video}
+             "ablations": part_ablations, "qp": part_qp, "video": partial(part_video, progress=progress)}
     result: dict = {}
     # one pool for every part; ex.map(fn, items) runs fn on the workers, a bar per call with progress
     with Runner(jobs, progress=progress is not None) as ex:

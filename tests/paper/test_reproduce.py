@@ -69,3 +69,24 @@ def test_view_renders_a_gif_or_says_why(tmp_path):
     else:
         assert p.returncode == 2 and p.stderr.count("\n") == 1 and "MUJOCO_GL" in p.stderr
     assert main(["view", str(tmp_path / "nope"), "--out", str(tmp_path / "x.gif"), "--quiet"]) == 2
+
+
+def test_the_video_part_says_each_step_before_it_runs(tmp_path, monkeypatch):
+    """``part_video``'s two subprocesses (simulate, render: 13 s silent before) are each announced
+    before they start -- checked by the order of the messages and the calls, not by a clock."""
+    import subprocess
+
+    from kinadapt_nn.paper import reproduce
+
+    events = []
+
+    def fake_run(cmd, **kw):
+        events.append(("run", cmd[cmd.index("kinadapt_nn.app.cli") + 1]))
+        return subprocess.CompletedProcess(cmd, 0, "", "")
+
+    monkeypatch.setattr(subprocess, "run", fake_run)
+    out = reproduce.part_video(tmp_path, None, progress=lambda msg: events.append(("say", msg)))
+    assert [e[0] for e in events] == ["say", "run", "say", "run"], events
+    assert "simulating" in events[0][1] and events[1][1] == "online"
+    assert "rendering" in events[2][1] and events[3][1] == "view"
+    assert out["video"]["file"] == "rollout.gif"
