@@ -35,6 +35,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from kinadapt_nn.diagnostics import steps
+
 MAX_ROWS = 2000  #: samples used by the fit (evenly spaced subset)
 N_THETA = 10  #: [m, m c, b] reported by the fit
 N_INERTIA = 6  #: the inertia beyond the declared one, fitted beside them on a moving log (a nuisance)
@@ -359,7 +361,8 @@ def _best_start(d: MountData, starts: list[np.ndarray], positive: bool = False):
     """Gauss-Newton from each start; the lowest cost wins (``positive``: among positive masses).
     -> (D, theta, cost)."""
     D, theta, best = np.eye(3), np.zeros(10), np.inf
-    for D0 in starts:
+    what = "sensor mount: the mirror branch (a positive mass), start" if positive else "sensor mount: rotation, start"
+    for D0 in steps.counted(starts, what):
         Dk, thk, ck = _gauss_newton(d, D0)
         if ck < best and (thk[0] > 0 or not positive):
             D, theta, best = Dk, thk, ck
@@ -443,7 +446,7 @@ def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: i
     rpy = _rpy_deg(x, R_decl)
     th = rotation_angle(D)
     reps, devs, rpys, angs = [], [], [], []
-    for g in groups:
+    for g in steps.counted(groups, "sensor mount: its uncertainty, refit without block"):
         Db, thb, _ = _gauss_newton(_without(d, np.isin(d.block, g)), D, iters=4)
         reps.append(thb[:N_THETA])
         devs.append(Rotation.from_matrix(D.T @ Db).as_rotvec())

@@ -36,7 +36,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from kinadapt_nn.diagnostics import contact_model, contact_point, nonlinear, segmentation, stream
+from kinadapt_nn.diagnostics import contact_model, contact_point, nonlinear, segmentation, steps, stream
 from kinadapt_nn.diagnostics import selection as sel
 from kinadapt_nn.diagnostics import signals as sg
 from kinadapt_nn.diagnostics.builtin import BUILTINS, CONTACT_MODEL_EFFECTS
@@ -564,7 +564,8 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
     lib, names, add, forced = _library_for(log, setup, add, effects_files)
     declared = setup
     # the log's signals held by ``calibrate`` alone: it can let them go once it has them in the estimated mount
-    cal = calibrate(log, sg.from_log(log, setup, progress), setup, None, rc, progress)
+    with steps.reporting(progress):  # the mount fit says where it is
+        cal = calibrate(log, sg.from_log(log, setup, progress), setup, None, rc, progress)
     cal = _effective_tip(log, cal, declared)
     s, setup = cal.signals, cal.setup
     chk = _checks(cal, declared, log)
