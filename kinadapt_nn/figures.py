@@ -628,6 +628,62 @@ def cell_learning_figure(results: Sequence[dict]) -> plt.Figure:
     return fig
 
 
+#: offsets [points] tried for a point's label, nearest first (``place_labels``)
+_LABEL_RADII_PT = (5.0, 10.0, 16.0, 24.0, 34.0, 46.0, 60.0)
+#: directions tried on each ring, diagonals first
+_LABEL_ANGLES = np.deg2rad([45, 135, -45, -135, 90, -90, 0, 180, 22.5, 157.5, -22.5, -157.5, 67.5, 112.5, -67.5, -112.5])
+
+
+def place_labels(ax, x: Sequence[float], y: Sequence[float], texts: Sequence[str], fontsize: float = 8.0,
+                 **text_kw) -> list:
+    """A label beside each point ``(x[i], y[i])`` (data coordinates) that overlaps no other label,
+    no point and no legend of ``ax``: tried on growing rings around the point, nearest first, inside
+    the axes; a label set off beyond the second ring gets a thin leader line to its point. The
+    figure's layout is settled first (one draw) and then frozen, so the placement holds when the
+    figure is saved. -> the annotations, in ``texts``' order."""
+    from matplotlib.transforms import Bbox
+
+    fig = ax.get_figure()
+    fig.canvas.draw()  # constrained layout, if any, puts the axes where they then stay
+    fig.set_layout_engine("none")
+    r = fig.canvas.get_renderer()
+    px_per_pt = fig.dpi / 72.0
+    pts = ax.transData.transform(np.column_stack([np.asarray(x, float), np.asarray(y, float)]))  # (N, 2) [px]
+    inside = ax.get_window_extent(r)
+    mark = 4.0 * px_per_pt  # a marker's half-width [px]
+    taken = [Bbox.from_bounds(px - mark, py - mark, 2 * mark, 2 * mark) for px, py in pts]
+    if ax.get_legend() is not None:
+        taken.append(ax.get_legend().get_window_extent(r))
+    out = []
+    for (xi, yi), (px, py), s in zip(zip(x, y), pts, texts):
+        probe = ax.text(0, 0, s, fontsize=fontsize, transform=None, **text_kw)
+        bb = probe.get_window_extent(r)
+        probe.remove()
+        w, h = bb.width + 2.0, bb.height + 2.0
+        place = None
+        for k, rad in enumerate(_LABEL_RADII_PT):
+            for ang in _LABEL_ANGLES:
+                c, sn = np.cos(ang), np.sin(ang)
+                dx = c * (rad * px_per_pt + w / 2 * abs(c))  # the box's centre: its edge clears the ring
+                dy = sn * (rad * px_per_pt + h / 2 * abs(sn))
+                box = Bbox.from_bounds(px + dx - w / 2, py + dy - h / 2, w, h)
+                if (inside.x0 <= box.x0 and box.x1 <= inside.x1 and inside.y0 <= box.y0 and box.y1 <= inside.y1
+                        and not any(box.overlaps(t) for t in taken)):
+                    place = (dx, dy, k, box)
+                    break
+            if place:
+                break
+        if place is None:  # no free place within reach: beside the point, up-right
+            d = _LABEL_RADII_PT[0] * px_per_pt + w / 2
+            place = (d, d, 0, Bbox.from_bounds(px + d - w / 2, py + d - h / 2, w, h))
+        dx, dy, k, box = place
+        arrow = {"arrowstyle": "-", "lw": 0.5, "color": "0.4", "shrinkA": 1, "shrinkB": 3} if k >= 2 else None
+        out.append(ax.annotate(s, (xi, yi), xytext=(dx / px_per_pt, dy / px_per_pt), textcoords="offset points",
+                               ha="center", va="center", fontsize=fontsize, arrowprops=arrow, **text_kw))
+        taken.append(box)
+    return out
+
+
 def plural(n: int, noun: str) -> str:
     """``"1 bore"``, ``"6 bores"``."""
     return f"{n} {noun}" if n == 1 else f"{n} {noun}s"

@@ -61,27 +61,40 @@ def measure(item: tuple[str, list[str]]) -> dict:
 
 
 
+#: markers of the ladder's points, in turn (with the colour: a point found by its look as by its number)
+MARKERS = "osD^vP*Xh<>p"
+
+
 def floor_figure(rows: list[dict], path) -> None:
     """Final lateral error vs b_rms / sigma_min (log-log) with the 1:1 line, the 5 mm start and
-    the Omega cap; one labelled point per scenario."""
+    the Omega cap. Each scenario is a numbered point (its own colour and marker); the numbers sit
+    where they overlap nothing (``figures.place_labels``: the matched sockets' points nearly
+    coincide) and the key beside the axes names each number's scenario with its two values."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6.5, 4.8), constrained_layout=True)
+    from kinadapt_nn.figures import place_labels
+
+    fig, ax = plt.subplots(figsize=(10.0, 5.2), constrained_layout=True)
     x = np.array([r["b_over_sigma_m"] for r in rows]) * 1e3
     y = np.array([r["lateral_error_rms_last_m"] for r in rows]) * 1e3
-    ax.loglog(x, y, "o")
-    for r, xi, yi in zip(rows, x, y):
-        ax.annotate(r["scenario"], (xi, yi), fontsize=6)
+    keys = []
+    for i, (r, xi, yi) in enumerate(zip(rows, x, y)):
+        keys.append(ax.loglog([xi], [yi], MARKERS[i % len(MARKERS)], color=f"C{i % 10}", ms=6, mfc="none", mew=1.4,
+                              label=f"{i + 1}  {r['scenario']}  ({xi:.3g} mm, {yi:.3g} mm)")[0])
     lo, hi = np.nanmin(x) / 2, np.nanmax(x) * 2
-    ax.loglog([lo, hi], [lo, hi], "k:", lw=0.8, label="error = b / sigma_min")
-    ax.axhline(5.0, color="r", ls="--", lw=0.8, label="initial error 5 mm")
-    ax.axhline(1e3 * np.hypot(0.018, 0.017), color="gray", ls="-.", lw=0.8, label="estimate pinned at the Omega box")
+    refs = [ax.loglog([lo, hi], [lo, hi], "k:", lw=0.8, label="error = b / sigma_min")[0],
+            ax.axhline(5.0, color="r", ls="--", lw=0.8, label="initial error 5 mm"),
+            ax.axhline(1e3 * np.hypot(0.018, 0.017), color="gray", ls="-.", lw=0.8,
+                       label="estimate pinned at the Omega box")]
     ax.set_xlabel("b_rms / sigma_min [mm] (oracle run)")
     ax.set_ylabel("lateral offset error, last 1.5 s RMS [mm]")
     ax.set_title("Bias floor O(b / sigma_min) as the contact model is made less ideal")
-    ax.legend(fontsize=8)
+    ax.legend(handles=refs, fontsize=8, loc="upper left")
+    fig.legend(handles=keys, fontsize=8, loc="outside right upper",
+               title="scenario (b_rms / sigma_min, error)", title_fontsize=8)
+    place_labels(ax, x, y, [str(i + 1) for i in range(len(rows))], fontsize=8)
     fig.savefig(path, dpi=130)
     plt.close(fig)
