@@ -90,3 +90,55 @@ def test_the_video_part_says_each_step_before_it_runs(tmp_path, monkeypatch):
     assert "simulating" in events[0][1] and events[1][1] == "online"
     assert "rendering" in events[2][1] and events[3][1] == "view"
     assert out["video"]["file"] == "rollout.gif"
+
+
+class _Trace(dict):
+    meta = {"truth_offset_f_m": [0.004, -0.003, 0.1]}
+
+
+class _SweepRunner:
+    """The gain sweep's episodes, synthetic: both laws the same curve (as the paper's setting gives)
+    except the socket at Gamma = 8000, where the prediction law ends a decade lower."""
+
+    def map(self, fn, jobs, what):
+        out = []
+        for job in jobs:
+            over = " ".join(job.overrides)
+            t = np.linspace(0.0, 5.0, 2000)
+            theta = np.array([0.004, -0.003, 0.1]) + 5e-3 * np.exp(-t)[:, None] * np.array([1.0, 1.0, 0.2])
+            if "socket" in over and "gamma=8000" in over and "prediction" in over:
+                theta = np.array([0.004, -0.003, 0.1]) + (theta - [0.004, -0.003, 0.1]) * np.exp(-t / 2)[:, None]
+            out.append(({"success": True, "seat_time_s": 4.8, "offset_error_lateral_final_m": 1e-4},
+                        _Trace(t_s=t, V=1e-3 * np.exp(-t), theta=theta)))
+        return out
+
+
+def test_gain_sweep_shows_both_laws_says_where_they_coincide_and_keeps_labels_inside(tmp_path, monkeypatch):
+    """gamma_sweep.png: the prediction law's curve was drawn over the composite's in the same
+    style (the one hid the other), and the y label ran past its axes; now the laws are told apart
+    by line style, a panel whose two curves coincide says so, and each y label fits its axes."""
+    import matplotlib.pyplot as plt
+
+    from kinadapt_nn.paper.reproduce import part_gain_sweep
+
+    figs = []
+    monkeypatch.setattr(plt, "close", figs.append)
+    part_gain_sweep(tmp_path, _SweepRunner())
+    assert (tmp_path / "gamma_sweep.png").is_file()
+    fig, = figs
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    assert len(fig.axes) == 4
+    for ax in fig.axes:
+        lines = {ln.get_label().split()[0]: ln for ln in ax.get_lines() if ln.get_label().split()[0] in
+                 ("composite", "prediction")}
+        assert set(lines) == {"composite", "prediction"}, ax.get_title()
+        c, p = lines["composite"], lines["prediction"]
+        assert c.get_linestyle() != p.get_linestyle(), ax.get_title()  # told apart where they lie on each other
+        assert p.get_zorder() > c.get_zorder() and c.get_linewidth() > p.get_linewidth()  # the narrow one on top
+        said = " ".join(t.get_text() for t in ax.get_legend().get_texts())
+        assert ("coincide" in said) == (ax.get_title() != "socket + dither, Gamma = 8000"), (ax.get_title(), said)
+        lab, box = ax.yaxis.label.get_window_extent(r), ax.get_window_extent(r)
+        assert box.y0 - 1 <= lab.y0 and lab.y1 <= box.y1 + 1, (ax.get_title(), lab, box)  # within its axes' height
+        assert 0 <= lab.x0 and lab.y1 <= fig.bbox.y1
+    plt.close(fig)
