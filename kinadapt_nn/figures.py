@@ -22,7 +22,13 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from matplotlib.ticker import LogFormatterSciNotation, LogLocator, MaxNLocator, NullFormatter  # noqa: E402
+from matplotlib.ticker import (  # noqa: E402
+    FuncFormatter,
+    LogFormatterSciNotation,
+    LogLocator,
+    MaxNLocator,
+    NullFormatter,
+)
 
 from kinadapt_nn.config import ExperimentCfg  # noqa: E402
 from kinadapt_nn.trace import Trace  # noqa: E402
@@ -593,9 +599,10 @@ def bar_values(a, y: np.ndarray, values: Sequence[float], fmt: str = "{:+.3f}") 
 
 def cell_learning_figure(results: Sequence[dict]) -> plt.Figure:
     """A work cell's learning curve: the cell Jacobian error (median over the held-out
-    configurations) against the insertion, one panel per tool family, one colour per features
-    type; thin lines per tool, the thick line the median over tools. ``results``: compare's
-    per-episode records with a ``cell`` block (``kinadapt_nn.runs.compare``)."""
+    configurations) in % against the insertion -- % as the draws figure and the README give it --
+    one panel per tool family, one colour per features type; thin lines per tool, the thick line the
+    median over tools. ``results``: compare's per-episode records with a ``cell`` block
+    (``kinadapt_nn.runs.compare``: the error there a fraction)."""
     recs = [r for r in results if r.get("cell")]
     fams = list(dict.fromkeys(r["tool_family"] for r in recs))
     feats = list(dict.fromkeys(r["features"] for r in recs))
@@ -604,7 +611,7 @@ def cell_learning_figure(results: Sequence[dict]) -> plt.Figure:
     for a, fam in enumerate(fams):
         ax = axes[0, a]
         for k, feat in enumerate(feats):
-            curves = [np.asarray(r["cell"]["jacobian_error_cell_median"]) for r in recs
+            curves = [100.0 * np.asarray(r["cell"]["jacobian_error_cell_median"]) for r in recs  # [%]
                       if (r["tool_family"], r["features"]) == (fam, feat)]
             if not curves:
                 continue
@@ -619,12 +626,14 @@ def cell_learning_figure(results: Sequence[dict]) -> plt.Figure:
         ax.set_xlabel("insertion (0 = before the first)")
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # insertions are whole: no tick at 0.5
         labelled_ticks(ax.yaxis)
+        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:.3g}"))  # 0.02, 0.5, 1: read as % directly
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=8)
-    axes[0, 0].set_ylabel("cell Jacobian error |W(J_hat - J_true)| / |W J_true|\n(median over held-out configurations)")
+    axes[0, 0].set_ylabel("cell Jacobian error [%]\n(median over held-out configurations)")
     nb = len(recs[0]["cell"]["bores_w_m"])
     how = {"refit": "theta refitted", "carry": "theta and P carried"}.get(recs[0]["cell"].get("between"), "")
-    fig.suptitle(f"work cell: {plural(nb, 'bore')}" + (f", {how} between insertions" if how else ""))
+    fig.suptitle(f"work cell: {plural(nb, 'bore')}" + (f", {how} between insertions" if how else "")
+                 + "; error = 100 |W(J_hat - J_true)| / |W J_true| %")
     return fig
 
 
