@@ -314,8 +314,31 @@ def _markdown(rows: list[dict], cols: list[str]) -> str:
 _GRID_IN = dict(left=1.2, right=0.2, top=0.4, bottom=0.6, wgap=1.3, hgap=0.95)
 
 
+#: how each features type's curves are drawn, in the order of ``cfg.features``: the first widest
+#: and lowest, each later one narrower and on top, with its own dashes and sparse markers -- where two
+#: types' curves coincide (rbf and neural start from the same prior) both stay visible, the earlier
+#: one as the wide band around the later one
+_FEATURE_STYLES = (
+    {"ls": "-", "lw": 2.6, "alpha": 0.55, "marker": "o"},
+    {"ls": (0, (5, 2)), "lw": 1.6, "alpha": 0.9, "marker": "s"},
+    {"ls": (0, (1, 1.5)), "lw": 1.1, "alpha": 1.0, "marker": "^"},
+    {"ls": (0, (6, 2, 1, 2)), "lw": 0.9, "alpha": 1.0, "marker": "D"},
+)
+#: markers along each curve (one every 1 / _MARKS of it; each type's shifted so they do not stack)
+_MARKS = 8
+
+
+def _feature_style(k: int, n_points: int, n_types: int) -> dict:
+    """Line keywords of the ``k``-th features type (``_FEATURE_STYLES``) for a curve of ``n_points``."""
+    st = dict(_FEATURE_STYLES[k % len(_FEATURE_STYLES)])
+    step = max(1, n_points // _MARKS)
+    return {**st, "color": f"C{k}", "ms": 3.5, "mfc": "none", "zorder": 2 + k,
+            "markevery": ((k * step) // max(n_types, 1), step)}
+
+
 def _figure(results: list[dict], cfg: CompareCfg, path: Path) -> None:
-    """Jacobian error vs time, one panel per (scenario, family), one colour per features type.
+    """Jacobian error vs time, one panel per (scenario, family), one colour, line style and marker
+    per features type (``_feature_style``: none hidden under another where their curves coincide).
     Fixed margins (``_GRID_IN``) rather than constrained_layout: its solver measured half of the
     figure's drawing time (it draws every tick label to size them, then the figure again)."""
     from kinadapt_nn.figures import labelled_ticks, plt
@@ -336,8 +359,8 @@ def _figure(results: list[dict], cfg: CompareCfg, path: Path) -> None:
             for k, feat in enumerate(cfg.features):
                 for r in results:
                     if (r["scenario"], r["tool_family"], r["features"]) == (sc, fam, feat):
-                        ax.semilogy(r["t"], r["jac_err"], color=f"C{k}", lw=0.8, alpha=0.8,
-                                    label=feat if r["tool"] == 0 else None)
+                        ax.semilogy(r["t"], r["jac_err"], label=feat if r["tool"] == 0 else None,
+                                    **_feature_style(k, len(r["t"]), len(cfg.features)))
                         n_ins = len(r["insertions"] or [None])
             # several insertions: the trace is the last one's (its own clock from 0)
             ax.set_title(f"{sc} / {fam}" + (f": insertion {n_ins} of {n_ins}" if n_ins > 1 else ""))
