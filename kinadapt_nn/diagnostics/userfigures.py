@@ -45,12 +45,33 @@ def _plt():
 STATIC_XLABEL = "pose (grouped by gravity direction)"
 
 
-def _shade(ax, t, mask) -> None:
+def _shade(ax, t, mask, label: str = "contact (tip-moment rows)") -> None:
     if mask.any():
         k = every(len(t), 4 * MAX_POINTS)
         t, mask = t[k], mask[k]
         ax.fill_between(t, 0, 1, where=mask, color="#ffe6cc", transform=ax.get_xaxis_transform(), step="mid",
-                        label="contact (tip-moment rows)")
+                        label=label)
+
+
+#: the channels of the moment about the tip in the design (``userlog.CHANNELS``: free six, then tip three)
+TIP_CHANNELS = (6, 7, 8)
+
+
+def contact_rows_left_out(res) -> str | None:
+    """Why the diagnosis left out the contact rows (moment about the tip) of a log with contact, in
+    a few words -- the tip check failed (with its ratio), ``[contact] mode = "exclude"`` -- or None
+    when it has them or the log has no contact."""
+    des = res.design
+    if not np.asarray(res.contact).any() or np.isin(des.channel, TIP_CHANNELS).any():
+        return None
+    chk = res.report.get("tip_contact_check") or {}
+    if not chk.get("ok", True) and "residual_rms_w_tip_moment" in chk:
+        ratio = chk["residual_rms_w_tip_moment"] / max(chk["residual_rms_w_free"], 1.0)
+        return f"tip check failed: tip moment {ratio:.1f}x the free-space residual"
+    rows = (res.report.get("contact") or {}).get("rows")
+    if rows in ("exclude", "none"):
+        return f'[contact] mode = "{rows}"'
+    return str(rows or "no contact rows")
 
 
 def model_vs_measurement(res, setup, path: Path) -> None:
@@ -79,9 +100,10 @@ def _mvm_fig(res, setup):
     ax = ax_all[:2]
     names = ("F_x", "F_y", "F_z", "M_x", "M_y", "M_z")
     _unexplained_row(ax_all[2], res, setup, xlabel)
+    left_out = contact_rows_left_out(res)
     for i, a in enumerate(ax.ravel()):
         unit = "N" if i < 3 else "N m"
-        _shade(a, t, res.contact)
+        _shade(a, t, res.contact, "contact (left out of the fit)" if left_out else "contact (tip-moment rows)")
         if static:  # each pose a point: a line would join poses that are not neighbours in anything
             k = every(len(t))
             a.plot(t[k], sig.wrench[k, i], ".", ms=3, color="0.3", label="measured")
@@ -104,6 +126,8 @@ def _mvm_fig(res, setup):
     fig.legend(list(shared.values()), list(shared), loc="outside lower center", ncol=len(shared), fontsize=9)
     verdict = "the model explains the log" if res.report.get("model_complete", True) else \
         "something the model does not contain is left (red spans)"
+    if left_out:  # then only free space was judged: "explains the log" would claim the contact too
+        verdict = verdict.replace("the log", "free space") + f"; contact rows left out ({left_out})"
     fig.suptitle(f"wrench the tool exerts on the sensor (sensor frame) vs the declared tool "
                  f"({setup.tool.mass_kg:g} kg); the log's convention: {setup.log.wrench_acts}\nbottom row: {verdict}")
     return fig
@@ -142,13 +166,51 @@ def _unexplained_row(axes, res, setup, xlabel: str = "time [s]") -> None:
         if pooled:
             set_robust_ylim(a, des.t_s, [np.concatenate(pooled)], unit=unit, headroom=0.3)
         bad = [c for c in un.get("carried_by", []) if des.channel_names.index(c) in chans]
-        a.set_title(f"{title}: " + (f"UNEXPLAINED in {', '.join(bad)}" if bad else "explained"), fontsize=9,
-                    color="C3" if bad else "k")
         a.set_ylabel(f"residual [{unit}]")
         a.set_xlabel(xlabel)
+        if chans == TIP_CHANNELS and not pooled:  # no contact rows: what the log has, and why nothing is judged
+            _contact_not_judged(a, res, setup, rel)
+            continue
+        a.set_title(f"{title}: " + (f"UNEXPLAINED in {', '.join(bad)}" if bad else "explained"), fontsize=9,
+                    color="C3" if bad else "k")
         if pooled:
             a.legend(fontsize=7, ncol=3, loc="upper left", markerscale=5,
                      title=f"faint: declared model; solid: {what}; dashed: relevant size", title_fontsize=6)
+
+
+def _contact_not_judged(a, res, setup, rel: float) -> None:
+    """The contact panel of a diagnosis without contact rows: the declared model's residual moment
+    about the declared tip over the contact samples (measured - declared tool, the free-space mean
+    offset removed from a tared log), i.e. the contact moment the tip does not account for; the
+    title says why nothing there is "explained" (``contact_rows_left_out``), or that the log has no
+    contact."""
+    from kinadapt_nn.diagnostics.physical import tip_moment_map
+    from kinadapt_nn.figures import set_robust_ylim
+
+    sig, contact = res.signals, np.asarray(res.contact, dtype=bool)
+    why = contact_rows_left_out(res)
+    if why is None:
+        a.set_title("contact: moment about the tip: no contact in the log", fontsize=9)
+        a.text(0.5, 0.5, "no contact samples", transform=a.transAxes, ha="center", va="center", color="0.4")
+        return
+    static = bool(getattr(sig, "static", False))
+    t = sig.clock if static else sig.t - sig.t[0]
+    r = np.asarray(sig.wrench, dtype=float) - np.asarray(sig.w_nom, dtype=float)  # (n, 6) [N, N m]
+    if setup.log.tared and (~contact).any():
+        r = r - r[~contact].mean(axis=0)  # the tared reading's offset, as free space gives it
+    L = getattr(sig, "tip_map", None)
+    L = tip_moment_map(setup.tool.tip_sensor_m) if L is None else np.asarray(L)  # (3, 6)
+    m_tip = r[contact] @ L.T  # (k, 3) [N m] about the declared tip
+    tc = t[contact]
+    k = every(len(tc))
+    for j, name in enumerate(("Mtip_x", "Mtip_y", "Mtip_z")):
+        a.plot(tc[k], m_tip[k, j], ".", ms=1.5, color=f"C{j}", label=name)
+    for sgn in (-1, 1):
+        a.axhline(sgn * rel, color="k", ls="--", lw=0.7)
+    set_robust_ylim(a, tc, [m_tip.ravel()], unit="N m", headroom=0.3)
+    a.set_title(f"contact, moment about the tip: NOT JUDGED (rows left out)\n{why}", fontsize=8, color="C1")
+    a.legend(fontsize=7, ncol=3, loc="upper left", markerscale=5, title_fontsize=6,
+             title="measured - declared tool, about the declared tip (not fitted); dashed: relevant size")
 
 
 def effects_figure(res, path: Path) -> None:
