@@ -455,6 +455,9 @@ def cmd_diagnose_run(args: argparse.Namespace) -> int:
     progress("reading the run; its set-up generated from its config")
     log, setup = ownrun.as_log(src, cfg, list(args.effects or []), tip)
     res = diagnose(log, setup, list(args.add or []), progress=progress)
+    if args.baseline and args.add:
+        res = dataclasses.replace(res, report=_with_effect_free_level(res.report, Path(args.baseline), args,
+                                                                      tip, progress))
     rerun = None
     if args.rerun:
         progress("re-running the episode with the effects adapted online (--rerun)")
@@ -464,6 +467,23 @@ def cmd_diagnose_run(args: argparse.Namespace) -> int:
     prov = Provenance("package_run", log.source, "generated from the run's config")
     _write_diagnosis(out, args, [(None, log, res)], setup, prov, t0, rerun)
     return 0
+
+
+def _with_effect_free_level(report, baseline: Path, args: argparse.Namespace, tip, progress):
+    """``report`` with the section ``effect_free_level``: the baseline run (the same program without
+    the hidden effect) diagnosed with the same set-up and the same ``--add`` refit, its residual
+    after that refit (noise-weighted RMS, all rows) and this run's over it; the summary says it."""
+    from kinadapt_nn.diagnostics import ownrun
+    from kinadapt_nn.diagnostics.report import Report
+    from kinadapt_nn.diagnostics.userlog import diagnose, summary_text
+
+    progress(f"the effect-free level: the baseline {baseline} diagnosed with the same set-up")
+    blog, bsetup = ownrun.as_log(baseline, None, list(args.effects or []), tip)
+    level = float(diagnose(blog, bsetup, list(args.add), hints=False).report["residual_rms_after"]["total_w"])
+    after = float(report["residual_rms_after"]["total_w"])
+    sections = {**report.sections, "effect_free_level": {
+        "baseline": str(baseline), "residual_rms_total_w": level, "after_over_effect_free": after / level}}
+    return Report.of(sections, summary_text)
 
 
 def _write_diagnosis(out: Path, args: argparse.Namespace, results: list, setup, prov, t0: float,

@@ -71,7 +71,9 @@ def setup_of_run(cfg: ExperimentCfg, effects_files=(), tip_sensor_m=None) -> Set
     else:  # a rigid bore: its contacts act along the peg's side and at the entrance edge, not through the
         # tip, and are often lighter than the detection threshold: counted wherever the tip can touch, left out
         contact = ContactDeclCfg(mode="exclude", zone="entrance", entry_w_m=entry, axis_w=axis)
-    tool = _tool(cfg).model_copy(update={"tip_known": False})  # the controller's nominal tip: a first guess
+    # the controller's nominal tip: a first guess, within the bounds the controller's own estimate keeps to
+    tool = _tool(cfg).model_copy(update={"tip_known": False, "tip_within_m": max(cfg.adaptation.omega_lateral_m,
+                                                                                 cfg.adaptation.omega_axial_m)})
     if tip_sensor_m is not None:  # a calibrated tip (a baseline run's): declared known
         tool = tool.model_copy(update={"tip_sensor_m": tuple(float(v) for v in tip_sensor_m), "tip_known": True})
     setup = SetupCfg(log=log, sensor=SensorCfg(), tool=tool,

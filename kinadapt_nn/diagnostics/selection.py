@@ -289,6 +289,7 @@ class Selection(NamedTuple):
     sse_total: float  #: SSE of the residual after the nuisance fit
     sse_after: float  #: held-out SSE of the final model
     nuisance: np.ndarray  #: (z,) nuisance estimate (physical column units)
+    nuisance_sd: np.ndarray  #: (z,) its sd
     heldout: np.ndarray | None = None  #: (R,) held-out residual rows of the final model (each block predicted
     #: by the fit on the other blocks)
     final_idx: np.ndarray | None = None  #: the final model's columns in ``Stats`` order (nuisance first)
@@ -313,12 +314,13 @@ def select(des: Design, rc: SelCfg = SelCfg(), plausible: Callable[[str, np.ndar
     jt = _joint(st, des, rc, base, fw)
     ctx = _EntryCtx(st, des, rc, base, fw, jt, small, sse_total, alone, plausible, hints, block_all)
     entries = [_entry(ctx, n) for n in st.names]
+    jt = _with_model_sd(st, des, rc, jt, fw, entries)
     present = {e["effect"]: jt.joint[e["effect"]] for e in entries if e["verdict"] == "present"}
     order = {"present": 0, "cannot_decide": 1, "absent": 2}
     entries.sort(key=lambda e: (e["selected_round"] is None, e["selected_round"] or 0, order[e["verdict"]],
                                 -e["explained_fraction"]))
     small_idx = np.concatenate([jt.idx, *[st.idx[s][c] for s, c in small.items()]]) if small else jt.idx
-    return Selection(entries, present, sse_total, float(jt.sse.sum()), jt.nuisance,
+    return Selection(entries, present, sse_total, float(jt.sse.sum()), jt.nuisance, jt.nuisance_sd,
                      heldout_residual(st, des, small_idx, rc), jt.idx, list(small))
 
 
@@ -381,8 +383,11 @@ def _near_ties(st: Stats, des: Design, rc: SelCfg, tests: dict, best: str, cur: 
                sse_sel: np.ndarray, hints: dict) -> tuple[list[str], list[str]]:
     """Near-ties of the round's ``best`` among the round's candidates ``tests``: another effect, or
     another column of a one-of effect, that explains nearly as much and nothing more once the best
-    is in the model (and is not significantly worse block by block). -> (rival effects,
-    ``best:param`` labels)."""
+    is in the model (and is not significantly worse block by block), while the best explains
+    nothing more once it is in the model either -- when the best still explains a significant part
+    of what the rival leaves, the data tell them apart (a payload against a constant offset: alike
+    in contact, apart where the sensor turns in free space) and they are not tied. -> (rival
+    effects, ``best:param`` labels)."""
     t = tests[best]
     cand = list(tests)
     rivals: list[str] = []
@@ -392,7 +397,7 @@ def _near_ties(st: Stats, des: Design, rc: SelCfg, tests: dict, best: str, cur: 
         cur_b = np.concatenate([cur, st.idx[best][t.cols]])
         given = _test(st, des, n, cur_b, t.sse, rc)
         if given.gain.sum() / (float(t.sse.sum()) or 1e-300) < rc.min_explained and \
-                paired_p(t.sse, tests[n].sse) > rc.tie_p:
+                paired_p(t.sse, tests[n].sse) > rc.tie_p and not _tells_apart(st, des, rc, tests[n], best, cur):
             rivals.append(n)
     labels: list[str] = []
     if des.one_of[best]:
@@ -405,6 +410,13 @@ def _near_ties(st: Stats, des: Design, rc: SelCfg, tests: dict, best: str, cur: 
     return rivals, labels
 
 
+def _tells_apart(st: Stats, des: Design, rc: SelCfg, rival: Candidate, best: str, cur: np.ndarray) -> bool:
+    """Does ``best`` explain a significant part (p < alpha, at least ``min_explained``) of what
+    ``rival`` leaves, held-out?"""
+    back = _test(st, des, best, np.concatenate([cur, st.idx[rival.effect][rival.cols]]), rival.sse, rc)
+    return back.p_value < rc.alpha and back.gain.sum() / (float(rival.sse.sum()) or 1e-300) >= rc.min_explained
+
+
 class _Joint(NamedTuple):
     """The final model re-estimated jointly."""
 
@@ -412,6 +424,7 @@ class _Joint(NamedTuple):
     idx: np.ndarray  #: its columns (nuisance first)
     joint: dict  #: effect -> (cols, estimate physical, sd physical)
     nuisance: np.ndarray  #: (z,) nuisance estimate (physical column units)
+    nuisance_sd: np.ndarray  #: (z,) its sd (physical column units; as the effects' sd)
 
 
 def _joint(st: Stats, des: Design, rc: SelCfg, base: np.ndarray, fw: _Forward) -> _Joint:
@@ -435,7 +448,38 @@ def _joint(st: Stats, des: Design, rc: SelCfg, base: np.ndarray, fw: _Forward) -
         joint[s] = (c, p_all[i:i + k] * sc, np.sqrt(np.clip(var[i:i + k], 0, None)) * sc)
         i += k
     nuis = p_all[:len(base)] * st.z_scale if len(base) else np.zeros(0)
-    return _Joint(sse_fin, sel_idx, joint, nuis)
+    nuis_sd = np.sqrt(np.clip(var[:len(base)], 0, None)) * st.z_scale if len(base) else np.zeros(0)
+    return _Joint(sse_fin, sel_idx, joint, nuis, nuis_sd)
+
+
+def _with_model_sd(st: Stats, des: Design, rc: SelCfg, jt: _Joint, fw: _Forward, entries: list) -> _Joint:
+    """The final model's estimates given the choice the data could not make: each effect the verdict
+    leaves ``cannot_decide`` (a near-tie, too little excitation) is fitted beside the final model in
+    turn, and the largest change it makes to each selected parameter and nuisance joins that
+    parameter's sd in quadrature (``model_sd`` in the entry). An estimate conditional on a model the
+    data did not choose is reported with the spread of that choice, not only the noise's."""
+    cands = [e["effect"] for e in entries if e["verdict"] == "cannot_decide" and e["effect"] not in jt.joint]
+    if not cands:
+        return jt
+    p0 = st.fit(jt.idx, rc.ridge)
+    dmax = np.zeros(len(jt.idx))
+    for n in cands:
+        p2 = st.fit(np.concatenate([jt.idx, st.idx[n][fw.last[n].cols]]), rc.ridge)[:len(jt.idx)]
+        dmax = np.maximum(dmax, np.abs(p2 - p0))
+    z = len(st.z_idx)
+    joint, i = {}, z
+    by_name = {e["effect"]: e for e in entries}
+    for s, (c, est, sd) in jt.joint.items():
+        d = dmax[i:i + len(c)] * np.asarray(des.scale[s])[c]
+        joint[s] = (c, est, np.sqrt(sd ** 2 + d ** 2))
+        e = by_name[s]
+        e["sd"] = np.asarray(e["sd"], dtype=float).copy()
+        e["sd"][c] = joint[s][2]
+        e["model_sd"] = np.zeros(len(e["sd"]))
+        e["model_sd"][c] = d
+        i += len(c)
+    nuis_sd = np.sqrt(jt.nuisance_sd ** 2 + (dmax[:z] * st.z_scale) ** 2) if z else jt.nuisance_sd
+    return jt._replace(joint=joint, nuisance_sd=nuis_sd)
 
 
 def _honest_var(st: Stats, cov_jk: np.ndarray, n_blocks: int, fit_idx: np.ndarray, p_fit: np.ndarray, k: int

@@ -41,6 +41,7 @@ default; ``examples/setups/`` has complete ones)::
     inertia_com_kg_m2 = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]   # ixx, iyy, izz, ixy, ixz, iyz about the COM, s axes
     tip_sensor_m = [0.0, 0.0, 0.0]
     tip_known = true           # false: tip_sensor_m is a first guess; where the contact wrench pins a point, it is the tip
+    tip_within_m = 0.03        # tip_known = false: how far from the guess the tip can be [m]
     [arm]                      # one of mjcf / urdf / dh ("" and no dh = the shipped Panda)
     mjcf = ""                  # a MuJoCo MJCF file
     flange_site = "flange"     # MJCF: the site whose frame is the flange
@@ -201,6 +202,9 @@ class ToolDeclCfg(_Cfg):
     #: package's controller adapts): where the contact wrench pins a point, that point is the tip for
     #: the whole diagnosis and its offset from the guess is reported as a finding about the tool
     tip_known: bool = True
+    #: [m] ``tip_known = false``: the tip lies within this of ``tip_sensor_m``; a contact point further
+    #: away is not taken for it (e.g. a drifting sensor's free space read as contact)
+    tip_within_m: float = Field(0.03, gt=0.0)
 
     @field_validator("mass_kg", "com_sensor_m", "inertia_com_kg_m2", "tip_sensor_m")
     @classmethod

@@ -203,10 +203,13 @@ def build_design(s: sg.LogSignals, lib: dict[str, Effect], names: list[str], sig
     for name in names:
         cols_cache[name] = stream.Source(name, lib[name].evaluate, list(range(lib[name].k)))
     nuis = [stream.Source("_offset", _offset_columns, list(range(6)))] if s.setup.log.tared else []
+    if tip_nuisance(s):
+        nuis.append(stream.Source("_tip", _tip_columns, [0, 1, 2]))
     bs = stream.block_stats(s, rm, nuis + [cols_cache[n] for n in names], y, block, nb, chunk, stream.PassOpts(keep=True))
     R = len(y)
     X = {nm: sel.Width((R, lib[nm].k)) for nm in names}
-    return sel.Design(y, X, sel.Width((R, 6 if nuis else 0)), block, nb, {nm: lib[nm].relevant for nm in names},
+    return sel.Design(y, X, sel.Width((R, sum(len(n.cols) for n in nuis))), block, nb,
+                      {nm: lib[nm].relevant for nm in names},
                       {nm: lib[nm].one_of for nm in names}, W, channel, CHANNELS, tr, bs), rm
 
 
@@ -218,6 +221,27 @@ def _residual_columns(s: sg.LogSignals) -> np.ndarray:
 def _offset_columns(s: sg.LogSignals) -> np.ndarray:
     """A tared log's unknown constant offset: the identity on every sample (n, 6, 6)."""
     return np.broadcast_to(np.eye(6)[None], (s.n, 6, 6))
+
+
+def tip_nuisance(s: sg.LogSignals) -> bool:
+    """The tip is fitted beside the effects (``_tip_columns``): ``[tool] tip_known = false`` with
+    contacts acting through it and contact rows to fit it on."""
+    return (not s.setup.tool.tip_known) and s.setup.contact.mode == "tip" and bool(s.contact.any())
+
+
+def _tip_columns(s: sg.LogSignals) -> np.ndarray:
+    """The tip's position in the sensor frame as a nuisance (n, 6, 3) [per m]: a tip moved by ``dp``
+    moves the contact force's moment about the sensor by ``dp x F_c`` and a declared socket's spring
+    with it (``contact_model.tip_derivative``); what the point estimated before any effect got wrong
+    (an effect that acts in contact, e.g. a rotated sensor, rotates that point) is refitted jointly
+    with the effects instead of absorbed by it."""
+    C = np.zeros((s.n, 6, 3))
+    for j in range(3):
+        e = np.zeros(3)
+        e[j] = 1.0
+        C[:, 3:, j] = np.cross(e, s.contact_force_s)
+        C[:, :, j] += contact_model.tip_derivative(s.setup, s.R_ws, s.p_ws, e)
+    return C
 
 
 def _row_blocks(s: sg.LogSignals, rm: RowMap, tr: np.ndarray, rc: RowCfg) -> tuple[np.ndarray, int]:
@@ -365,6 +389,7 @@ class ContactAccounts:
     used: np.ndarray  #: (n,) bool contact as used
     report: dict  #: the report's ``contact.accounts``
     data: np.ndarray  #: (n,) bool the data's account
+    disputed: np.ndarray | None = None  #: (n,) bool where the two disagree (beyond the data's margin)
 
     @staticmethod
     def of(data: np.ndarray, declared: np.ndarray | None, t: np.ndarray, setup: SetupCfg) -> "ContactAccounts":
@@ -372,20 +397,30 @@ class ContactAccounts:
             return ContactAccounts(data, {"data_windows_s": _windows(data, t), "declared": None,
                                           "used": "the data's (no contact geometry declared)"}, data)
         used = data | declared
-        only_geom, only_data = declared & ~data, data & ~declared
+        wide = declared  # the data's windows are widened by margin_s: compared beyond it
+        if len(t) > 1 and setup.contact.margin_s > 0 and not setup.log.static:
+            k = int(round(setup.contact.margin_s / float(np.median(np.diff(t)))))
+            if k > 0 and declared.any():
+                wide = np.convolve(declared.astype(float), np.ones(2 * k + 1), "same") > 0
+        only_geom, only_data = declared & ~data, data & ~wide
         why = []
-        if only_geom.any():
+        if only_geom.mean() >= 0.005:
             why.append(f"{only_geom.mean():.0%} of the log is contact by the declared geometry but under the data's "
                        f"detection threshold ({setup.contact.detect_force_N:g} N): taken as contact (light contacts "
                        "there are not free space)")
-        if only_data.any():
+        if only_data.mean() >= 0.005:
             why.append(f"{only_data.mean():.0%} shows a force beyond the tool model where the declared geometry cannot "
                        "touch: taken as contact (something touched outside the declared geometry)")
+        disputed = only_geom | only_data
+        if why and setup.contact.mode == "tip" and setup.contact.declared_geometry:
+            why.append("where the declared geometry's wrench predicts more than the threshold and the data show "
+                       "nothing, or the data show a force where it cannot touch, the rows are left out of the fit "
+                       "([analysis] exclude_s in the set-up used)")
         return ContactAccounts(used, {
             "data_windows_s": _windows(data, t), "declared_windows_s": _windows(declared, t),
-            "disputed_windows_s": _windows(only_geom | only_data, t),
+            "disputed_windows_s": _windows(disputed, t),
             "used": "contact where either account says so" + ("; " + "; ".join(why) if why else
-                                                              " (the two agree)")}, data)
+                                                              " (the two agree)")}, data, disputed)
 
 
 def _tip_consistent(declared: SetupCfg, point) -> tuple[bool, float]:
@@ -412,6 +447,9 @@ def _effective_tip(log, cal: "Calibration", declared: SetupCfg) -> "Calibration"
         return cal
     if any(declared.tool.tip_sensor_m) and declared.tool.tip_known:
         return cal
+    far = float(np.linalg.norm(np.asarray(point.point_s_m) - np.asarray(declared.tool.tip_sensor_m)))
+    if not declared.tool.tip_known and far > declared.tool.tip_within_m:  # not the tip: the guess stands
+        return cal
     from kinadapt_nn.diagnostics.physical import tip_moment_map
 
     tip = tuple(float(v) for v in point.point_s_m)
@@ -430,6 +468,26 @@ def _effective_tip(log, cal: "Calibration", declared: SetupCfg) -> "Calibration"
     return dataclasses.replace(cal, signals=s, setup=setup, accounts=acc)
 
 
+def _without_disputed(cal: "Calibration") -> "Calibration":
+    """Rows whose phase the two accounts dispute (``ContactAccounts``) left out of the ranking where
+    contact rows are fitted (``[contact] mode = "tip"``), as ``[analysis] exclude_s`` windows: a
+    declared socket that the data show released (its tip read from encoders a joint offset moved)
+    predicts a spring force the sensor never saw, which no first-order column describes."""
+    acc, setup, s = cal.accounts, cal.setup, cal.signals
+    if acc is None or acc.disputed is None or setup.contact.mode != "tip" or not setup.contact.declared_geometry:
+        return cal
+    # the contradictions: the declared geometry's wrench predicts a force the data do not show, or the
+    # data show a force where the declared geometry cannot touch
+    f_pred = np.linalg.norm(contact_model.nominal_wrench(setup, s.R_ws, s.p_ws)[:, :3], axis=1)
+    bad = acc.disputed & ((~acc.data & (f_pred > setup.contact.detect_force_N)) | acc.data)
+    if bad.mean() < 0.002:
+        return cal
+    win = tuple(tuple(w) for w in _windows(bad, s.t))
+    setup = setup.model_copy(update={"analysis": setup.analysis.model_copy(
+        update={"exclude_s": tuple(setup.analysis.exclude_s) + win})})
+    return dataclasses.replace(cal, signals=dataclasses.replace(cal.signals, setup=setup), setup=setup)
+
+
 def _free_offset(s: sg.LogSignals, contact: np.ndarray) -> np.ndarray:
     """(6,) the free-space offset of the force beyond the declared model (``LogSignals.with_contact``)."""
     off = np.zeros(6)
@@ -438,7 +496,7 @@ def _free_offset(s: sg.LogSignals, contact: np.ndarray) -> np.ndarray:
     return off
 
 
-def effective_setup(declared: SetupCfg, used: SetupCfg, fitm, point) -> dict:
+def effective_setup(declared: SetupCfg, used: SetupCfg, fitm, point, tip_fit=None) -> dict:
     """The set-up the data say (beside the declared one): the mount used, the calibrated tool, and
     where contacts act -- tested against the declared tip, not assumed."""
     m = float(fitm.x[3])
@@ -459,12 +517,14 @@ def effective_setup(declared: SetupCfg, used: SetupCfg, fitm, point) -> dict:
     out["tip_used"] = ("the declared tip" if same else
                        "the estimated contact point ([tool] tip_known = false: the declared tip is a first guess)"
                        if not declared.tool.tip_known else "the estimated contact point (no tip declared)")
-    if not same and point is not None:  # a finding about the tool: where its tip is, against the declared
-        d = np.asarray(used.tool.tip_sensor_m) - np.asarray(declared.tool.tip_sensor_m)
-        out["tool_tip"] = {"tip_sensor_m": [float(v) for v in used.tool.tip_sensor_m],
-                           "sd_m": [float(v) for v in point.sd_m],
+    if tip_fit is not None:  # a finding about the tool: where its tip is, fitted with the effects
+        tip = np.asarray(used.tool.tip_sensor_m) + tip_fit[0]
+        d = tip - np.asarray(declared.tool.tip_sensor_m)
+        out["tool_tip"] = {"tip_sensor_m": [float(v) for v in tip], "sd_m": [float(v) for v in tip_fit[1]],
                            "declared_sensor_m": [float(v) for v in declared.tool.tip_sensor_m],
-                           "difference_m": [float(v) for v in d], "distance_m": float(np.linalg.norm(d))}
+                           "difference_m": [float(v) for v in d], "distance_m": float(np.linalg.norm(d)),
+                           "how": "the contact point estimated before the effects, then fitted beside them (a nuisance of "
+                                  "the ranking: method.nuisance); sd from that joint fit"}
     return out
 
 
@@ -524,7 +584,7 @@ def to_log_units(est: dict, setup: SetupCfg) -> dict:
 
 
 def _entry_report(e: dict, eff: Effect, setup: SetupCfg) -> dict:
-    out = {k: v for k, v in e.items() if k not in ("params", "sd", "columns_used", "equivalence")}
+    out = {k: v for k, v in e.items() if k not in ("params", "sd", "columns_used", "equivalence", "model_sd")}
     out["judged"] = True
     out["source"] = eff.source
     out["doc"] = eff.doc
@@ -545,6 +605,8 @@ def _entry_report(e: dict, eff: Effect, setup: SetupCfg) -> dict:
                             "unit": eff.units[j]} for j in range(eff.k)}}
     out["estimate_params"] = {"names": list(eff.params), "units": list(eff.units),
                               "value": [float(v) for v in p], "sd": [float(v) for v in sd]}
+    if "model_sd" in e:  # the part of sd from the choices the data could not make (selection._with_model_sd)
+        out["estimate_params"]["model_sd"] = [float(v) for v in e["model_sd"]]
     return out
 
 
@@ -566,7 +628,7 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
     # the log's signals held by ``calibrate`` alone: it can let them go once it has them in the estimated mount
     with steps.reporting(progress):  # the mount fit says where it is
         cal = calibrate(log, sg.from_log(log, setup, progress), setup, None, rc, progress)
-    cal = _effective_tip(log, cal, declared)
+    cal = _without_disputed(_effective_tip(log, cal, declared))
     s, setup = cal.signals, cal.setup
     chk = _checks(cal, declared, log)
     excite = {n: lib[n].excite for n in names}
@@ -739,7 +801,8 @@ def _base_report(log, declared: SetupCfg, cal: Calibration, chk: Checks, rd: Ran
         "contact": {"fraction": float(s.contact.mean()), "windows_s": _windows(s.contact, s.t),
                     "rows": rd.contact_rows, "accounts": None if cal.accounts is None else cal.accounts.report},
         "segmentation": cal.segmentation.to_json(),
-        "effective_setup": effective_setup(declared, setup, cal.fit, cal.contact_point),
+        "effective_setup": effective_setup(declared, setup, cal.fit, cal.contact_point,
+                                           (result.nuisance[-3:], result.nuisance_sd[-3:]) if tip_nuisance(s) else None),
         "noise_sigma": dict(zip(FREE_CHANNELS, (float(v) for v in cal.sigma))),
         "noise_sigma_method": cal.sigma_how,
         "sensor_mount": chk.sensor_mount,
@@ -755,7 +818,7 @@ def _base_report(log, declared: SetupCfg, cal: Calibration, chk: Checks, rd: Ran
         "method": {"rows": {k: v for k, v in rk.rc._asdict().items() if k != "chunk_samples"},
                    "rows_cover_s": _rows_cover(s, rd.rm, rk.rc),
                    "selection": rk.sc._asdict(), "blocks": des.n_blocks,
-                   "nuisance": "constant offset (tared log)" if s.setup.log.tared else "none"},
+                   "nuisance": _nuisance_text(s)},
     }
 
 
@@ -989,8 +1052,22 @@ def summary_text(rep: dict) -> str:
     if "residual_rms_after" in rep:
         b, a = rep["residual_rms_before"]["total_w"], rep["residual_rms_after"]["total_w"]
         parts.append(f"With {', '.join(rep['added'])} added, the residual falls from {b:.3g} to {a:.3g} "
-                     "(noise-weighted RMS, all rows).")
+                     "(noise-weighted RMS, all rows)" + _effect_free_text(rep) + ".")
     return " ".join(p for p in parts if p)
+
+
+def _effect_free_text(rep: dict) -> str:
+    lv = rep.get("effect_free_level")
+    if not lv:
+        return ""
+    return (f"; the effect-free run {lv['baseline']} leaves {lv['residual_rms_total_w']:.3g}: "
+            f"{lv['after_over_effect_free']:.2f}x the effect-free level")
+
+
+def _nuisance_text(s: sg.LogSignals) -> str:
+    parts = (["constant offset (tared log)"] if s.setup.log.tared else []) + (
+        ["the tip's position (tip_known = false)"] if tip_nuisance(s) else [])
+    return "; ".join(parts) or "none"
 
 
 def _accounts_text(rep: dict) -> list[str]:
@@ -998,12 +1075,13 @@ def _accounts_text(rep: dict) -> list[str]:
     out = []
     tt = (rep.get("effective_setup") or {}).get("tool_tip")
     if tt:
-        out.append("The tool's tip is there, not at the declared first guess ([tool] tip_known = false): "
-                   + ", ".join(f"{a} {1000 * v:+.2f} ± {1000 * e:.2g} mm" for a, v, e in
-                               zip("xyz", tt["difference_m"], tt["sd_m"]))
-                   + " from it; contact effects are judged at it.")
+        out.append("The tool's tip, fitted with the effects ([tool] tip_known = false): ["
+                   + ", ".join(f"{1000 * v:.2f}" for v in tt["tip_sensor_m"]) + "] ± ["
+                   + ", ".join(f"{1000 * e:.2g}" for e in tt["sd_m"]) + "] mm, "
+                   + ", ".join(f"{a} {1000 * v:+.2f}" for a, v in zip("xyz", tt["difference_m"]))
+                   + " mm from the declared first guess; contact effects are judged at it.")
     acc = (rep.get("contact") or {}).get("accounts")
-    if acc and acc.get("disputed_windows_s"):
+    if acc and acc.get("disputed_windows_s") and ";" in acc.get("used", ""):
         out.append("Free space and contact: " + acc["used"] + ".")
     return out
 

@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 from kinadapt_nn.config import load_config
 from kinadapt_nn.diagnostics import contact_model, userlog
 from kinadapt_nn.diagnostics.builtin import BUILTINS, CONTACT_MODEL_EFFECTS
+from kinadapt_nn.diagnostics.ownrun import as_log as ownrun_as_log
 from kinadapt_nn.diagnostics.ownrun import setup_of_run
 from kinadapt_nn.diagnostics.setup import ContactDeclCfg, SetupCfg, ToolDeclCfg, load_setup
 from kinadapt_nn.errors import ConfigError
@@ -217,3 +218,56 @@ def test_diagnose_a_package_run_as_a_log_with_add_effects_and_figures(short_run,
     assert main(["diagnose", str(short_run), "--theta", "0,0,0.1", "--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--theta" in err[0] and not (tmp_path / "x").exists()
+
+
+def test_contact_accounts_use_contact_where_either_says_so_and_name_the_disputed_windows():
+    """``userlog.ContactAccounts``: the data's and the declared geometry's contact OR-ed; what they
+    dispute beyond the data's widening margin is named, and the text says which way it went."""
+    t = np.arange(0.0, 4.0, 0.001)
+    data = (t > 1.0) & (t < 2.0)  # widened by margin_s = 0.1 s on each side already
+    declared = (t > 1.1) & (t < 3.0)  # the bore: the tip below the entrance from 1.1 s
+    setup = SetupCfg(contact=ContactDeclCfg(mode="exclude", zone="entrance", axis_w=(0.0, 0.0, -1.0)))
+    acc = userlog.ContactAccounts.of(data, declared, t, setup)
+    np.testing.assert_array_equal(acc.used, data | declared)
+    (a, b), = acc.report["disputed_windows_s"]  # 1.0-1.1 s is within the data's margin: not disputed
+    assert abs(a - 2.0) < 2e-3 and abs(b - 2.999) < 2e-3, (a, b)
+    assert "under the data's detection threshold" in acc.report["used"]
+    assert "cannot touch" not in acc.report["used"]
+    none = userlog.ContactAccounts.of(data, None, t, SetupCfg())
+    assert none.report["declared"] is None and np.array_equal(none.used, data)
+
+
+def test_a_bore_run_is_one_account_and_nothing_is_present(default_episode):
+    """The README's first run (a bore, its contacts under the 4 N detection threshold): the set-up
+    declares the bore as a zone, the data's free span ends where the tip can touch, and nothing is
+    present (was: ft_offset 7 N, the bore's contacts fitted as free space)."""
+    from kinadapt_nn.diagnostics.importers import RawLog
+
+    tr = default_episode.trace
+    raw = RawLog(tr["t_s"], tr["q_rad"], tr["qdot_rad_s"], tr["wrench_raw_f"], "default run")
+    log, setup = ownrun_as_log(raw, load_config(None, ["run.progress=false"]))
+    assert (setup.contact.mode, setup.contact.zone, setup.tool.tip_known) == ("exclude", "entrance", False)
+    rep = userlog.diagnose(log, setup, hints=False).report
+    assert not [e["effect"] for e in rep["ranking"] if e["verdict"] == "present"], rep["summary"]
+    acc = rep["contact"]["accounts"]
+    assert acc["declared_windows_s"] and not acc["data_windows_s"]
+    assert rep["segmentation"]["free_span_s"][1] <= acc["declared_windows_s"][0][0] + 1e-9
+    assert "Free space and contact" in rep["summary"]
+
+
+def test_an_effect_free_excitation_run_needs_no_baseline(tmp_path):
+    """No hidden effect, no ``--baseline``: nothing present, and the tool's tip, fitted beside the
+    effects ([tool] tip_known = false), covers the true tip (3, -2, 100) mm within 3 of its sd."""
+    from kinadapt_nn.diagnostics.importers import RawLog
+    from kinadapt_nn.runs.episode import run_episode
+
+    cfg = load_config(REPO / "online" / "excite.toml", ["run.tensorboard=false", "run.figure=false",
+                                                        "run.progress=false", "run.seed=3"])
+    tr = run_episode(cfg).trace
+    log, setup = ownrun_as_log(RawLog(tr["t_s"], tr["q_rad"], tr["qdot_rad_s"], tr["wrench_raw_f"], "excite"), cfg)
+    rep = userlog.diagnose(log, setup, hints=False).report
+    assert not [e["effect"] for e in rep["ranking"] if e["verdict"] == "present"], rep["summary"]
+    tt = rep["effective_setup"]["tool_tip"]
+    err = np.asarray(tt["tip_sensor_m"]) - np.asarray(cfg.tool.offset_f_m)
+    assert np.all(np.abs(err) <= 3.0 * np.asarray(tt["sd_m"]) + 1e-6), (err, tt["sd_m"])
+    assert np.linalg.norm(tt["difference_m"]) > 3e-3  # the nominal guess was 3.6 mm off: found, not assumed

@@ -1,7 +1,7 @@
 """A torsional friction couple opposing rotation in the declared contact: ``-radius |f| w/(|w| + eps)``.
 
-``|f|``: the contact force, the measured force beyond the nominal model where the socket is
-engaged (``contact_model``); ``w`` the tool's angular velocity (sensor frame; a couple is the same
+``|f|``: the whole contact force, the measured force beyond the tool's model where the socket is
+engaged (``contact_model``; the declared socket's own spring force included); ``w`` the tool's angular velocity (sensor frame; a couple is the same
 about any point, so it shows in the moment about the tip). Judged only with a declared geometry.
 """
 
@@ -17,9 +17,12 @@ OMEGA_EPS_RAD_S = 0.005  #: [rad/s] smoothing of sign(w) (a model constant)
 
 
 def contact_force_norm(s) -> np.ndarray:
-    """(n,) [N] the force beyond the nominal model where the declared socket is engaged, else 0."""
+    """(n,) [N] the whole contact force where the declared socket is engaged, else 0: the force
+    beyond the tool's model -- what the declared socket's springs predict plus what is left beyond
+    them (a couple grows with the contact's whole force, not with the part the springs miss)."""
     st = contact_model.socket_terms(s.setup.contact, s.R_ws, s.p_ws, s.setup.tool.tip_sensor_m)
-    return np.linalg.norm((s.wrench - s.w_nom)[:, :3], axis=1) * st.gate
+    f = (s.wrench - s.w_nom)[:, :3] + contact_model.nominal_wrench(s.setup, s.R_ws, s.p_ws)[:, :3]
+    return np.linalg.norm(f, axis=1) * st.gate
 
 
 def _report(p, sd, setup) -> dict:
