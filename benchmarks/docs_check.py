@@ -21,6 +21,16 @@ later block uses what an earlier one wrote, exactly as a reader pasting them in 
 ``python -m kinadapt_nn.app.cli`` with ``PYTHONPATH`` at the checkout (with ``--installed``: the
 ``kinadapt`` script already on ``PATH``, as in a fresh clone after ``pip install -e .``).
 
+**Tracing prose to printed lines.** Before a paragraph (a headline list, say)
+
+    <!-- docs-check: numbers from=benchmarks/results/readme_numbers.txt[,FILE...] [given="5.1 1000"] -->
+
+every number in the paragraph (outside code spans and link targets) must be one that the named
+files -- the saved output of the commands that measure them -- print, to the quoted precision
+(``tol=`` / ``abs=`` as below); ``given`` lists the numbers that are inputs (a seed, a config
+value, the paper's figure), not measurements. Nothing is run: the files are checked as they are,
+so they must be the output of the session that wrote the paragraph.
+
 **Marking what it prints.** After a run block, any number of
 
     <!-- docs-check: expect [tol=2%] [abs=0.001] -->
@@ -59,7 +69,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ["README.md", *sorted(str(p.relative_to(ROOT)) for p in (ROOT / "docs").glob("*.md"))]
-MARK = re.compile(r"^\s*<!--\s*docs-check:\s*(run|expect-table|expect)\b(.*?)-->\s*$")
+MARK = re.compile(r"^\s*<!--\s*docs-check:\s*(run|expect-table|expect|numbers)\b(.*?)-->\s*$")
 NUMBER = re.compile(r"[-+]?(?:\d+\.\d*|\.\d+|\d+)(?:[eE][-+]?\d+)?")
 ELLIPSIS = "…"
 
@@ -134,6 +144,10 @@ def parse_doc(path: Path, name: str) -> list[Block]:
             i += 1
             continue
         kind, attrs, at = m.group(1), parse_attrs(m.group(2)), i + 1
+        if kind == "numbers":  # prose traced to saved output: no block needed
+            par, i = _paragraph_at(lines, i + 1)
+            blocks.append(Block(name, at, "", {**attrs, "numbers": True}, [Expect(at, "numbers", "\n".join(par), attrs)]))
+            continue
         if kind == "run":
             code, i = _fence_at(lines, i + 1)
             blocks.append(Block(name, at, code, attrs))
@@ -249,6 +263,42 @@ def check_table(ex: Expect, work: Path) -> tuple[list[str], int]:
     return bad, n
 
 
+def prose_numbers(text: str) -> list[str]:
+    """The numbers of prose: outside inline code spans and link targets, list markers (``1.``) and
+    numbers inside words (``S2``, ``5x``'s ``5`` stays) aside."""
+    text = re.sub(r"`[^`]*`", " ", text)
+    text = re.sub(r"\]\([^)]*\)", "]", text)  # [label](target): the target is not prose
+    text = re.sub(r"(?m)^\s*\d+\.\s", " ", text)
+    out = []
+    for m in NUMBER.finditer(_norm(text)):
+        before = text[m.start() - 1] if m.start() else " "
+        if before.isalpha() or before == "_":
+            continue
+        out.append(m.group(0).lstrip("+"))
+    return out
+
+
+def check_numbers(ex: Expect) -> tuple[list[str], int]:
+    """Every number of a traced paragraph against the numbers its ``from=`` files print."""
+    files = [f for f in str(ex.attrs.get("from", "")).split(",") if f]
+    printed = []
+    for f in files:
+        path = ROOT / f
+        if not path.is_file():
+            return [f"numbers: the file {f!r} (the measuring command's saved output) is missing"], 0
+        printed += [float(x) for x in NUMBER.findall(_norm(path.read_text()))]
+    given = {g for g in str(ex.attrs.get("given", "")).split() if g}
+    bad, n = [], 0
+    for q in prose_numbers(ex.text):
+        if q in given or q.lstrip("-") in given:
+            continue
+        n += 1
+        tol = tolerance(q, ex.attrs)
+        if not any(math.isclose(abs(v), abs(float(q)), rel_tol=0.0, abs_tol=tol) for v in printed):
+            bad.append(f"the text says {q}; no file of {files} prints it (to the quoted precision)")
+    return bad, n
+
+
 def _shims(bin_dir: Path, installed: bool) -> dict:
     """The environment of a block: this checkout's ``kinadapt`` and ``python`` first on PATH."""
     bin_dir.mkdir(parents=True, exist_ok=True)
@@ -285,6 +335,13 @@ def run_block(b: Block, work: Path, env: dict) -> tuple[int | None, str, float]:
 
 def check_block(b: Block, work: Path, env: dict) -> tuple[list[str], int]:
     """Run one block and check its expectations -> (problems, numbers compared)."""
+    if b.attrs.get("numbers"):
+        bad, n = check_numbers(b.expects[0])
+        where = f"{b.file}:{b.line}"
+        print(f"{where} numbers traced to {b.attrs.get('from')}: {n} number(s), {len(bad)} mismatch(es)", flush=True)
+        for p in bad:
+            print(f"  MISMATCH {where}: {p}", flush=True)
+        return [f"{where}: {p}" for p in bad], n
     rc, out, wall = run_block(b, work, env)
     ok_rc = {int(x) for x in str(b.attrs.get("rc", "0")).split(",")}
     where = f"{b.file}:{b.line}"

@@ -212,11 +212,18 @@ def main() -> None:
     ap.add_argument("--no-foreign", action="store_true", help="skip the 24 foreign-log diagnoses")
     ap.add_argument("--pretrain", action="store_true", help="also time kinadapt pretrain (about 65 s more)")
     ap.add_argument("--only-pretrain", action="store_true", help="time kinadapt pretrain only")
+    ap.add_argument("--save", type=Path, help="also write what it prints to this file (the README's headline list is "
+                                                 "traced to benchmarks/results/readme_numbers.txt by docs_check)")
     a = ap.parse_args()
     if a.jobs < 1:
         ap.error("--jobs must be >= 1")
     t0 = time.perf_counter()
-    print(machine(), flush=True)
+    saved: list[str] = []
+
+    def say(text: str) -> None:
+        print(text, flush=True)
+        saved.append(text)
+    say(f"{machine()}; {time.strftime('%Y-%m-%d')}")
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         blocks = [lambda: headline_default(tmp, a.jobs),
@@ -229,8 +236,10 @@ def main() -> None:
         for block in blocks:
             lines = block()
             if lines:
-                print("\n".join(lines), flush=True)
-    print(f"total wall {time.perf_counter() - t0:.0f} s")
+                say("\n".join(lines))
+    say(f"total wall {time.perf_counter() - t0:.0f} s")
+    if a.save:
+        a.save.write_text("\n".join(saved) + "\n")
 
 
 if __name__ == "__main__":

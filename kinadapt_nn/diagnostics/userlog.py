@@ -970,7 +970,9 @@ def _estimate_text(est: dict) -> str:
     """An effect's parameters for the summary: the ``SUMMARY_PARAMETERS`` largest by |value / sd|
     (the best-determined, so the largest is never hidden) in the estimate's own order, then how many
     are left out (``… (+2 more)``; diagnosis.json has them all)."""
-    keys = [k for k in est if not k.startswith("total_") and est[k]["value"] is not None]
+    keys = [k for k in est if not k.startswith("total_") and est[k]["value"] is not None
+            and not (k.startswith("first_moment_") and (est.get("com_" + k[-1]) or {}).get("value") is not None)]
+    # (a first moment m c is the same parameter as its centre of mass: shown where the com is not defined)
 
     def z(k: str) -> float:
         v, sd = abs(float(est[k]["value"])), float(est[k]["sd"] or 0.0)
@@ -991,7 +993,7 @@ def summary_text(rep: dict) -> str:
     if rep.get("blocked"):
         return ("WARNING: " + rep["blocked"] + ". Every effect is 'cannot_decide' until the set-up is right "
                 "(no effect can be judged against a model the data contradict at first sight).")
-    parts = []
+    parts = [completeness_text(rep)]  # the verdict on the model leads, whatever else is estimated
     sm = rep.get("sensor_mount")
     if sm and not sm.get("mount_known", True):
         com = sm["tool_com_sensor_m"]
@@ -1000,7 +1002,6 @@ def summary_text(rep: dict) -> str:
                      f"{sm['tool_mass_kg']:.4g} ± {sm['tool_mass_sd_kg']:.2g} kg"
                      + (", centre of mass [" + ", ".join(f"{1000 * v:.1f}" for v in com) + "] mm in the sensor frame"
                         if com[0] is not None else "") + ".")
-    parts.append(completeness_text(rep))
     if not rep["tip_contact_check"]["ok"]:
         parts.append("WARNING: " + rep["tip_contact_check"]["message"] + ".")
     if sm and sm.get("undetermined"):
