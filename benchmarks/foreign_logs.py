@@ -51,6 +51,8 @@ def _errors(truth: dict, rep: dict) -> dict:
             got = e["estimate"][k]["value"]
             if name == "ft_frame_rotation":
                 errs.append(abs(got - v))
+            elif name == "tool_inertia":  # relative to the tensor's largest entry (off-diagonals may be 0)
+                errs.append(abs(got - v) / max(max(abs(x) for x in params.values()), 1e-12))
             elif name == "tool_gravity" and k.startswith("com"):
                 errs.append(abs(got - v) / max(np.linalg.norm([params[c] for c in ("com_x", "com_y", "com_z")]), 1e-9))
             else:

@@ -131,7 +131,7 @@ def run(out: Path, seed: int) -> dict:
               f"median {summary['wall_s_median']:.1f} s, max {summary['wall_s_max']:.1f} s."]
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
-    return summary
+    return {**summary, "cases": rows}
 
 
 def main() -> None:

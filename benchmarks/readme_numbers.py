@@ -82,7 +82,14 @@ def headline_default(tmp: Path, jobs: int) -> list[str]:
         raise RuntimeError(f"kinadapt online failed: {p.stderr.strip()}")
     s = _summary(out)
     err = np.asarray(s["offset_error_final_m"]) * 1e3
+    paper = tmp / "paper_contact"
+    p = _cli("online", "--set", "scene.contact_friction_timeconst_s=0", "--out", str(paper), "--quiet")
+    if p.returncode not in (0, 1):
+        raise RuntimeError(f"kinadapt online (the paper's contact) failed: {p.stderr.strip()}")
+    sp = _summary(paper)
     lines = ["[1] kinadapt online  (default config: adjoint, kalman law, the bore with its rattle-free contact)",
+             f"    contact transitions per s {s['contact_transitions_per_s']:.1f} (with the paper's contact, "
+             f"scene.contact_friction_timeconst_s=0: {sp['contact_transitions_per_s']:.1f}, seated={sp['success']})",
              f"    seated={s['success']} seat_time_s={s['seat_time_s']:.3f} max|F|={s['max_force_N']:.2f} N "
              f"max|F_lat|={s['max_lateral_force_N']:.2f} N max|M|={s['max_moment_Nm']:.2f} N m "
              f"min_lambda_JJt={s['min_lambda_JJt']:.1f}",
@@ -179,6 +186,13 @@ def headline_foreign(tmp: Path, jobs: int) -> list[str]:
               f"{out['outside_top_hint_right']}/{out['outside']}, no clean library finding "
               f"{out['outside_no_clean_finding']}/{out['outside']}, effect-free complete {out['effect_free_complete']}; "
               f"wall per 15 s 500 Hz log max {out['wall_s_max']:.1f} s"]
+    ue = [c["user_effect"] for c in out.get("cases", []) if c.get("user_effect")]
+    if ue:
+        ratios = [u["residual_after_vs_effect_free"] for u in ue]
+        lines.append(f"    the user's own effect file: present {sum(u['verdict'] == 'present' for u in ue)}/{len(ue)}, "
+                     f"model complete {sum(bool(u['model_complete']) for u in ue)}/{len(ue)}, worst parameter error "
+                     f"{100 * max(u['worst_param_error'] for u in ue):.1f} %, residual after / effect-free "
+                     f"{min(ratios):.2f}-{max(ratios):.2f}x")
     cal = _load("calibration_logs", ROOT / "benchmarks" / "calibration_logs.py").run(
         ["ur5e", "iiwa14"], None, 0, None, None)
     w = cal["unknown_mount_worst"]

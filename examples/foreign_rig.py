@@ -338,12 +338,22 @@ def _hidden(name: str, rig: str) -> _Hidden:
     return table[name]
 
 
+#: [kg m^2] the inertia change a diagnosis counts as relevant (kinadapt's ``tool_inertia``: 0.2 kg at
+#: 50 mm); a payload whose inertia about the sensor reaches it has ``tool_inertia`` in its truth
+PAYLOAD_INERTIA_RELEVANT_KG_M2 = 5e-4
+
+
 def _effects_truth(h: _Hidden, sign: float = 1.0) -> dict[str, dict[str, float]]:
     """Truth in the diagnosis's reporting units; ``sign`` = -1 gives the drift in the parquet convention."""
     eff: dict[str, dict[str, float]] = {}
     if h.payload is not None:
         mass, com = h.payload
         eff["tool_gravity"] = {"mass": mass, "com_x": com[0], "com_y": com[1], "com_z": com[2]}
+        c = np.asarray(com, dtype=float)  # the payload (a point mass) also adds m (|c|^2 1 - c c^T) about the sensor
+        dI = mass * (c @ c * np.eye(3) - np.outer(c, c))
+        if np.abs(dI).max() >= PAYLOAD_INERTIA_RELEVANT_KG_M2:  # real physics a diagnosis should report
+            eff["tool_inertia"] = dict(zip(("dI_xx", "dI_yy", "dI_zz", "dI_xy", "dI_xz", "dI_yz"),
+                                           (dI[0, 0], dI[1, 1], dI[2, 2], dI[0, 1], dI[0, 2], dI[1, 2])))
     if h.rotvec_deg is not None:
         eff["ft_frame_rotation"] = dict(zip(("rot_x", "rot_y", "rot_z"), h.rotvec_deg))
     if h.drift_csv is not None:

@@ -431,7 +431,7 @@ class CellCfg(_Cfg):
     refit_channels: tuple[int, ...] = (1, 2)  # [-] channels of s the refit fits (0 d, 1-2 F_lat, 3-5 M); default: the lateral forces (docs/cell.md)
     refit_prior_weight: float = Field(1.0, gt=0.0, le=1e6)  # [-] the refit's prior information = this x P0^-1
     refit_timing_sd_s: float = Field(0.0, ge=0.0, le=0.1)  # [s] > 0: the refit also estimates the F/T-vs-encoder timing offset (prior sd); 0 = off
-    refit_neural_prior_choice: float = Field(0.0, ge=0.0)  # [-] > 0, neural features: the refit acts on the calibrated-arm prior's estimate unless the measured data favour the features' own prior by more than this x insertions in log marginal likelihood; 0 = off
+    refit_neural_prior_choice: float = Field(30.0, ge=0.0)  # [-] > 0, neural features: the refit acts on the calibrated-arm prior's estimate unless the measured data favour the features' own prior by more than this x insertions in log marginal likelihood; 0 = off (default 30: measured better over five draws, docs/cell.md)
     refit_max_directions_neural: int = Field(0, ge=0, le=1000)  # [-] neural features: the refit acts on at most this many of the best-identified directions (0 = no cap: every direction past act_sd_ratio)
 
     @field_validator("bores_w_m")
@@ -452,7 +452,8 @@ class CellCfg(_Cfg):
             raise ValueError(f"cell.order names bore {bad[0]}, but the cell has {nb} bore(s) (indices 0..{nb - 1})")
         if not self.refit_channels or any(not 0 <= c <= 5 for c in self.refit_channels):
             raise ValueError("cell.refit_channels must name channels of s in 0..5 (0 d, 1-2 F_lat, 3-5 M)")
-        if self.refit_neural_prior_choice > 0 and self.refit_timing_sd_s > 0:
+        if self.refit_neural_prior_choice > 0 and self.refit_timing_sd_s > 0 and \
+                "refit_neural_prior_choice" in self.model_fields_set:  # the default gives way to the timing offset
             raise ValueError("cell.refit_neural_prior_choice and cell.refit_timing_sd_s cannot be combined: set one "
                              "of them to 0")
         return self

@@ -82,3 +82,24 @@ def test_readme_blocks_print_what_the_readme_quotes(capsys):
     res = dc.check_docs(["README.md"], [], False, None, False)
     assert res["run"] >= 1 and res["numbers"] >= 10
     assert res["problems"] == [], "\n".join(res["problems"])
+
+
+def test_prose_numbers_are_traced_to_the_saved_output(tmp_path, monkeypatch):
+    """A ``numbers from=FILE`` paragraph: each number of its prose (code spans, link targets and list
+    markers aside; ``given`` ones skipped) must be printed in FILE to the quoted precision."""
+    out = tmp_path / "out.txt"
+    out.write_text("seat_time_s=4.820 max|F|=1.80 N; right 24/24 logs; error 1.18 % -> 0.05 %\n")
+    monkeypatch.setattr(dc, "ROOT", tmp_path)
+
+    def check(text: str, given: str = "") -> list[str]:
+        ex = dc.Expect(1, "numbers", text, {"from": "out.txt", "given": given})
+        return dc.check_numbers(ex)[0]
+
+    ok = ("1. **Seats.** At 4.820 s (paper: 5.1 s), max |F| 1.80 N, 24/24 logs, 1.18 % → 0.05 % "
+          "([docs](docs/x2.md), `online/s3.toml`)")
+    assert check(ok, given="5.1") == []
+    assert len(check(ok)) == 1  # 5.1 is not printed: an input must be declared given
+    bad = check(ok.replace("4.820", "4.83"), given="5.1")
+    assert len(bad) == 1 and "4.83" in bad[0]
+    assert check("max |F| 1.8 N", given="") == []  # a coarser quote of 1.80 is the same number
+    assert dc.prose_numbers("see [eq. 3](docs/e.md#eq4) and `x=7`, iiwa14 at 2 s") == ["3", "2"]  # a label is prose

@@ -183,7 +183,8 @@ class _Cell:
 
             neural = cfg.run.features == "neural"
             cap = cfg.cell.refit_max_directions_neural if neural else 0
-            choice = cfg.cell.refit_neural_prior_choice if neural else 0.0
+            # the evidence prior (default on) gives way to the timing offset's refit when that is asked for
+            choice = cfg.cell.refit_neural_prior_choice if neural and cfg.cell.refit_timing_sd_s <= 0 else 0.0
             alt = ctrl.features.prior_cov("calibrated_arm") if choice > 0 else None
             self.refit = Refit(ctrl, cfg.cell.refit_channels, cfg.cell.refit_prior_weight,
                                timing_sd_s=cfg.cell.refit_timing_sd_s, max_directions=cap, alt_prior_cov=alt,
