@@ -966,6 +966,29 @@ def _why_undetermined(u: dict) -> str:
 SUMMARY_PARAMETERS = 4
 
 
+def _is_payload(est: dict) -> bool:
+    return "total_mass" in est and all(f"total_com_{a}" in est for a in "xyz")
+
+
+def _payload_text(est: dict, rep: dict) -> str:
+    """``tool_gravity`` as a user thinks of the tool: everything beyond the sensor (its mass and
+    centre of mass, mm), the declared mass beside it and the difference, and where the added mass sits."""
+    tm, com = est["total_mass"], [est[f"total_com_{a}"] for a in "xyz"]
+    out = f"the whole tool {tm['value']:.4g} ± {tm['sd']:.2g} kg"
+    if all(c["value"] is not None for c in com):
+        out += (", centre of mass [" + ", ".join(f"{1000 * c['value']:.1f}" for c in com) + "] ± ["
+                + ", ".join(f"{1000 * c['sd']:.2g}" for c in com) + "] mm")
+    m0 = (rep.get("setup_summary") or {}).get("tool_mass_kg")
+    dm = est["mass"]
+    out += (f"; declared {m0:.4g} kg: " if m0 is not None else "; ") + f"{dm['value']:+.3g} ± {dm['sd']:.2g} kg"
+    added = [est.get(f"com_{a}") or {} for a in "xyz"]
+    if m0 and abs(dm["value"]) < 0.2 * m0:  # a correction of the declared tool, not a body added somewhere
+        out += " (a correction of the declared tool)"
+    elif all(a.get("value") is not None for a in added):
+        out += " added at [" + ", ".join(f"{1000 * a['value']:.1f}" for a in added) + "] mm"
+    return out
+
+
 def _estimate_text(est: dict) -> str:
     """An effect's parameters for the summary: the ``SUMMARY_PARAMETERS`` largest by |value / sd|
     (the best-determined, so the largest is never hidden) in the estimate's own order, then how many
@@ -997,11 +1020,13 @@ def summary_text(rep: dict) -> str:
     sm = rep.get("sensor_mount")
     if sm and not sm.get("mount_known", True):
         com = sm["tool_com_sensor_m"]
+        payload_said = any(e["effect"] == "tool_gravity" and e["verdict"] == "present" for e in rep["ranking"])
         parts.append("Sensor mount estimated: " + sm["paste"] + " (± " + ", ".join(f"{v:.2g}" for v in sm["sd_deg"])
-                     + f" deg; {sm['rotation_from_declared_deg']:.1f} deg from the guess); tool "
-                     f"{sm['tool_mass_kg']:.4g} ± {sm['tool_mass_sd_kg']:.2g} kg"
-                     + (", centre of mass [" + ", ".join(f"{1000 * v:.1f}" for v in com) + "] mm in the sensor frame"
-                        if com[0] is not None else "") + ".")
+                     + f" deg; {sm['rotation_from_declared_deg']:.1f} deg from the guess)"
+                     + ("" if payload_said else  # the tool is said once: tool_gravity's entry gives it
+                        f"; tool {sm['tool_mass_kg']:.4g} ± {sm['tool_mass_sd_kg']:.2g} kg"
+                        + (", centre of mass [" + ", ".join(f"{1000 * v:.1f}" for v in com) + "] mm in the sensor frame"
+                           if com[0] is not None else "")) + ".")
     if not rep["tip_contact_check"]["ok"]:
         parts.append("WARNING: " + rep["tip_contact_check"]["message"] + ".")
     if sm and sm.get("undetermined"):
@@ -1028,7 +1053,8 @@ def summary_text(rep: dict) -> str:
     if pres:
         txt = []
         for e in pres:
-            txt.append(f"{e['effect']} ({_estimate_text(e['estimate'])})")
+            est = e["estimate"]
+            txt.append(f"{e['effect']} ({_payload_text(est, rep) if _is_payload(est) else _estimate_text(est)})")
         parts.append("Present: " + "; ".join(txt) + f" — together {100 * rep['explained_by_present']:.0f}% of the "
                      "residual of the declared model, held-out.")
         if not rep.get("model_complete", True):

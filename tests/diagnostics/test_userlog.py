@@ -300,3 +300,24 @@ def test_the_summary_never_hides_the_largest_parameter_and_says_how_many_are_lef
     small = {n: est[n] for n in names[:4]}
     txt = summary_text({**rep, "ranking": [{**rep["ranking"][0], "estimate": small}]})
     assert "more)" not in txt and all(f"{n} " in txt for n in names[:4]), txt
+
+
+def test_a_payload_is_said_once_as_the_whole_tool():
+    """``tool_gravity`` in the summary: the whole tool (mass, centre of mass), the declared mass and
+    the difference; a small difference is a correction of the declared tool, not a body placed far
+    away; with the mount estimated the calibration's tool is not said a second time (issue 51)."""
+    from kinadapt_nn.diagnostics.userlog import _payload_text
+
+    def q(v, sd, unit):
+        return {"value": v, "sd": sd, "unit": unit}
+
+    est = {"mass": q(0.0451, 0.011, "kg"), "com_x": q(0.2413, 0.1, "m"), "com_y": q(0.0332, 0.1, "m"),
+           "com_z": q(-0.3843, 0.1, "m"), "total_mass": q(0.4451, 0.011, "kg"),
+           "total_com_x": q(0.0245, 0.0035, "m"), "total_com_y": q(0.0034, 0.0042, "m"),
+           "total_com_z": q(-0.039, 0.0038, "m")}
+    rep = {"setup_summary": {"tool_mass_kg": 0.4}}
+    txt = _payload_text(est, rep)
+    assert txt.startswith("the whole tool 0.4451 ± 0.011 kg, centre of mass [24.5, 3.4, -39.0]")
+    assert "declared 0.4 kg: +0.0451" in txt and "correction of the declared tool" in txt and "241" not in txt
+    big = {**est, "mass": q(0.25, 0.001, "kg"), "total_mass": q(0.65, 0.001, "kg")}
+    assert "added at [241.3, 33.2, -384.3] mm" in _payload_text(big, rep)
