@@ -414,7 +414,8 @@ def main(argv: list[str] | None = None) -> int:
         for f in DOCS:
             for b in parse_doc(ROOT / f, f):
                 print(f"{b.file}:{b.line} {'slow ' if b.attrs.get('slow') else ''}"
-                      f"({len(b.expects)} expectation(s)): {b.code.splitlines()[0][:90]}")
+                      f"({len(b.expects)} expectation(s)): "
+                      + (f"numbers traced to {b.attrs.get('from')}" if b.attrs.get("numbers") else b.code.splitlines()[0][:90]))
         return 0
     res = check_docs(DOCS, a.only, a.slow, a.keep, a.installed)
     return 1 if res["problems"] else 0
