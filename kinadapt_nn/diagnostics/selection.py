@@ -45,9 +45,6 @@ class SelCfg(NamedTuple):
     min_explained: float = 0.05  #: [-] smallest held-out share of the remaining residual called an effect
     tie_ratio: float = 0.8  #: [-] a runner-up with this share of the best gain may be a near-tie
     tie_p: float = 0.01  #: one-sided paired block test: best beats the runner-up below this p
-    #: [-] a candidate whose estimate correlates beyond this with a selected effect's (least squares,
-    #: given the model) is not selected beside it: the data cannot split the two (a near-tie)
-    tie_corr: float = 0.98
     ridge: float = 1e-9  #: [-] relative Tikhonov term on the scaled Gram
     ci_level: float = 0.95  #: two-sided level of the equivalence test's intervals
 
@@ -360,15 +357,9 @@ def _forward(st: Stats, des: Design, rc: SelCfg, base: np.ndarray, sse0: np.ndar
             last[n] = tests[n]
         rest = float(sse_sel.sum()) or 1e-300
         ok = [n for n in cand if _eligible(tests[n], rest, rc)]
-        while ok:  # the best eligible one that the data can split from what is selected
-            best = max(ok, key=lambda n: tests[n].gain.sum())
-            twin = _inseparable(st, rc, cur, selected, best, tests[best].cols)
-            if twin is None:
-                break
-            ties.setdefault(best, set()).add(twin)  # the candidate only: the selected one stands
-            ok.remove(best)
         if not ok:
             break
+        best = max(ok, key=lambda n: tests[n].gain.sum())
         t = tests[best]
         rivals, labels = _near_ties(st, des, rc, tests, best, cur, sse_sel, hints)
         if labels:
@@ -417,28 +408,6 @@ def _near_ties(st: Stats, des: Design, rc: SelCfg, tests: dict, best: str, cur: 
             if paired_p(t.sse, alt.sse) > rc.tie_p:
                 labels.append(f"{best}:{des_param(des, best, cols[0], hints)}")
     return rivals, labels
-
-
-def _inseparable(st: Stats, rc: SelCfg, cur: np.ndarray, selected: list, name: str, cols: list[int]) -> str | None:
-    """The selected effect whose estimate the candidate's correlates with beyond ``tie_corr`` when
-    both are fitted (least squares on the scaled Gram, the current model given), or None: a sensor
-    rotation about the flange axis and a joint-7 encoder offset, where the tool's COM and tip lie
-    near that axis."""
-    if not selected:
-        return None
-    idx = np.concatenate([cur, st.idx[name][cols]])
-    G = st.Gt[np.ix_(idx, idx)]
-    C = np.linalg.pinv(G + np.diag(st.lam(idx, G, rc.ridge)))
-    d = np.sqrt(np.maximum(np.diag(C), 1e-300))
-    R = np.abs(C / np.outer(d, d))
-    k = len(cols)
-    pos = len(st.z_idx)
-    for s_name, c in selected:
-        block = R[-k:, pos:pos + len(c)]
-        if block.size and float(block.max()) > rc.tie_corr:
-            return s_name
-        pos += len(c)
-    return None
 
 
 def _tells_apart(st: Stats, des: Design, rc: SelCfg, rival: Candidate, best: str, cur: np.ndarray) -> bool:
