@@ -119,7 +119,7 @@ def detect_contact(e: np.ndarray, t_s: np.ndarray, setup: SetupCfg, rc: RowCfg,
     del es
     k = int(round(setup.contact.margin_s / dt))
     if k > 0 and raw.any():
-        c = np.convolve(raw.astype(float), np.ones(2 * k + 1), "same") > 0  # widen
+        c = _widen(raw, k)
         # fill short free gaps between contact runs
         idx = np.flatnonzero(c)
         gaps = np.flatnonzero(np.diff(idx) > 1)
@@ -129,6 +129,13 @@ def detect_contact(e: np.ndarray, t_s: np.ndarray, setup: SetupCfg, rc: RowCfg,
                 c[a:b] = True
         raw = c
     return raw, off
+
+
+def _widen(mask: np.ndarray, k: int) -> np.ndarray:
+    """(n,) bool ``mask`` widened by ``k`` samples on each side (unchanged for k <= 0)."""
+    if k <= 0 or not mask.any():
+        return mask
+    return np.convolve(mask.astype(float), np.ones(2 * k + 1), "same") > 0
 
 
 def library(setup: SetupCfg, effects_files=()) -> dict[str, Effect]:
@@ -397,11 +404,9 @@ class ContactAccounts:
             return ContactAccounts(data, {"data_windows_s": _windows(data, t), "declared": None,
                                           "used": "the data's (no contact geometry declared)"}, data)
         used = data | declared
-        wide = declared  # the data's windows are widened by margin_s: compared beyond it
-        if len(t) > 1 and setup.contact.margin_s > 0 and not setup.log.static:
-            k = int(round(setup.contact.margin_s / float(np.median(np.diff(t)))))
-            if k > 0 and declared.any():
-                wide = np.convolve(declared.astype(float), np.ones(2 * k + 1), "same") > 0
+        wide = declared  # the data's windows are widened by margin_s (``detect_contact``): compared beyond it
+        if len(t) > 1 and not setup.log.static:
+            wide = _widen(declared, int(round(setup.contact.margin_s / float(np.median(np.diff(t))))))
         only_geom, only_data = declared & ~data, data & ~wide
         why = []
         if only_geom.mean() >= 0.005:
@@ -454,18 +459,15 @@ def _effective_tip(log, cal: "Calibration", declared: SetupCfg) -> "Calibration"
 
     tip = tuple(float(v) for v in point.point_s_m)
     setup = setup.model_copy(update={"tool": setup.tool.model_copy(update={"tip_sensor_m": tip})})
-    acc = cal.accounts
-    if acc is not None and "declared_windows_s" in acc.report:
-        # the declared geometry's account at the point
+    acc, contact = cal.accounts, s.contact
+    if acc is not None and "declared_windows_s" in acc.report:  # the declared geometry's account at the point
         acc = ContactAccounts.of(acc.data, contact_model.declared_contact(setup, s.R_ws, s.p_ws), s.t, setup)
-        s = s.with_contact(acc.used, _free_offset(s, acc.used))
+        contact = acc.used
     if setup.contact.declared_geometry:  # its anchor and lever at the point: the signals again
-        contact = s.contact
         s = sg.from_log(log, setup)
-        s = s.with_contact(contact, _free_offset(s, contact))
     else:
         s = dataclasses.replace(s, setup=setup, tip_map=tip_moment_map(np.asarray(tip)))
-    return dataclasses.replace(cal, signals=s, setup=setup, accounts=acc)
+    return dataclasses.replace(cal, signals=s.with_contact(contact, _free_offset(s, contact)), setup=setup, accounts=acc)
 
 
 def _without_disputed(cal: "Calibration") -> "Calibration":
