@@ -270,6 +270,8 @@ class ToolGravityCfg(_Cfg):
     enabled: bool = False
     mass_kg: float = Field(0.5, gt=0.0, le=5.0)  # [kg] payload mass
     com_f_m: Vec3 = (0.0, 0.0, 0.05)  # [m] payload centre of mass from O, flange frame
+    onset_s: float = Field(0.0, ge=0.0, le=600.0)  # [s] the payload is picked up at this time (0: there from the start)
+    ramp_s: float = Field(0.0, ge=0.0, le=10.0)  # [s] its mass grows linearly over this long from the onset (0: a step)
 
     @field_validator("com_f_m")
     @classmethod
@@ -282,6 +284,7 @@ class FtBiasDriftCfg(_Cfg):
 
     enabled: bool = False
     rate_f: Vec6 = (0.2, 0.0, 0.0, 0.0, 0.0, 0.0)  # [N/s, N m/s] drift of the reading, sensor frame
+    onset_s: float = Field(0.0, ge=0.0, le=600.0)  # [s] the drift starts at this time (reading += rate (t - onset))
 
     @field_validator("rate_f")
     @classmethod
@@ -294,6 +297,8 @@ class FtFrameRotationCfg(_Cfg):
 
     enabled: bool = False
     rotvec_deg: Vec3 = (1.41, 0.0, 1.41)  # [deg] rotation vector of the sensor frame in f (2 deg total)
+    onset_s: float = Field(0.0, ge=0.0, le=600.0)  # [s] the mount turns at this time (0: rotated from the start)
+    ramp_s: float = Field(0.0, ge=0.0, le=10.0)  # [s] the angle grows linearly over this long from the onset (0: a step)
 
     @field_validator("rotvec_deg")
     @classmethod
@@ -343,6 +348,41 @@ class EncoderOffsetCfg(_Cfg):
     offset_deg: float = Field(0.5, ge=-5.0, le=5.0)  # [deg] true angle = reading + offset
 
 
+class WorldForceCfg(_Cfg):
+    """Effect ``world_force``: a snag -- a cable or hose pulls on the tool with a constant world-frame force at a
+    point of the tool, from a time on."""
+
+    enabled: bool = False
+    force_w_N: Vec3 = (0.0, -1.5, 0.0)  # [N] the pull, world frame
+    point_f_m: Vec3 = (0.0, 0.02, 0.06)  # [m] where it acts on the tool, flange frame (from O)
+    onset_s: float = Field(0.0, ge=0.0, le=600.0)  # [s] the snag catches at this time
+    ramp_s: float = Field(0.0, ge=0.0, le=10.0)  # [s] the pull grows linearly over this long from the onset (0: a step)
+
+    @field_validator("force_w_N")
+    @classmethod
+    def _force(cls, v: Vec3) -> Vec3:
+        return _within(v, -100.0, 100.0, "N")
+
+    @field_validator("point_f_m")
+    @classmethod
+    def _point(cls, v: Vec3) -> Vec3:
+        return _within(v, -0.5, 0.5, "m")
+
+
+class GraspSlipCfg(_Cfg):
+    """Effect ``grasp_slip``: the tool slips in the grasp at a time, turning about O (the sensor stays put)."""
+
+    enabled: bool = False
+    slip_deg: Vec2 = (8.0, 0.0)  # [deg] the turn of the tool in the grasp about f x, then f y
+    onset_s: float = Field(0.0, ge=0.0, le=600.0)  # [s] the grasp slips at this time
+    ramp_s: float = Field(0.02, ge=0.0, le=10.0)  # [s] the slip takes this long (0: a jump)
+
+    @field_validator("slip_deg")
+    @classmethod
+    def _slip(cls, v: Vec2) -> Vec2:
+        return _within(v, -20.0, 20.0, "deg")
+
+
 class EffectsCfg(_Cfg):
     """Hidden physical effects (truth side; ``kinadapt_nn.features.effect_library`` has the model side).
 
@@ -356,6 +396,8 @@ class EffectsCfg(_Cfg):
     contact_friction_couple: ContactFrictionCoupleCfg = ContactFrictionCoupleCfg()
     grasp_compliance: GraspComplianceCfg = GraspComplianceCfg()
     encoder_offset: EncoderOffsetCfg = EncoderOffsetCfg()
+    world_force: WorldForceCfg = WorldForceCfg()
+    grasp_slip: GraspSlipCfg = GraspSlipCfg()
 
     def enabled(self) -> list[str]:
         return [k for k in type(self).model_fields if getattr(self, k).enabled]
@@ -363,6 +405,21 @@ class EffectsCfg(_Cfg):
 
 EffectName = Literal["tool_gravity", "ft_bias_drift", "ft_frame_rotation", "tool_tilt", "contact_stiffness",
                      "contact_friction_couple", "grasp_compliance", "encoder_offset"]
+
+
+class MonitorCfg(_Cfg):
+    """The live monitor (``kinadapt online --monitor``, ``kinadapt_nn.monitor``): a sequential test of the
+    measured wrench against the nominal model's prediction (declared tool, its gravity and inertia), on
+    what the controller receives only. docs/monitor.md."""
+
+    enabled: bool = False  # run the monitor beside the controller (--monitor sets it)
+    false_alarms_per_h: float = Field(0.1, gt=0.0, le=3600.0)  # [1/h] false-alarm rate of the test on white noise at the floor (sets the CUSUM threshold)
+    cusum_k: float = Field(1.0, gt=0.0, le=20.0)  # [-] CUSUM reference value, in noise sd: half the smallest shift it is tuned to
+    floor_N: float = Field(0.05, gt=0.0)  # [N] smallest noise sd of a force channel (model error below it is noise)
+    floor_Nm: float = Field(0.005, gt=0.0)  # [N m] smallest noise sd of a moment channel
+    calib_s: float = Field(0.2, gt=0.0, le=10.0)  # [s] at the start, at rest: the sensor's offset and noise are measured this long
+    window_s: float = Field(0.25, gt=0.01, le=10.0)  # [s] after an alarm: samples this long are fitted to name the shape
+    contact_zone_m: float = Field(0.004, ge=0.0, le=0.1)  # [m] the nominal tip within this of the entrance plane (or below it): contact, not judged
 
 
 class ModelCfg(_Cfg):
@@ -486,6 +543,7 @@ class ExperimentCfg(_Cfg):
     excite: ExciteCfg = ExciteCfg()
     success: SuccessCfg = SuccessCfg()
     cell: CellCfg = CellCfg()
+    monitor: MonitorCfg = MonitorCfg()
 
 
 def true_bore_entry(scene: SceneCfg) -> tuple[float, float, float]:

@@ -22,7 +22,7 @@ from kinadapt_nn.errors import KinadaptError
 from kinadapt_nn.geometry import rotvec_from_matrix, tilt_rotation
 from kinadapt_nn.known import BORE_AXIS_W
 from kinadapt_nn.robot import JOINT_LIMITS_RAD, Q_HOME_RAD, SERVO_KP, SERVO_KV
-from kinadapt_nn.sim.effects import SensorEffects, truth_config
+from kinadapt_nn.sim.effects import SensorEffects, TimedEffects, timed, truth_config
 from kinadapt_nn.sim.ft_sensor import FIELDS as FT_FIELDS
 from kinadapt_nn.sim.ft_sensor import RealisedSensor, sensor_chain
 from kinadapt_nn.sim.scene import FORCE_SENSOR, TORQUE_SENSOR, TRUTH_CONTACT_SLOTS, SceneIds, build_model
@@ -118,6 +118,8 @@ class PegInHoleSim:
         self.model, self.ids = build_model(cfg.tool, cfg.scene, arm=cfg.arm, effects=cfg.effects)
         #: hidden sensor effects on the raw F/T reading (truth side; ``active`` False when none)
         self.sensor_effects = SensorEffects(cfg)
+        #: hidden effects that change the world during the run (payload picked up, snag, slip), or None
+        self.timed = TimedEffects(cfg, self.model) if timed(cfg) else None
         self.model.opt.timestep = cfg.run.dt_s
         self.data = mujoco.MjData(self.model)
         self.entry_w = np.asarray(true_bore_entry(cfg.scene), dtype=float)  # the TRUE bore
@@ -207,6 +209,8 @@ class PegInHoleSim:
         """One physics step (``mj_step``), the socket contact's wrench applied first when it is on."""
         if self._socket_step is not None:
             self._socket_step(float(self.data.time))
+        if self.timed is not None:
+            self.timed(float(self.data.time), self.model, self.data.xfrc_applied)
         self.ft.before_step()
         mujoco.mj_step(self.model, self.data)
         self.ft.after_step(self._row0)

@@ -110,6 +110,11 @@ def _add_tool(spec: mujoco.MjSpec, tool: ToolCfg, effects: EffectsCfg | None = N
         pay.ipos = [0.0, 0.0, 0.0]  # the payload body sits at its COM
         r = 0.02  # [m] a small solid sphere's inertia
         pay.inertia = [0.4 * g.mass_kg * r * r] * 3
+    if effects is not None and effects.world_force.enabled:  # effect world_force: a massless body where the snag pulls
+        snag = body.add_body(name="snag", pos=list(effects.world_force.point_f_m))
+        snag.explicitinertial = True
+        snag.mass = 0.0
+        snag.inertia = [0.0, 0.0, 0.0]
 
 
 def _convex_prism(spec: mujoco.MjSpec, name: str, profile_xz: np.ndarray, y0: float, y1: float) -> None:

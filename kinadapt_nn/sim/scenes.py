@@ -122,6 +122,11 @@ class SceneBatch:
         self._sockets = [(b, s.bind_socket(rows[b])) for b, s in enumerate(self.sims) if s.has_socket]
         self._has_socket = [s.has_socket for s in self.sims]
         self._sensor_side = self._sensor_side_of(cfgs)
+        self._timed = [(b, s.timed) for b, s in enumerate(self.sims) if s.timed is not None]
+        if self.physics is not None and any(fx.payload is not None or fx.slip is not None for _b, fx in self._timed):
+            raise ConfigError("a payload picked up mid-run (effects.tool_gravity.onset_s > 0) or a grasp slip changes "
+                              "the scene's model during the run: run it as one episode (kinadapt online), not in a "
+                              "batch")
         self._warn0 = self._warnings(range(self.B)) if self.physics is None or self.physics.persistent else None
         self._init_kernels()
 
@@ -193,6 +198,9 @@ class SceneBatch:
         for b, socket in self._sockets:
             if active[b]:
                 socket(t)
+        for b, fx in self._timed:  # hidden effects with an onset (``sim.effects.TimedEffects``)
+            if active[b]:
+                fx(t, self.sims[b].model if self.physics is None else None, self._src.xfrc_applied[b])
         if self.physics is None:
             if every_one or active[0]:
                 s = self.sims[0]
