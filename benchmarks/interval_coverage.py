@@ -7,8 +7,8 @@ numbers"): does ``estimate ± 1.96 sd`` contain the truth in 95 % of the draws?
 
 A case is ``RIG:CASE`` of the standalone generators (they import nothing from the package; ``--cases list``
 names them): ``A:*`` and ``B:*`` from ``examples/foreign_rig.py`` (rig A's csv.gz log; rig B),
-``ur5e:*`` and ``iiwa14:*`` from ``examples/calibration_rig.py``, ``contact:point`` from
-``examples/contact_rig.py``. Each seed writes the case afresh (new noise; the motion is the case's own, the
+``ur5e:*`` and ``iiwa14:*`` from ``examples/calibration_rig.py``, ``contact:*`` from ``examples/contact_rig.py``
+(``point``; the unmodelled flat face ``flat_face_alone``, ``flat_face_alone_rich``, ``flat_face_rotation``). Each seed writes the case afresh (new noise; the motion is the case's own, the
 calibration rig's static poses change with the seed) and diagnoses it with the library call of a user's
 command (``diagnose(read_log(log, setup), setup, hints=False)``). Compared with the truth:
 
@@ -196,13 +196,16 @@ class CalibrationRig:
 
 
 class ContactRig:
-    """``examples/contact_rig.py``: the point-contact case (its flat face needs a user effect file)."""
+    """``examples/contact_rig.py``: the point contact, and the flat face pressed, slid and twisted (a moment about
+    the tip no library effect has) with nothing else hidden (``flat_face_alone``, ``flat_face_alone_rich``) or
+    beside a hidden rotation of the sensor's measuring axes (``flat_face_rotation``); the crosstalk cases need a
+    user effect file."""
 
     def __init__(self):
         self.mod = load_example("contact_rig")
 
     def cases(self) -> list[str]:
-        return ["point"]
+        return ["point", "flat_face_alone", "flat_face_alone_rich", "flat_face_rotation"]
 
     def make(self, case: str, out: Path, seed: int) -> tuple[Path, Path, dict]:
         d = self.mod.make_case(case, out, seed=seed)
@@ -210,14 +213,18 @@ class ContactRig:
 
     def truth(self, t: dict) -> Truth:
         """The declared tool (0.5 kg, COM on the axis) is not the true one (0.62 kg, off-axis): a hidden
-        ``tool_gravity`` of dm = true - declared mass and dm c = the first moments' difference."""
+        ``tool_gravity`` of dm = true - declared mass and dm c = the first moments' difference (the sensor body's
+        axes); a rotation of the measuring axes is ``ft_frame_rotation``. A flat face has no contact point (its
+        pressure centre moves with the friction and the twist): the contact point is compared only for ``point``."""
         m, c = t["tool_mass_kg"], np.asarray(t["tool_com_sensor_m"])
         m_d, c_d = t["declared"]["tool_mass_kg"], np.asarray(t["declared"]["tool_com_sensor_m"])
         dm, dmc = m - m_d, m * c - m_d * c_d
-        eff = {"tool_gravity": {"mass": dm, **{f"com_{a}": float(v) for a, v in zip(XYZ, dmc / dm)}}}
-        cal = _calibration(m, c, self.mod.rpy_matrix_deg(t["sensor_rpy_flange_deg"]), np.eye(3))
-        return Truth(_with_totals(eff, m, c), cal, dict(zip(XYZ, map(float, t["contact_point_sensor_m"]))),
-                     inertia_o((m, c, t["tool_inertia_com_kg_m2"])))
+        eff = {"tool_gravity": {"mass": dm, **{f"com_{a}": float(v) for a, v in zip(XYZ, dmc / dm)}},
+               **t.get("effects", {})}
+        R_hid = _hidden_rotation(eff)
+        cal = _calibration(m, c, self.mod.rpy_matrix_deg(t["sensor_rpy_flange_deg"]) @ R_hid, R_hid)
+        point = dict(zip(XYZ, map(float, t["contact_point_sensor_m"]))) if "face" not in t else None
+        return Truth(_with_totals(eff, m, c), cal, point, inertia_o((m, c, t["tool_inertia_com_kg_m2"])))
 
 
 def rigs() -> dict[str, ForeignRig | CalibrationRig | ContactRig]:

@@ -59,8 +59,11 @@ about its own axis by up to 60 deg (rotations along the geodesic, the tip moved 
 to the start pose; then the flat_face experiment unchanged (same q and contact wrench, delayed).
 ``flat_face_alone`` and ``flat_face_alone_rich`` are ``flat_face`` and ``flat_face_rich`` with
 nothing hidden but the face contact (no crosstalk): the effect-free face-contact logs.
-Pipeline: physics -> crosstalk
-``(I + E) w`` -> tare (minus the noise-free reading at the first pose) -> noise N(0, 0.05 N /
+``flat_face_rotation`` is ``flat_face_alone_rich`` read by a sensor whose measuring axes are rotated
+2.05 deg from its body (rotation vector ``AXES_ROTVEC_DEG`` = (1.2, -0.9, 1.4) deg in the body axes:
+it reports ``R^T F``, ``R^T M``), the body's true mount declared known: a hidden ``ft_frame_rotation``
+beside the unmodelled face. Pipeline: physics -> crosstalk
+``(I + E) w`` -> measuring axes ``diag(R^T, R^T)`` -> tare (minus the noise-free reading at the first pose) -> noise N(0, 0.05 N /
 0.003 N m) -> text with 6 decimals (q to 1 urad).
 
 Per case ``DIR/<case>/``: ``log.csv`` (``t`` [s], ``q1..q6`` [rad], ``fx fy fz tx ty tz`` [N, N m]
@@ -160,11 +163,15 @@ class Case:
     free_motion: str  # "turn": the 18 deg approach turn only; "rich": RICH_TARGETS first
     crosstalk_fx_from_fz: float  # [-] the sensor reports Fx + this Fz
     declares_tip: bool  # the set-up declares the tip (the face centre)
+    #: [deg] the sensor's measuring axes rotated from its body by this rotation vector (body axes s): it reports
+    #: ``R^T F`` and ``R^T M``; the set-up then declares the body's true mount, known (``ft_frame_rotation``)
+    axes_rotvec_deg: tuple[float, float, float] | None = None
 
 
 _FACE = ("a 20 x 20 mm box-peg face pressed, slid and twisted on the table (a moment about the face centre: "
          "pressure shift + torsional friction)")
 _FLAT = _FACE + " and a hidden crosstalk Fx += 0.04 Fz"
+AXES_ROTVEC_DEG = (1.2, -0.9, 1.4)  # [deg] flat_face_rotation: the measuring axes' rotation (2.05 deg)
 CASES: dict[str, Case] = {
     "point": Case("a point contact at the tip (0.03, -0.015, 0.12) m of the sensor frame, not declared; pivot, "
                   "sideways pushes and slides change the force's direction", "point", "turn", 0.0, False),
@@ -174,6 +181,9 @@ CASES: dict[str, Case] = {
     "flat_face_alone": Case(_FACE + "; nothing else hidden", "flat", "turn", 0.0, True),
     "flat_face_alone_rich": Case(_FACE + "; nothing else hidden; first the rich free-space phase of flat_face_rich",
                                  "flat", "rich", 0.0, True),
+    "flat_face_rotation": Case(_FACE + "; the sensor's measuring axes rotated 2.05 deg from its body (rotation vector "
+                               "(1.2, -0.9, 1.4) deg, the body's mount declared known); first the rich free-space phase",
+                               "flat", "rich", 0.0, True, AXES_ROTVEC_DEG),
 }
 Q_COLS = tuple(f"q{j}" for j in range(1, 7))
 WRENCH_COLS = ("fx", "fy", "fz", "tx", "ty", "tz")
@@ -484,10 +494,14 @@ def _contact_wrench(kind: str, t: np.ndarray, fn: np.ndarray, vel: np.ndarray, w
     return fn[:, None] * n + fric, np.cross(cop, fn[:, None] * n) + torsion[:, None] * n
 
 
-@functools.lru_cache(maxsize=3)
 def trajectory(case: Case) -> Trajectory:
     """The experiment of ``case`` (10 s, plus ``T_RICH_S`` for a rich free motion first), see the
-    module docstring."""
+    module docstring; the same for every case of the same contact and free motion."""
+    return _trajectory(Case("", case.contact, case.free_motion, 0.0, False))
+
+
+@functools.lru_cache(maxsize=3)
+def _trajectory(case: Case) -> Trajectory:
     m = build_model()
     delay = experiment_delay_s(case)
     t = np.arange(N_SAMPLES + round(delay * RATE_HZ)) / RATE_HZ
@@ -506,9 +520,14 @@ def trajectory(case: Case) -> Trajectory:
 # the log
 # ==================================================================================================
 def crosstalk_matrix(name: str) -> np.ndarray:
-    """(6, 6) ``I + E``: what the sensor reports of the true wrench (rows/cols Fx Fy Fz Tx Ty Tz)."""
+    """(6, 6) what the sensor reports of the true wrench (rows/cols Fx Fy Fz Tx Ty Tz): ``I + E`` (the
+    crosstalk), then the measuring axes' rotation R (``diag(R^T, R^T)``)."""
     e = np.eye(6)
-    e[0, 2] += CASES[name].crosstalk_fx_from_fz
+    case = CASES[name]
+    e[0, 2] += case.crosstalk_fx_from_fz
+    if case.axes_rotvec_deg is not None:
+        r_t = rotvec_matrix(np.deg2rad(case.axes_rotvec_deg)).T
+        e = np.block([[r_t, np.zeros((3, 3))], [np.zeros((3, 3)), r_t]]) @ e
     return e
 
 
@@ -542,8 +561,9 @@ def _toml_value(v) -> str:
 
 def setup_toml(name: str, mount_known: bool = False) -> str:
     """The set-up a user of this rig declares: the URDF, tared, the mount's rotation unknown (zero
-    first guess; ``mount_known``: the true rotation, declared known), a guessed tool; ``point``
-    declares no tip, the flat cases the face centre."""
+    first guess; ``mount_known``: the true rotation, declared known; always for a case whose measuring axes
+    are rotated), a guessed tool; ``point`` declares no tip, the flat cases the face centre."""
+    mount_known = mount_known or CASES[name].axes_rotvec_deg is not None
     tool = {"mass_kg": DECLARED_MASS_KG, "com_sensor_m": DECLARED_COM_S_M}
     if CASES[name].declares_tip:
         tool["tip_sensor_m"] = TIP_S_M
@@ -563,6 +583,7 @@ def setup_toml(name: str, mount_known: bool = False) -> str:
 def truth(name: str, sig: dict[str, np.ndarray], seed: int, mount_known: bool = False) -> dict:
     """What the log hides (SI units, sensor frame unless named)."""
     case = CASES[name]
+    mount_known = mount_known or case.axes_rotvec_deg is not None
     in_contact = np.linalg.norm(sig["f_w"], axis=1) > 0.0
     onset = float(sig["t"][np.argmax(in_contact)])
     out = {"case": name, "description": case.description, "seed": int(seed),
@@ -585,6 +606,8 @@ def truth(name: str, sig: dict[str, np.ndarray], seed: int, mount_known: bool = 
         k = case.crosstalk_fx_from_fz
         out["crosstalk"] = {"fx_from_fz": k, "reads": f"Fx + {k} Fz (tool-on-sensor, before the tare)",
                             "effect_file": "examples/effects/crosstalk_fx_fz.py"}
+    if case.axes_rotvec_deg is not None:  # in the report's terms: ft_frame_rotation's rotation vector [deg]
+        out["effects"] = {"ft_frame_rotation": dict(zip(("rot_x", "rot_y", "rot_z"), case.axes_rotvec_deg))}
     return out
 
 
