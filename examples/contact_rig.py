@@ -62,8 +62,11 @@ nothing hidden but the face contact (no crosstalk): the effect-free face-contact
 ``flat_face_rotation`` is ``flat_face_alone_rich`` read by a sensor whose measuring axes are rotated
 2.05 deg from its body (rotation vector ``AXES_ROTVEC_DEG`` = (1.2, -0.9, 1.4) deg in the body axes:
 it reports ``R^T F``, ``R^T M``), the body's true mount declared known: a hidden ``ft_frame_rotation``
-beside the unmodelled face. Pipeline: physics -> crosstalk
-``(I + E) w`` -> measuring axes ``diag(R^T, R^T)`` -> tare (minus the noise-free reading at the first pose) -> noise N(0, 0.05 N /
+beside the unmodelled face. Also after the rich free motion, the mount declared known:
+``flat_face_true_tool`` (the true tool declared too: nothing but the face), ``flat_face_drift`` (the
+reading drifts, ``DRIFT_PER_S``), ``flat_face_encoder`` (joint 4 reads 1 deg short) and
+``flat_face_crosstalk_mount_known`` (``flat_face_rich`` with the mount declared). Pipeline: physics -> crosstalk
+``(I + E) w`` -> measuring axes ``diag(R^T, R^T)`` -> tare (minus the noise-free reading at the first pose) -> drift -> noise N(0, 0.05 N /
 0.003 N m) -> text with 6 decimals (q to 1 urad).
 
 Per case ``DIR/<case>/``: ``log.csv`` (``t`` [s], ``q1..q6`` [rad], ``fx fy fz tx ty tz`` [N, N m]
@@ -166,12 +169,19 @@ class Case:
     #: [deg] the sensor's measuring axes rotated from its body by this rotation vector (body axes s): it reports
     #: ``R^T F`` and ``R^T M``; the set-up then declares the body's true mount, known (``ft_frame_rotation``)
     axes_rotvec_deg: tuple[float, float, float] | None = None
+    drift_per_s: tuple[float, ...] | None = None  #: [N/s, N m/s] the reading drifts linearly from the first sample
+    encoder_offset_deg: tuple[int, float] | None = None  #: (joint 1-6, true - logged [deg]) an encoder's zero offset
+    declares_true_tool: bool = False  #: the set-up declares the true tool (mass, COM, inertia), not the guess
+    declares_mount: bool = False  #: the set-up declares the true mount, known (also with any hidden sensor effect)
 
 
 _FACE = ("a 20 x 20 mm box-peg face pressed, slid and twisted on the table (a moment about the face centre: "
          "pressure shift + torsional friction)")
 _FLAT = _FACE + " and a hidden crosstalk Fx += 0.04 Fz"
 AXES_ROTVEC_DEG = (1.2, -0.9, 1.4)  # [deg] flat_face_rotation: the measuring axes' rotation (2.05 deg)
+DRIFT_PER_S = (0.06, -0.04, 0.05, 0.006, -0.005, 0.004)  # [N/s, N m/s] flat_face_drift
+ENCODER_OFFSET_DEG = (4, 1.0)  # flat_face_encoder: joint 4 reads 1 deg less than it is
+_RICH = "; first the rich free-space phase"
 CASES: dict[str, Case] = {
     "point": Case("a point contact at the tip (0.03, -0.015, 0.12) m of the sensor frame, not declared; pivot, "
                   "sideways pushes and slides change the force's direction", "point", "turn", 0.0, False),
@@ -184,6 +194,16 @@ CASES: dict[str, Case] = {
     "flat_face_rotation": Case(_FACE + "; the sensor's measuring axes rotated 2.05 deg from its body (rotation vector "
                                "(1.2, -0.9, 1.4) deg, the body's mount declared known); first the rich free-space phase",
                                "flat", "rich", 0.0, True, AXES_ROTVEC_DEG),
+    "flat_face_true_tool": Case(_FACE + "; nothing else hidden: the true tool (mass, COM, inertia) and mount declared"
+                                + _RICH, "flat", "rich", 0.0, True, declares_true_tool=True, declares_mount=True),
+    "flat_face_drift": Case(_FACE + "; the reading drifts linearly (0.06, -0.04, 0.05 N/s, 0.006, -0.005, 0.004 "
+                            "N m/s), the mount declared" + _RICH, "flat", "rich", 0.0, True, drift_per_s=DRIFT_PER_S,
+                            declares_mount=True),
+    "flat_face_encoder": Case(_FACE + "; joint 4's encoder reads 1 deg less than the joint's angle, the mount "
+                              "declared" + _RICH, "flat", "rich", 0.0, True, encoder_offset_deg=ENCODER_OFFSET_DEG,
+                              declares_mount=True),
+    "flat_face_crosstalk_mount_known": Case(_FLAT + "; the mount declared" + _RICH, "flat", "rich",
+                                            CROSSTALK_FX_FROM_FZ, True, declares_mount=True),
 }
 Q_COLS = tuple(f"q{j}" for j in range(1, 7))
 WRENCH_COLS = ("fx", "fy", "fz", "tx", "ty", "tz")
@@ -543,10 +563,18 @@ def case_signals(name: str, seed: int = 0, noise: bool = True) -> dict[str, np.n
     reported = w_true @ crosstalk_matrix(name).T
     tare = reported[0].copy()  # the arm is at rest at the first sample: the sensor is zeroed there
     wrench = reported - tare
+    case = CASES[name]
+    q = tr.q
+    if case.drift_per_s is not None:
+        wrench = wrench + (tr.t - tr.t[0])[:, None] * np.asarray(case.drift_per_s)[None, :]
+    if case.encoder_offset_deg is not None:
+        j, off = case.encoder_offset_deg
+        q = q.copy()
+        q[:, j - 1] -= math.radians(off)
     if noise:
         rng = np.random.default_rng(seed)
         wrench = wrench + rng.normal(size=wrench.shape) * np.r_[[SIGMA_FORCE_N] * 3, [SIGMA_TORQUE_NM] * 3]
-    return {"t": tr.t, "q": tr.q, "wrench": wrench, "wrench_true": w_true, "tare": tare, "f_w": tr.f_w}
+    return {"t": tr.t, "q": q, "wrench": wrench, "wrench_true": w_true, "tare": tare, "f_w": tr.f_w}
 
 
 def _toml_value(v) -> str:
@@ -563,8 +591,11 @@ def setup_toml(name: str, mount_known: bool = False) -> str:
     """The set-up a user of this rig declares: the URDF, tared, the mount's rotation unknown (zero
     first guess; ``mount_known``: the true rotation, declared known; always for a case whose measuring axes
     are rotated), a guessed tool; ``point`` declares no tip, the flat cases the face centre."""
-    mount_known = mount_known or CASES[name].axes_rotvec_deg is not None
+    case = CASES[name]
+    mount_known = mount_known or case.declares_mount or case.axes_rotvec_deg is not None
     tool = {"mass_kg": DECLARED_MASS_KG, "com_sensor_m": DECLARED_COM_S_M}
+    if case.declares_true_tool:
+        tool = {"mass_kg": TOOL_MASS_KG, "com_sensor_m": TOOL_COM_S_M, "inertia_com_kg_m2": TOOL_INERTIA_COM_KG_M2}
     if CASES[name].declares_tip:
         tool["tip_sensor_m"] = TIP_S_M
     rpy = SENSOR_RPY_F_DEG if mount_known else (0.0, 0.0, 0.0)
@@ -583,7 +614,7 @@ def setup_toml(name: str, mount_known: bool = False) -> str:
 def truth(name: str, sig: dict[str, np.ndarray], seed: int, mount_known: bool = False) -> dict:
     """What the log hides (SI units, sensor frame unless named)."""
     case = CASES[name]
-    mount_known = mount_known or case.axes_rotvec_deg is not None
+    mount_known = mount_known or case.declares_mount or case.axes_rotvec_deg is not None
     in_contact = np.linalg.norm(sig["f_w"], axis=1) > 0.0
     onset = float(sig["t"][np.argmax(in_contact)])
     out = {"case": name, "description": case.description, "seed": int(seed),
@@ -606,8 +637,19 @@ def truth(name: str, sig: dict[str, np.ndarray], seed: int, mount_known: bool = 
         k = case.crosstalk_fx_from_fz
         out["crosstalk"] = {"fx_from_fz": k, "reads": f"Fx + {k} Fz (tool-on-sensor, before the tare)",
                             "effect_file": "examples/effects/crosstalk_fx_fz.py"}
-    if case.axes_rotvec_deg is not None:  # in the report's terms: ft_frame_rotation's rotation vector [deg]
-        out["effects"] = {"ft_frame_rotation": dict(zip(("rot_x", "rot_y", "rot_z"), case.axes_rotvec_deg))}
+    eff = {}  # the hidden library effects in the report's terms (deg; the log's wrench convention)
+    if case.axes_rotvec_deg is not None:
+        eff["ft_frame_rotation"] = dict(zip(("rot_x", "rot_y", "rot_z"), case.axes_rotvec_deg))
+    if case.drift_per_s is not None:
+        eff["ft_bias_drift"] = dict(zip(("rate_fx", "rate_fy", "rate_fz", "rate_tx", "rate_ty", "rate_tz"),
+                                        case.drift_per_s))
+    if case.encoder_offset_deg is not None:
+        eff["encoder_offset"] = {f"offset_joint{case.encoder_offset_deg[0]}": case.encoder_offset_deg[1]}
+    if eff:
+        out["effects"] = eff
+    if case.declares_true_tool:
+        out["declared"].update(tool_mass_kg=TOOL_MASS_KG, tool_com_sensor_m=list(TOOL_COM_S_M),
+                               tool_inertia_com_kg_m2=list(TOOL_INERTIA_COM_KG_M2))
     return out
 
 
