@@ -414,11 +414,11 @@ class MonitorCfg(_Cfg):
 
     enabled: bool = False  # run the monitor beside the controller (--monitor sets it)
     false_alarms_per_h: float = Field(0.1, gt=0.0, le=3600.0)  # [1/h] false-alarm rate of the test on white noise at the floor (sets the CUSUM threshold)
-    cusum_k: float = Field(1.0, gt=0.0, le=20.0)  # [-] CUSUM reference value, in noise sd: half the smallest shift it is tuned to
-    floor_N: float = Field(0.05, gt=0.0)  # [N] smallest noise sd of a force channel (model error below it is noise)
-    floor_Nm: float = Field(0.005, gt=0.0)  # [N m] smallest noise sd of a moment channel
+    cusum_k: float = Field(1.5, gt=0.0, le=20.0)  # [-] CUSUM reference value, in noise sd: half the smallest shift it is tuned to
+    floor_N: float = Field(0.01, gt=0.0)  # [N] smallest noise sd of a force channel (model error below it is noise)
+    floor_Nm: float = Field(0.001, gt=0.0)  # [N m] smallest noise sd of a moment channel
     calib_s: float = Field(0.2, gt=0.0, le=10.0)  # [s] at the start, at rest: the sensor's offset and noise are measured this long
-    window_s: float = Field(0.25, gt=0.01, le=10.0)  # [s] after an alarm: samples this long are fitted to name the shape
+    window_s: float = Field(0.5, gt=0.01, le=10.0)  # [s] after an alarm: samples this long are fitted to name the shape
     contact_zone_m: float = Field(0.004, ge=0.0, le=0.1)  # [m] the nominal tip within this of the entrance plane (or below it): contact, not judged
 
 
@@ -490,6 +490,7 @@ class CellCfg(_Cfg):
     refit_timing_sd_s: float = Field(0.0, ge=0.0, le=0.1)  # [s] > 0: the refit also estimates the F/T-vs-encoder timing offset (prior sd); 0 = off
     refit_neural_prior_choice: float = Field(30.0, ge=0.0)  # [-] > 0, neural features: the refit acts on the calibrated-arm prior's estimate unless the measured data favour the features' own prior by more than this x insertions in log marginal likelihood; 0 = off (default 30: measured better over five draws, docs/cell.md)
     refit_max_directions_neural: int = Field(0, ge=0, le=1000)  # [-] neural features: the refit acts on at most this many of the best-identified directions (0 = no cap: every direction past act_sd_ratio)
+    refit_step_sd: float = Field(0.5, ge=0.0, le=1e6)  # [-] > 0: between insertions the acted estimate moves towards the new refit by at most this many posterior sd (|d|_{P^-1}); 0 = off: act on each refit as it is (default 0.5: no rise between insertions in five draws, docs/cell.md)
 
     @field_validator("bores_w_m")
     @classmethod

@@ -177,6 +177,14 @@ def _episode_results(lp: Loop, log: TraceLog, wall_s: float, keep_regressor: boo
                          lam_min_all=float(w["lam_min"][b]), rank_breach_t=breach_t)
         res = episode_result(cfg, lp.world.sims[b], ctrl, monitor, logs, end, keep_regressor)
         res.summary["compile_time_s"] = lp.kn.compile_s
+        for bm, mon in lp.monitors:  # the live monitor's events and residual (kinadapt_nn.monitor)
+            if bm == b:
+                mon.finish()
+                res.summary["monitor"] = mon.summary()
+                n_rec = len(res.trace)
+                res.trace.arrays["monitor_residual"] = mon.res_log[:n_rec]
+                res.trace.arrays["monitor_z"] = mon.z_log[:n_rec]
+                res.trace.meta["monitor"] = res.summary["monitor"]
         results.append(res)
     return results
 

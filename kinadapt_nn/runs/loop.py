@@ -6,7 +6,9 @@ built from the known config alone for summaries). Then per control step (:func:`
 
 1. the sensors' samples, (B, 2n+6) rows [q; qdot; raw F/T] (``SceneBatch.sense_into``);
 2. the controller (``controller.core``: one fused kernel call for the adjoint, neural and RBF
-   features; other features supply their rows from Python, as ``Controller`` does);
+   features; other features supply their rows from Python, as ``Controller`` does); with
+   ``monitor.enabled`` the live monitor on the same samples and the controller's own flange
+   kinematics (``kinadapt_nn.monitor``: never the truth);
 3. the watch (:func:`_watch`: sensor errors, the seat check, peak wrenches, the rank gate);
 4. the log (:class:`TraceLog`: every channel of a trace; :class:`SummaryLog`: what a summary needs);
 5. the servo set-points and one physics step (``SceneBatch.apply``, ``step``);
@@ -355,6 +357,13 @@ class Loop:
         self.every_one = True  #: every episode still running
         self.ctrl_log: np.ndarray | None = None  #: (n_steps, B, n) servo set-points, when recorded
         self.watch_fn = _entry(_watch, self._watch_args(0.0))
+        #: the live monitors (``kinadapt_nn.monitor``) of the episodes with ``monitor.enabled``: (b, Monitor)
+        self.monitors: list = []
+        for b, c in enumerate(self.cfgs):
+            if c.monitor.enabled:
+                from kinadapt_nn.monitor.monitor import monitor_of_run
+
+                self.monitors.append((b, monitor_of_run(c)))
 
     def _watch_args(self, t: float) -> tuple:
         kn = self.kn
@@ -381,6 +390,8 @@ class TraceLog:
         lay, B = lp.kn.lay, len(lp.cfgs)
         n, m, p = lay.n, lay.m, lay.p
         n_rec = lp.n_steps // every + 1
+        for _b, mon in lp.monitors:
+            mon.start_log(n_rec)
         self.every, self.lp, self.n_in = every, lp, 2 * n + 6
         self.t = np.zeros((n_rec, B))
         self.out = np.zeros((n_rec, B, lay.nout))
@@ -481,6 +492,11 @@ def run(lp: Loop, log, bar=None) -> int:
         if logged:
             log.sample(k // every, rows)
         kn.control(t, active)
+        for b, mon in lp.monitors:  # exactly what the controller received, and its own kinematics
+            if active[b]:
+                mon.loop_step(t, kn.inp[b], kn.lay.n, kn.R[b], kn.p_O[b], kn.J[b])
+                if logged:
+                    mon.record(k // every)
         ev = watch(t, *wargs)
         if ev & EV_ERROR:
             _sensor_errors(lp, t)

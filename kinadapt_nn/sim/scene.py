@@ -114,6 +114,7 @@ def _add_tool(spec: mujoco.MjSpec, tool: ToolCfg, effects: EffectsCfg | None = N
         snag = body.add_body(name="snag", pos=list(effects.world_force.point_f_m))
         snag.explicitinertial = True
         snag.mass = 0.0
+        snag.ipos = [0.0, 0.0, 0.0]  # the force acts at the body's centre of mass (xfrc_applied): the point
         snag.inertia = [0.0, 0.0, 0.0]
 
 

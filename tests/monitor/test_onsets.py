@@ -58,3 +58,23 @@ def test_snag_pulls_with_its_world_force(clean):
     i = int(np.searchsorted(t, ONSET + 0.0025))
     d = a["wrench_raw_f"][i] - clean["wrench_raw_f"][i]
     assert abs(np.linalg.norm(d[:3]) - 1.5) < 0.1, d
+
+
+def test_snag_acts_at_its_point(clean):
+    """The pull's moment about O is p x f (p = point_f_m): with the tool pointing down (f z along -world
+    z at this start) and f along world -y, the moment about f x is |f| p_z up to the tool's small tilt."""
+    from kinadapt_nn.config import load_config as lc
+    from kinadapt_nn.sim.adapter import PegInHoleSim
+
+    cfg = lc("online/monitor.toml", BASE + ["effects.world_force.enabled=true", f"effects.world_force.onset_s={ONSET}"])
+    sim = PegInHoleSim(cfg)
+    import mujoco
+
+    b = mujoco.mj_name2id(sim.model, mujoco.mjtObj.mjOBJ_BODY, "snag")
+    np.testing.assert_allclose(sim.model.body_pos[b] + sim.model.body_ipos[b], cfg.effects.world_force.point_f_m)
+    a = _run(["effects.world_force.enabled=true", f"effects.world_force.onset_s={ONSET}"])
+    i = int(np.searchsorted(a["t_s"], ONSET + 0.0025))
+    d = a["wrench_raw_f"][i] - clean["wrench_raw_f"][i]
+    f_s = d[:3]
+    p = np.asarray(cfg.effects.world_force.point_f_m)
+    np.testing.assert_allclose(np.abs(d[3:]), np.abs(np.cross(p, f_s)), atol=5e-3)

@@ -1,0 +1,220 @@
+"""The live monitor on the five onset scenarios, clean runs and its costs (issue 53; docs/monitor.md).
+
+    python benchmarks/monitor_events.py [--seeds 20] [--clean 20] [--save benchmarks/results/monitor_events.txt]
+
+Scenarios (``online/monitor.toml``: free-space reorientations with sensor noise 0.02 N / 0.002 N m,
+the model frozen): each truth-side effect at its default size (``kinadapt config``), its onset
+drawn uniformly in [1, 4] s per seed (``run.seed`` seeds the onset and the sensor noise).
+
+* detected: an event at or after the onset (an event before it is a false alarm);
+* delay: the first such event's time minus when the effect reaches its relevant size -- the onset
+  (plus the ramp) for a step; for the drift, when it reaches 3 noise sd of its largest channel;
+* named: the event's shape is the effect's (the grasp slip reads as the library's ``tool_tilt``);
+* covered: the event's 95 % region covers the truth (the payload's mass and the drift's rate on its
+  channel: intervals; the snag's world force, the sensor's rotation vector and the slip's two angles:
+  ellipsoids at the chi^2 95 % quantile).
+
+False alarms: events in clean runs of ``online/rollout.toml`` (the default) and ``online/excite.toml``
+(34.4 s), each with the same sensor noise, ``--clean`` seeds each.
+
+Costs: the monitor's kernel per control period (median and p99 of single calls on a run's samples),
+an episode's wall with ``monitor.enabled`` over without (median of 5 each, warm), and ``--follow``
+on a CSV of a run (samples per second of one core).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from kinadapt_nn.config import load_config  # noqa: E402
+from kinadapt_nn.runs.episode import run_episode  # noqa: E402
+
+NOISE = ["faults.ft_noise_N=0.02", "faults.ft_noise_Nm=0.002"]
+#: scenario -> (effect key, the shape that names it)
+SCENARIOS = {"payload": ("tool_gravity", "tool_gravity"), "drift": ("ft_bias_drift", "ft_bias_drift"),
+             "frame rotation": ("ft_frame_rotation", "ft_frame_rotation"), "snag": ("world_force", "world_force"),
+             "slip": ("grasp_slip", "tool_tilt")}
+
+
+def _cfg(path: str, extra: list[str]):
+    return load_config(REPO / path, ["run.progress=false", "run.tensorboard=false", "run.figure=false", *extra])
+
+
+def relevant_time(cfg, onset: float) -> float:
+    """When the effect reaches its relevant size (module docstring)."""
+    e = cfg.effects
+    if e.ft_bias_drift.enabled:
+        rate = np.abs(np.asarray(e.ft_bias_drift.rate_f))
+        i = int(np.argmax(rate))
+        sd = cfg.faults.ft_noise_N if i < 3 else cfg.faults.ft_noise_Nm
+        return onset + 3.0 * sd / rate[i]
+    for name in ("tool_gravity", "ft_frame_rotation", "world_force", "grasp_slip"):
+        sub = getattr(e, name)
+        if sub.enabled:
+            return onset + getattr(sub, "ramp_s", 0.0)
+    return onset
+
+
+def _inside(x, truth, cov, q: float) -> bool:
+    """``truth`` within the estimate's 95 % region: (x - truth)^T cov^-1 (x - truth) <= q."""
+    d = np.asarray(x, dtype=float) - np.asarray(truth, dtype=float)
+    return float(d @ np.linalg.solve(np.asarray(cov, dtype=float), d)) <= q
+
+
+#: chi^2 quantiles at 95 % for 1, 2, 3 degrees of freedom
+Q95 = {1: 3.841, 2: 5.991, 3: 7.815}
+
+
+def covered(cfg, ev: dict) -> bool:
+    """The event's 95 % region covers the truth (module docstring): the payload's mass, the drift's
+    rate on its channel (intervals); the snag's force (world), the rotation vector, the slip's two
+    angles (ellipsoids, chi^2 at 95 %)."""
+    e, est = cfg.effects, ev["estimate"]
+    if ev["shape"] == "tool_gravity" and e.tool_gravity.enabled:
+        return _inside([est["mass_kg"]], [e.tool_gravity.mass_kg], [[est["mass_sd_kg"] ** 2]], Q95[1])
+    if ev["shape"] == "world_force" and e.world_force.enabled:
+        return _inside(est["force_w_N"], e.world_force.force_w_N, est["force_cov_w_N2"], Q95[3])
+    if ev["shape"] == "ft_bias_drift" and e.ft_bias_drift.enabled:
+        rate = np.asarray(e.ft_bias_drift.rate_f)
+        i = int(np.argmax(np.abs(rate)))
+        return _inside([est["rate_s"][i]], [rate[i]], [[est["rate_sd_s"][i] ** 2]], Q95[1])
+    if ev["shape"] == "ft_frame_rotation" and e.ft_frame_rotation.enabled:
+        return _inside(est["rotvec_deg"], e.ft_frame_rotation.rotvec_deg, est["rotvec_cov_deg2"], Q95[3])
+    if ev["shape"] == "tool_tilt" and e.grasp_slip.enabled:
+        return _inside(est["tilt_deg"], e.grasp_slip.slip_deg, est["tilt_cov_deg2"], Q95[2])
+    return False
+
+
+def scenario(name: str, seeds: int) -> dict:
+    effect, shape = SCENARIOS[name]
+    rows = []
+    for seed in range(seeds):
+        onset = float(np.random.default_rng(seed).uniform(1.0, 4.0))
+        cfg = _cfg("online/monitor.toml", [f"run.seed={seed}", f"effects.{effect}.enabled=true",
+                                           f"effects.{effect}.onset_s={onset}"])
+        evs = run_episode(cfg).summary["monitor"]["events"]
+        early = [e for e in evs if e["t_s"] < onset]
+        after = [e for e in evs if e["t_s"] >= onset]
+        first = after[0] if after else None
+        rows.append(dict(onset=onset, early=len(early), detected=first is not None,
+                         delay=first["t_s"] - relevant_time(cfg, onset) if first else np.nan,
+                         named=bool(first and first["shape"] == shape), covered=bool(first and covered(cfg, first)),
+                         line=first["line"] if first else "-"))
+    return dict(name=name, rows=rows)
+
+
+def clean_alarms(path: str, seeds: int) -> tuple[int, int, float]:
+    """(runs with an event, events, simulated seconds watched)."""
+    runs = events = 0
+    sim = 0.0
+    for seed in range(seeds):
+        r = run_episode(_cfg(path, [f"run.seed={seed}", "monitor.enabled=true", *NOISE]))
+        n = len(r.summary["monitor"]["events"])
+        runs += n > 0
+        events += n
+        sim += float(r.trace["t_s"][-1])
+    return runs, events, sim
+
+
+def kernel_cost(reps: int = 3) -> tuple[float, float]:
+    """Median and p99 [us] of one ``Monitor.loop_step`` call on a run's control periods (the
+    controller's flange kinematics recomputed for each from the logged encoders, outside the timing)."""
+    import mujoco
+
+    from kinadapt_nn.controller import core
+    from kinadapt_nn.monitor.monitor import monitor_of_run
+    from kinadapt_nn.robot import FLANGE_SITE
+
+    cfg = _cfg("online/monitor.toml", ["effects.world_force.enabled=true", "effects.world_force.onset_s=3"])
+    tr = run_episode(cfg).trace
+    arm = mujoco.MjModel.from_xml_path(str(REPO / "models" / "panda.xml"))
+    chain = core.arm_chain(arm, mujoco.mj_name2id(arm, mujoco.mjtObj.mjOBJ_SITE, FLANGE_SITE))
+    q, qd, w = tr["q_rad"], tr["qdot_rad_s"], tr["wrench_raw_f"]
+    N, n = len(q), q.shape[1]
+    inp = np.concatenate([q, qd, w], axis=1)
+    p_O, R, J = np.zeros((N, 3)), np.zeros((N, 3, 3)), np.zeros((N, 6, n))
+    core.fk_batch(chain, inp, p_O, R, J)
+    times = []
+    for _ in range(reps):
+        mon = monitor_of_run(cfg.model_copy(update={"run": cfg.run.model_copy(update={"progress": False})}))
+        t = tr["t_s"]
+        mon.loop_step(float(t[0]), inp[0], n, R[0], p_O[0], J[0])  # compiled / loaded first
+        ns = np.empty(N - 1)
+        for k in range(1, N):
+            a = time.perf_counter_ns()
+            mon.loop_step(float(t[k]), inp[k], n, R[k], p_O[k], J[k])
+            ns[k - 1] = time.perf_counter_ns() - a
+        times.append(ns)
+    ns = np.concatenate(times)
+    return float(np.median(ns)) / 1e3, float(np.percentile(ns, 99)) / 1e3
+
+
+def wall_ratio(reps: int = 5) -> tuple[float, float]:
+    """An episode's wall [s] without and with the monitor (medians, warm)."""
+    walls = {False: [], True: []}
+    for on in (False, True, False, True):  # warm both first
+        run_episode(_cfg("online/monitor.toml", [f"monitor.enabled={str(on).lower()}"]))
+    for _ in range(reps):
+        for on in (False, True):
+            a = time.perf_counter()
+            run_episode(_cfg("online/monitor.toml", [f"monitor.enabled={str(on).lower()}"]))
+            walls[on].append(time.perf_counter() - a)
+    return float(np.median(walls[False])), float(np.median(walls[True]))
+
+
+def follow_rate() -> float | None:
+    """Samples per CPU second of ``kinadapt diagnose --follow`` replaying a run's CSV (None: no follow)."""
+    try:
+        from kinadapt_nn.monitor.follow import benchmark_follow
+    except ImportError:
+        return None
+    return benchmark_follow(REPO)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=20, help="seeds per scenario")
+    ap.add_argument("--clean", type=int, default=20, help="clean runs of each configuration")
+    ap.add_argument("--save", type=Path, default=None, help="also write the table to this file")
+    ap.add_argument("--lines", action="store_true", help="print each run's event line")
+    a = ap.parse_args()
+    out = []
+    say = lambda s="": (print(s, flush=True), out.append(s))  # noqa: E731
+    say(f"monitor_events: {a.seeds} seeds per scenario, onset uniform in [1, 4] s, online/monitor.toml")
+    say(f"{'scenario':<16}{'detected':>10}{'delay med [s]':>15}{'delay max [s]':>15}{'named':>8}{'covered':>9}"
+        f"{'early':>7}")
+    for name in SCENARIOS:
+        r = scenario(name, a.seeds)["rows"]
+        d = np.array([x["delay"] for x in r])
+        det = int(sum(x["detected"] for x in r))
+        say(f"{name:<16}{det:>7}/{len(r):<2}{np.nanmedian(d) if det else np.nan:>15.3f}"
+            f"{np.nanmax(d) if det else np.nan:>15.3f}{sum(x['named'] for x in r):>5}/{len(r):<2}"
+            f"{sum(x['covered'] for x in r):>6}/{len(r):<2}{sum(x['early'] for x in r):>7}")
+        if a.lines:
+            for x in r:
+                say(f"    onset {x['onset']:.2f} s: {x['line']}")
+    for label, path in (("default (rollout.toml)", "online/rollout.toml"), ("excite (excite.toml)", "online/excite.toml")):
+        runs, evs, sim = clean_alarms(path, a.clean)
+        say(f"clean {label:<24} {a.clean} runs, {sim:.0f} s watched: {runs} with an alarm ({evs} events)")
+    med, p99 = kernel_cost()
+    say(f"monitor per control period: median {med:.2f} us, p99 {p99:.2f} us (Monitor.loop_step)")
+    w0, w1 = wall_ratio()
+    say(f"episode wall (online/monitor.toml, 6 s): {w0:.3f} s without, {w1:.3f} s with the monitor: {w1 / w0:.2f}x")
+    fr = follow_rate()
+    if fr is not None:
+        say(f"--follow: {fr:.0f} samples per CPU second ({fr / 1000:.1f}x a 1 kHz log on one core)")
+    if a.save:
+        a.save.parent.mkdir(parents=True, exist_ok=True)
+        a.save.write_text("\n".join(out) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,327 @@
+"""The monitor's per-sample kernel: the nominal model's prediction, the noise floor and the CUSUM test.
+
+One call per sample (``sample``), numba-compiled, no allocation: the sensor-frame kinematics from
+the sample's pose and twist (world), the declared tool's Newton-Euler wrench (the model of
+``kinadapt_nn.diagnostics.physical``: ``F = m (g_s - a_s) - alpha x mc - omega x (omega x mc)``,
+``M = mc x (g_s - a_s) - I_O alpha - omega x (I_O omega)``), the corrections of the events found
+so far (:data:`CORR`), the residual, and per channel a two-sided CUSUM on ``residual / sd``.
+
+The reading belongs to the previous sample's pose and twist with the acceleration between the two
+samples (the wrist sensor's realised reading, ``sim.ft_sensor``; a real sensor's reading and the
+encoders are a sample apart at most): the prediction uses the previous pose and twist and the
+finite difference of the twist.
+
+Layouts (float64 vectors, indices below): ``c`` the constants (:func:`consts`), ``st`` the state,
+``ring`` (RING, NCOL) the last samples for the event fit (``monitor.shapes``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+# -- constants c ---------------------------------------------------------------------------------
+C_DT, C_M, C_MC, C_IO, C_GW, C_PFS, C_RFS, C_SIGN = 0, 1, 2, 5, 14, 17, 20, 29
+C_K, C_H, C_CALIB, C_ZONE, C_ENTRY, C_UP, C_ZONE_M, C_TIP, C_DETECT, C_FLOOR_N, C_FLOOR_M, C_WINDOW = (
+    30, 31, 32, 33, 34, 37, 40, 41, 44, 45, 46, 47)
+NC = 48
+#: contact handling (c[C_ZONE]): 0 none declared (every sample judged); 1 a declared fixture: the nominal
+#: tip within zone_m of its entrance plane or past it is contact; 2 contact by force: the force
+#: beyond the model by more than detect_force_N
+ZONE_NONE, ZONE_GEOMETRY, ZONE_FORCE = 0, 1, 2
+
+# -- corrections of the events found (st[S_CORR:]) ----------------------------------------------
+#: dm, dmc(3): an added tool (payload); fw(3), P(9) = p fw^T: a world force at p (s); rate(6), t0:
+#: a drift from t0; const(6): a step; rot(3): the sensor frame turned (small angle)
+K_DM, K_DMC, K_FW, K_P, K_RATE, K_T0, K_CONST, K_ROT = 0, 1, 4, 7, 16, 22, 23, 29
+NCORR = 32
+
+# -- state st ------------------------------------------------------------------------------------
+S_N, S_HAVE, S_VPREV, S_WPREV, S_RPREV, S_PPREV = 0, 1, 2, 5, 8, 17
+S_CN, S_CSUM, S_CSQ, S_OFF, S_SD = 20, 21, 27, 33, 39
+S_GP, S_GM, S_TP, S_TM, S_MODE, S_TALARM, S_HEAD, S_COUNT, S_NBAD, S_FREE_N = (
+    45, 51, 57, 63, 69, 70, 71, 72, 73, 74)
+S_E, S_Z, S_ZONE, S_TLAST = 75, 81, 87, 88
+S_CORR = 90
+NS = S_CORR + NCORR
+#: monitor modes (st[S_MODE])
+MODE_CALIB, MODE_WATCH, MODE_WINDOW = 0.0, 1.0, 2.0
+#: what a call reports
+R_NONE, R_ALARM, R_WINDOW, R_SKIP = 0, 1, 2, 3
+
+# -- ring rows: what the event fit needs of each sample --------------------------------------------
+G_T, G_E, G_R, G_OM, G_AL, G_GA, G_RM, G_FREE = 0, 1, 7, 16, 19, 22, 25, 31
+NCOL = 32
+RING = 8192
+
+
+def threshold(false_alarms_per_h: float, k: float, dt_s: float, sides: int = 12) -> float:
+    """The CUSUM threshold h [sd] for ``false_alarms_per_h`` alarms an hour over ``sides`` one-sided
+    tests (6 channels, both signs) on white Gaussian noise at the floor, sampled every ``dt_s``:
+    Siegmund's approximation of a one-sided CUSUM's average run length under no change,
+    ``ARL0 = (exp(2 k b) - 2 k b - 1) / (2 k^2)``, ``b = h + 1.166``, set to ``sides x samples an
+    hour / rate`` (each test's share) and solved for h by bisection."""
+    arl = sides * (3600.0 / dt_s) / false_alarms_per_h
+
+    def arl0(h: float) -> float:
+        b = 2.0 * k * (h + 1.166)
+        return (math.exp(min(b, 700.0)) - b - 1.0) / (2.0 * k * k)
+
+    lo, hi = 0.0, 1.0
+    while arl0(hi) < arl:
+        hi *= 2.0
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if arl0(mid) < arl else (lo, mid)
+    return hi
+
+
+@nb.njit(cache=True, inline="always")
+def _cross(a0, a1, a2, b0, b1, b2, out, o):
+    out[o] = a1 * b2 - a2 * b1
+    out[o + 1] = a2 * b0 - a0 * b2
+    out[o + 2] = a0 * b1 - a1 * b0
+
+
+@nb.njit(cache=True)
+def predict(c, st, t, R, om, al, ga, out):
+    """The model's reading (6,) in s, tool on sensor [N, N m], into ``out``: the declared tool plus the
+    corrections, at sensor axes ``R`` (3, 3) (s in world), omega, alpha, g - a (3,) each in s."""
+    k = S_CORR
+    m = c[C_M] + st[k + K_DM]
+    mc0 = c[C_MC] + st[k + K_DMC]
+    mc1 = c[C_MC + 1] + st[k + K_DMC + 1]
+    mc2 = c[C_MC + 2] + st[k + K_DMC + 2]
+    tmp = np.empty(6)
+    # F = m ga - al x mc - om x (om x mc)
+    _cross(al[0], al[1], al[2], mc0, mc1, mc2, tmp, 0)
+    _cross(om[0], om[1], om[2], mc0, mc1, mc2, tmp, 3)
+    w0, w1, w2 = tmp[3], tmp[4], tmp[5]
+    _cross(om[0], om[1], om[2], w0, w1, w2, tmp, 3)
+    for i in range(3):
+        out[i] = m * ga[i] - tmp[i] - tmp[3 + i]
+    # M = mc x ga - I_O al - om x (I_O om)   (the declared inertia)
+    _cross(mc0, mc1, mc2, ga[0], ga[1], ga[2], tmp, 0)
+    io = C_IO
+    iw0 = c[io] * om[0] + c[io + 1] * om[1] + c[io + 2] * om[2]
+    iw1 = c[io + 3] * om[0] + c[io + 4] * om[1] + c[io + 5] * om[2]
+    iw2 = c[io + 6] * om[0] + c[io + 7] * om[1] + c[io + 8] * om[2]
+    _cross(om[0], om[1], om[2], iw0, iw1, iw2, tmp, 3)
+    for i in range(3):
+        ia = c[io + 3 * i] * al[0] + c[io + 3 * i + 1] * al[1] + c[io + 3 * i + 2] * al[2]
+        out[3 + i] = tmp[i] - ia - tmp[3 + i]
+    # a world force fw at p: F += R^T fw, M += sum_il P_il e_i x (R^T e_l)
+    for i in range(3):
+        acc = 0.0
+        for l_ in range(3):
+            acc += R[l_, i] * st[k + K_FW + l_]
+        out[i] += acc
+    for i in range(3):
+        for l_ in range(3):
+            p = st[k + K_P + 3 * i + l_]
+            if p != 0.0:
+                u0, u1, u2 = R[l_, 0], R[l_, 1], R[l_, 2]  # world axis l in s
+                if i == 0:
+                    out[4] += -p * u2
+                    out[5] += p * u1
+                elif i == 1:
+                    out[3] += p * u2
+                    out[5] += -p * u0
+                else:
+                    out[3] += -p * u1
+                    out[4] += p * u0
+    # a step and a drift
+    t0 = st[k + K_T0]
+    for i in range(6):
+        out[i] += st[k + K_CONST + i]
+        if t > t0:
+            out[i] += st[k + K_RATE + i] * (t - t0)
+    # the sensor frame turned by rot: reading + reading x rot
+    r0, r1, r2 = st[k + K_ROT], st[k + K_ROT + 1], st[k + K_ROT + 2]
+    if r0 != 0.0 or r1 != 0.0 or r2 != 0.0:
+        for b in (0, 3):
+            x0, x1, x2 = out[b], out[b + 1], out[b + 2]
+            out[b] += x1 * r2 - x2 * r1
+            out[b + 1] += x2 * r0 - x0 * r2
+            out[b + 2] += x0 * r1 - x1 * r0
+
+
+@nb.njit(cache=True)
+def sample(t, R_ws, p_ws, v_w, w_w, raw, c, st, ring):
+    """One sample at time ``t`` [s]: sensor axes ``R_ws`` (3, 3) and origin ``p_ws`` (3,) in the world,
+    its velocity ``v_w`` and angular velocity ``w_w`` (3,) world, the raw reading ``raw`` (6,) as
+    logged (``c[C_SIGN]`` turns it into the tool's wrench on the sensor). -> R_NONE, R_ALARM (the test
+    fired), R_WINDOW (an alarm's fit window is complete), R_SKIP (a non-finite sample: left out)."""
+    for i in range(6):
+        if not math.isfinite(raw[i]):
+            st[S_NBAD] += 1.0
+            return R_SKIP
+    for i in range(3):
+        if not (math.isfinite(v_w[i]) and math.isfinite(w_w[i]) and math.isfinite(p_ws[i])):
+            st[S_NBAD] += 1.0
+            return R_SKIP
+    dt = c[C_DT]
+    have = st[S_HAVE] > 0.0
+    if have:
+        h = t - st[S_TLAST]
+        if h > 0.0 and h < 5.0 * dt:
+            dt = h
+        elif h <= 0.0 or h > 0.1:  # time went back or a long gap: start the kinematics afresh
+            have = False
+    if not have:  # the first sample (or after a gap): its kinematics is the next one's previous
+        for i in range(3):
+            st[S_VPREV + i] = v_w[i]
+            st[S_WPREV + i] = w_w[i]
+            st[S_PPREV + i] = p_ws[i]
+            for j in range(3):
+                st[S_RPREV + 3 * i + j] = R_ws[i, j]
+        st[S_HAVE] = 1.0
+        st[S_TLAST] = t
+        return R_NONE
+    R = np.empty((3, 3))
+    om = np.empty(3)
+    al = np.empty(3)
+    ga = np.empty(3)
+    a_w = np.empty(3)
+    for i in range(3):
+        for j in range(3):
+            R[i, j] = st[S_RPREV + 3 * i + j]
+        a_w[i] = (v_w[i] - st[S_VPREV + i]) / dt
+    for i in range(3):  # into s: x_s = R^T x_w
+        o = 0.0
+        a = 0.0
+        g = 0.0
+        aa = 0.0
+        for l_ in range(3):
+            o += R[l_, i] * st[S_WPREV + l_]
+            a += R[l_, i] * (w_w[l_] - st[S_WPREV + l_]) / dt
+            g += R[l_, i] * c[C_GW + l_]
+            aa += R[l_, i] * a_w[l_]
+        om[i], al[i], ga[i] = o, a, g - aa
+    pred = np.empty(6)
+    predict(c, st, t, R, om, al, ga, pred)
+    sgn = c[C_SIGN]
+    e = st[S_E:S_E + 6]
+    for i in range(6):
+        e[i] = sgn * raw[i] - pred[i]
+    # the phase: contact is not judged (its force is unknown)
+    zone = False
+    zmode = int(c[C_ZONE])
+    if zmode == ZONE_GEOMETRY:
+        h_tip = 0.0
+        for i in range(3):
+            tip_w = st[S_PPREV + i] + R[i, 0] * c[C_TIP] + R[i, 1] * c[C_TIP + 1] + R[i, 2] * c[C_TIP + 2]
+            h_tip += (tip_w - c[C_ENTRY + i]) * c[C_UP + i]
+        zone = h_tip < c[C_ZONE_M]
+    elif zmode == ZONE_FORCE and st[S_MODE] != MODE_CALIB:
+        f2 = 0.0
+        for i in range(3):
+            f2 += (e[i] - st[S_OFF + i]) ** 2
+        zone = f2 > c[C_DETECT] ** 2
+    st[S_ZONE] = 1.0 if zone else 0.0
+    # kinematics for the next sample
+    for i in range(3):
+        st[S_VPREV + i] = v_w[i]
+        st[S_WPREV + i] = w_w[i]
+        st[S_PPREV + i] = p_ws[i]
+        for j in range(3):
+            st[S_RPREV + 3 * i + j] = R_ws[i, j]
+    st[S_TLAST] = t
+    st[S_N] += 1.0
+    mode = st[S_MODE]
+    if mode == MODE_CALIB:  # the sensor's offset and noise, at the start
+        if not zone:
+            st[S_CN] += 1.0
+            for i in range(6):
+                st[S_CSUM + i] += e[i]
+                st[S_CSQ + i] += e[i] * e[i]
+        if st[S_CN] * c[C_DT] >= c[C_CALIB]:
+            n = st[S_CN]
+            for i in range(6):
+                mu = st[S_CSUM + i] / n
+                var = max(st[S_CSQ + i] / n - mu * mu, 0.0) * n / max(n - 1.0, 1.0)
+                st[S_OFF + i] = mu
+                fl = c[C_FLOOR_N] if i < 3 else c[C_FLOOR_M]
+                st[S_SD + i] = max(math.sqrt(var), fl)
+            st[S_MODE] = MODE_WATCH
+        return R_NONE
+    for i in range(6):
+        e[i] -= st[S_OFF + i]
+        st[S_Z + i] = e[i] / st[S_SD + i]
+    # the ring: what the fit needs
+    row = int(st[S_HEAD])
+    ring[row, G_T] = t
+    for i in range(6):
+        ring[row, G_E + i] = e[i]
+        ring[row, G_RM + i] = sgn * raw[i] - st[S_OFF + i]
+    for i in range(3):
+        for j in range(3):
+            ring[row, G_R + 3 * i + j] = R[i, j]
+        ring[row, G_OM + i] = om[i]
+        ring[row, G_AL + i] = al[i]
+        ring[row, G_GA + i] = ga[i]
+    ring[row, G_FREE] = 0.0 if zone else 1.0
+    st[S_HEAD] = (row + 1) % ring.shape[0]
+    st[S_COUNT] = min(st[S_COUNT] + 1.0, ring.shape[0])
+    if zone:
+        return R_NONE
+    if mode == MODE_WINDOW:
+        st[S_FREE_N] += 1.0
+        if t >= st[S_TALARM] + c[C_WINDOW]:
+            return R_WINDOW
+        return R_NONE
+    k, h = c[C_K], c[C_H]
+    fired = False
+    for i in range(6):
+        z = st[S_Z + i]
+        gp = st[S_GP + i] + z - k
+        gm = st[S_GM + i] - z - k
+        if gp <= 0.0:
+            gp = 0.0
+            st[S_TP + i] = t
+        if gm <= 0.0:
+            gm = 0.0
+            st[S_TM + i] = t
+        st[S_GP + i] = gp
+        st[S_GM + i] = gm
+        if gp > h or gm > h:
+            fired = True
+    if fired:
+        st[S_MODE] = MODE_WINDOW
+        st[S_TALARM] = t
+        st[S_FREE_N] = 0.0
+        return R_ALARM
+    return R_NONE
+
+
+@nb.njit(cache=True)
+def loop_sample(t, inp, n, R_wf, p_O, J, c, st, ring):
+    """``sample`` on the controller's own quantities of one control period: its input row ``inp``
+    (2n+6,) = [q; qdot; raw F/T in f], the flange pose (``R_wf`` (3, 3), ``p_O`` (3,)) and Jacobian
+    ``J`` (6, n) the controller computed from those encoders; the sensor is at O with the flange's
+    axes (``c[C_PFS]`` = 0, ``c[C_RFS]`` = 1)."""
+    v = np.zeros(3)
+    w = np.zeros(3)
+    for i in range(3):
+        for j in range(n):
+            v[i] += J[i, j] * inp[n + j]
+            w[i] += J[3 + i, j] * inp[n + j]
+    return sample(t, R_wf, p_O, v, w, inp[2 * n:2 * n + 6], c, st, ring)
+
+
+def new_state() -> tuple[np.ndarray, np.ndarray]:
+    """(st (NS,), ring (RING, NCOL)): a monitor's state before its first sample."""
+    st = np.zeros(NS)
+    st[S_MODE] = MODE_CALIB
+    st[S_CORR + K_T0] = np.inf
+    return st, np.zeros((RING, NCOL))
+
+
+def ring_rows(st: np.ndarray, ring: np.ndarray, t_from: float) -> np.ndarray:
+    """The ring's rows (in time order) from ``t_from`` [s] on -> (k, NCOL) (a copy)."""
+    n, head = int(st[S_COUNT]), int(st[S_HEAD])
+    idx = (head - n + np.arange(n)) % ring.shape[0]
+    rows = ring[idx]
+    return rows[rows[:, G_T] >= t_from]

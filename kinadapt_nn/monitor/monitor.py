@@ -1,0 +1,301 @@
+"""The live monitor: the diagnosis beside the controller (docs/monitor.md).
+
+Per sample it gets what the controller gets -- encoders and the raw wrench, never the truth -- and
+compares the reading with the nominal model of the set-up (``diagnostics.setup.SetupCfg``: the
+declared tool, its gravity and inertia; contact per the declared contact) in ``kernel.sample``.
+For the first ``calib_s`` (the robot at rest at the start) it measures the sensor's offset and its
+noise sd per channel (at least the floor); then a two-sided CUSUM per channel on residual / sd
+fires when the residual leaves the noise (threshold from ``false_alarms_per_h``:
+``kernel.threshold``). After an alarm it collects ``window_s`` more of free-space samples, names the
+best-fitting shape (``shapes.best``) and reports an :class:`Event`; the fitted shape then joins the
+model (the test restarts on what is left, so a second change is a second event).
+
+Contact is not judged: its force is unknown to the model. Where the set-up declares a fixture
+(its entrance plane), the samples with the nominal tip within ``contact_zone_m`` of the plane or
+past it are contact; otherwise, when contact is declared, a force beyond the model by more than
+``contact.detect_force_N`` is.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from kinadapt_nn.config import MonitorCfg
+from kinadapt_nn.diagnostics.physical import nominal_inertials
+from kinadapt_nn.diagnostics.setup import SetupCfg
+from kinadapt_nn.monitor import kernel as K
+from kinadapt_nn.monitor import shapes
+
+CHANNELS = shapes.CHANNELS
+#: BIC margin by which the best shape must beat the runner-up before an event is named
+DECISIVE = 10.0
+#: windows (``window_s`` each) an alarm may wait for a clear winner before the best is named anyway
+MAX_WINDOWS = 6
+
+
+def _nparams(f) -> int:
+    return int(np.count_nonzero(np.diag(f.cov) > 0)) if f.shape == "ft_bias_drift" else len(f.p)
+
+
+@dataclass
+class Event:
+    """One change the monitor found."""
+
+    t_s: float  #: [s] when the test fired
+    onset_s: float  #: [s] the change's estimated start (the CUSUM's last restart on its channels)
+    channels: list[str]  #: the channels whose test fired
+    phase: str  #: "free space" (contact is not judged)
+    shape: str  #: the best-fitting shape (``shapes.SHAPES``)
+    text: str  #: what happened, with the estimate and its 95 % interval
+    estimate: dict  #: the shape's estimate and sds
+    runner_up: str  #: the next-best shape
+    delta_bic: float  #: its BIC minus the best's (how clearly the best won)
+    rows: int  #: residual rows fitted
+    t_named_s: float = float("nan")  #: [s] the last sample its estimate has seen
+    open: bool = True  #: still open at the end (its shape stays in the model)
+    updates: int = 0  #: times a later look refitted its estimate (the same effect seen better)
+
+    @property
+    def line(self) -> str:
+        return f"{self.t_s:.2f} s: {self.text} -- looks like {self.shape}"
+
+    def as_dict(self) -> dict:
+        return {"t_s": self.t_s, "onset_s": self.onset_s, "t_named_s": self.t_named_s, "channels": self.channels,
+                "phase": self.phase, "shape": self.shape, "text": self.text, "line": self.line,
+                "estimate": self.estimate, "runner_up": self.runner_up, "delta_bic": self.delta_bic,
+                "rows": self.rows, "open": self.open, "updates": self.updates}
+
+
+def consts(setup: SetupCfg, mcfg: MonitorCfg, dt_s: float) -> np.ndarray:
+    """The kernel's constants (``kernel.NC``) of a set-up and the monitor's config."""
+    c = np.zeros(K.NC)
+    m, mc, I_O = nominal_inertials(setup)
+    c[K.C_DT], c[K.C_M], c[K.C_MC:K.C_MC + 3], c[K.C_IO:K.C_IO + 9] = dt_s, m, mc, I_O.ravel()
+    c[K.C_GW:K.C_GW + 3] = setup.world.g_w()
+    c[K.C_PFS:K.C_PFS + 3] = setup.sensor.position_flange_m
+    c[K.C_RFS:K.C_RFS + 9] = setup.sensor.R_fs().ravel()
+    c[K.C_SIGN] = setup.log.sign
+    c[K.C_K] = mcfg.cusum_k
+    c[K.C_H] = K.threshold(mcfg.false_alarms_per_h, mcfg.cusum_k, dt_s)
+    c[K.C_CALIB], c[K.C_WINDOW] = mcfg.calib_s, mcfg.window_s
+    ct = setup.contact
+    if ct.mode == "none":
+        c[K.C_ZONE] = K.ZONE_NONE
+    elif ct.geometry == "socket" or ct.zone == "entrance":
+        c[K.C_ZONE] = K.ZONE_GEOMETRY
+        axis = np.asarray(ct.axis_w, dtype=float)
+        c[K.C_ENTRY:K.C_ENTRY + 3], c[K.C_UP:K.C_UP + 3] = ct.entry_w_m, -axis / np.linalg.norm(axis)
+    else:
+        c[K.C_ZONE] = K.ZONE_FORCE
+    c[K.C_ZONE_M], c[K.C_TIP:K.C_TIP + 3] = mcfg.contact_zone_m, setup.tool.tip_sensor_m
+    c[K.C_DETECT], c[K.C_FLOOR_N], c[K.C_FLOOR_M] = ct.detect_force_N, mcfg.floor_N, mcfg.floor_Nm
+    return c
+
+
+@dataclass
+class Monitor:
+    """A monitor of one stream of samples (``sample`` per sample; ``loop_step`` per control period of
+    the episode loop); ``events`` what it found; ``on_event(event)`` is called as each is named."""
+
+    setup: SetupCfg
+    mcfg: MonitorCfg
+    dt_s: float
+    on_event: object = None
+    frame: str = "world"
+    events: list[Event] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.c = consts(self.setup, self.mcfg, self.dt_s)
+        self.st, self.ring = K.new_state()
+        self.mc = self.c[K.C_MC:K.C_MC + 3].copy()
+        self.h = float(self.c[K.C_H])
+        self._loop_fn = None
+        self._alarm: dict | None = None  #: the alarm whose window is being collected
+        self._fits: list = []  #: (fit, onset, event) of each event, as its correction stands in the model
+        self.res_log = self.z_log = None  #: (rows, 6) residual and residual / sd at logged rows (``record``)
+
+    def start_log(self, rows: int) -> None:
+        """Keep the residual of ``rows`` logged rows (``record``)."""
+        self.res_log = np.full((rows, 6), np.nan, dtype=np.float32)
+        self.z_log = np.full((rows, 6), np.nan, dtype=np.float32)
+
+    def record(self, j: int) -> None:
+        """Logged row ``j``: the last sample's residual [N, N m] and residual / sd (NaN while calibrating
+        and in contact, where nothing is judged)."""
+        if self.res_log is None or j >= len(self.res_log):
+            return
+        st = self.st
+        if st[K.S_MODE] != K.MODE_CALIB and st[K.S_ZONE] == 0.0:
+            self.res_log[j] = st[K.S_E:K.S_E + 6]
+            self.z_log[j] = st[K.S_Z:K.S_Z + 6]
+
+    # -- per sample -------------------------------------------------------------------------------
+    def loop_step(self, t: float, inp: np.ndarray, n: int, R_wf: np.ndarray, p_O: np.ndarray, J: np.ndarray) -> None:
+        """One control period of the episode loop (``kernel.loop_sample``: the controller's input row
+        and the flange kinematics it computed from the encoders)."""
+        if self._loop_fn is None:
+            from kinadapt_nn.controller.core import entry_point
+
+            args = (t, inp, n, R_wf, p_O, J, self.c, self.st, self.ring)
+            K.loop_sample.compile(tuple(__import__("numba").typeof(a) for a in args))
+            self._loop_fn = entry_point(K.loop_sample, args)
+        r = self._loop_fn(t, inp, n, R_wf, p_O, J, self.c, self.st, self.ring)
+        if r == K.R_WINDOW:
+            self.name_event()
+
+    def sample(self, t: float, R_ws, p_ws, v_w, w_w, raw) -> int:
+        """One sample (``kernel.sample``); an event named when its window is complete. -> the kernel's code."""
+        r = K.sample(t, R_ws, p_ws, v_w, w_w, raw, self.c, self.st, self.ring)
+        if r == K.R_WINDOW:
+            self.name_event()
+        return r
+
+    # -- what it knows ----------------------------------------------------------------------------
+    @property
+    def calibrated(self) -> bool:
+        return self.st[K.S_MODE] != K.MODE_CALIB
+
+    @property
+    def noise_sd(self) -> np.ndarray:
+        """(6,) the noise sd per channel [N, N m] (after the calibration)."""
+        return self.st[K.S_SD:K.S_SD + 6].copy()
+
+    @property
+    def residual(self) -> np.ndarray:
+        """(6,) the last sample's residual (reading - model) [N, N m], tool on sensor, s."""
+        return self.st[K.S_E:K.S_E + 6]
+
+    @property
+    def in_contact(self) -> bool:
+        return bool(self.st[K.S_ZONE])
+
+    @property
+    def n_bad(self) -> int:
+        return int(self.st[K.S_NBAD])
+
+    # -- an event ---------------------------------------------------------------------------------
+    def name_event(self, final: bool = False) -> Event | None:
+        """An alarm's window is complete: fit the shapes to the residual since the change's onset. While
+        the best shape does not win clearly (BIC by ``DECISIVE``) the window grows (up to ``MAX_WINDOWS``
+        windows, or ``final``). Then either the last open event's own shape, refitted on everything since
+        its onset, explains the new change too (its estimate is updated: a better look at the same
+        effect, not a new one), or a new event is reported. Its shape joins the model and the test
+        restarts. -> the new event, or None."""
+        st = self.st
+        if self._alarm is None:
+            fired = [i for i in range(6) if st[K.S_GP + i] > self.h or st[K.S_GM + i] > self.h]
+            onsets = [st[K.S_TP + i] if st[K.S_GP + i] > self.h else st[K.S_TM + i] for i in fired]
+            self._alarm = dict(t=float(st[K.S_TALARM]), fired=fired,
+                               t_on=float(min(onsets)) if onsets else float(st[K.S_TALARM]), windows=0)
+        al = self._alarm
+        al["windows"] += 1
+        t_on, fired = al["t_on"], al["fired"]
+        rows = K.ring_rows(st, self.ring, t_on)
+        rows = rows[(rows[:, K.G_FREE] > 0.5) & (rows[:, K.G_T] > t_on)]  # t_on: the last sample before the change
+        if len(rows) < 20 and not final:
+            st[K.S_TALARM] = st[K.S_TLAST]  # wait for another window of free-space samples
+            return None
+        if len(rows) < 8:
+            self._alarm = None
+            self._restart()
+            return None
+        sd = self.noise_sd
+        fmask = np.isin(np.arange(6), fired)
+        f, fits = shapes.best(rows, sd, self.mc, t_on, fmask)
+        margin = float(fits[1].bic - f.bic) if len(fits) > 1 else np.inf
+        if margin < DECISIVE and al["windows"] < MAX_WINDOWS and not final:
+            st[K.S_TALARM] = st[K.S_TLAST]  # not yet clear: look longer
+            return None
+        self._alarm = None
+        if self._refit_last(rows, f):
+            self._restart()
+            return None
+        f = shapes.fit(f.shape, rows, sd, self.mc, t_on, fmask, jackknife=True)
+        text, est = shapes.describe(f, self.mc, self.frame, float(self.c[K.C_SIGN]))
+        ev = Event(al["t"], t_on, [CHANNELS[i] for i in fired], "free space", f.shape, text, est,
+                   fits[1].shape if len(fits) > 1 else "", margin, f.rows, float(rows[-1, K.G_T]))
+        self._apply(f, t_on, +1.0)
+        self._fits.append((f, t_on, ev))
+        self._restart()
+        self.events.append(ev)
+        if self.on_event is not None:
+            self.on_event(ev)
+        return ev
+
+    def _apply(self, f, t_on: float, sign: float) -> None:
+        """Add (sign +1) or take out (-1) a fitted shape's correction of the model."""
+        corr = shapes.correction(f, self.mc, t_on)
+        self.st[K.S_CORR:K.S_CORR + K.NCORR] += sign * corr
+        if f.shape == "ft_bias_drift":
+            self.st[K.S_CORR + K.K_T0] = t_on
+
+    def _restart(self) -> None:
+        st = self.st
+        st[K.S_GP:K.S_GP + 6] = 0.0
+        st[K.S_GM:K.S_GM + 6] = 0.0
+        st[K.S_TP:K.S_TP + 6] = st[K.S_TLAST]
+        st[K.S_TM:K.S_TM + 6] = st[K.S_TLAST]
+        st[K.S_MODE] = K.MODE_WATCH
+
+    def _refit_last(self, rows_new: np.ndarray, f_new) -> bool:
+        """Whether the last event's shape, refitted on every free sample since its onset (the ring's),
+        explains the residual at least as well as keeping it and adding ``f_new`` (BIC); if so, its
+        estimate and the model's correction are updated."""
+        if not self._fits:
+            return False
+        f_old, t0, ev = self._fits[-1]
+        rows = K.ring_rows(self.st, self.ring, t0)
+        rows = rows[(rows[:, K.G_FREE] > 0.5) & (rows[:, K.G_T] > t0)]
+        if len(rows) == 0 or rows[0, K.G_T] > t0 + 2.0 * self.dt_s + 1e-9 or f_old.shape == "ft_bias_drift" \
+                and f_new.shape != "ft_bias_drift":
+            return False  # its onset has left the ring
+        y = rows.copy()  # the residual without the old event's correction
+        after = rows[:, K.G_T] > ev.t_named_s
+        y[after, K.G_E:K.G_E + 6] += shapes.evaluate(f_old, rows[after], self.mc, t0)
+        sd = self.noise_sd
+        fmask = np.isin(np.arange(6), [CHANNELS.index(c) for c in ev.channels])
+        one = shapes.fit(f_old.shape, y, sd, self.mc, t0, fmask, jackknife=True)
+        m = one.rows
+        before = y[~np.isin(y[:, K.G_T], rows_new[:, K.G_T])]
+        if len(before) == 0:
+            return False
+        kept = shapes.chi2_of(f_old, before, sd, self.mc, t0) + f_new.chi2
+        k_old = len(f_old.p) if f_old.shape != "ft_bias_drift" else 6 + int(fmask.sum())
+        if one.chi2 + k_old * np.log(m) > kept + (k_old + _nparams(f_new)) * np.log(m):
+            return False
+        self._apply(f_old, t0, -1.0)
+        self._apply(one, t0, +1.0)
+        text, est = shapes.describe(one, self.mc, self.frame, float(self.c[K.C_SIGN]))
+        ev.text, ev.estimate, ev.rows, ev.t_named_s = text, est, one.rows, float(rows[-1, K.G_T])
+        ev.updates += 1
+        self._fits[-1] = (one, t0, ev)
+        if self.on_event is not None:
+            self.on_event(ev)
+        return True
+
+    def finish(self) -> list[Event]:
+        """At the end of the stream: an alarm whose window is still open is named on what there is."""
+        if self.st[K.S_MODE] == K.MODE_WINDOW:
+            self.name_event(final=True)
+        return self.events
+
+    def summary(self) -> dict:
+        """What summary.json keeps of the monitor."""
+        return {"events": [e.as_dict() for e in self.events], "noise_sd": self.noise_sd.tolist(),
+                "threshold_sd": self.h, "cusum_k": float(self.c[K.C_K]),
+                "false_alarms_per_h": self.mcfg.false_alarms_per_h, "samples_left_out": self.n_bad,
+                "alarm_pending": bool(self.st[K.S_MODE] == K.MODE_WINDOW)}
+
+
+def monitor_of_run(cfg, on_event=None) -> Monitor:
+    """The monitor of a package run: the set-up its diagnosis uses (``diagnostics.ownrun.setup_of_run``,
+    the nominal tool and contact from the run's known config), ``cfg.monitor``, ``cfg.run.dt_s``."""
+    from kinadapt_nn.diagnostics.ownrun import setup_of_run
+
+    if on_event is None and cfg.run.progress:  # the console: each event as it is named
+        from tqdm import tqdm
+
+        on_event = lambda ev: tqdm.write(f"monitor {ev.line}")  # noqa: E731
+    return Monitor(setup_of_run(cfg), cfg.monitor, cfg.run.dt_s, on_event)

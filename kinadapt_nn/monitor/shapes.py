@@ -1,0 +1,298 @@
+"""Naming an event: which shape of the effect library (and the hint shapes) fits the residual best.
+
+After an alarm the monitor fits each candidate shape to the residual from the change's onset (the
+CUSUM's last restart) to ``window_s`` past the alarm, free-space samples only, every row divided by
+its channel's noise sd. Each shape is linear in its parameters (columns per sample, (n, 6, k)); the
+best is the one with the least Bayesian information criterion ``chi^2 + k ln(rows)``. Its estimate's
+covariance is ``(A^T A)^-1`` scaled by ``chi^2 / (rows - k)`` where the fit leaves more than noise.
+
+=====================  =========================================================  ==========================
+shape                  columns (s: sensor frame; the tool's wrench on the sensor)  what it reads as
+=====================  =========================================================  ==========================
+tool_gravity           dm (g_s - a_s); d(mc): -al x dmc - om x (om x dmc),        a payload picked up
+                       dmc x (g_s - a_s)  (``diagnostics.physical``'s model)
+world_force            F: R^T f_w; M: p x R^T f_w (f_w, p: Gauss-Newton)         a snag: a pull in the world
+                       (``diagnostics.completeness``'s world_force, its point)
+ft_bias_drift          per channel: rate (t - t_onset); a constant on the channels a drifting sensor
+                       whose test fired (the onset's error)
+ft_frame_rotation      r x delta for force and moment (r: the reading)            the sensor turned in its mount
+tool_tilt              the declared tool's first moment turned about O by          the tool slipped in the grasp
+                       (dx, dy): dmc = delta x mc
+sensor_constant        a constant per channel                                      a bias step
+=====================  =========================================================  ==========================
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from kinadapt_nn.monitor import kernel as K
+
+#: shapes in the order they are tried (ties: the earlier, fewer parameters first)
+SHAPES = ("tool_tilt", "ft_frame_rotation", "tool_gravity", "sensor_constant", "world_force", "ft_bias_drift")
+#: [-] z of the printed +- (a two-sided 95 % interval)
+Z95 = 1.96
+
+
+class Fit(NamedTuple):
+    shape: str
+    p: np.ndarray  #: (k,) estimate
+    cov: np.ndarray  #: (k, k)
+    chi2: float
+    bic: float
+    rows: int
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """(n, 3) -> (n, 3, 3): [v]x, so that [v]x u = v x u."""
+    n = len(v)
+    S = np.zeros((n, 3, 3))
+    S[:, 0, 1], S[:, 0, 2] = -v[:, 2], v[:, 1]
+    S[:, 1, 0], S[:, 1, 2] = v[:, 2], -v[:, 0]
+    S[:, 2, 0], S[:, 2, 1] = -v[:, 1], v[:, 0]
+    return S
+
+
+def _gravity_cols(om, al, ga) -> np.ndarray:
+    """(n, 6, 4): dm, dmc -> the added rigid body's wrench (its inertia about its own centre left out)."""
+    n = len(ga)
+    C = np.zeros((n, 6, 4))
+    C[:, :3, 0] = ga
+    Sal, Som, Sga = _skew(al), _skew(om), _skew(ga)
+    C[:, :3, 1:] = -Sal - Som @ Som
+    C[:, 3:, 1:] = -Sga  # dmc x ga = -ga x dmc
+    return C
+
+
+def columns(shape: str, rows: np.ndarray, mc: np.ndarray, t_onset: float) -> np.ndarray:
+    """The shape's columns (n, 6, k) on ring rows (n, NCOL) (``kernel``'s layout)."""
+    n = len(rows)
+    R = rows[:, K.G_R:K.G_R + 9].reshape(n, 3, 3)
+    om, al, ga = rows[:, K.G_OM:K.G_OM + 3], rows[:, K.G_AL:K.G_AL + 3], rows[:, K.G_GA:K.G_GA + 3]
+    if shape == "tool_gravity":
+        return _gravity_cols(om, al, ga)
+    if shape == "tool_tilt":  # dmc = delta x mc = -[mc]x delta, delta = (dx, dy, 0)
+        G = _gravity_cols(om, al, ga)[:, :, 1:]  # (n, 6, 3) per dmc
+        return (G @ (-_skew(np.broadcast_to(mc, (n, 3)))))[:, :, :2]
+    if shape == "world_force":
+        C = np.zeros((n, 6, 12))
+        for l_ in range(3):
+            u = R[:, l_, :]  # world axis l in s
+            C[:, :3, l_] = u
+            for i in range(3):
+                e = np.zeros(3)
+                e[i] = 1.0
+                C[:, 3:, 3 + 3 * i + l_] = np.cross(e, u)
+        return C
+    if shape == "ft_bias_drift":
+        C = np.zeros((n, 6, 12))
+        dt = rows[:, K.G_T] - t_onset
+        for i in range(6):
+            C[:, i, i] = dt
+            C[:, i, 6 + i] = 1.0
+        return C
+    if shape == "ft_frame_rotation":  # r x delta = [r]x delta
+        r = rows[:, K.G_RM:K.G_RM + 6]
+        return np.concatenate([_skew(r[:, :3]), _skew(r[:, 3:])], axis=1)
+    if shape == "sensor_constant":
+        return np.broadcast_to(np.eye(6), (n, 6, 6)).copy()
+    raise ValueError(shape)
+
+
+def prior_sd(shape: str, mc: np.ndarray) -> np.ndarray:
+    """Each parameter's prior sd (a weak, zero-mean prior: what a shape may plausibly reach; it keeps a
+    direction the window does not see at its prior, not at an arbitrary value with no variance)."""
+    return {"tool_gravity": np.array([5.0, 1.0, 1.0, 1.0]),  # [kg], [kg m]
+            "tool_tilt": np.full(2, np.deg2rad(30.0)),  # [rad]
+            "world_force": np.array([100.0, 100.0, 100.0, 0.3, 0.3, 0.3]),  # [N], [m] from the sensor
+            "ft_bias_drift": np.array([100.0] * 6 + [1000.0] * 6),  # [N/s, N m/s], [N, N m]
+            "ft_frame_rotation": np.full(3, np.deg2rad(30.0)),  # [rad]
+            "sensor_constant": np.full(6, 1000.0)}[shape]  # [N, N m]
+
+
+def _world_force(rows: np.ndarray, sd: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, int]:
+    """A world force ``f_w`` at a point ``p`` (s) of the tool: force rows ``R^T f_w`` (linear: ``f_w``
+    first), moment rows ``p x R^T f_w`` (linear in p given f_w), then Gauss-Newton on both. p along the
+    force is not seen while the tool keeps its orientation: the least-norm step leaves it where it is.
+    -> (p = [f_w; p] (6,), its covariance (6, 6), chi^2, rows)."""
+    n = len(rows)
+    P0 = np.diag(1.0 / prior_sd("world_force", np.zeros(3)) ** 2)
+    R = rows[:, K.G_R:K.G_R + 9].reshape(n, 3, 3)
+    Rt = R.transpose(0, 2, 1)
+    e = rows[:, K.G_E:K.G_E + 6] / sd[None, :]
+    fw, *_ = np.linalg.lstsq((R / sd[None, :3, None]).reshape(-1, 3), e[:, :3].reshape(-1), rcond=None)
+    p = np.zeros(3)
+    for _ in range(8):
+        f_s = R.transpose(0, 2, 1) @ fw  # (n, 3) the force in s
+        r = np.concatenate([f_s, np.cross(p, f_s)], axis=1) / sd[None, :]
+        Jm = np.zeros((n, 6, 6))
+        Jm[:, :3, :3] = Rt
+        Jm[:, 3:, :3] = _skew(np.broadcast_to(p, (n, 3))) @ Rt
+        Jm[:, 3:, 3:] = -_skew(f_s)
+        A = (Jm / sd[None, :, None]).reshape(-1, 6)
+        x = np.concatenate([fw, p])
+        H = A.T @ A + P0
+        step = np.linalg.solve(H, A.T @ (e - r).reshape(-1) - P0 @ x)
+        fw, p = fw + step[:3], p + step[3:]
+        if np.linalg.norm(step) < 1e-10:
+            break
+    f_s = R.transpose(0, 2, 1) @ fw
+    res = (e - np.concatenate([f_s, np.cross(p, f_s)], axis=1) / sd[None, :]).reshape(-1)
+    chi2 = float(res @ res)
+    m = len(res)
+    cov = np.linalg.inv(A.T @ A + P0) * max(1.0, chi2 / max(m - 6, 1))
+    return np.concatenate([fw, p]), cov, chi2, m
+
+
+#: contiguous blocks of the delete-one-block jackknife (``fit``)
+JACK_BLOCKS = 10
+
+
+def fit(shape: str, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: float,
+        fired: np.ndarray | None = None, jackknife: bool = False) -> Fit:
+    """``_fit1``; with ``jackknife`` the covariance also counts what the noise sd does not: errors of
+    the model that persist in time (a residual correlated over many samples). The delete-one-block
+    jackknife over ``JACK_BLOCKS`` contiguous blocks estimates the spread such errors give; the
+    covariance is the white-noise one plus it."""
+    f = _fit1(shape, rows, sd, mc, t_onset, fired)
+    if not jackknife or len(rows) < 5 * JACK_BLOCKS:
+        return f
+    edges = np.linspace(0, len(rows), JACK_BLOCKS + 1).astype(int)
+    ps = np.array([_fit1(shape, np.concatenate([rows[:edges[i]], rows[edges[i + 1]:]]), sd, mc, t_onset, fired).p
+                   for i in range(JACK_BLOCKS)])
+    d = ps - ps.mean(axis=0)
+    jack = (JACK_BLOCKS - 1) / JACK_BLOCKS * d.T @ d
+    return f._replace(cov=f.cov + jack)
+
+
+def _fit1(shape: str, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: float,
+          fired: np.ndarray | None = None) -> Fit:
+    """Least squares of the residual on the shape's columns, rows divided by the channel sd (6,);
+    ``fired`` (6,) bool: the channels whose test fired (a drift's constant is fitted on those only)."""
+    if shape == "world_force":
+        p, cov, chi2, m = _world_force(rows, sd)
+        return Fit(shape, p, cov, chi2, chi2 + 6 * np.log(m), m)
+    C = columns(shape, rows, mc, t_onset)
+    if shape == "ft_bias_drift":  # the rate on every channel, the constant (the onset's error) on those that fired
+        keep = np.concatenate([np.ones(6, bool), fired if fired is not None else np.ones(6, bool)])
+        C = C[:, :, keep]
+    C = C / sd[None, :, None]
+    y = rows[:, K.G_E:K.G_E + 6] / sd[None, :]
+    A = C.reshape(-1, C.shape[2])
+    b = y.reshape(-1)
+    P0 = np.diag(1.0 / prior_sd(shape, mc)[keep if shape == "ft_bias_drift" else slice(None)] ** 2)
+    H = A.T @ A + P0
+    p = np.linalg.solve(H, A.T @ b)
+    r = b - A @ p
+    chi2 = float(r @ r)
+    m, k = len(b), A.shape[1]
+    cov = np.linalg.inv(H) * max(1.0, chi2 / max(m - k, 1))
+    if shape == "ft_bias_drift":  # back to rate (6) + constant (6)
+        full = np.zeros(12)
+        full[keep] = p
+        cf = np.zeros((12, 12))
+        cf[np.ix_(keep, keep)] = cov
+        p, cov = full, cf
+    return Fit(shape, p, cov, chi2, chi2 + k * np.log(m), m)
+
+
+def evaluate(f: Fit, rows: np.ndarray, mc: np.ndarray, t_onset: float) -> np.ndarray:
+    """The fitted shape's wrench on ring rows -> (n, 6) (tool on sensor, s)."""
+    if f.shape == "world_force":
+        n = len(rows)
+        R = rows[:, K.G_R:K.G_R + 9].reshape(n, 3, 3)
+        f_s = R.transpose(0, 2, 1) @ f.p[:3]
+        return np.concatenate([f_s, np.cross(f.p[3:], f_s)], axis=1)
+    return columns(f.shape, rows, mc, t_onset) @ f.p
+
+
+def chi2_of(f: Fit, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: float) -> float:
+    """chi^2 of ring rows' residual (without the shape's correction) against the fitted shape."""
+    r = (rows[:, K.G_E:K.G_E + 6] - evaluate(f, rows, mc, t_onset)) / sd[None, :]
+    return float(np.sum(r * r))
+
+
+def best(rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: float,
+         fired: np.ndarray | None = None) -> tuple[Fit, list[Fit]]:
+    """The best-fitting shape (least BIC) and every fit, best first."""
+    fits = sorted((fit(s, rows, sd, mc, t_onset, fired) for s in SHAPES), key=lambda f: f.bic)
+    return fits[0], fits
+
+
+AXES = ("x", "y", "z")
+CHANNELS = ("F_x", "F_y", "F_z", "M_x", "M_y", "M_z")
+
+
+def _along(v: np.ndarray, cov: np.ndarray) -> tuple[float, float, str]:
+    """|v| along its direction with the sd of that projection, and the direction in words (the
+    dominant axis with its sign, '-y', or the unit vector)."""
+    size = float(np.linalg.norm(v))
+    u = v / max(size, 1e-300)
+    sd = float(np.sqrt(max(u @ cov @ u, 0.0)))
+    i = int(np.argmax(np.abs(u)))
+    word = f"{'+' if u[i] > 0 else '-'}{AXES[i]}" if abs(u[i]) > 0.95 else "(" + ", ".join(f"{x:+.2f}" for x in u) + ")"
+    return size, sd, word
+
+
+def describe(f: Fit, mc: np.ndarray, frame: str, sign: float = 1.0) -> tuple[str, dict]:
+    """The event's words and its estimate (a dict of values, their sds and units) from the best fit;
+    ``frame``: what the world frame is called (for a world force's direction); ``sign``: the log's
+    convention (``LogCfg.sign``): a drift's or a step's channels are said as the log has them."""
+    p, cov = f.p, f.cov
+    if f.shape in ("ft_bias_drift", "sensor_constant"):
+        p = sign * p
+    if f.shape == "tool_gravity":
+        m, sd = float(p[0]), float(np.sqrt(cov[0, 0]))
+        com = p[1:4] / m if abs(m) > 1e-9 else np.full(3, np.nan)
+        text = (f"a payload appeared, {m:.3g} ± {Z95 * sd:.2g} kg" if m > 0 else
+                f"the tool got lighter, {-m:.3g} ± {Z95 * sd:.2g} kg")
+        return text, {"mass_kg": m, "mass_sd_kg": sd, "com_s_m": com.tolist(), "first_moment_kg_m": p[1:4].tolist()}
+    if f.shape == "world_force":
+        size, sd, word = _along(p[:3], cov[:3, :3])
+        return (f"a {frame}-frame force appeared, {size:.2g} ± {Z95 * sd:.2g} N along {word}",
+                {"force_w_N": p[:3].tolist(), "force_cov_w_N2": cov[:3, :3].tolist(), "size_N": size,
+                 "size_sd_N": sd, "point_s_m": p[3:].tolist()})
+    if f.shape == "ft_bias_drift":
+        sd6 = np.sqrt(np.diag(cov)[:6])
+        i = int(np.argmax(np.abs(p[:6]) / np.maximum(sd6, 1e-300)))
+        unit = "N/s" if i < 3 else "N m/s"
+        return (f"the sensor started drifting, {p[i]:+.2g} ± {Z95 * sd6[i]:.2g} {unit} in {CHANNELS[i]}",
+                {"rate_s": p[:6].tolist(), "rate_sd_s": sd6.tolist()})
+    if f.shape == "ft_frame_rotation":
+        deg = np.rad2deg(p)
+        cd = np.rad2deg(np.rad2deg(cov))
+        size, sd, word = _along(deg, cd)
+        return (f"the sensor turned in its mount, {size:.2g} ± {Z95 * sd:.2g} deg about {word}",
+                {"rotvec_deg": deg.tolist(), "rotvec_cov_deg2": cd.tolist(), "angle_deg": size, "angle_sd_deg": sd})
+    if f.shape == "tool_tilt":
+        deg = np.rad2deg(p)
+        cd = np.rad2deg(np.rad2deg(cov))
+        size, sd, word = _along(np.array([*deg, 0.0]), np.pad(cd, ((0, 1), (0, 1))))
+        return (f"the tool turned in the grasp, {size:.2g} ± {Z95 * sd:.2g} deg about {word}",
+                {"tilt_deg": deg.tolist(), "tilt_cov_deg2": cd.tolist(), "angle_deg": size, "angle_sd_deg": sd})
+    sd6 = np.sqrt(np.diag(cov))
+    i = int(np.argmax(np.abs(p) / np.maximum(sd6, 1e-300)))
+    unit = "N" if i < 3 else "N m"
+    return (f"a constant wrench appeared, {p[i]:+.2g} ± {Z95 * sd6[i]:.2g} {unit} in {CHANNELS[i]}",
+            {"step_s": p.tolist(), "step_sd_s": sd6.tolist()})
+
+
+def correction(f: Fit, mc: np.ndarray, t_onset: float) -> np.ndarray:
+    """The fitted shape as the kernel's model correction (``kernel.NCORR``), added to what is there."""
+    c = np.zeros(K.NCORR)
+    p = f.p
+    if f.shape == "tool_gravity":
+        c[K.K_DM], c[K.K_DMC:K.K_DMC + 3] = p[0], p[1:4]
+    elif f.shape == "tool_tilt":
+        c[K.K_DMC:K.K_DMC + 3] = np.cross(np.array([p[0], p[1], 0.0]), mc)
+    elif f.shape == "world_force":
+        c[K.K_FW:K.K_FW + 3], c[K.K_P:K.K_P + 9] = p[:3], np.outer(p[3:], p[:3]).ravel()
+    elif f.shape == "ft_bias_drift":
+        c[K.K_RATE:K.K_RATE + 6], c[K.K_CONST:K.K_CONST + 6] = p[:6], p[6:]
+    elif f.shape == "ft_frame_rotation":
+        c[K.K_ROT:K.K_ROT + 3] = p
+    else:
+        c[K.K_CONST:K.K_CONST + 6] = p
+    return c
