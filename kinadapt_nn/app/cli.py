@@ -133,6 +133,7 @@ def _summary_lines(summary: dict, out: Path) -> list[str]:
         f"max {1e3 * summary['lateral_drift_max_m']:.3f} mm",
         *([f"  identification     {summary['identification']['text']}"] if summary.get("identification") else []),
         *_cell_lines(summary),
+        *_monitor_lines(summary),
         f"  sim {summary['sim_time_s']:.2f} s in {summary['wall_time_s']:.2f} s wall ({summary['steps']} steps)"
         + (f"; the one-time compile before it {summary['compile_time_s']:.1f} s"
            if summary.get("compile_time_s") else ""),
@@ -146,6 +147,17 @@ def _seat_line(summary: dict, seat: str) -> str:
     if summary.get("program") == "excite":
         return "  seat time          -   (an excitation run follows its scripted program; it does not insert)"
     return f"  seat time          {seat}   (paper, with adaptation: 5.1 s)"
+
+
+def _monitor_lines(summary: dict) -> list[str]:
+    """The live monitor's lines (``--monitor``): each event as it was printed, or that there was none."""
+    mon = summary.get("monitor")
+    if not mon:
+        return []
+    sd = mon["noise_sd"]
+    head = (f"  monitor            {len(mon['events'])} event(s); noise sd {max(sd[:3]):.3g} N / {max(sd[3:]):.3g} N m, "
+            f"threshold {mon['threshold_sd']:.1f} sd ({mon['false_alarms_per_h']:g} false alarms/h on white noise)")
+    return [head, *(f"    {e['line']}" for e in mon["events"])]
 
 
 def _cell_lines(summary: dict) -> list[str]:
@@ -176,6 +188,10 @@ def _write_online(stage: Path, cfg, result) -> None:
         hp = {"features": cfg.run.features, "law": result.summary["law"], "seed": cfg.run.seed}
         write_tensorboard(stage / "tb", result.trace, result.summary, hp)
         write_cell_tensorboard(stage / "tb", result.summary)  # a work cell: error vs insertion
+        if result.summary.get("monitor"):
+            from kinadapt_nn.runs.tb import write_monitor_events
+
+            write_monitor_events(stage / "tb", result.summary)
     if not cfg.run.figure:
         return
     from kinadapt_nn.figures import rollout_figure, save_figure  # (matplotlib only when a figure is wanted)
@@ -192,7 +208,8 @@ def cmd_online(args: argparse.Namespace) -> int:
     from kinadapt_nn.config import load_config
     from kinadapt_nn.runio import check_output_dir, staged_output
 
-    cfg = load_config(Path(args.config) if args.config else None, args.set or [])
+    cfg = load_config(Path(args.config) if args.config else None,
+                      [*(args.set or []), *(["monitor.enabled=true"] if args.monitor else [])])
     out = args.run_dir = Path(args.out) if args.out else _default_out("online")
     check_output_dir(out, args.overwrite)
     from kinadapt_nn.controller.core import compile_record, kernels_cached
@@ -603,8 +620,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"kinadapt {__version__}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     d = _DESCRIPTIONS
-    _job_parser(sub, "online", "run one insertion episode", "online/rollout.toml", "run.seed=3", cmd_online,
-                d["online"])
+    on = _job_parser(sub, "online", "run one insertion episode", "online/rollout.toml", "run.seed=3", cmd_online,
+                     d["online"])
+    on.add_argument("--monitor", action="store_true",
+                    help="run the live monitor beside the controller: it compares the wrist F/T reading with the "
+                         "nominal model and prints each change it finds (monitor.enabled; docs/monitor.md)")
     _job_parser(sub, "pretrain", "train the neural Jacobian basis on randomised tools and arms (rerun to resume)",
                 "pretrain/default.toml", "train.steps=200", cmd_pretrain, d["pretrain"])
     _job_parser(sub, "compare", "adjoint vs RBF vs neural features on the same held-out tools",

@@ -45,7 +45,36 @@ def tensorboard_series(trace: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]
         series["learning/theta_uncertainty"] = trace["theta_uncertainty"][idx]
     for name in ("depth_ok", "force_ok", "moment_ok"):
         series[f"success/{name}"] = trace[name][idx].astype(float)
+    if "monitor_z" in trace.arrays:  # the live monitor: residual / noise sd per channel (NaN: not judged)
+        from kinadapt_nn.monitor.shapes import CHANNELS as MON_CHANNELS
+
+        for i, name in enumerate(MON_CHANNELS):
+            series[f"monitor/residual_over_noise_{name}"] = trace["monitor_z"][idx, i].astype(float)
     return steps, series
+
+
+def text_value(pb, tag: str, text: str):
+    """A TensorBoard text summary value (the text plugin's record: a string tensor), built with
+    TensorBoard's own protos (its ``text.summary.pb`` imports TensorFlow)."""
+    from tensorboard.compat.proto import tensor_pb2, tensor_shape_pb2, types_pb2
+    from tensorboard.plugins.text import metadata
+
+    tensor = tensor_pb2.TensorProto(dtype=types_pb2.DT_STRING, string_val=[text.encode()],
+                                    tensor_shape=tensor_shape_pb2.TensorShapeProto())
+    return pb.Summary.Value(tag=tag, metadata=metadata.create_summary_metadata(display_name=tag, description=""),
+                            tensor=tensor)
+
+
+def write_monitor_events(log_dir: Path, summary: dict) -> None:
+    """The live monitor's events as text (tag ``monitor/events``, step = the event's time in ms)."""
+    mon = summary.get("monitor")
+    if not mon:
+        return
+    with EventWriter(log_dir) as wr:
+        lines = [e["line"] for e in mon["events"]] or ["no event: the wrench stayed within the model's noise"]
+        for e, line in zip(mon["events"] or [None], lines):
+            step = int(round(1e3 * e["t_s"])) if e else 0
+            wr._add([text_value(wr._pb, "monitor/events", line)], step)
 
 
 def write_tensorboard(log_dir: Path, trace: Trace, summary: dict, hparams: dict, figure=None) -> None:
