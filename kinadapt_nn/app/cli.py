@@ -555,8 +555,42 @@ def _write_diagnosis(out: Path, args: argparse.Namespace, results: list, setup, 
               f"{''.join(', ' + f for f in files)}{', rerun/' if rerun is not None else ''})")
 
 
+def cmd_diagnose_follow(args: argparse.Namespace) -> int:
+    """``kinadapt diagnose LOG --setup S --follow``: the live monitor on a log as it is written."""
+    from kinadapt_nn.config import MonitorCfg
+    from kinadapt_nn.diagnostics.setup import load_setup
+    from kinadapt_nn.monitor.follow import Follower
+
+    if not args.setup:
+        raise KinadaptError("--follow needs --setup SETUP.toml (the set-up of the log being written)")
+    if len(args.logs) != 1:
+        raise KinadaptError(f"--follow watches one log as it grows (got {len(args.logs)})")
+    for opt in ("add", "effects", "baseline", "config", "out"):
+        if getattr(args, opt, None):
+            raise KinadaptError(f"--{opt} does not apply to --follow (it prints events as they happen); drop it")
+    setup = load_setup(Path(args.setup), args.set or [])
+    path = Path(args.logs[0])
+    say = (lambda m: None) if args.quiet else (lambda m: print(f"kinadapt diagnose --follow: {m}", file=sys.stderr,
+                                                                flush=True))
+    fol = Follower(path, setup, MonitorCfg(), on_event=lambda ev: print(f"{path.name}: {ev.line}", flush=True), say=say)
+    if not args.quiet:
+        stop = f"stops when it has not grown for {args.idle_stop:g} s" if args.idle_stop else "Ctrl-C stops"
+        say(f"following {path} ({stop})")
+    try:
+        events = fol.run(args.idle_stop)
+    except KeyboardInterrupt:
+        events = fol.monitor.finish() if fol.monitor is not None else []
+    if not args.quiet:
+        m = fol.monitor
+        sd = "" if m is None else (f"; noise sd {max(m.noise_sd[:3]):.3g} N / {max(m.noise_sd[3:]):.3g} N m")
+        say(f"{fol.n_good} samples monitored, {fol.n_bad} left out, {len(events)} event(s){sd}")
+    return 0
+
+
 def cmd_diagnose(args: argparse.Namespace) -> int:
     args.add = _flat(args.add)
+    if args.follow:
+        return cmd_diagnose_follow(args)
     if args.setup:
         return cmd_diagnose_setup(args)
     return cmd_diagnose_run(args)  # --as-log: accepted, the default (one pipeline)
@@ -684,6 +718,12 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--as-log", action="store_true",
                     help="accepted for compatibility: a package run always goes through the same stages as a "
                          "robot's log, its set-up generated from its config (diagnostics/ownrun.py)")
+    dg.add_argument("--follow", action="store_true",
+                    help="with --setup: watch one CSV or Parquet log as another program appends to it and print each "
+                         "change of the wrench the set-up's model stops explaining, as kinadapt online --monitor does "
+                         "(docs/monitor.md); bad rows are said in one line and skipped")
+    dg.add_argument("--idle-stop", dest="idle_stop", type=_float_in(0.0, 1e9), default=None, metavar="S",
+                    help="with --follow: stop when the log has not grown for S seconds (default: until Ctrl-C)")
     dg.add_argument("--out", help="output folder (default: runs/diagnose-<timestamp>)")
     dg.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     dg.add_argument("--quiet", action="store_true", help="no progress lines, no summary")
