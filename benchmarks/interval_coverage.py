@@ -8,7 +8,8 @@ numbers"): does ``estimate ± 1.96 sd`` contain the truth in 95 % of the draws?
 A case is ``RIG:CASE`` of the standalone generators (they import nothing from the package; ``--cases list``
 names them): ``A:*`` and ``B:*`` from ``examples/foreign_rig.py`` (rig A's csv.gz log; rig B),
 ``ur5e:*`` and ``iiwa14:*`` from ``examples/calibration_rig.py``, ``contact:*`` from ``examples/contact_rig.py``
-(``point``; the unmodelled flat face ``flat_face_alone``, ``flat_face_alone_rich``, ``flat_face_rotation``). Each seed writes the case afresh (new noise; the motion is the case's own, the
+(``point``; the unmodelled flat face ``flat_face_alone``, ``flat_face_alone_rich``, ``flat_face_rotation``,
+``flat_face_drift``, ``flat_face_crosstalk_mount_known`` with the user's ``examples/effects/crosstalk_fx_fz.py``). Each seed writes the case afresh (new noise; the motion is the case's own, the
 calibration rig's static poses change with the seed) and diagnoses it with the library call of a user's
 command (``diagnose(read_log(log, setup), setup, hints=False)``). Compared with the truth:
 
@@ -198,14 +199,19 @@ class CalibrationRig:
 class ContactRig:
     """``examples/contact_rig.py``: the point contact, and the flat face pressed, slid and twisted (a moment about
     the tip no library effect has) with nothing else hidden (``flat_face_alone``, ``flat_face_alone_rich``) or
-    beside a hidden rotation of the sensor's measuring axes (``flat_face_rotation``); the crosstalk cases need a
-    user effect file."""
+    beside a hidden rotation of the sensor's measuring axes (``flat_face_rotation``), a drift (``flat_face_drift``)
+    or a crosstalk diagnosed with the user's effect file (``flat_face_crosstalk_mount_known``)."""
 
     def __init__(self):
         self.mod = load_example("contact_rig")
 
     def cases(self) -> list[str]:
-        return ["point", "flat_face_alone", "flat_face_alone_rich", "flat_face_rotation"]
+        return ["point", "flat_face_alone", "flat_face_alone_rich", "flat_face_rotation", "flat_face_drift",
+                "flat_face_crosstalk_mount_known"]
+
+    def effects_files(self, case: str) -> list[str]:
+        """The user's effect files a case is diagnosed with (its crosstalk's)."""
+        return [str(ROOT / "examples" / "effects" / "crosstalk_fx_fz.py")] if "crosstalk" in case else []
 
     def make(self, case: str, out: Path, seed: int) -> tuple[Path, Path, dict]:
         d = self.mod.make_case(case, out, seed=seed)
@@ -221,6 +227,8 @@ class ContactRig:
         dm, dmc = m - m_d, m * c - m_d * c_d
         eff = {"tool_gravity": {"mass": dm, **{f"com_{a}": float(v) for a, v in zip(XYZ, dmc / dm)}},
                **t.get("effects", {})}
+        if "crosstalk" in t:
+            eff["crosstalk_fx_fz"] = {"fx_from_fz": float(t["crosstalk"]["fx_from_fz"])}
         R_hid = _hidden_rotation(eff)
         cal = _calibration(m, c, self.mod.rpy_matrix_deg(t["sensor_rpy_flange_deg"]) @ R_hid, R_hid)
         point = dict(zip(XYZ, map(float, t["contact_point_sensor_m"]))) if "face" not in t else None
@@ -315,7 +323,8 @@ def draw(case: str, seed: int, oracle: bool = False) -> Outcome:
         truth = with_inertia(truth, setup)
         t0 = time.perf_counter()
         try:
-            rep = diagnose(readers.read_log(log, setup), setup, hints=False).report
+            files = rig.effects_files(name) if hasattr(rig, "effects_files") else []
+            rep = diagnose(readers.read_log(log, setup), setup, effects_files=files, hints=False).report
         except KinadaptError as exc:  # a refused diagnosis is a result too
             return Outcome([], [], time.perf_counter() - t0, f"{type(exc).__name__}: {exc}")
         wall = time.perf_counter() - t0

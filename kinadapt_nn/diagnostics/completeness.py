@@ -17,6 +17,16 @@ covariance, Benjamini-Hochberg over the shapes, ``min_explained`` of what the fi
 held-out, and a relevant size (a parameter is scaled so that 1 changes some channel's RMS, over
 that channel's rows, by its relevant size). A shape is listed only where it passes, ranked by its held-out gain; each comes
 with a ready effect file (``hint_files``) in the public contract.
+
+Estimates when structure is left (``robust``). A residual the model cannot describe biases the
+estimates of the effects whose columns reach the rows that carry it (a face contact's moment about
+the tip pulls a tool's centre of mass, a crosstalk), and their block-jackknife sd knows nothing of
+it. When the verdict names channels that carry something unexplained, every present and
+undecided effect is re-estimated with the final model on the rows of the channels that do not
+(``explained_rows``: the carrying channels' rows left out, per phase); the reported estimate
+moves by the change ``delta`` this makes and its sd becomes ``sqrt(max(sd, sd_rows)^2 + delta^2)``
+(``left_sd`` = ``|delta|``): an interval that holds whichever rows the truth agrees with.
+docs/missing_physics.md gives the alternatives measured (the leading hints as nuisance columns).
 """
 
 from __future__ import annotations
@@ -497,6 +507,96 @@ def assess(ranked, sc: sel.SelCfg, sigma: np.ndarray, stride_s: float, with_hint
     return Completeness(bool(complete), un, files)
 
 
+# ------------------------------------------------------------------------------------------ robust estimates
+#: [relevant sizes] a parameter whose sd on the explained rows exceeds this is not determined there
+LEFT_UNDETERMINED = 10.0
+
+
+def explained_rows(s, rm, des: sel.Design, carried: list[int]) -> sel.Design:
+    """``des`` (built on the ``LogSignals`` s and the ``RowMap`` rm) with the rows of the channels ``carried`` (indices into ``des.channel_names``) out of
+    every block's statistics (a streamed design: one more pass, those rows in a block of their own
+    that is then dropped; they keep their place in the rows, their prediction zero)."""
+    out = np.isin(des.channel, carried)
+    if des.stats is None:
+        keep = ~out
+        return des._replace(y=des.y[keep], X={n: x[keep] for n, x in des.X.items()}, Z=des.Z[keep],
+                            block=des.block[keep], W=des.W[keep], channel=des.channel[keep], t_s=des.t_s[keep])
+    from kinadapt_nn.diagnostics import stream
+
+    bs, nb = des.stats, des.n_blocks
+    block = np.where(out, nb, des.block).astype(des.block.dtype)
+    st = stream.block_stats(s, rm, list(bs.sources), des.y, block, nb + 1, bs.chunk)
+    combine = st.combine
+
+    def combine_kept(P: np.ndarray) -> np.ndarray:
+        return combine(np.vstack([P, np.zeros((1, P.shape[1]))]))
+
+    st = st._replace(G=st.G[:nb], h=st.h[:nb], yy=st.yy[:nb], combine=combine_kept)
+    return des._replace(stats=st, block=block)
+
+
+def _fit(st: sel.Stats, idx: np.ndarray, sc: sel.SelCfg) -> tuple[np.ndarray, np.ndarray]:
+    """(estimate (k,), sd (k,)) of the columns ``idx`` (scaled units) of ``st``: the sd the larger of the
+    block jackknife's (t-widened) and the white-noise / block-robust one (as the selection's)."""
+    from kinadapt_nn.diagnostics import intervals
+
+    _, reps, p = st.cv(idx, sc.ridge)
+    var = np.diag(sel.jackknife_cov(reps)) * intervals.t_widen(len(reps) - 1)
+    rows = int(np.count_nonzero(st.des.block < st.des.n_blocks))
+    var_h = intervals.honest_sd(st.G[:, idx][:, :, idx], st.h[:, idx], st.yy, p, rows) ** 2
+    return p, np.sqrt(np.clip(np.maximum(var, var_h), 0.0, None))
+
+
+def robust(ranked, sigma: np.ndarray, stride_s: float, sc: sel.SelCfg, cc: CompCfg = CompCfg()):
+    """The ranking's estimates when the final model leaves structure (module docstring): ``ranked``
+    (``userlog.Ranked``) with each present and undecided effect's estimate moved by ``delta`` =
+    (its fit with the final model on the explained rows) - (the same fit on all rows) and its sd
+    ``sqrt(max(sd, sd_rows)^2 + delta^2)``; ``left_sd`` (k,) = ``|delta|`` and ``left_rows`` (the
+    channels left out) in the entry. A parameter the explained rows do not determine (their sd beyond
+    ``LEFT_UNDETERMINED`` relevant sizes: an effect seen only where the residual is unexplained) keeps
+    its estimate and is named in ``left_undetermined``. Unchanged when the model is complete.
+    ``sigma`` (6,) and ``stride_s`` as in ``assess``."""
+    import dataclasses
+
+    s, des, rm, result = ranked.s, ranked.des, ranked.rm, ranked.result
+    static = bool(getattr(s, "static", False))
+    dt = 1.0 if static else float(np.median(np.diff(s.t)))
+    carried = unexplained(des, result.heldout, rm, sigma, s.setup, (dt, stride_s), cc, static)["carried_by"]
+    if not carried:
+        return ranked
+    names = list(des.channel_names)
+    des_x = explained_rows(s, rm, des, [names.index(c) for c in carried])
+    st, st_x = sel.Stats(des), sel.Stats(des_x)
+    final = np.asarray(result.final_idx)
+    present = dict(result.present)
+    entries = []
+    for e in result.entries:
+        n = e["effect"]
+        if e["verdict"] == "absent" or not e.get("columns_used"):
+            entries.append(e)
+            continue
+        c = list(e["columns_used"])
+        own = st.idx[n][c]
+        idx = final if n in present else np.concatenate([final, own])
+        pos = np.array([int(np.flatnonzero(idx == j)[0]) for j in own])
+        p_all, _ = _fit(st, idx, sc)
+        p_x, sd_x = _fit(st_x, idx, sc)
+        scale = np.asarray(des.scale[n], dtype=float)[c]
+        ok = sd_x[pos] <= LEFT_UNDETERMINED  # scaled units: 1 = the relevant size
+        delta, sd_x = np.where(ok, p_x[pos] - p_all[pos], 0.0) * scale, np.where(ok, sd_x[pos], 0.0) * scale
+        e = {**e, "params": np.asarray(e["params"], dtype=float).copy(), "sd": np.asarray(e["sd"], dtype=float).copy()}
+        e["params"][c] += delta
+        e["sd"][c] = np.sqrt(np.maximum(e["sd"][c], sd_x) ** 2 + delta ** 2)
+        e["left_sd"] = np.zeros(len(e["sd"]))
+        e["left_sd"][c] = np.abs(delta)
+        e["left_rows"] = list(carried)
+        e["left_undetermined"] = [int(j) for j, o in zip(c, ok) if not o]
+        if n in present:
+            present[n] = (present[n][0], e["params"][c], e["sd"][c])
+        entries.append(e)
+    return dataclasses.replace(ranked, result=result._replace(entries=entries, present=present))
+
+
 def caveated(ranking: list[dict], complete: bool) -> list[dict]:
     """The ranking's entries; when the model stays incomplete, each ``present`` one (a new dict) with
     its share and a warning."""
@@ -513,4 +613,5 @@ def caveated(ranking: list[dict], complete: bool) -> list[dict]:
     return out
 
 
-__all__ = ["CompCfg", "Completeness", "SHAPES", "assess", "caveated", "hints", "shapes", "unexplained", "WORDS"]
+__all__ = ["CompCfg", "Completeness", "SHAPES", "assess", "caveated", "explained_rows", "hints", "robust", "shapes",
+           "unexplained", "WORDS"]

@@ -586,7 +586,8 @@ def to_log_units(est: dict, setup: SetupCfg) -> dict:
 
 
 def _entry_report(e: dict, eff: Effect, setup: SetupCfg) -> dict:
-    out = {k: v for k, v in e.items() if k not in ("params", "sd", "columns_used", "equivalence", "model_sd")}
+    out = {k: v for k, v in e.items() if k not in ("params", "sd", "columns_used", "equivalence", "model_sd", "left_sd",
+                                                  "left_rows", "left_undetermined")}
     out["judged"] = True
     out["source"] = eff.source
     out["doc"] = eff.doc
@@ -609,6 +610,10 @@ def _entry_report(e: dict, eff: Effect, setup: SetupCfg) -> dict:
                               "value": [float(v) for v in p], "sd": [float(v) for v in sd]}
     if "model_sd" in e:  # the part of sd from the choices the data could not make (selection._with_model_sd)
         out["estimate_params"]["model_sd"] = [float(v) for v in e["model_sd"]]
+    if "left_sd" in e:  # the change from leaving out the rows that carry what no model has (completeness.robust)
+        out["estimate_params"]["left_sd"] = [float(v) for v in e["left_sd"]]
+        out["estimate_params"]["left_rows"] = list(e["left_rows"])
+        out["estimate_params"]["left_undetermined"] = [eff.params[j] for j in e["left_undetermined"]]
     return out
 
 
@@ -637,6 +642,7 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
     excite["_params"] = {n: lib[n].params for n in names}
     rk = _RankCtx(lib, cal.sigma, rc, sc, excite, chk.block, {}, progress)
     ranked = _ranked(rk, s, names)
+    ranked = cp.robust(ranked, cal.sigma, rc.stride_s, sc)  # structure left: estimates from the rows it spares
     sections = _base_report(log, declared, cal, chk, ranked, rk)
     progress("completeness of the final model" + (" and hints" if hints else ""))
     comp = cp.assess(ranked, sc, cal.sigma, rc.stride_s, with_hints=hints and chk.block is None,
