@@ -1067,6 +1067,11 @@ def summary_text(rep: dict) -> str:
                      "residual of the declared model, held-out.")
         if not rep.get("model_complete", True):
             parts.append("Caution: the model stays incomplete, so these may stand in for part of what is unexplained.")
+            left = next((e["estimate_params"]["left_rows"] for e in pres if "left_rows" in e.get("estimate_params", {})),
+                        None)
+            if left:  # completeness.robust
+                parts.append(f"Their estimates leave out the rows of {', '.join(left)}, which carry it; each ± "
+                             "includes the change this makes.")
     else:
         parts.append("No library effect is present.")
     if und:
