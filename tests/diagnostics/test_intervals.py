@@ -100,3 +100,29 @@ def test_contact_point_sd_carries_the_calibration_covariance():
                       for e in rng.multivariate_normal(np.zeros(4), cov_x, 400)])
     np.testing.assert_allclose(sd, draws.std(axis=0), rtol=0.15)
     assert np.all(sd > 0)
+
+
+def test_explained_rows_fit_is_least_squares_on_the_other_channels():
+    """``completeness.explained_rows`` (issue 51): the fit of a design with one channel's rows left out is the
+    plain least squares (numpy) on the rows of the other channels -- a bias carried by that channel alone
+    (here a constant 0.5 in channel 1) is then not in the estimate, which stays within noise of the truth."""
+    from kinadapt_nn.diagnostics import selection as sel
+    from kinadapt_nn.diagnostics.completeness import explained_rows
+
+    rng = np.random.default_rng(3)
+    n_t, B = 400, 10
+    t = np.repeat(np.linspace(0.0, 1.0, n_t), 2)  # two channels per row time
+    channel = np.tile(np.arange(2), n_t)
+    X = np.stack([np.sin(5 * t + channel), t * (1 + channel)], axis=1)
+    theta = np.array([0.8, -1.5])
+    y = X @ theta + 0.01 * rng.normal(size=len(t)) + 0.5 * (channel == 1)
+    block = np.minimum((t * B).astype(int), B - 1)
+    des = sel.Design(y, {"e": X}, np.zeros((len(y), 0)), block, B, {"e": np.array([0.1, 0.1])}, {"e": False},
+                     np.ones(len(y)), channel, ("c0", "c1"), t)
+    dx = explained_rows(None, None, des, [1])
+    st = sel.Stats(dx)
+    p = st.fit(st.idx["e"], 0.0) * 0.1
+    keep = channel == 0
+    ref = np.linalg.lstsq(X[keep], y[keep], rcond=None)[0]
+    assert np.allclose(p, ref, rtol=1e-7, atol=1e-10), (p, ref)
+    assert np.all(np.abs(ref - theta) < 0.01) and not np.all(np.abs(np.linalg.lstsq(X, y, rcond=None)[0] - theta) < 0.01)
