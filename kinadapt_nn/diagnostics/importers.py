@@ -49,15 +49,14 @@ def load_log(path: Path) -> RawLog:
     from kinadapt_nn.trace import Trace
 
     path = Path(path)
-    kind = readers.log_format(path)  # not found, an unknown suffix: one line naming the formats
-    if kind == "csv" and path.name.lower().endswith(".csv"):
+    reader = readers.reader_for(path)  # not found, an unknown suffix: one line naming the formats
+    if reader.name == "csv" and path.name.lower().endswith(".csv"):
         try:
             return read_csv_log(path)
         except KinadaptError as exc:
             raise KinadaptError(f"{exc}; for your robot's own CSV log, {NEEDS_SETUP}") from None
-    if kind != "trace":
-        what = {"csv": "a CSV", "parquet": "a Parquet", "bag": "a ROS 2 bag"}[kind]
-        raise KinadaptError(f"log '{path}' is {what} log, not a run of this package; for your robot's own log, "
+    if reader.name != "trace":
+        raise KinadaptError(f"log '{path}' is {reader.what}, not a run of this package; for your robot's own log, "
                             f"{NEEDS_SETUP}")
     if path.is_dir():
         path = path / "trace.npz"
