@@ -1,6 +1,6 @@
 """TensorBoard logging: the same tag names for every features type, so runs overlay.
 
-Written with TensorBoard's own event writer and protos (``EventWriter``), not
+Written with TensorBoard's own event writer and summaries (``runio.EventWriter``), not
 ``torch.utils.tensorboard``: importing torch costs seconds and the episode never needs it
 (nothing here imports torch or tensorflow -- ``tests/app/test_config_cli.py`` checks the
 ``online`` path).
@@ -53,18 +53,6 @@ def tensorboard_series(trace: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]
     return steps, series
 
 
-def text_value(pb, tag: str, text: str):
-    """A TensorBoard text summary value (the text plugin's record: a string tensor), built with
-    TensorBoard's own protos (its ``text.summary.pb`` imports TensorFlow)."""
-    from tensorboard.compat.proto import tensor_pb2, tensor_shape_pb2, types_pb2
-    from tensorboard.plugins.text import metadata
-
-    tensor = tensor_pb2.TensorProto(dtype=types_pb2.DT_STRING, string_val=[text.encode()],
-                                    tensor_shape=tensor_shape_pb2.TensorShapeProto())
-    return pb.Summary.Value(tag=tag, metadata=metadata.create_summary_metadata(display_name=tag, description=""),
-                            tensor=tensor)
-
-
 def write_monitor_events(log_dir: Path, summary: dict) -> None:
     """The live monitor's events as text (tag ``monitor/events``, step = the event's time in ms)."""
     mon = summary.get("monitor")
@@ -74,7 +62,7 @@ def write_monitor_events(log_dir: Path, summary: dict) -> None:
         lines = [e["line"] for e in mon["events"]] or ["no event: the wrench stayed within the model's noise"]
         for e, line in zip(mon["events"] or [None], lines):
             step = int(round(1e3 * e["t_s"])) if e else 0
-            wr._add([text_value(wr._pb, "monitor/events", line)], step)
+            wr.add_text("monitor/events", line, step)
 
 
 def write_tensorboard(log_dir: Path, trace: Trace, summary: dict, hparams: dict, figure=None) -> None:

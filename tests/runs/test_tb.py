@@ -30,6 +30,7 @@ sys.exit(0 if rc in (0, 1) and not bad else 9)
 
 def test_online_adjoint_path_imports_no_torch_and_tensorboard_reads_it_back(tmp_path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    from tensorboard.util import tensor_util
 
     from kinadapt_nn.runs.tb import TB_PERIOD_S
     from kinadapt_nn.trace import Trace
@@ -42,13 +43,14 @@ def test_online_adjoint_path_imports_no_torch_and_tensorboard_reads_it_back(tmp_
     assert (out / "rollout.png").stat().st_size > 10_000
 
     tr = Trace.load(out / "trace.npz")
-    ea = EventAccumulator(str(out / "tb"), size_guidance={"scalars": 0, "histograms": 0, "images": 0})
+    ea = EventAccumulator(str(out / "tb"), size_guidance={"scalars": 0, "tensors": 0, "images": 0})
     ea.Reload()
     tags = ea.Tags()
     for tag in ("sensor/d", "sensor/F_lat_x", "pred_error/M_z", "truth/tip_depth_m", "value/V_J",
                 "stability/lambda_min", "learning/jacobian_rel_error", "success/depth_ok", "summary/success"):
         assert tag in tags["scalars"], tag
-    assert tags["histograms"] == ["learning/theta"]
+    assert "learning/theta" in tags["tensors"]
+    assert ea.SummaryMetadata("learning/theta").plugin_data.plugin_name == "histograms"
     assert tags["images"] == ["rollout"]
     # scalars at TB_PERIOD_S, step = simulated ms, values those of the trace
     d = ea.Scalars("sensor/d")
@@ -58,12 +60,12 @@ def test_online_adjoint_path_imports_no_torch_and_tensorboard_reads_it_back(tmp_
     np.testing.assert_array_equal(steps, np.round(tr["t_s"][idx] * 1e3).astype(int))
     np.testing.assert_allclose([e.value for e in d], tr["s"][idx, 0], rtol=1e-6, atol=1e-9)
     # theta as a histogram: every sample holds the p entries of theta, within [min, max]
-    h = ea.Histograms("learning/theta")
+    h = ea.Tensors("learning/theta")
     assert len(h) >= 9
-    first = h[0].histogram_value
+    first = tensor_util.make_ndarray(h[0].tensor_proto)  # (buckets, 3): left edge, right edge, count
     theta0 = tr["theta"][0]
-    assert first.num == theta0.size and np.isclose(first.min, theta0.min()) and np.isclose(first.max, theta0.max())
-    assert sum(first.bucket) == theta0.size
+    assert first[:, 2].sum() == theta0.size
+    assert np.isclose(first[0, 0], theta0.min()) and np.isclose(first[-1, 1], theta0.max())
     # the hparams plugin records (what the HParams tab reads)
     assert {"_hparams_/experiment", "_hparams_/session_start_info"} <= set(ea.summary_metadata)
     img = ea.Images("rollout")[0]
@@ -146,8 +148,10 @@ def test_scalar_events_read_back(tmp_path):
 
 
 def test_histogram_and_image_read_back(tmp_path):
-    """A histogram (counts, range, sums) and a PNG image read back by TensorBoard's accumulator."""
+    """A histogram (TensorBoard's buckets: counts and range) and a PNG image read back by TensorBoard's accumulator."""
+    import pytest
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    from tensorboard.util import tensor_util
 
     from kinadapt_nn.runio import HIST_BINS, EventWriter
 
@@ -156,12 +160,15 @@ def test_histogram_and_image_read_back(tmp_path):
         wr.add_histogram("learning/theta", values, 20)
         wr.add_histogram("empty", np.array([np.nan]), 20)  # nothing finite: no event
         wr.add_png("rollout", b"\x89PNG-bytes", height=3, width=4, step=2)
-    ea = EventAccumulator(str(tmp_path), size_guidance={"histograms": 0, "images": 0})
+    ea = EventAccumulator(str(tmp_path), size_guidance={"tensors": 0, "images": 0})
     ea.Reload()
-    assert ea.Tags()["histograms"] == ["learning/theta"]
-    (h,) = ea.Histograms("learning/theta")
-    hv = h.histogram_value
-    assert h.step == 20 and (hv.min, hv.max, hv.num, hv.sum, hv.sum_squares) == (0.0, 4.0, 5.0, 10.0, 30.0)
-    assert len(hv.bucket_limit) == HIST_BINS + 1 and sum(hv.bucket) == 5 and hv.bucket[0] == 0.0
+    assert ea.Tags()["tensors"] == ["learning/theta"]
+    (h,) = ea.Tensors("learning/theta")
+    assert h.step == 20 and ea.SummaryMetadata("learning/theta").plugin_data.plugin_name == "histograms"
+    edges = tensor_util.make_ndarray(h.tensor_proto)  # (HIST_BINS, 3): left edge, right edge, count
+    assert edges.shape == (HIST_BINS, 3) and edges[:, 2].sum() == 5 and (edges[0, 0], edges[-1, 1]) == (0.0, 4.0)
+    np.testing.assert_allclose(edges[1:, 0], edges[:-1, 1])  # adjacent buckets
+    centres = 0.5 * (edges[:, 0] + edges[:, 1])
+    assert np.average(centres, weights=edges[:, 2]) == pytest.approx(2.0, abs=4.0 / HIST_BINS)  # the mean of 0..4
     (img,) = ea.Images("rollout")
     assert (img.step, img.height, img.width, img.encoded_image_string) == (2, 3, 4, b"\x89PNG-bytes")
