@@ -187,27 +187,3 @@ def _episode_results(lp: Loop, log: TraceLog, wall_s: float, keep_regressor: boo
                 res.trace.meta["monitor"] = res.summary["monitor"]
         results.append(res)
     return results
-
-
-def _run_chunk(args) -> BatchResult:
-    cfgs, nthread = args
-    return run_batch(cfgs, nthread=nthread)
-
-
-def run_batch_processes(cfgs: list[ExperimentCfg], processes: int = 2) -> BatchResult:
-    """Split the episodes over ``processes`` worker processes, each one batch on one thread.
-
-    Measured better than one batch on two threads: the vectorised controller is numpy on one
-    core (GIL), so two processes also parallelise the controller, not only the physics. The
-    loop wall time reported is the slowest chunk's (the chunks run concurrently)."""
-    from concurrent.futures import ProcessPoolExecutor
-
-    chunks = [cfgs[i::processes] for i in range(processes) if cfgs[i::processes]]
-    with ProcessPoolExecutor(max_workers=len(chunks)) as ex:
-        parts = list(ex.map(_run_chunk, [(c, 1) for c in chunks]))
-    order = [i for k in range(len(chunks)) for i in range(k, len(cfgs), processes)]
-    summaries: list = [None] * len(cfgs)
-    for idx, s in zip(order, [s for p in parts for s in p.summaries]):
-        summaries[idx] = s
-    return BatchResult(summaries, max(p.steps for p in parts), sum(p.sim_steps for p in parts),
-                       max(p.wall_s for p in parts), max(p.setup_s for p in parts))
