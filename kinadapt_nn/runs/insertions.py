@@ -189,6 +189,7 @@ class _Cell:
             self.refit = Refit(ctrl, cfg.cell.refit_channels, cfg.cell.refit_prior_weight,
                                timing_sd_s=cfg.cell.refit_timing_sd_s, max_directions=cap, alt_prior_cov=alt,
                                alt_evidence_per_insertion=choice)
+            self.refit.step_sd = cfg.cell.refit_step_sd  # the trust region between insertions
         self.rows: list[dict] = []
         self.out: dict[int, EpisodeResult] = {}
 

@@ -36,6 +36,16 @@ best-identified directions. ``alt_prior_cov`` with ``alt_evidence_per_insertion 
 under that prior too. It acts on that estimate unless the features' own prior gains more than
 ``alt_evidence_per_insertion`` x (insertions pooled) in log marginal likelihood, computed with the
 residual weights of the last pass.
+
+``step_sd > 0`` (an attribute, set from ``cell.refit_step_sd``, default 0.5) is a trust region on what the controller acts
+on: after the first refit, the acted estimate moves from the one it acted on before towards the new
+refit by at most ``step_sd`` in the new posterior's metric, ``|d|_{P*^-1} = sqrt(d^T P*^-1 d) <=
+step_sd``; the kalman law goes on from the acted estimate. The pooled estimate follows the part of
+the data the model does not contain (the lateral-force bias) from one insertion to the next, and
+the cell error then rose by up to 42 % between insertions (docs/cell.md). The region is a chosen
+cap, not a test: it is smaller than the step a consistent estimate takes early on (about
+sqrt(p / (k - 1)) posterior sd after insertion k), so it also slows the learning it keeps
+never-worse (docs/cell.md: measured over five draws, with what it costs).
 """
 
 from __future__ import annotations
@@ -91,6 +101,9 @@ class Refit:
         self.log_evidence_gain = float("nan")  #: own prior minus the simpler one (the last solve)
         self.chose_alt = False  #: the last solve acted on the simpler prior's estimate
         self.identified = 0  #: directions the last solve acts on (the trace of its projector)
+        self.step_sd = 0.0  #: > 0: the trust region on the acted estimate's step [posterior sd]; set by the caller
+        self.acted: np.ndarray | None = None  #: the estimate acted on after the last refit
+        self.step = float("nan")  #: the last refit's full step |d|_{P*^-1} (before the trust region)
 
     def add(self, trace) -> int:
         """Keep one insertion's contact samples (``trace`` from ``run_episode(keep_regressor=True)``;
@@ -157,6 +170,16 @@ class Refit:
         self.identified = int(round(float(np.trace(A))))  #: directions acted on at the last solve
         return theta, P, self.theta_prior + A @ (theta - self.theta_prior)
 
+    def trust_step(self, acted: np.ndarray, new: np.ndarray, P: np.ndarray) -> np.ndarray:
+        """The trust region (``step_sd > 0``): ``acted + d min(1, step_sd / |d|_{P^-1})``, d = new -
+        acted (both (p,), P (p, p) the new posterior covariance); records ``|d|_{P^-1}`` in
+        ``self.step``. ``step_sd = 0``: ``new``."""
+        d = new - acted
+        self.step = float(np.sqrt(max(0.0, d @ np.linalg.solve(P, d))))
+        if self.step_sd <= 0 or self.step <= self.step_sd:
+            return new
+        return acted + d * (self.step_sd / self.step)
+
     @staticmethod
     def _log_evidence(quad: float, eta: np.ndarray, Lam: np.ndarray, G: np.ndarray, Lp: np.ndarray) -> float:
         """log p(y) of the linear-Gaussian model with fixed residual weights, up to the terms that
@@ -184,6 +207,11 @@ class Refit:
         law its covariance and filter estimate). -> a summary row fragment."""
         n = self.add(trace)
         theta_kf, P, theta_act = self.solve()
+        if self.acted is not None:
+            theta_act = self.trust_step(self.acted, theta_act, P)
+            if self.step_sd > 0:
+                theta_kf = theta_act  # the law goes on from the estimate acted on
+        self.acted = theta_act.copy()
         self.ctrl.state.theta[0] = theta_act
         law = self.ctrl._law_state
         if "P" in law.blocks:  # a law with a covariance (kalman): hand it the pooled posterior
@@ -193,6 +221,8 @@ class Refit:
             law.blocks["theta_prior"][0] = self.theta_prior  # the refit's prior is the law's
             law.counters["kf_init"][0] = 1
         row = {"samples": n, "insertions_pooled": len(self.data), "identified": self.identified}
+        if self.step_sd > 0 and len(self.data) > 1:  # the refit's full step, in posterior sd (before the region)
+            row["step_posterior_sd"] = self.step
         if self.timing_sd_s > 0:
             row["timing_offset_s"] = self.timing_s
         if self.alt is not None:
