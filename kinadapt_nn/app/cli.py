@@ -209,7 +209,8 @@ def cmd_online(args: argparse.Namespace) -> int:
     from kinadapt_nn.runio import check_output_dir, staged_output
 
     cfg = load_config(Path(args.config) if args.config else None,
-                      [*(args.set or []), *(["monitor.enabled=true"] if args.monitor else [])])
+                      [*(args.set or []), *(["monitor.enabled=true"] if args.monitor else []),
+                       *(["run.progress=false"] if args.quiet else [])])  # (--quiet: no live lines either)
     out = args.run_dir = Path(args.out) if args.out else _default_out("online")
     check_output_dir(out, args.overwrite)
     from kinadapt_nn.controller.core import compile_record, kernels_cached

@@ -31,6 +31,12 @@ from kinadapt_nn.monitor import shapes
 CHANNELS = shapes.CHANNELS
 #: BIC margin by which the best shape must beat the runner-up before an event is named
 DECISIVE = 10.0
+#: [s] the model's slow error before a change: the residual's means over blocks this long ...
+MODEL_BLOCK_S = 0.1
+#: [s] ... over this long before it (``Monitor._model_sd``)
+MODEL_LOOK_S = 2.0
+#: [s] right after a change the arm's transient (a sudden load) is left out of the fit
+SETTLE_S = 0.02
 #: windows (``window_s`` each) an alarm may wait for a clear winner before the best is named anyway
 MAX_WINDOWS = 6
 
@@ -193,7 +199,8 @@ class Monitor:
         al["windows"] += 1
         t_on, fired = al["t_on"], al["fired"]
         rows = K.ring_rows(st, self.ring, t_on)
-        rows = rows[(rows[:, K.G_FREE] > 0.5) & (rows[:, K.G_T] > t_on)]  # t_on: the last sample before the change
+        # t_on: the last sample before the change; the first SETTLE_S after it left out (the arm's transient)
+        rows = rows[(rows[:, K.G_FREE] > 0.5) & (rows[:, K.G_T] > t_on + SETTLE_S)]
         if len(rows) < 20 and not final:
             st[K.S_TALARM] = st[K.S_TLAST]  # wait for another window of free-space samples
             return None
@@ -212,7 +219,7 @@ class Monitor:
         if self._refit_last(rows, f):
             self._restart()
             return None
-        f = shapes.fit(f.shape, rows, sd, self.mc, t_on, fmask, jackknife=True)
+        f = shapes.fit(f.shape, rows, sd, self.mc, t_on, fmask, jackknife=True, model_sd=self._model_sd(t_on))
         text, est = shapes.describe(f, self.mc, self.frame, float(self.c[K.C_SIGN]))
         ev = Event(al["t"], t_on, [CHANNELS[i] for i in fired], "free space", f.shape, text, est,
                    fits[1].shape if len(fits) > 1 else "", margin, f.rows, float(rows[-1, K.G_T]))
@@ -223,6 +230,19 @@ class Monitor:
         if self.on_event is not None:
             self.on_event(ev)
         return ev
+
+    def _model_sd(self, t_on: float) -> np.ndarray:
+        """(6,) [N, N m] the model's slow error before a change: the RMS of the residual's
+        ``MODEL_BLOCK_S`` means over the free samples of the ``MODEL_LOOK_S`` before ``t_on`` (noise / 10
+        when there are too few)."""
+        rows = K.ring_rows(self.st, self.ring, t_on - MODEL_LOOK_S)
+        rows = rows[(rows[:, K.G_FREE] > 0.5) & (rows[:, K.G_T] <= t_on)]
+        k = max(1, int(round(MODEL_BLOCK_S / self.dt_s)))
+        nb = len(rows) // k
+        if nb < 3:
+            return self.noise_sd / 10.0
+        means = rows[:nb * k, K.G_E:K.G_E + 6].reshape(nb, k, 6).mean(axis=1)
+        return np.sqrt(np.mean(means ** 2, axis=0))
 
     def _apply(self, f, t_on: float, sign: float) -> None:
         """Add (sign +1) or take out (-1) a fitted shape's correction of the model."""
@@ -247,8 +267,8 @@ class Monitor:
             return False
         f_old, t0, ev = self._fits[-1]
         rows = K.ring_rows(self.st, self.ring, t0)
-        rows = rows[(rows[:, K.G_FREE] > 0.5) & (rows[:, K.G_T] > t0)]
-        if len(rows) == 0 or rows[0, K.G_T] > t0 + 2.0 * self.dt_s + 1e-9 or f_old.shape == "ft_bias_drift" \
+        rows = rows[(rows[:, K.G_FREE] > 0.5) & (rows[:, K.G_T] > t0 + SETTLE_S)]
+        if len(rows) == 0 or rows[0, K.G_T] > t0 + SETTLE_S + 2.0 * self.dt_s + 1e-9 or f_old.shape == "ft_bias_drift" \
                 and f_new.shape != "ft_bias_drift":
             return False  # its onset has left the ring
         y = rows.copy()  # the residual without the old event's correction
@@ -256,7 +276,7 @@ class Monitor:
         y[after, K.G_E:K.G_E + 6] += shapes.evaluate(f_old, rows[after], self.mc, t0)
         sd = self.noise_sd
         fmask = np.isin(np.arange(6), [CHANNELS.index(c) for c in ev.channels])
-        one = shapes.fit(f_old.shape, y, sd, self.mc, t0, fmask, jackknife=True)
+        one = shapes.fit(f_old.shape, y, sd, self.mc, t0, fmask, jackknife=True, model_sd=self._model_sd(t0))
         m = one.rows
         before = y[~np.isin(y[:, K.G_T], rows_new[:, K.G_T])]
         if len(before) == 0:

@@ -151,12 +151,25 @@ JACK_BLOCKS = 10
 
 
 def fit(shape: str, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: float,
-        fired: np.ndarray | None = None, jackknife: bool = False) -> Fit:
+        fired: np.ndarray | None = None, jackknife: bool = False, model_sd: np.ndarray | None = None) -> Fit:
     """``_fit1``; with ``jackknife`` the covariance also counts what the noise sd does not: errors of
     the model that persist in time (a residual correlated over many samples). The delete-one-block
-    jackknife over ``JACK_BLOCKS`` contiguous blocks estimates the spread such errors give; the
-    covariance is the white-noise one plus it."""
+    jackknife over ``JACK_BLOCKS`` contiguous blocks estimates the spread such errors give within the
+    window; ``model_sd`` (6,) [N, N m], the model's own slow error per channel before the change (what
+    the nominal model already missed), adds the change a constant error of that size in each channel
+    makes to the estimate (``sum_c d_c d_c^T``, d_c the estimate's shift when channel c's residual is
+    shifted by ``model_sd[c]``: exact for the linear shapes). The covariance is the white-noise one plus
+    both."""
     f = _fit1(shape, rows, sd, mc, t_onset, fired)
+    if model_sd is not None:
+        add = np.zeros_like(f.cov)
+        for c in range(6):
+            if model_sd[c] > 0.0:
+                shifted = rows.copy()
+                shifted[:, K.G_E + c] += model_sd[c]
+                d = _fit1(shape, shifted, sd, mc, t_onset, fired).p - f.p
+                add += np.outer(d, d)
+        f = f._replace(cov=f.cov + add)
     if not jackknife or len(rows) < 5 * JACK_BLOCKS:
         return f
     edges = np.linspace(0, len(rows), JACK_BLOCKS + 1).astype(int)

@@ -1,0 +1,245 @@
+"""The live monitor (``kinadapt_nn.monitor``): its model against the simulated sensor, its test's
+false-alarm rate against a simulation, the events of onset scenarios against their truth, the
+``--follow`` reader on bad input, and the command line."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from kinadapt_nn.app.cli import main
+from kinadapt_nn.config import MonitorCfg, load_config
+from kinadapt_nn.diagnostics.ownrun import setup_of_run
+from kinadapt_nn.monitor import kernel as K
+from kinadapt_nn.monitor.follow import Follower, csv_text
+from kinadapt_nn.monitor.monitor import Monitor
+from kinadapt_nn.runs.episode import run_episode
+
+REPO = Path(__file__).resolve().parents[2]
+QUIET = ["run.progress=false"]
+
+
+def _run(extra, path="online/monitor.toml"):
+    cfg = load_config(REPO / path, QUIET + extra)
+    return cfg, run_episode(cfg)
+
+
+@pytest.fixture(scope="module")
+def snag():
+    return _run(["effects.world_force.enabled=true", "effects.world_force.onset_s=2.0"])
+
+
+def test_threshold_gives_the_documented_run_length():
+    """Siegmund's approximation, as ``threshold`` solves it, against a simulated one-sided CUSUM on white
+    noise: 12 false alarms an hour of 1 s samples on one test is a mean run length of 300 samples."""
+    k = 0.5
+    h = K.threshold(12.0, k, 1.0, sides=1)
+    rng = np.random.default_rng(0)
+    n, steps = 4000, 6000
+    g = np.zeros(n)
+    stop = np.full(n, steps)
+    for i in range(steps):
+        g = np.maximum(0.0, g + rng.standard_normal(n) - k)
+        hit = (g > h) & (stop == steps)
+        stop[hit] = i + 1
+    assert np.all(stop < steps)
+    assert abs(stop.mean() / 300.0 - 1.0) < 0.1, stop.mean()
+
+
+def test_model_matches_the_simulated_sensor_on_a_clean_run():
+    """Noise-free, no hidden effect: the declared tool's Newton-Euler wrench from the encoders is the
+    simulator's reading up to the declared tool's own error -- its centre of mass is on the nominal axis,
+    the true one (tool.offset_f_m) 3.6 mm beside it, a moment of at most m g |dc|."""
+    cfg, r = _run(["faults.ft_noise_N=0", "faults.ft_noise_Nm=0"])
+    res = r.trace["monitor_residual"]
+    assert np.isfinite(res).sum() > 0.8 * res.size
+    dc = 0.5 * np.linalg.norm(np.asarray(cfg.tool.offset_f_m[:2]))  # the peg's centre: half way to the tip
+    assert np.nanmax(np.abs(res[:, :3])) < 2e-3
+    assert np.nanmax(np.abs(res[:, 3:])) < cfg.tool.mass_kg * 9.81 * 2 * dc + 5e-4
+    assert r.summary["monitor"]["events"] == []
+
+
+@pytest.mark.parametrize("path, seed", [("online/monitor.toml", 1), ("online/rollout.toml", 0)])
+def test_no_event_on_a_clean_run(path, seed):
+    _cfg, r = _run([f"run.seed={seed}", "monitor.enabled=true", "faults.ft_noise_N=0.02",
+                    "faults.ft_noise_Nm=0.002"], path)
+    mon = r.summary["monitor"]
+    assert mon["events"] == []
+    np.testing.assert_allclose(mon["noise_sd"][:3], 0.02, rtol=0.3)  # the sensor's noise, measured at rest
+    np.testing.assert_allclose(mon["noise_sd"][3:], 0.002, rtol=0.3)
+
+
+def test_snag_is_caught_named_and_measured(snag):
+    cfg, r = snag
+    evs = r.summary["monitor"]["events"]
+    assert len(evs) == 1, [e["line"] for e in evs]
+    e = evs[0]
+    assert e["shape"] == "world_force" and e["phase"] == "free space" and e["open"]
+    assert 2.0 <= e["t_s"] <= 2.01 and "F_y" in e["channels"]
+    d = np.asarray(e["estimate"]["force_w_N"]) - np.asarray(cfg.effects.world_force.force_w_N)
+    assert d @ np.linalg.solve(np.asarray(e["estimate"]["force_cov_w_N2"]), d) <= 7.815  # chi^2_3 at 95 %
+    assert "a world-frame force appeared, 1.5 ±" in e["line"] and "along -y -- looks like world_force" in e["line"]
+    # the residual is logged, and it leaves the noise at the onset
+    z, t = r.trace["monitor_z"], r.trace["t_s"]
+    assert np.nanmax(np.abs(z[(t > 0.5) & (t < 2.0)])) < 6.0 < np.nanmax(np.abs(z[(t > 2.0) & (t < 2.01)]))
+
+
+def test_payload_is_named_with_its_mass():
+    cfg, r = _run(["effects.tool_gravity.enabled=true", "effects.tool_gravity.onset_s=2.5"])
+    evs = r.summary["monitor"]["events"]
+    assert [e["shape"] for e in evs] == ["tool_gravity"], [e["line"] for e in evs]
+    est = evs[0]["estimate"]
+    assert abs(est["mass_kg"] - cfg.effects.tool_gravity.mass_kg) <= 1.96 * est["mass_sd_kg"]
+    assert est["mass_sd_kg"] < 0.01
+
+
+def test_follow_gives_the_same_event_and_skips_bad_rows(tmp_path, snag):
+    """The run's samples written to a CSV as it grows, with a truncated line, a NaN and a row whose column
+    disappeared: one line each, the event as the live monitor named it."""
+    cfg, r = snag
+    tr = r.trace
+    lines = csv_text(tr["t_s"], tr["q_rad"], tr["qdot_rad_s"], tr["wrench_raw_f"]).splitlines(keepends=True)
+    path = tmp_path / "log.csv"
+    path.write_text("".join(lines[:800]))
+    said = []
+    fol = Follower(path, setup_of_run(cfg), cfg.monitor, say=said.append)
+    fol.poll()
+    with open(path, "a") as fh:
+        fh.write(lines[800][:25])  # the writer stops mid-line ...
+    fol.poll()  # ... the partial line waits
+    assert said == [] and fol.n_bad == 0
+    with open(path, "a") as fh:
+        fh.write("\n")  # ... and goes on with the next
+        f = lines[801].split(",")
+        fh.write(",".join(f[:5] + ["nan"] + f[6:]))
+        fh.write(",".join(lines[802].split(",")[:-1]) + "\n")  # the last column is gone
+        fh.writelines(lines[803:])
+    events = fol.run(idle_stop_s=0.0)
+    assert fol.n_bad == 3 and len(said) == 3, said
+    assert f"line 801 has {len(lines[800][:25].split(','))} fields" in said[0] and "truncated" in said[0]
+    assert "line 802: column 'q5' is not a finite number" in said[1]
+    assert "line 803 has 20 fields, the header 21" in said[2]
+    assert all(s.count("\n") == 0 for s in said)
+    assert fol.n_good == len(lines) - 1 - 3
+    live = r.summary["monitor"]["events"]
+    assert [e.shape for e in events] == [e["shape"] for e in live]
+    assert abs(events[0].t_s - live[0]["t_s"]) < 0.003
+
+
+def test_follow_parquet_row_groups(tmp_path, snag):
+    """A Parquet log re-written with more row groups at each poll; a version without a column: said, skipped."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    cfg, r = snag
+    tr = r.trace
+    names = ["t", *(f"q{j}" for j in range(1, 8)), *(f"qd{j}" for j in range(1, 8)), "fx", "fy", "fz", "tx", "ty", "tz"]
+    data = np.column_stack([tr["t_s"], tr["q_rad"], tr["qdot_rad_s"], tr["wrench_raw_f"]])
+    path = tmp_path / "log.parquet"
+
+    def write(upto: int, drop: str | None = None) -> None:
+        cols = [n for n in names if n != drop]
+        with pq.ParquetWriter(path, pa.schema([(n, pa.float64()) for n in cols])) as w:
+            for a in range(0, upto, 1000):
+                part = data[a:min(a + 1000, upto)]
+                w.write_table(pa.table({n: part[:, names.index(n)] for n in cols}))
+
+    said = []
+    write(2000)
+    fol = Follower(path, setup_of_run(cfg), cfg.monitor, say=said.append)
+    fol.poll()
+    assert fol.n_good == 2000
+    write(len(data))
+    fol.poll()
+    assert fol.n_good == len(data) and said == []
+    assert [e.shape for e in fol.monitor.finish()] == ["world_force"]
+    fol2 = Follower(path, setup_of_run(cfg), cfg.monitor, say=said.append)
+    fol2.poll()
+    write(len(data) + 0, drop="fy")  # the same rows again, without fy: the new row groups lack it
+    fol2.src.done = 3  # (as if groups 3.. were new)
+    fol2.poll()
+    assert any("column 'fy' is missing" in s for s in said)
+
+
+def test_monitor_takes_the_samples_only(snag):
+    """The same samples replayed through a new monitor (kinematics from the arm model, not the
+    controller's) give the same event: the monitor depends on the samples alone, never the truth."""
+    cfg, r = snag
+    tr = r.trace
+    from kinadapt_nn.diagnostics.physical import ArmModel
+
+    setup = setup_of_run(cfg)
+    arm = ArmModel(setup)
+    R, x, Jp, Jr = arm._frames(tr["q_rad"])  # noqa: SLF001
+    v = np.einsum("nij,nj->ni", Jp, tr["qdot_rad_s"])
+    w = np.einsum("nij,nj->ni", Jr, tr["qdot_rad_s"])
+    mon = Monitor(setup, cfg.monitor, cfg.run.dt_s)
+    for k, t in enumerate(tr["t_s"]):
+        mon.sample(float(t), R[k], x[k], v[k], w[k], tr["wrench_raw_f"][k])
+    evs = mon.finish()
+    live = r.summary["monitor"]["events"][0]
+    assert [e.shape for e in evs] == ["world_force"]
+    np.testing.assert_allclose(evs[0].estimate["force_w_N"], live["estimate"]["force_w_N"], atol=5e-3)
+
+
+def test_cli_online_monitor_prints_and_writes_the_event(tmp_path, capsys):
+    out = tmp_path / "run"
+    rc = main(["online", "--config", str(REPO / "online" / "monitor.toml"), "--monitor", "--out", str(out),
+               "--set", "effects.world_force.enabled=true", "--set", "effects.world_force.onset_s=3.21",
+               "--set", "run.tensorboard=true", "--set", "run.progress=false"])
+    cap = capsys.readouterr()
+    assert rc == 0, cap.err
+    assert "3.21 s: a world-frame force appeared, 1.5 ±" in cap.out and "looks like world_force" in cap.out
+    summ = json.loads((out / "summary.json").read_text())
+    assert summ["monitor"]["events"][0]["shape"] == "world_force"
+    z = np.load(out / "trace.npz")
+    assert z["monitor_z"].shape == (len(z["t_s"]), 6)
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    acc = EventAccumulator(str(out / "tb"), size_guidance={"tensors": 0, "scalars": 0})
+    acc.Reload()
+    assert "monitor/residual_over_noise_F_y" in acc.Tags()["scalars"]
+    texts = acc.Tensors("monitor/events")
+    assert len(texts) == 1 and 3210 <= texts[0].step <= 3215
+    assert b"looks like world_force" in texts[0].tensor_proto.string_val[0]
+
+
+def test_cli_follow_needs_a_setup(capsys, tmp_path):
+    p = tmp_path / "log.csv"
+    p.write_text("t\n")
+    rc = main(["diagnose", str(p), "--follow"])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.startswith("kinadapt: error: --follow needs --setup") and err.count("\n") == 1
+
+
+def test_monitor_config_is_validated():
+    from kinadapt_nn.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="monitor.false_alarms_per_h"):
+        load_config(None, ["monitor.false_alarms_per_h=0"])
+    assert MonitorCfg().false_alarms_per_h == 0.1
+
+
+@pytest.mark.slow
+def test_agreement_with_the_offline_diagnosis_on_a_payload():
+    """At the end of a run the monitor's open event and ``kinadapt diagnose`` of the run from the event's
+    onset on name the same effect (the offline diagnosis takes its effects as present throughout: it
+    judges the log from the change on)."""
+    from kinadapt_nn.diagnostics.ownrun import log_of_run
+    from kinadapt_nn.diagnostics.userlog import diagnose
+
+    cfg, r = _run(["effects.tool_gravity.enabled=true", "effects.tool_gravity.onset_s=2.0"])
+    ev = [e for e in r.summary["monitor"]["events"] if e["open"]]
+    assert [e["shape"] for e in ev] == ["tool_gravity"]
+    tr = r.trace
+    m = tr["t_s"] > ev[0]["onset_s"] + 0.01
+    from types import SimpleNamespace
+
+    raw = SimpleNamespace(t_s=tr["t_s"][m], q_rad=tr["q_rad"][m], qdot_rad_s=tr["qdot_rad_s"][m],
+                          wrench_raw_f=tr["wrench_raw_f"][m], source="payload run after the event")
+    rep = diagnose(log_of_run(raw), setup_of_run(cfg), progress=lambda msg: None)
+    present = [e["effect"] for e in rep.report["ranking"] if e["verdict"] == "present"]
+    assert present == ["tool_gravity"], present
