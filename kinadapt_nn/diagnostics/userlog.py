@@ -1071,7 +1071,8 @@ def summary_text(rep: dict) -> str:
                         None)
             if left:  # completeness.robust
                 parts.append(f"Their estimates leave out the rows of {', '.join(left)}, which carry it; each ± "
-                             "includes the change this makes.")
+                             "includes the change this makes where the other rows pin the parameter "
+                             "(diagnosis.json: left_sd, left_undetermined).")
     else:
         parts.append("No library effect is present.")
     if und:
