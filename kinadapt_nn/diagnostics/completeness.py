@@ -513,9 +513,10 @@ LEFT_UNDETERMINED = 10.0
 
 
 def explained_rows(s, rm, des: sel.Design, carried: list[int]) -> sel.Design:
-    """``des`` (built on the ``LogSignals`` s and the ``RowMap`` rm) with the rows of the channels ``carried`` (indices into ``des.channel_names``) out of
-    every block's statistics (a streamed design: one more pass, those rows in a block of their own
-    that is then dropped; they keep their place in the rows, their prediction zero)."""
+    """``des`` (built on the ``LogSignals`` s and the ``RowMap`` rm; both unused for a design that holds its
+    columns) with the rows of the channels ``carried`` (indices into ``des.channel_names``) out of every
+    block's statistics (a streamed design: one more pass, those rows in a block of their own that is then
+    dropped; they keep their place in the rows, their prediction zero)."""
     out = np.isin(des.channel, carried)
     if des.stats is None:
         keep = ~out
