@@ -99,7 +99,7 @@ class EventWriter:
 
     TensorBoard's own summary writer does the work: its ``EventFileWriter`` (the file, its name,
     the records and an asynchronous flush; what ``torch.utils.tensorboard.SummaryWriter`` writes
-    through, without importing torch: 0.2 s against 5 s, docs/architecture.md) and its plugins'
+    through, without importing torch: ``benchmarks/tb_import_cost.py``) and its plugins'
     summary builders (``histogram_pb``: TensorBoard's own binning; ``text_pb``; ``hparams_pb``).
     The methods are ``SummaryWriter``'s (``add_scalar``, ``add_histogram``, ``add_text``,
     ``add_hparams``) plus ``add_scalars_at`` (many tags in one event) and ``add_png`` (an already
