@@ -34,6 +34,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+import kinadapt_nn.monitor.monitor  # noqa: E402,F401  (registers the live monitor with the episode loop)
 from kinadapt_nn.config import load_config  # noqa: E402
 from kinadapt_nn.runs.episode import run_episode  # noqa: E402
 
@@ -146,11 +147,11 @@ def kernel_cost(reps: int = 3) -> tuple[float, float]:
     for _ in range(reps):
         mon = monitor_of_run(cfg.model_copy(update={"run": cfg.run.model_copy(update={"progress": False})}))
         t = tr["t_s"]
-        mon.loop_step(float(t[0]), inp[0], n, R[0], p_O[0], J[0])  # compiled / loaded first
+        mon.loop_step(float(t[0]), inp[0], R[0], p_O[0], J[0])  # compiled / loaded first
         ns = np.empty(N - 1)
         for k in range(1, N):
             a = time.perf_counter_ns()
-            mon.loop_step(float(t[k]), inp[k], n, R[k], p_O[k], J[k])
+            mon.loop_step(float(t[k]), inp[k], R[k], p_O[k], J[k])
             ns[k - 1] = time.perf_counter_ns() - a
         times.append(ns)
     ns = np.concatenate(times)

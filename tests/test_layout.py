@@ -28,7 +28,8 @@ import pytest
 import kinadapt_nn
 
 PKG = Path(kinadapt_nn.__file__).parent
-LAYERS = {"sim": 1, "learning": 2, "features": 3, "controller": 4, "runs": 5, "diagnostics": 6, "paper": 7, "app": 8}
+LAYERS = {"sim": 1, "learning": 2, "features": 3, "controller": 4, "runs": 5, "diagnostics": 6, "monitor": 7, "paper": 8,
+          "app": 9}
 CONTROLLER_SIDE = ("kinadapt_nn.controller", "kinadapt_nn.features")
 FORBIDDEN_FROM_CONTROLLER = ("kinadapt_nn.sim", "kinadapt_nn.runs", "kinadapt_nn.diagnostics", "kinadapt_nn.paper",
                              "kinadapt_nn.app", "kinadapt_nn.learning.pretrain", "kinadapt_nn.learning.prior")

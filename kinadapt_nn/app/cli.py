@@ -213,6 +213,8 @@ def cmd_online(args: argparse.Namespace) -> int:
                        *(["run.progress=false"] if args.quiet else [])])  # (--quiet: no live lines either)
     out = args.run_dir = Path(args.out) if args.out else _default_out("online")
     check_output_dir(out, args.overwrite)
+    if cfg.monitor.enabled:
+        import kinadapt_nn.monitor.monitor  # noqa: F401  (registers the live monitor with the episode loop)
     from kinadapt_nn.controller.core import compile_record, kernels_cached
     from kinadapt_nn.runs.insertions import run_insertions
 

@@ -1,6 +1,7 @@
 """The live monitor: the diagnosis beside the controller (``kinadapt online --monitor``,
-``kinadapt diagnose LOG --setup S --follow``; docs/monitor.md)."""
+``kinadapt diagnose LOG --setup S --follow``; docs/monitor.md).
 
-from kinadapt_nn.monitor.monitor import Event, Monitor, monitor_of_run
-
-__all__ = ["Event", "Monitor", "monitor_of_run"]
+``monitor`` (the ``Monitor`` and its events; importing it registers it with the episode loop),
+``kernel`` (the per-sample numba kernel), ``shapes`` (naming an event), ``follow`` (a growing log),
+``figure`` (the residual and the events).
+"""

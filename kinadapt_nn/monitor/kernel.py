@@ -149,46 +149,36 @@ def predict(c, st, t, R, om, al, ga, out):
 
 
 @nb.njit(cache=True)
-def sample(t, R_ws, p_ws, v_w, w_w, raw, c, st, ring):
-    """One sample at time ``t`` [s]: sensor axes ``R_ws`` (3, 3) and origin ``p_ws`` (3,) in the world,
-    its velocity ``v_w`` and angular velocity ``w_w`` (3,) world, the raw reading ``raw`` (6,) as
-    logged (``c[C_SIGN]`` turns it into the tool's wrench on the sensor). -> R_NONE, R_ALARM (the test
-    fired), R_WINDOW (an alarm's fit window is complete), R_SKIP (a non-finite sample: left out)."""
+def _finite(kin, raw) -> bool:
     for i in range(6):
         if not math.isfinite(raw[i]):
-            st[S_NBAD] += 1.0
-            return R_SKIP
+            return False
+    for i in range(3, 6):
+        for j in range(3):
+            if not math.isfinite(kin[i, j]):
+                return False
+    return True
+
+
+@nb.njit(cache=True)
+def _keep(t, kin, st) -> None:
+    """This sample's pose and twist, the next one's previous."""
     for i in range(3):
-        if not (math.isfinite(v_w[i]) and math.isfinite(w_w[i]) and math.isfinite(p_ws[i])):
-            st[S_NBAD] += 1.0
-            return R_SKIP
-    dt = c[C_DT]
-    have = st[S_HAVE] > 0.0
-    if have:
-        h = t - st[S_TLAST]
-        if h > 0.0 and h < 5.0 * dt:
-            dt = h
-        elif h <= 0.0 or h > 0.1:  # time went back or a long gap: start the kinematics afresh
-            have = False
-    if not have:  # the first sample (or after a gap): its kinematics is the next one's previous
-        for i in range(3):
-            st[S_VPREV + i] = v_w[i]
-            st[S_WPREV + i] = w_w[i]
-            st[S_PPREV + i] = p_ws[i]
-            for j in range(3):
-                st[S_RPREV + 3 * i + j] = R_ws[i, j]
-        st[S_HAVE] = 1.0
-        st[S_TLAST] = t
-        return R_NONE
-    R = np.empty((3, 3))
-    om = np.empty(3)
-    al = np.empty(3)
-    ga = np.empty(3)
-    a_w = np.empty(3)
+        st[S_VPREV + i] = kin[4, i]
+        st[S_WPREV + i] = kin[5, i]
+        st[S_PPREV + i] = kin[3, i]
+        for j in range(3):
+            st[S_RPREV + 3 * i + j] = kin[i, j]
+    st[S_TLAST] = t
+
+
+@nb.njit(cache=True)
+def _sensor_kinematics(kin, dt, c, st, R, om, al, ga) -> None:
+    """The previous sample's sensor axes R (3, 3) and omega (3,) in s, alpha and g - a (3,) in s from the
+    finite difference of the twist (``kin`` rows 4, 5: v_w, w_w) over dt."""
     for i in range(3):
         for j in range(3):
             R[i, j] = st[S_RPREV + 3 * i + j]
-        a_w[i] = (v_w[i] - st[S_VPREV + i]) / dt
     for i in range(3):  # into s: x_s = R^T x_w
         o = 0.0
         a = 0.0
@@ -196,61 +186,52 @@ def sample(t, R_ws, p_ws, v_w, w_w, raw, c, st, ring):
         aa = 0.0
         for l_ in range(3):
             o += R[l_, i] * st[S_WPREV + l_]
-            a += R[l_, i] * (w_w[l_] - st[S_WPREV + l_]) / dt
+            a += R[l_, i] * (kin[5, l_] - st[S_WPREV + l_]) / dt
             g += R[l_, i] * c[C_GW + l_]
-            aa += R[l_, i] * a_w[l_]
+            aa += R[l_, i] * (kin[4, l_] - st[S_VPREV + l_]) / dt
         om[i], al[i], ga[i] = o, a, g - aa
-    pred = np.empty(6)
-    predict(c, st, t, R, om, al, ga, pred)
-    sgn = c[C_SIGN]
-    e = st[S_E:S_E + 6]
-    for i in range(6):
-        e[i] = sgn * raw[i] - pred[i]
-    # the phase: contact is not judged (its force is unknown)
-    zone = False
+
+
+@nb.njit(cache=True)
+def _in_contact(c, st, R, e) -> bool:
+    """The phase of this sample: contact is not judged (its force is unknown)."""
     zmode = int(c[C_ZONE])
     if zmode == ZONE_GEOMETRY:
         h_tip = 0.0
         for i in range(3):
             tip_w = st[S_PPREV + i] + R[i, 0] * c[C_TIP] + R[i, 1] * c[C_TIP + 1] + R[i, 2] * c[C_TIP + 2]
             h_tip += (tip_w - c[C_ENTRY + i]) * c[C_UP + i]
-        zone = h_tip < c[C_ZONE_M]
-    elif zmode == ZONE_FORCE and st[S_MODE] != MODE_CALIB:
+        return h_tip < c[C_ZONE_M]
+    if zmode == ZONE_FORCE and st[S_MODE] != MODE_CALIB:
         f2 = 0.0
         for i in range(3):
             f2 += (e[i] - st[S_OFF + i]) ** 2
-        zone = f2 > c[C_DETECT] ** 2
-    st[S_ZONE] = 1.0 if zone else 0.0
-    # kinematics for the next sample
-    for i in range(3):
-        st[S_VPREV + i] = v_w[i]
-        st[S_WPREV + i] = w_w[i]
-        st[S_PPREV + i] = p_ws[i]
-        for j in range(3):
-            st[S_RPREV + 3 * i + j] = R_ws[i, j]
-    st[S_TLAST] = t
-    st[S_N] += 1.0
-    mode = st[S_MODE]
-    if mode == MODE_CALIB:  # the sensor's offset and noise, at the start
-        if not zone:
-            st[S_CN] += 1.0
-            for i in range(6):
-                st[S_CSUM + i] += e[i]
-                st[S_CSQ + i] += e[i] * e[i]
-        if st[S_CN] * c[C_DT] >= c[C_CALIB]:
-            n = st[S_CN]
-            for i in range(6):
-                mu = st[S_CSUM + i] / n
-                var = max(st[S_CSQ + i] / n - mu * mu, 0.0) * n / max(n - 1.0, 1.0)
-                st[S_OFF + i] = mu
-                fl = c[C_FLOOR_N] if i < 3 else c[C_FLOOR_M]
-                st[S_SD + i] = max(math.sqrt(var), fl)
-            st[S_MODE] = MODE_WATCH
-        return R_NONE
-    for i in range(6):
-        e[i] -= st[S_OFF + i]
-        st[S_Z + i] = e[i] / st[S_SD + i]
-    # the ring: what the fit needs
+        return f2 > c[C_DETECT] ** 2
+    return False
+
+
+@nb.njit(cache=True)
+def _calibrate(c, st, e, zone) -> None:
+    """At the start: the sensor's offset and noise sd per channel (floored) over ``calib_s`` of free samples."""
+    if not zone:
+        st[S_CN] += 1.0
+        for i in range(6):
+            st[S_CSUM + i] += e[i]
+            st[S_CSQ + i] += e[i] * e[i]
+    if st[S_CN] * c[C_DT] >= c[C_CALIB]:
+        n = st[S_CN]
+        for i in range(6):
+            mu = st[S_CSUM + i] / n
+            var = max(st[S_CSQ + i] / n - mu * mu, 0.0) * n / max(n - 1.0, 1.0)
+            st[S_OFF + i] = mu
+            fl = c[C_FLOOR_N] if i < 3 else c[C_FLOOR_M]
+            st[S_SD + i] = max(math.sqrt(var), fl)
+        st[S_MODE] = MODE_WATCH
+
+
+@nb.njit(cache=True)
+def _push(t, st, ring, e, raw, sgn, R, om, al, ga, zone) -> None:  # noqa: PLR0913 (a numba kernel: flat arrays)
+    """The sample into the ring (what an event's fit needs)."""
     row = int(st[S_HEAD])
     ring[row, G_T] = t
     for i in range(6):
@@ -265,13 +246,12 @@ def sample(t, R_ws, p_ws, v_w, w_w, raw, c, st, ring):
     ring[row, G_FREE] = 0.0 if zone else 1.0
     st[S_HEAD] = (row + 1) % ring.shape[0]
     st[S_COUNT] = min(st[S_COUNT] + 1.0, ring.shape[0])
-    if zone:
-        return R_NONE
-    if mode == MODE_WINDOW:
-        st[S_FREE_N] += 1.0
-        if t >= st[S_TALARM] + c[C_WINDOW]:
-            return R_WINDOW
-        return R_NONE
+
+
+@nb.njit(cache=True)
+def _cusum(t, c, st) -> bool:
+    """One step of the two-sided CUSUM per channel on z = residual / sd (st[S_Z:]); the restart times
+    kept (the change's onset). -> whether a test crossed the threshold."""
     k, h = c[C_K], c[C_H]
     fired = False
     for i in range(6):
@@ -288,7 +268,59 @@ def sample(t, R_ws, p_ws, v_w, w_w, raw, c, st, ring):
         st[S_GM + i] = gm
         if gp > h or gm > h:
             fired = True
-    if fired:
+    return fired
+
+
+@nb.njit(cache=True)
+def sample(t, kin, raw, c, st, ring):
+    """One sample at time ``t`` [s]: ``kin`` (6, 3) = [R_ws (3 rows): the sensor axes in the world; p_ws:
+    its origin; v_w: its velocity; w_w: its angular velocity] (world), the raw reading ``raw`` (6,) as
+    logged (``c[C_SIGN]`` turns it into the tool's wrench on the sensor). -> R_NONE, R_ALARM (the test
+    fired), R_WINDOW (an alarm's fit window is complete), R_SKIP (a non-finite sample: left out)."""
+    if not _finite(kin, raw):
+        st[S_NBAD] += 1.0
+        return R_SKIP
+    dt = c[C_DT]
+    have = st[S_HAVE] > 0.0
+    if have:
+        h = t - st[S_TLAST]
+        if h <= 0.0 or h > 0.1:  # time went back or a long gap: the kinematics starts afresh
+            have = False
+        elif h < 5.0 * dt:
+            dt = h
+    if not have:  # the first sample (or after a gap): its kinematics is the next one's previous
+        _keep(t, kin, st)
+        st[S_HAVE] = 1.0
+        return R_NONE
+    R = np.empty((3, 3))
+    om = np.empty(3)
+    al = np.empty(3)
+    ga = np.empty(3)
+    _sensor_kinematics(kin, dt, c, st, R, om, al, ga)
+    pred = np.empty(6)
+    predict(c, st, t, R, om, al, ga, pred)
+    sgn = c[C_SIGN]
+    e = st[S_E:S_E + 6]
+    for i in range(6):
+        e[i] = sgn * raw[i] - pred[i]
+    zone = _in_contact(c, st, R, e)
+    st[S_ZONE] = 1.0 if zone else 0.0
+    _keep(t, kin, st)
+    st[S_N] += 1.0
+    mode = st[S_MODE]
+    if mode == MODE_CALIB:
+        _calibrate(c, st, e, zone)
+        return R_NONE
+    for i in range(6):
+        e[i] -= st[S_OFF + i]
+        st[S_Z + i] = e[i] / st[S_SD + i]
+    _push(t, st, ring, e, raw, sgn, R, om, al, ga, zone)
+    if zone:
+        return R_NONE
+    if mode == MODE_WINDOW:
+        st[S_FREE_N] += 1.0
+        return R_WINDOW if t >= st[S_TALARM] + c[C_WINDOW] else R_NONE
+    if _cusum(t, c, st):
         st[S_MODE] = MODE_WINDOW
         st[S_TALARM] = t
         st[S_FREE_N] = 0.0
@@ -297,18 +329,21 @@ def sample(t, R_ws, p_ws, v_w, w_w, raw, c, st, ring):
 
 
 @nb.njit(cache=True)
-def loop_sample(t, inp, n, R_wf, p_O, J, c, st, ring):
+def loop_sample(t, inp, R_wf, p_O, J, c, st, ring):
     """``sample`` on the controller's own quantities of one control period: its input row ``inp``
     (2n+6,) = [q; qdot; raw F/T in f], the flange pose (``R_wf`` (3, 3), ``p_O`` (3,)) and Jacobian
     ``J`` (6, n) the controller computed from those encoders; the sensor is at O with the flange's
-    axes (``c[C_PFS]`` = 0, ``c[C_RFS]`` = 1)."""
-    v = np.zeros(3)
-    w = np.zeros(3)
+    axes (a package run: ``diagnostics.ownrun``)."""
+    n = J.shape[1]
+    kin = np.zeros((6, 3))
     for i in range(3):
+        kin[3, i] = p_O[i]
+        for j in range(3):
+            kin[i, j] = R_wf[i, j]
         for j in range(n):
-            v[i] += J[i, j] * inp[n + j]
-            w[i] += J[3 + i, j] * inp[n + j]
-    return sample(t, R_wf, p_O, v, w, inp[2 * n:2 * n + 6], c, st, ring)
+            kin[4, i] += J[i, j] * inp[n + j]
+            kin[5, i] += J[3 + i, j] * inp[n + j]
+    return sample(t, kin, inp[2 * n:2 * n + 6], c, st, ring)
 
 
 def new_state() -> tuple[np.ndarray, np.ndarray]:

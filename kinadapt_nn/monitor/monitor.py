@@ -118,6 +118,7 @@ class Monitor:
         self.mc = self.c[K.C_MC:K.C_MC + 3].copy()
         self.h = float(self.c[K.C_H])
         self._loop_fn = None
+        self._kin = np.zeros((6, 3))  # [R_ws; p_ws; v_w; w_w] of one sample (``kernel.sample``)
         self._alarm: dict | None = None  #: the alarm whose window is being collected
         self._fits: list = []  #: (fit, onset, event) of each event, as its correction stands in the model
         self.res_log = self.z_log = None  #: (rows, 6) residual and residual / sd at logged rows (``record``)
@@ -138,22 +139,26 @@ class Monitor:
             self.z_log[j] = st[K.S_Z:K.S_Z + 6]
 
     # -- per sample -------------------------------------------------------------------------------
-    def loop_step(self, t: float, inp: np.ndarray, n: int, R_wf: np.ndarray, p_O: np.ndarray, J: np.ndarray) -> None:
+    def loop_step(self, t: float, inp: np.ndarray, R_wf: np.ndarray, p_O: np.ndarray, J: np.ndarray) -> None:
         """One control period of the episode loop (``kernel.loop_sample``: the controller's input row
         and the flange kinematics it computed from the encoders)."""
         if self._loop_fn is None:
+            import numba
+
             from kinadapt_nn.controller.core import entry_point
 
-            args = (t, inp, n, R_wf, p_O, J, self.c, self.st, self.ring)
-            K.loop_sample.compile(tuple(__import__("numba").typeof(a) for a in args))
+            args = (t, inp, R_wf, p_O, J, self.c, self.st, self.ring)
+            K.loop_sample.compile(tuple(numba.typeof(a) for a in args))
             self._loop_fn = entry_point(K.loop_sample, args)
-        r = self._loop_fn(t, inp, n, R_wf, p_O, J, self.c, self.st, self.ring)
+        r = self._loop_fn(t, inp, R_wf, p_O, J, self.c, self.st, self.ring)
         if r == K.R_WINDOW:
             self.name_event()
 
     def sample(self, t: float, R_ws, p_ws, v_w, w_w, raw) -> int:
         """One sample (``kernel.sample``); an event named when its window is complete. -> the kernel's code."""
-        r = K.sample(t, R_ws, p_ws, v_w, w_w, raw, self.c, self.st, self.ring)
+        kin = self._kin
+        kin[:3], kin[3], kin[4], kin[5] = R_ws, p_ws, v_w, w_w
+        r = K.sample(t, kin, raw, self.c, self.st, self.ring)
         if r == K.R_WINDOW:
             self.name_event()
         return r
@@ -319,3 +324,12 @@ def monitor_of_run(cfg, on_event=None) -> Monitor:
 
         on_event = lambda ev: tqdm.write(f"monitor {ev.line}")  # noqa: E731
     return Monitor(setup_of_run(cfg), cfg.monitor, cfg.run.dt_s, on_event)
+
+
+def _register() -> None:
+    from kinadapt_nn.runs.loop import register_monitor
+
+    register_monitor(monitor_of_run)
+
+
+_register()

@@ -167,6 +167,17 @@ def compile_unreached() -> None:
         fn.compile(sig)
 
 
+#: the live monitor's factory, ``cfg -> monitor`` (``kinadapt_nn.monitor.monitor.monitor_of_run``), registered by
+#: that module when it is imported (it sits above this layer: it uses the diagnosis's model); the loop calls a
+#: monitor's ``loop_step(t, inp, R_wf, p_O, J)`` each control period and ``record(row)`` at logged rows
+MONITOR_FACTORY: list = [None]
+
+
+def register_monitor(factory) -> None:
+    """Register the live monitor's factory (``MONITOR_FACTORY``)."""
+    MONITOR_FACTORY[0] = factory
+
+
 def new_controllers(cfgs: list[ExperimentCfg], ctrls: list) -> list:
     """``ctrls`` with each None entry replaced by a new controller of its config, its kernels
     compiled (or loaded from the cache); inside the caller's compile phase."""
@@ -361,9 +372,11 @@ class Loop:
         self.monitors: list = []
         for b, c in enumerate(self.cfgs):
             if c.monitor.enabled:
-                from kinadapt_nn.monitor.monitor import monitor_of_run
-
-                self.monitors.append((b, monitor_of_run(c)))
+                if MONITOR_FACTORY[0] is None:
+                    raise ConfigError("monitor.enabled: the live monitor is not loaded; import kinadapt_nn.monitor."
+                                      "monitor first (it registers itself with the episode loop; kinadapt online "
+                                      "--monitor does)")
+                self.monitors.append((b, MONITOR_FACTORY[0](c)))
 
     def _watch_args(self, t: float) -> tuple:
         kn = self.kn
@@ -494,7 +507,7 @@ def run(lp: Loop, log, bar=None) -> int:
         kn.control(t, active)
         for b, mon in lp.monitors:  # exactly what the controller received, and its own kinematics
             if active[b]:
-                mon.loop_step(t, kn.inp[b], kn.lay.n, kn.R[b], kn.p_O[b], kn.J[b])
+                mon.loop_step(t, kn.inp[b], kn.R[b], kn.p_O[b], kn.J[b])
                 if logged:
                     mon.record(k // every)
         ev = watch(t, *wargs)

@@ -46,9 +46,7 @@ def tensorboard_series(trace: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]
     for name in ("depth_ok", "force_ok", "moment_ok"):
         series[f"success/{name}"] = trace[name][idx].astype(float)
     if "monitor_z" in trace.arrays:  # the live monitor: residual / noise sd per channel (NaN: not judged)
-        from kinadapt_nn.monitor.shapes import CHANNELS as MON_CHANNELS
-
-        for i, name in enumerate(MON_CHANNELS):
+        for i, name in enumerate(("F_x", "F_y", "F_z", "M_x", "M_y", "M_z")):  # (kinadapt_nn.monitor.shapes.CHANNELS)
             series[f"monitor/residual_over_noise_{name}"] = trace["monitor_z"][idx, i].astype(float)
     return steps, series
 

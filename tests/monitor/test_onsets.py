@@ -9,7 +9,8 @@ import pytest
 from kinadapt_nn.config import load_config
 from kinadapt_nn.runs.episode import run_episode
 
-BASE = ["run.progress=false", "run.duration_s=3.0", "faults.ft_noise_N=0", "faults.ft_noise_Nm=0"]
+BASE = ["run.progress=false", "run.duration_s=3.0", "faults.ft_noise_N=0", "faults.ft_noise_Nm=0",
+        "monitor.enabled=false"]
 ONSET = 1.5
 
 
