@@ -37,6 +37,9 @@ MODEL_BLOCK_S = 0.1
 MODEL_LOOK_S = 2.0
 #: [s] right after a change the arm's transient (a sudden load) is left out of the fit
 SETTLE_S = 0.02
+#: an alarm becomes an event only when its best shape's estimate differs from none beyond this chance
+#: (chi^2 of the estimate against its whole covariance: noise, the window's jackknife, the model's error)
+CONFIRM_P = 1e-3
 #: windows (``window_s`` each) an alarm may wait for a clear winner before the best is named anyway
 MAX_WINDOWS = 6
 
@@ -120,6 +123,7 @@ class Monitor:
         self._loop_fn = None
         self._kin = np.zeros((6, 3))  # [R_ws; p_ws; v_w; w_w] of one sample (``kernel.sample``)
         self._alarm: dict | None = None  #: the alarm whose window is being collected
+        self.dismissed = 0  #: alarms whose best shape was not significant (``CONFIRM_P``): no event
         self._fits: list = []  #: (fit, onset, event) of each event, as its correction stands in the model
         self.res_log = self.z_log = None  #: (rows, 6) residual and residual / sd at logged rows (``record``)
 
@@ -225,6 +229,10 @@ class Monitor:
             self._restart()
             return None
         f = shapes.fit(f.shape, rows, sd, self.mc, t_on, fmask, jackknife=True, model_sd=self._model_sd(t_on))
+        if not shapes.significant(f, CONFIRM_P):  # the change is within what the model's own errors allow
+            self.dismissed += 1
+            self._restart()
+            return None
         text, est = shapes.describe(f, self.mc, self.frame, float(self.c[K.C_SIGN]))
         ev = Event(al["t"], t_on, [CHANNELS[i] for i in fired], "free space", f.shape, text, est,
                    fits[1].shape if len(fits) > 1 else "", margin, f.rows, float(rows[-1, K.G_T]))
@@ -311,6 +319,7 @@ class Monitor:
         return {"events": [e.as_dict() for e in self.events], "noise_sd": self.noise_sd.tolist(),
                 "threshold_sd": self.h, "cusum_k": float(self.c[K.C_K]),
                 "false_alarms_per_h": self.mcfg.false_alarms_per_h, "samples_left_out": self.n_bad,
+                "alarms_dismissed": self.dismissed,
                 "alarm_pending": bool(self.st[K.S_MODE] == K.MODE_WINDOW)}
 
 

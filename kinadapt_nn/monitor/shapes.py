@@ -106,7 +106,7 @@ def prior_sd(shape: str, mc: np.ndarray) -> np.ndarray:
     direction the window does not see at its prior, not at an arbitrary value with no variance)."""
     return {"tool_gravity": np.array([5.0, 1.0, 1.0, 1.0]),  # [kg], [kg m]
             "tool_tilt": np.full(2, np.deg2rad(30.0)),  # [rad]
-            "world_force": np.array([100.0, 100.0, 100.0, 0.3, 0.3, 0.3]),  # [N], [m] from the sensor
+            "world_force": np.array([100.0, 100.0, 100.0, 0.1, 0.1, 0.1]),  # [N], [m] from the sensor: on the tool
             "ft_bias_drift": np.array([100.0] * 6 + [1000.0] * 6),  # [N/s, N m/s], [N, N m]
             "ft_frame_rotation": np.full(3, np.deg2rad(30.0)),  # [rad]
             "sensor_constant": np.full(6, 1000.0)}[shape]  # [N, N m]
@@ -209,6 +209,17 @@ def _fit1(shape: str, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset:
         cf[np.ix_(keep, keep)] = cov
         p, cov = full, cf
     return Fit(shape, p, cov, chi2, chi2 + k * np.log(m), m)
+
+
+def significant(f: Fit, p_false: float) -> bool:
+    """Whether the estimate differs from no change: ``p^T cov^+ p`` beyond the chi^2 quantile at
+    ``1 - p_false`` with the covariance's rank as the degrees of freedom."""
+    from scipy.stats import chi2
+
+    w, V = np.linalg.eigh(0.5 * (f.cov + f.cov.T))
+    keep = w > 1e-12 * max(float(w.max()), 1e-300)
+    proj = V[:, keep].T @ f.p
+    return float(np.sum(proj ** 2 / w[keep])) > float(chi2.ppf(1.0 - p_false, int(keep.sum())))
 
 
 def evaluate(f: Fit, rows: np.ndarray, mc: np.ndarray, t_onset: float) -> np.ndarray:
