@@ -40,10 +40,10 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from kinadapt_nn import compiled
 from kinadapt_nn.controller.dense import chol, chol_solve, dot, gram_sparse_log, mm, mm_nt, sym_eigmin, vcopy, vfill
 from kinadapt_nn.controller.laws.base import law_step_fn
 from kinadapt_nn.controller.twocore import compile_two_cores, kernel_opt_level
-from kinadapt_nn.controller.twocore import in_cache as _in_cache
 
 #: the paper's kinematic gate on lambda_min(W J_hat J_hat^T W) (Results, "A separate kinematic gate")
 RANK_GATE = 1e-6
@@ -953,12 +953,8 @@ COMPILE_ESTIMATE_S = 17.0
 def _compile_record_path():
     """Where the last measured compile time is kept: numba's cache folder for this module
     (``NUMBA_CACHE_DIR`` when set, else ``__pycache__`` beside this file, else numba's user-wide one)."""
-    from pathlib import Path
-
-    try:
-        return Path(step_adjoint._cache._cache_path) / "kinadapt_compile_s.json"
-    except Exception:  # numba's cache internals moved: no record
-        return None
+    folder = compiled.cache_dir(step_adjoint)
+    return None if folder is None else folder / "kinadapt_compile_s.json"
 
 
 def compile_record() -> float:
@@ -998,6 +994,8 @@ class compiling:
         import time
 
         self._outer = not _COMPILING[0]
+        if self._outer:  # numba checks a kernel's own file only: drop code cached with an edited callee
+            drop_stale_kernels()
         self._cold = self._outer and not kernels_cached()
         _COMPILING[0] = True
         self._t0 = time.perf_counter()
@@ -1062,7 +1060,7 @@ def compile_calls(calls, progress: bool = False, law=None) -> float:
             aside = law.compile_aside() if law is not None else None
             try:
                 for _name, fn, args in calls:
-                    fn.compile(tuple(nb.typeof(a) for a in args))
+                    compiled.compile_for(fn, args)
             finally:
                 if aside is not None:
                     aside.wait()
@@ -1072,14 +1070,11 @@ def compile_calls(calls, progress: bool = False, law=None) -> float:
 
 
 def entry_point(fn, args):
-    """The machine code's entry of the compiled ``fn`` for the numba types of ``args``: what the
-    dispatcher calls once it has resolved the types (that resolution is ~0.5 us of a ~10 us
-    step). It checks nothing, so only for arguments whose types never change (a controller's own
-    buffers, ``t`` a float); the dispatcher itself when ``fn`` is not compiled for them."""
-    try:
-        return fn.overloads[tuple(nb.typeof(a) for a in args)].entry_point
-    except (KeyError, AttributeError):
-        return fn
+    """The machine code's entry of the compiled ``fn`` for the numba types of ``args`` (the
+    dispatcher's type resolution skipped): only for arguments whose types never change (a
+    controller's own buffers, ``t`` a float); the dispatcher itself when ``fn`` is not compiled for
+    them (``compiled.entry_point``)."""
+    return compiled.entry_point(fn, args)
 
 
 def calls_cached(calls, law=None) -> bool:
@@ -1088,12 +1083,9 @@ def calls_cached(calls, law=None) -> bool:
     instead of compiling; False when not, or when that cannot be told."""
     from kinadapt_nn.controller.laws.base import STEP_SIG
 
-    try:
-        if law is not None and not law._address and not _in_cache(law.step, STEP_SIG):
-            return False
-        return all(_in_cache(fn, tuple(nb.typeof(a) for a in args)) for _name, fn, args in calls)
-    except Exception:  # numba's cache internals moved
+    if law is not None and not law._address and not compiled.in_cache(law.step, STEP_SIG):
         return False
+    return all(compiled.in_cache(fn, compiled.signature_of(args)) for _name, fn, args in calls)
 
 
 #: more kernels a compile phase must find cached to be warm (``cache_probe``: the episode loop's)
@@ -1110,7 +1102,25 @@ def kernels_cached() -> bool:
     """True when the step kernel's compiled code (and every :func:`cache_probe` kernel's) is in
     numba's on-disk cache (the first run on a machine compiles it, once); True also when that
     cannot be told (no message then)."""
-    try:  # the index is empty when missing or written for another version of this source file
-        return all(bool(f._cache._cache_file._load_index()) for f in (step_adjoint, *_CACHE_PROBES))
-    except Exception:  # numba's cache internals moved: say nothing
-        return True
+    told = [compiled.cached_any(f) for f in (step_adjoint, *_CACHE_PROBES)]
+    return None in told or all(told)  # None: numba's cache internals moved, say nothing
+
+
+def _controller_kernels() -> list:
+    """Every numba kernel of the controller's loaded modules (``core``, ``dense``, the laws')."""
+    import sys
+
+    mods = [m for name, m in list(sys.modules.items()) if name.startswith("kinadapt_nn.controller") and m is not None]
+    return [f for m in mods for f in vars(m).values()
+            if compiled.is_kernel(f) and f.py_func.__module__ == m.__name__]
+
+
+def drop_stale_kernels() -> bool:
+    """Drop the controller kernels' cached code when any of the controller's source files changed
+    since it was cached (``compiled.invalidate_stale``: numba itself checks a kernel's own file
+    only, and a cached kernel holds its callees from other files). -> True when some was dropped."""
+    from pathlib import Path
+
+    kernels = _controller_kernels()
+    sources = {Path(f.py_func.__code__.co_filename) for f in kernels}  # the files that define them
+    return compiled.invalidate_stale(kernels, sources, step_adjoint)

@@ -32,8 +32,9 @@ import sys
 import tempfile
 
 import numba as nb
-from numba.core import types as T
-from numba.core.registry import CPUDispatcher
+from numba import types as T
+
+from kinadapt_nn import compiled
 
 _F1, _F2, _F3 = (T.Array(T.float64, d, "C") for d in (1, 2, 3))
 #: numba types of the values the step kernels make themselves and pass to callees, by the
@@ -51,34 +52,10 @@ LOCAL_TYPES = {"b": T.int64, "n": T.int64, "rho": T.float64, "t_rel": T.float64,
 KERNEL_OPT = 1
 
 
-@contextlib.contextmanager
-def kernel_opt_level():
-    """Compile the kernels at :data:`KERNEL_OPT` meanwhile: ``numba.config.OPT`` in this process
-    and ``NUMBA_OPT`` for the helper processes started meanwhile; both restored after. numba's
-    code generator is made first at the process's own level, so the user's other numba code
-    keeps it. A ``NUMBA_OPT`` the user has set is left to rule."""
-    if "NUMBA_OPT" in os.environ:
-        yield
-        return
-    from numba.core import config
-    from numba.core.registry import cpu_target
-
-    cpu_target.target_context  # noqa: B018  (numba's code generator, made at the process's level)
-    old = config.OPT
-    config.OPT = config._OptLevel(KERNEL_OPT)
-    os.environ["NUMBA_OPT"] = str(KERNEL_OPT)
-    try:
-        yield
-    finally:
-        config.OPT = old
-        os.environ.pop("NUMBA_OPT", None)
-
-
-def in_cache(fn, sig) -> bool:
-    """True when numba's on-disk cache holds ``fn`` compiled for ``sig`` by this source and this
-    machine's code generator (the key ``load_overload`` would look up)."""
-    cache = fn._cache
-    return cache._index_key(sig, fn.targetctx.codegen()) in cache._cache_file._load_index()
+def kernel_opt_level() -> contextlib.AbstractContextManager:
+    """Compile the kernels at :data:`KERNEL_OPT` meanwhile (``compiled.opt_level``: this process and
+    the helpers started meanwhile; a ``NUMBA_OPT`` the user has set is left to rule)."""
+    return compiled.opt_level(KERNEL_OPT)
 
 
 def _code_size(fn, module: dict, seen: set) -> int:
@@ -87,23 +64,23 @@ def _code_size(fn, module: dict, seen: set) -> int:
     size = len(fn.py_func.__code__.co_code)
     for name in fn.py_func.__code__.co_names:
         callee = module.get(name)
-        if isinstance(callee, CPUDispatcher) and name not in seen:
+        if compiled.is_kernel(callee) and name not in seen:
             seen.add(name)
             size += _code_size(callee, callee.py_func.__globals__, seen)
     return size
 
 
-def callee_plan(calls) -> list[tuple[CPUDispatcher, tuple]]:
+def callee_plan(calls) -> list[tuple[object, tuple]]:
     """The direct callees of the kernels of ``calls`` ((name, dispatcher, args) each) as
     (dispatcher, argument types), the largest first; a callee is listed when every parameter is
     one of its kernel's (typed from the call's arguments) or in :data:`LOCAL_TYPES`."""
-    plan: dict[str, tuple[CPUDispatcher, tuple, int]] = {}
+    plan: dict[str, tuple[object, tuple, int]] = {}
     for _name, fn, args in calls:
         module = fn.py_func.__globals__
         by_name = {p: nb.typeof(a) for p, a in zip(inspect.signature(fn.py_func).parameters, args)}
         for name in fn.py_func.__code__.co_names:
             callee = module.get(name)
-            if not isinstance(callee, CPUDispatcher) or callee is fn or name in plan:
+            if not compiled.is_kernel(callee) or callee is fn or name in plan:
                 continue
             params = inspect.signature(callee.py_func).parameters
             if not all(p in by_name or p in LOCAL_TYPES for p in params):
@@ -122,15 +99,6 @@ def _claim(folder: str, i: int) -> bool:
         return False
 
 
-def _compile(fn: CPUDispatcher, sig: tuple) -> None:
-    """``fn.compile(sig)``; a typing error (a plan entry typed wrongly) only wastes that entry: the
-    kernel then compiles the callee for the types it has, and reports any real error itself."""
-    try:
-        fn.compile(sig)
-    except nb.core.errors.TypingError:
-        pass
-
-
 def compile_two_cores(calls, law=None) -> bool:
     """Compile the kernels of ``calls`` and ``law``'s step (a ``LawSpec``) with a helper process
     sharing the callees (module docstring). -> False, having done nothing, where there is nothing to
@@ -138,7 +106,7 @@ def compile_two_cores(calls, law=None) -> bool:
     if (os.cpu_count() or 1) < 2:
         return False
     try:
-        plan = [(fn, sig) for fn, sig in callee_plan(calls) if not in_cache(fn, sig)]
+        plan = [(fn, sig) for fn, sig in callee_plan(calls) if not compiled.in_cache(fn, sig)]
     except Exception:  # numba's cache internals moved: compile as before
         return False
     if not plan:
@@ -156,11 +124,11 @@ def compile_two_cores(calls, law=None) -> bool:
     try:
         for i, (fn, sig) in enumerate(plan):
             if _claim(claims, i):
-                _compile(fn, sig)
+                compiled.compile_or_skip(fn, sig)
         if proc is not None:
             proc.stdout.readline()  # its callees are in the cache (or it has ended: the kernels compile them)
         for _name, fn, args in calls:
-            fn.compile(tuple(nb.typeof(a) for a in args))
+            compiled.compile_for(fn, args)
         if proc is not None:
             proc.wait()
     finally:
@@ -187,10 +155,10 @@ def _helper(claims: str) -> None:
     if law_target is not None:
         from kinadapt_nn.controller.laws.base import STEP_SIG
 
-        resolve(*law_target).compile(STEP_SIG)
+        compiled.compile_sig(resolve(*law_target), STEP_SIG)
     for i, (module, qualname, sig) in enumerate(entries):
         if _claim(claims, i):
-            _compile(resolve(module, qualname), sig)
+            compiled.compile_or_skip(resolve(module, qualname), sig)
     sys.stdout.write("callees\n")
     sys.stdout.flush()
 

@@ -12,6 +12,7 @@ import sys
 import numpy as np
 import pytest
 
+from kinadapt_nn import compiled
 from kinadapt_nn.config import load_config
 from kinadapt_nn.controller import core
 from kinadapt_nn.controller.twocore import callee_plan
@@ -38,7 +39,7 @@ def test_plan_lists_the_kernels_callees_with_their_cached_types(features):
         # refuses to cache (the same measured reason as tests/runs/test_episode.py's precompile test)
         pytest.skip("NUMBA_OPT=0: numba cannot cache kernels that hold function addresses")
     for fn, sig in plan:
-        assert core._in_cache(fn, sig), (fn.py_func.__name__, sig)
+        assert compiled.in_cache(fn, sig), (fn.py_func.__name__, sig)
 
 
 def test_cold_compile_on_two_cores_types_every_callee_once_and_gives_the_same_episode(tmp_path):
@@ -50,6 +51,7 @@ def test_cold_compile_on_two_cores_types_every_callee_once_and_gives_the_same_ep
     ``KERNEL_OPT`` (1) unless the environment says otherwise: the two levels give the same numbers."""
     code = f"""
 import json, numpy as np
+from kinadapt_nn import compiled
 from kinadapt_nn.config import load_config
 from kinadapt_nn.controller import core
 from kinadapt_nn.controller.twocore import callee_plan
@@ -62,7 +64,7 @@ plan = callee_plan(ctrl.kernel_calls())
 cold = not core.calls_cached(ctrl.kernel_calls(), ctrl.law_spec)
 ctrl.compile_kernels()
 bad = [fn.py_func.__name__ for fn, sig in plan if [tuple(s) for s in fn.signatures] != [tuple(sig)]]
-law_cached = core._in_cache(ctrl.law_spec.step, STEP_SIG)
+law_cached = compiled.in_cache(ctrl.law_spec.step, STEP_SIG)
 res = run_episode(cfg, ctrl=ctrl)
 np.save({str(tmp_path / "theta.npy")!r}, res.trace["theta"])
 print(json.dumps({{"cold": cold, "bad": bad, "n": len(plan), "law_cached": law_cached}}))

@@ -33,11 +33,9 @@ from typing import Callable, NamedTuple
 
 import numba as nb
 import numpy as np
-from llvmlite import ir
-from numba.core import cgutils, types
-from numba.experimental.function_type import _get_jit_address
-from numba.extending import intrinsic
+from numba import types
 
+from kinadapt_nn import compiled
 from kinadapt_nn.config import AdaptationCfg
 from kinadapt_nn.errors import ConfigError
 
@@ -46,30 +44,12 @@ _F2 = types.Array(types.float64, 2, "C")
 _I1 = types.Array(types.int64, 1, "C")
 #: the signature of every law's ``step`` (module docstring)
 STEP_SIG = types.float64(_F1, _F2, _F2, _F1, _F1, _F1, _F1, _F1, _F1, _I1, _F1, _F1, _F1)
-_STEP_FN = types.FunctionType(STEP_SIG)
-if getattr(nb.core.datamodel.default_manager.lookup(_STEP_FN), "_fields", ()) != ("c_addr", "py_addr", "jit_addr"):
-    raise ImportError("kinadapt_nn's law dispatch needs numba's first-class function model (c_addr, py_addr, "
-                      "jit_addr; numba >= 0.59)")
 
-
-@intrinsic
-def law_step_fn(typingctx, addr):
-    """The law step at native address ``addr`` (int64, :meth:`LawSpec.address`) as a first-class
-    function of :data:`STEP_SIG`, called with numba's own calling convention (exceptions
-    propagate). The address is data, not code: the kernels that call it compile and cache once
-    for every law."""
-    if not isinstance(addr, types.Integer):
-        return None
-
-    def codegen(context, builder, sig, args):
-        vp = context.get_value_type(types.voidptr)
-        fn = cgutils.create_struct_proxy(_STEP_FN)(context, builder)
-        fn.c_addr = ir.Constant(vp, None)
-        fn.py_addr = ir.Constant(vp, None)
-        fn.jit_addr = builder.inttoptr(args[0], vp)
-        return fn._getvalue()
-
-    return _STEP_FN(addr), codegen
+#: ``law_step_fn(addr)`` inside a kernel: the law step at native address ``addr`` (int64,
+#: :meth:`LawSpec.address`) as a first-class function of :data:`STEP_SIG`, called with numba's own
+#: calling convention (exceptions propagate). The address is data, not code: the kernels that call
+#: it compile and cache once for every law (``compiled.address_caller``).
+law_step_fn = compiled.address_caller(STEP_SIG)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -228,8 +208,7 @@ class LawSpec:
         """The native address of ``step`` compiled for :data:`STEP_SIG` in this process (compiled,
         or loaded from numba's cache, on first use)."""
         if not self._address:
-            self.step.compile(STEP_SIG)
-            self._address.append(_get_jit_address(self.step, STEP_SIG))
+            self._address.append(compiled.jit_address(self.step, STEP_SIG))
         return self._address[0]
 
     def aside_target(self) -> tuple[str, str] | None:
@@ -239,10 +218,7 @@ class LawSpec:
         fn = getattr(self.step, "py_func", None)
         if self._address or fn is None or "<" in fn.__qualname__ or fn.__module__ == "__main__":
             return None
-        try:
-            if self.step._cache._cache_file._load_index():
-                return None
-        except Exception:  # numba's cache internals moved: compile here
+        if compiled.cached_any(self.step) is not False:  # cached, or cannot be told: compile here
             return None
         return fn.__module__, fn.__qualname__
 
