@@ -14,7 +14,6 @@ import pytest
 
 from kinadapt_nn import compiled
 from kinadapt_nn.config import load_config
-from kinadapt_nn.controller import core
 from kinadapt_nn.controller.twocore import callee_plan
 from kinadapt_nn.runs.build import make_controller
 from kinadapt_nn.runs.episode import run_episode
