@@ -4,21 +4,49 @@ The stages (``userlog.diagnose``: read -> signals -> segmentation -> calibration
 and selection -> completeness) each return a frozen result; their sections are put together once
 into a ``Report`` -- read-only, nothing writes into it afterwards -- and the report writes itself
 (``Report.to_json``): the header (``format``, ``version``, ``kind``, where the log and its set-up
-came from), the summary first, then the sections, then the wall time. The CLI only writes what
+came from), the summary first, then the sections, then the wall time. Read-only all the way down:
+a section's mappings are ``MappingProxyType``s and its lists tuples (``freeze``), so writing into
+``report["ranking"][0]`` raises a ``TypeError``; ``to_json`` gives plain dicts and lists back. The CLI only writes what
 this returns. Version 4: the sections of ``userlog._base_report`` plus completeness, ``--add`` and
 (package runs) ``rerun``.
 """
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, Callable, Literal
 
+import numpy as np
+
 FORMAT = "kinadapt-diagnosis"
 VERSION = 4
+
+
+def freeze(value: Any) -> Any:
+    """``value`` read-only all the way down: mappings -> ``MappingProxyType`` (over a new dict),
+    lists and tuples -> tuples, numpy arrays -> read-only copies; scalars as they are."""
+    if isinstance(value, Mapping):
+        return MappingProxyType({k: freeze(v) for k, v in value.items()})
+    if isinstance(value, (list, tuple)):
+        return tuple(freeze(v) for v in value)
+    if isinstance(value, np.ndarray):
+        out = value.copy()
+        out.flags.writeable = False
+        return out
+    return value
+
+
+def thaw(value: Any) -> Any:
+    """A new plain copy of ``value`` (the inverse of ``freeze``: dicts and lists, for JSON)."""
+    if isinstance(value, Mapping):
+        return {k: thaw(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [thaw(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.copy()
+    return value
 
 
 @dataclass(frozen=True)
@@ -41,13 +69,13 @@ class Report(Mapping):
 
     @classmethod
     def of(cls, sections: Mapping[str, Any], summary: Callable[[Mapping[str, Any]], str]) -> Report:
-        """The report of ``sections`` (copied) with ``summary(sections)`` as its summary."""
-        sec = MappingProxyType(copy.deepcopy(dict(sections)))
+        """The report of ``sections`` (copied, read-only: ``freeze``) with ``summary(sections)`` as its summary."""
+        sec = freeze(sections)
         return cls(sec, summary(sec))
 
     def with_section(self, name: str, content: Any) -> Report:
         """This report with one more section (the summary kept): a package run's ``rerun``."""
-        return Report(MappingProxyType({**self.sections, name: copy.deepcopy(content)}), self.summary)
+        return Report(MappingProxyType({**self.sections, name: freeze(content)}), self.summary)
 
     def __getitem__(self, key: str) -> Any:
         return self.summary if key == "summary" else self.sections[key]
@@ -63,7 +91,7 @@ class Report(Mapping):
         """``diagnosis.json``'s content: header, summary, the sections (plain dicts), wall time."""
         return {"format": FORMAT, "version": VERSION, "kind": prov.kind, "source": prov.source,
                 "setup_file": prov.setup_file, "summary": self.summary,
-                **copy.deepcopy(dict(self.sections)), "wall_time_s": wall_time_s}
+                **thaw(self.sections), "wall_time_s": wall_time_s}
 
 
 def pooled_json(logs: list[tuple[str, str, Mapping]], setup_file: str, wall_time_s: float) -> dict:
@@ -71,7 +99,7 @@ def pooled_json(logs: list[tuple[str, str, Mapping]], setup_file: str, wall_time
     [(folder name, source, report)], each log's own diagnosis in its folder."""
     from kinadapt_nn.diagnostics.pooled import pool, summary_text
 
-    pooled = pool([(name, rep) for name, _, rep in logs])
+    pooled = thaw(pool([(name, rep) for name, _, rep in logs]))  # plain JSON types, whatever it copied
     pooled = {**pooled, "summary": summary_text(pooled)}
     return {"format": FORMAT, "version": VERSION, "kind": "pooled_logs", "setup_file": setup_file,
             "summary": pooled["summary"], "pooled": pooled,
@@ -79,4 +107,4 @@ def pooled_json(logs: list[tuple[str, str, Mapping]], setup_file: str, wall_time
             "wall_time_s": wall_time_s}
 
 
-__all__ = ["FORMAT", "VERSION", "Provenance", "Report", "pooled_json"]
+__all__ = ["FORMAT", "VERSION", "Provenance", "Report", "freeze", "pooled_json", "thaw"]

@@ -73,7 +73,7 @@ def test_unknown_mount_matches_an_independent_calibration(runs, arm, name):
     assert np.linalg.norm(np.subtract(sm["tool_com_sensor_m"], cal["tool_com_sensor_m"])) < 0.003
     # the residual in the log's units (forces N) against the calibration's (N): no worse than 1.3x
     assert np.sqrt(np.mean(np.square(sm["residual_rms"][:3]))) <= 1.3 * np.sqrt(np.mean(np.square(cal["residual_rms"][:3])))
-    assert sm["offset_units"][3:] == ["N mm"] * 3
+    assert list(sm["offset_units"][3:]) == ["N mm"] * 3
     # the guessed mass is judged against the estimate: tool_gravity present, physical, the mount used
     assert _verdicts(rep)["tool_gravity"] == "present"
     assert "ft_frame_rotation" not in _verdicts(rep)
