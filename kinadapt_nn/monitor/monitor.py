@@ -40,6 +40,9 @@ SETTLE_S = 0.02
 #: an alarm becomes an event only when its best shape's estimate differs from none beyond this chance
 #: (chi^2 of the estimate against its whole covariance: noise, the window's jackknife, the model's error)
 CONFIRM_P = 1e-3
+#: ... and when its fitted shape changes the wrench by at least this many noise sd on some channel within
+#: the window (smaller: what the nominal model's own errors reach; ``docs/monitor.md``)
+RELEVANT_SD = 2.0
 #: windows (``window_s`` each) an alarm may wait for a clear winner before the best is named anyway
 MAX_WINDOWS = 6
 
@@ -229,7 +232,8 @@ class Monitor:
             self._restart()
             return None
         f = shapes.fit(f.shape, rows, sd, self.mc, t_on, fmask, jackknife=True, model_sd=self._model_sd(t_on))
-        if not shapes.significant(f, CONFIRM_P):  # the change is within what the model's own errors allow
+        size = np.max(np.abs(shapes.evaluate(f, rows, self.mc, t_on)), axis=0) / sd  # (6,) in noise sd
+        if not shapes.significant(f, CONFIRM_P) or size.max() < RELEVANT_SD:  # within the model's own errors
             self.dismissed += 1
             self._restart()
             return None
