@@ -1,7 +1,7 @@
 """Between-insertion refit variants replayed on the logged insertions of ``kinadapt compare``'s cell draws.
 
-    python benchmarks/cell_refit_replay.py collect --seeds 3000 5000 --features neural --families arm_errors
-        [--store runs/cell_replay]
+    python benchmarks/cell_refit_replay.py collect [--seeds 3000 5000] [--features neural adjoint]
+        [--families arm_errors nominal] [--set cell.refit_step_sd=0] [--store runs/cell_replay]
     python benchmarks/cell_refit_replay.py replay [--store runs/cell_replay] [--variants shipped polyak ...]
 
 ``collect`` runs the cells of ``online/compare_cell.toml`` for the tools ``kinadapt compare`` draws
@@ -50,12 +50,12 @@ def _jobs(seed: int, family: str, features: str) -> list[list[str]]:
             if j.family == family and j.features == features]
 
 
-def collect(seed: int, family: str, features: str, store: Path) -> None:
+def collect(seed: int, family: str, features: str, store: Path, extra: list[str] = ()) -> None:
     from kinadapt_nn.config import load_config
     from kinadapt_nn.runs import insertions as ins
 
     t0 = time.perf_counter()
-    overs = _jobs(seed, family, features)
+    overs = [[*o, *extra] for o in _jobs(seed, family, features)]
     cfgs = [load_config(None, o) for o in overs]
     ctrls = [ins.make_controller(c) for c in cfgs]
     cells = [ins._Cell(c, k) for c, k in zip(cfgs, ctrls)]
@@ -173,13 +173,15 @@ def main() -> None:
     ap.add_argument("--families", nargs="+", default=["arm_errors"])
     ap.add_argument("--features", nargs="+", default=["neural"])
     ap.add_argument("--store", default=str(ROOT / "runs" / "cell_replay"))
-    ap.add_argument("--variants", nargs="+", default=["shipped", "polyak", "nosel", "accept", "trust1"])
+    ap.add_argument("--variants", nargs="+", default=["shipped", "polyak", "accept", "trust0.5", "xtrust1"])
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="collect: an online config override (e.g. cell.refit_step_sd=0: the loop without the trust region)")
     a = ap.parse_args()
     if a.what == "collect":
         for s in a.seeds:
             for fam in a.families:
                 for feat in a.features:
-                    collect(s, fam, feat, Path(a.store))
+                    collect(s, fam, feat, Path(a.store), a.set)
     else:
         replay(Path(a.store), a.variants)
 
