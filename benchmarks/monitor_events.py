@@ -158,6 +158,36 @@ def kernel_cost(reps: int = 3) -> tuple[float, float]:
     return float(np.median(ns)) / 1e3, float(np.percentile(ns, 99)) / 1e3
 
 
+def step_latency_us(monitor: bool) -> tuple[float, float]:
+    """p50 and p99 [us] of one control period in a closed loop on ``online/monitor.toml`` with a snag at
+    3 s: ``Controller.step`` and, with ``monitor``, the monitor's ``loop_step`` on the controller's own
+    input row and flange kinematics (what the episode loop hands it); sensor I/O and physics excluded."""
+    from kinadapt_nn.monitor.monitor import monitor_of_run
+    from kinadapt_nn.runs.build import make_controller
+    from kinadapt_nn.sim.adapter import PegInHoleSim
+
+    cfg = _cfg("online/monitor.toml", ["effects.world_force.enabled=true", "effects.world_force.onset_s=3"])
+    sim, ctrl = PegInHoleSim(cfg), make_controller(cfg)
+    ctrl.compile_kernels()
+    mon = monitor_of_run(cfg)
+    n = int(round(cfg.run.duration_s / cfg.run.dt_s))
+    lat = np.empty(n)
+    obs = sim.sense()
+    inp, R, p, J = ctrl._inp[0], ctrl._R[0], ctrl._p_O[0], ctrl._J[0]  # noqa: SLF001  (the controller's buffers)
+    for k in range(n):
+        t = sim.time_s
+        a = time.perf_counter()
+        cmd = ctrl.step(t, obs.q_rad, obs.qdot_rad_s, obs.wrench_raw_f)
+        if monitor:
+            mon.loop_step(t, inp, R, p, J)
+        lat[k] = time.perf_counter() - a
+        sim.apply(cmd.q_ref_rad, cmd.qdot_ref_rad_s)
+        sim.step()
+        obs = sim.sense()
+    lat = lat[100:] * 1e6  # (the first steps compile or load the kernels)
+    return float(np.percentile(lat, 50)), float(np.percentile(lat, 99))
+
+
 def wall_ratio(reps: int = 5) -> tuple[float, float]:
     """An episode's wall [s] without and with the monitor (medians, warm)."""
     walls = {False: [], True: []}
@@ -180,15 +210,36 @@ def follow_rate() -> float | None:
     return benchmark_follow(REPO)
 
 
+def costs(say) -> None:
+    med, p99 = kernel_cost()
+    say(f"monitor per control period: median {med:.2f} us, p99 {p99:.2f} us (Monitor.loop_step)")
+    c50, c99 = step_latency_us(False)
+    m50, m99 = step_latency_us(True)
+    say(f"control period, closed loop: controller p50 {c50:.1f} us, p99 {c99:.1f} us; controller + monitor p50 "
+        f"{m50:.1f} us, p99 {m99:.1f} us")
+    w0, w1 = wall_ratio()
+    say(f"episode wall (online/monitor.toml, 6 s): {w0:.3f} s without, {w1:.3f} s with the monitor: {w1 / w0:.2f}x")
+    fr = follow_rate()
+    if fr is not None:
+        say(f"--follow: {fr:.0f} samples per CPU second ({fr / 1000:.1f}x a 1 kHz log on one core)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20, help="seeds per scenario")
     ap.add_argument("--clean", type=int, default=20, help="clean runs of each configuration")
     ap.add_argument("--save", type=Path, default=None, help="also write the table to this file")
     ap.add_argument("--lines", action="store_true", help="print each run's event line")
+    ap.add_argument("--costs-only", action="store_true", help="only the costs (no scenarios, no clean runs)")
     a = ap.parse_args()
     out = []
     say = lambda s="": (print(s, flush=True), out.append(s))  # noqa: E731
+    if a.costs_only:
+        costs(say)
+        if a.save:
+            a.save.parent.mkdir(parents=True, exist_ok=True)
+            a.save.write_text("\n".join(out) + "\n")
+        return
     say(f"monitor_events: {a.seeds} seeds per scenario, onset uniform in [1, 4] s, online/monitor.toml")
     say(f"{'scenario':<16}{'detected':>10}{'delay med [s]':>15}{'delay max [s]':>15}{'named':>8}{'covered':>9}"
         f"{'early':>7}")
@@ -205,13 +256,7 @@ def main() -> None:
     for label, path in (("default (rollout.toml)", "online/rollout.toml"), ("excite (excite.toml)", "online/excite.toml")):
         runs, evs, sim = clean_alarms(path, a.clean)
         say(f"clean {label:<24} {a.clean} runs, {sim:.0f} s watched: {runs} with an alarm ({evs} events)")
-    med, p99 = kernel_cost()
-    say(f"monitor per control period: median {med:.2f} us, p99 {p99:.2f} us (Monitor.loop_step)")
-    w0, w1 = wall_ratio()
-    say(f"episode wall (online/monitor.toml, 6 s): {w0:.3f} s without, {w1:.3f} s with the monitor: {w1 / w0:.2f}x")
-    fr = follow_rate()
-    if fr is not None:
-        say(f"--follow: {fr:.0f} samples per CPU second ({fr / 1000:.1f}x a 1 kHz log on one core)")
+    costs(say)
     if a.save:
         a.save.parent.mkdir(parents=True, exist_ok=True)
         a.save.write_text("\n".join(out) + "\n")
