@@ -575,7 +575,8 @@ def cmd_diagnose_follow(args: argparse.Namespace) -> int:
     path = Path(args.logs[0])
     say = (lambda m: None) if args.quiet else (lambda m: print(f"kinadapt diagnose --follow: {m}", file=sys.stderr,
                                                                 flush=True))
-    fol = Follower(path, setup, MonitorCfg(), on_event=lambda ev: print(f"{path.name}: {ev.line}", flush=True), say=say)
+    fol = Follower(path, setup, MonitorCfg(), say=say,
+                   on_event=lambda ev: print(f"{path.name}: {ev.line}" + (" (updated)" if ev.updates else ""), flush=True))
     if not args.quiet:
         stop = f"stops when it has not grown for {args.idle_stop:g} s" if args.idle_stop else "Ctrl-C stops"
         say(f"following {path} ({stop})")

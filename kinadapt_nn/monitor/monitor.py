@@ -128,6 +128,7 @@ class Monitor:
         self._alarm: dict | None = None  #: the alarm whose window is being collected
         self.dismissed = 0  #: alarms whose best shape was not significant (``CONFIRM_P``): no event
         self._fits: list = []  #: (fit, onset, event) of each event, as its correction stands in the model
+        self._history: dict = {}  #: id(event) -> [(time from which, fit)]: its correction's versions in the model
         self.res_log = self.z_log = None  #: (rows, 6) residual and residual / sd at logged rows (``record``)
 
     def start_log(self, rows: int) -> None:
@@ -231,7 +232,8 @@ class Monitor:
         if self._refit_last(rows, f):
             self._restart()
             return None
-        f = shapes.fit(f.shape, rows, sd, self.mc, t_on, fmask, jackknife=True, model_sd=self._model_sd(t_on))
+        f = shapes.fit(f.shape, rows, sd, self.mc, t_on, fmask, jackknife=True,
+                       model_sd=np.maximum(self._model_sd(t_on), self._left_sd(f, rows, t_on)))
         size = np.max(np.abs(shapes.evaluate(f, rows, self.mc, t_on)), axis=0) / sd  # (6,) in noise sd
         if not shapes.significant(f, CONFIRM_P) or size.max() < RELEVANT_SD:  # within the model's own errors
             self.dismissed += 1
@@ -242,11 +244,22 @@ class Monitor:
                    fits[1].shape if len(fits) > 1 else "", margin, f.rows, float(rows[-1, K.G_T]))
         self._apply(f, t_on, +1.0)
         self._fits.append((f, t_on, ev))
+        self._history[id(ev)] = [(ev.t_named_s, f)]
         self._restart()
         self.events.append(ev)
         if self.on_event is not None:
             self.on_event(ev)
         return ev
+
+    def _left_sd(self, f, rows: np.ndarray, t_on: float) -> np.ndarray:
+        """(6,) [N, N m] what the fitted shape leaves of the change that persists: the RMS of the fit
+        residual's ``MODEL_BLOCK_S`` means over the window (the model's error after the change)."""
+        k = max(1, int(round(MODEL_BLOCK_S / self.dt_s)))
+        nb = len(rows) // k
+        if nb < 3:
+            return np.zeros(6)
+        r = rows[:nb * k, K.G_E:K.G_E + 6] - shapes.evaluate(f, rows[:nb * k], self.mc, t_on)
+        return np.sqrt(np.mean(r.reshape(nb, k, 6).mean(axis=1) ** 2, axis=0))
 
     def _model_sd(self, t_on: float) -> np.ndarray:
         """(6,) [N, N m] the model's slow error before a change: the RMS of the residual's
@@ -289,8 +302,11 @@ class Monitor:
                 and f_new.shape != "ft_bias_drift":
             return False  # its onset has left the ring
         y = rows.copy()  # the residual without the old event's correction
-        after = rows[:, K.G_T] > ev.t_named_s
-        y[after, K.G_E:K.G_E + 6] += shapes.evaluate(f_old, rows[after], self.mc, t0)
+        hist = self._history[id(ev)]  # (from when, the fit then in the model) of this event's correction
+        for i, (t_a, f_a) in enumerate(hist):
+            t_b = hist[i + 1][0] if i + 1 < len(hist) else np.inf
+            seg = (rows[:, K.G_T] > t_a) & (rows[:, K.G_T] <= t_b)
+            y[seg, K.G_E:K.G_E + 6] += shapes.evaluate(f_a, rows[seg], self.mc, t0)
         sd = self.noise_sd
         fmask = np.isin(np.arange(6), [CHANNELS.index(c) for c in ev.channels])
         one = shapes.fit(f_old.shape, y, sd, self.mc, t0, fmask, jackknife=True, model_sd=self._model_sd(t0))
@@ -308,6 +324,7 @@ class Monitor:
         ev.text, ev.estimate, ev.rows, ev.t_named_s = text, est, one.rows, float(rows[-1, K.G_T])
         ev.updates += 1
         self._fits[-1] = (one, t0, ev)
+        self._history[id(ev)].append((ev.t_named_s, one))
         if self.on_event is not None:
             self.on_event(ev)
         return True
@@ -335,7 +352,7 @@ def monitor_of_run(cfg, on_event=None) -> Monitor:
     if on_event is None and cfg.run.progress:  # the console: each event as it is named
         from tqdm import tqdm
 
-        on_event = lambda ev: tqdm.write(f"monitor {ev.line}")  # noqa: E731
+        on_event = lambda ev: tqdm.write(f"monitor {ev.line}" + (" (updated)" if ev.updates else ""))  # noqa: E731
     return Monitor(setup_of_run(cfg), cfg.monitor, cfg.run.dt_s, on_event)
 
 
