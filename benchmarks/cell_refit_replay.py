@@ -12,7 +12,8 @@ error curve the closed loop gave. ``replay`` rebuilds each tool's controller and
 (evaluation only), applies each refit variant to the stored data insertion by insertion (the variant
 sees only measured data: the rows of the insertions so far), scores every estimate on the truth, and
 prints per draw the median over tools after each insertion, the largest rise between insertions and
-whether check (c) holds (no rise above both 2 % and 0.01 percentage points). The replay keeps the
+whether check (c) holds (no rise above both 2 % and 0.01 percentage points); ``--per-tool``: each
+tool's curve and largest rise too. The replay keeps the
 logged trajectories (open loop; on the draws checked the closed loop gave the same curves to the
 digits printed): ``benchmarks/cell_learning.py`` is the closed-loop confirmation.
 
@@ -139,7 +140,7 @@ def variant_curve(name: str, rf, data: list) -> list[np.ndarray]:
     return VARIANTS[base](rf, data, float(name[len(base):] or 1.0))
 
 
-def replay(store: Path, variants: list[str]) -> None:
+def replay(store: Path, variants: list[str], per_tool: bool = False) -> None:
     from kinadapt_nn.config import load_config
     from kinadapt_nn.runs import insertions as ins
 
@@ -164,6 +165,12 @@ def replay(store: Path, variants: list[str]) -> None:
             fail = any(b / a - 1 > 0.02 and 100 * (b - a) > 0.01 for a, b in pairs)
             print(f"  {v:12s} {100 * c[0]:.3f} % -> " + " ".join(f"{100 * e:.3f}" for e in c[1:])
                   + f" %  rise {100 * rise:+.1f} %  (c) {'FAIL' if fail else 'ok'}", flush=True)
+            for t, ct in enumerate(cs if per_tool else []):
+                pt = list(zip(ct[1:], ct[2:]))
+                r = max(b / a - 1 for a, b in pt)
+                bad = any(b / a - 1 > 0.02 and 100 * (b - a) > 0.01 for a, b in pt)
+                print(f"    tool {t}     {100 * ct[0]:.3f} % -> " + " ".join(f"{100 * e:.3f}" for e in ct[1:])
+                      + f" %  rise {100 * r:+.1f} %  (c) {'FAIL' if bad else 'ok'}")
 
 
 def main() -> None:
@@ -174,6 +181,7 @@ def main() -> None:
     ap.add_argument("--features", nargs="+", default=["neural"])
     ap.add_argument("--store", default=str(ROOT / "runs" / "cell_replay"))
     ap.add_argument("--variants", nargs="+", default=["shipped", "polyak", "accept", "trust0.5", "xtrust1"])
+    ap.add_argument("--per-tool", action="store_true", help="replay: each tool's curve too")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="collect: an online config override (e.g. cell.refit_step_sd=0: the loop without the trust region)")
     a = ap.parse_args()
@@ -183,7 +191,7 @@ def main() -> None:
                 for feat in a.features:
                     collect(s, fam, feat, Path(a.store), a.set)
     else:
-        replay(Path(a.store), a.variants)
+        replay(Path(a.store), a.variants, a.per_tool)
 
 
 if __name__ == "__main__":
