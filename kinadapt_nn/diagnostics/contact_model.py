@@ -4,8 +4,12 @@ A socket is a compliant fixture the declared tip enters: a lateral spring at the
 angular spring, anchored where the tip and the tool were when the tip crossed the entrance plane
 (released when it is back ``RELEASE_M`` above it)::
 
-    f   = -k_lat P (tip - tip_0)          (P: the projector across the axis)
-    tau = -k_rot rotvec(R R_0^T)          (both on the tool, world)
+    f   = -k_lat P (tip - tip_0) - c_lat P v_tip      (P: the projector across the axis)
+    tau = -k_rot rotvec(R R_0^T) - c_rot w            (both on the tool, world)
+
+``c_lat``, ``c_rot``: a declared damper (zero unless the set-up declares one); ``v_tip``, ``w`` the
+tip's velocity and the tool's angular velocity (world), differentiated from the pose along the log's
+time (``t_s``; a log without time has no damping term).
 
 The environment's wrench on the tool adds to the wrench the tool exerts on the sensor (quasi-
 static balance), so ``nominal_wrench`` is that wrench in the sensor frame about its origin: it
@@ -105,15 +109,40 @@ def on_tool_to_sensor(R_ws: np.ndarray, tip_s, f_w: np.ndarray, tau_w: np.ndarra
     return np.concatenate([f_s, tau_s + np.cross(np.asarray(tip_s, dtype=float), f_s)], axis=1)
 
 
-def nominal_wrench(setup, R_ws: np.ndarray, p_ws: np.ndarray) -> np.ndarray:
+def pose_rates(R_ws: np.ndarray, tip_w: np.ndarray, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The tool's angular velocity ``w_w`` (n, 3) [rad/s] and the tip's velocity ``v_w`` (n, 3) [m/s],
+    world, by central differences of the pose along ``t_s`` (n,) [s]: ``w = vee(dR/dt R^T)``."""
+    t = np.asarray(t_s, dtype=float)
+    if len(t) < 3:
+        return np.zeros_like(tip_w), np.zeros_like(tip_w)
+    R = np.asarray(R_ws, dtype=float)
+    W = np.gradient(R, t, axis=0) @ np.transpose(R, (0, 2, 1))  # (n, 3, 3), skew up to rounding
+    w = 0.5 * np.stack([W[:, 2, 1] - W[:, 1, 2], W[:, 0, 2] - W[:, 2, 0], W[:, 1, 0] - W[:, 0, 1]], axis=1)
+    return w, np.gradient(np.asarray(tip_w, dtype=float), t, axis=0)
+
+
+def log_times(s) -> np.ndarray | None:
+    """(n,) [s] the samples' times of a log's signals ``s`` for the pose's derivatives (a declared
+    damper); None for a static log (its poses are not a motion)."""
+    return None if s.setup.log.static else s.t
+
+
+def nominal_wrench(setup, R_ws: np.ndarray, p_ws: np.ndarray, t_s: np.ndarray | None = None) -> np.ndarray:
     """The declared contact geometry's wrench on the sensor (n, 6) [N, N m] (module docstring);
-    zeros when none is declared."""
+    zeros when none is declared. ``t_s`` (n,) [s]: the samples' times, for a declared damper."""
     c = setup.contact
     if c.geometry == "none":
         return np.zeros((len(R_ws), 6))
     tip = setup.tool.tip_sensor_m
     st = socket_terms(c, R_ws, p_ws, tip)
-    return on_tool_to_sensor(R_ws, tip, -c.stiffness_lat_N_per_m * st.disp_lat_w, -c.stiffness_rot_Nm_per_rad * st.rotvec_w)
+    f_w = -c.stiffness_lat_N_per_m * st.disp_lat_w
+    tau_w = -c.stiffness_rot_Nm_per_rad * st.rotvec_w
+    if t_s is not None and (c.damping_lat_N_s_per_m > 0.0 or c.damping_rot_Nm_s_per_rad > 0.0):
+        w_w, v_w = pose_rates(R_ws, st.tip_w, t_s)
+        v_lat = v_w - np.outer(v_w @ st.axis_w, st.axis_w)
+        f_w = f_w - c.damping_lat_N_s_per_m * v_lat * st.gate[:, None]
+        tau_w = tau_w - c.damping_rot_Nm_s_per_rad * w_w * st.gate[:, None]
+    return on_tool_to_sensor(R_ws, tip, f_w, tau_w)
 
 
 def tip_derivative(setup, R_ws: np.ndarray, p_ws: np.ndarray, dtip_s) -> np.ndarray:
@@ -153,5 +182,5 @@ def nominal_wrench_dq(setup, R_ws: np.ndarray, p_ws: np.ndarray, J_v: np.ndarray
         C[:, :, j] = (w[0] - w[1]) / (2.0 * eps)
     return C
 
-__all__ = ["SocketTerms", "socket_terms", "on_tool_to_sensor", "nominal_wrench", "nominal_wrench_dq", "tip_derivative",
+__all__ = ["SocketTerms", "socket_terms", "on_tool_to_sensor", "nominal_wrench", "pose_rates", "log_times", "nominal_wrench_dq", "tip_derivative",
            "RELEASE_M"]

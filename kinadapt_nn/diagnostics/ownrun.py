@@ -17,7 +17,9 @@ set-up             from the run's config (what the cell's integrator knows)
                    contact wrench pins the tip, the diagnosis uses that point and reports it)
 [contact]          a socket scene (``scene.contact_model = "socket"``): ``geometry = "socket"``, the
                    known bore entrance and axis, the nominal map's stiffnesses
-                   ``sensing.stiffness_lat_N_per_m`` / ``stiffness_rot_Nm_per_rad``; a bore scene:
+                   ``sensing.stiffness_lat_N_per_m`` / ``stiffness_rot_Nm_per_rad``, the fixture's
+                   dampers as built (``scene.socket_damping_ratio``, ``sim.socket.socket_damping``;
+                   a hidden ``contact_stiffness`` is not read); a bore scene:
                    ``mode = "exclude"``, ``zone = "entrance"`` (the bore's contacts act along the
                    peg's side and at the entrance edge, not through the tip, and are often under
                    the detection threshold: every row where the tip can touch is contact, left out)
@@ -38,6 +40,7 @@ from kinadapt_nn.config import ExperimentCfg, arm_mjcf_path, load_config
 from kinadapt_nn.diagnostics.readers import UserLog
 from kinadapt_nn.diagnostics.setup import (ArmDeclCfg, ContactDeclCfg, LogCfg, SensorCfg, SetupCfg, ToolDeclCfg)
 from kinadapt_nn.errors import KinadaptError
+from kinadapt_nn.sim.socket import socket_damping
 from kinadapt_nn.known import BORE_AXIS_W
 
 
@@ -64,10 +67,12 @@ def setup_of_run(cfg: ExperimentCfg, effects_files=(), tip_sensor_m=None) -> Set
     log = LogCfg(q=tuple(f"q{j}" for j in range(1, dof + 1)), qdot=tuple(f"qd{j}" for j in range(1, dof + 1)),
                  wrench_acts="sensor_on_tool", tared=False)
     entry, axis = tuple(float(v) for v in cfg.scene.bore_entry_w_m), tuple(float(v) for v in BORE_AXIS_W)
-    if cfg.scene.contact_model == "socket":  # the nominal map's own contact model
+    if cfg.scene.contact_model == "socket":  # the nominal map's own contact model, the fixture's dampers
+        c_lat, _, c_rot = socket_damping(cfg.scene)
         contact = ContactDeclCfg(mode="tip", geometry="socket", entry_w_m=entry, axis_w=axis,
                                  stiffness_lat_N_per_m=cfg.sensing.stiffness_lat_N_per_m,
-                                 stiffness_rot_Nm_per_rad=cfg.sensing.stiffness_rot_Nm_per_rad)
+                                 stiffness_rot_Nm_per_rad=cfg.sensing.stiffness_rot_Nm_per_rad,
+                                 damping_lat_N_s_per_m=c_lat, damping_rot_Nm_s_per_rad=c_rot)
     else:  # a rigid bore: its contacts act along the peg's side and at the entrance edge, not through the
         # tip, and are often lighter than the detection threshold: counted wherever the tip can touch, left out
         contact = ContactDeclCfg(mode="exclude", zone="entrance", entry_w_m=entry, axis_w=axis)

@@ -18,7 +18,9 @@ choice; Benjamini-Hochberg across the round). The best candidate is selected whe
 estimate reaches its relevant magnitude somewhere.
 
 Verdicts (``verdict`` of each effect):
-* ``present``: selected, its jointly re-estimated parameters physically possible, no near-tie;
+* ``present``: selected, its jointly re-estimated parameters physically possible, no near-tie, and
+  its final estimate distinct from zero at ``ci_level`` given its final sd (the change each
+  undecided effect makes counted: ``_with_model_sd``);
 * ``cannot_decide``: a near-tie (another candidate explains nearly as much and nothing more once
   either is in the model: ``indistinguishable_from``), an impossible estimate, a failed sign
   check, or not selected while the confidence interval of some parameter crosses its relevant
@@ -315,6 +317,11 @@ def select(des: Design, rc: SelCfg = SelCfg(), plausible: Callable[[str, np.ndar
     ctx = _EntryCtx(st, des, rc, base, fw, jt, small, sse_total, alone, plausible, hints, block_all)
     entries = [_entry(ctx, n) for n in st.names]
     jt = _with_model_sd(st, des, rc, jt, fw, entries)
+    for e in entries:  # the final sd (the undecided effects' change counted) may swallow a selection
+        if e["verdict"] == "present" and not _distinct_from_zero(jt.joint[e["effect"]], rc.ci_level):
+            e["verdict"], e["significant"] = "cannot_decide", False
+            e["reason"] = ("selected, but in the final model (the nuisance and the undecided effects fitted "
+                           "beside it) its estimate lies within its uncertainty of zero")
     present = {e["effect"]: jt.joint[e["effect"]] for e in entries if e["verdict"] == "present"}
     order = {"present": 0, "cannot_decide": 1, "absent": 2}
     entries.sort(key=lambda e: (e["selected_round"] is None, e["selected_round"] or 0, order[e["verdict"]],
@@ -591,6 +598,21 @@ def _verdict(cx: _EntryCtx, n: str, p_full: np.ndarray, sel: bool, undecided: li
     if n in cx.small and verdict == "cannot_decide":
         reason = "significant, but its estimate stays below the relevant size"
     return verdict, reason
+
+
+def _distinct_from_zero(joint: tuple, level: float) -> bool:
+    """Whether a selected effect's final estimate (``_Joint.joint[name]``: columns, estimate (k,), sd (k,))
+    differs from zero at ``level``: the Wald statistic of its parameters with their final sd (the
+    nuisance and the undecided effects' change counted, ``_with_model_sd``) against chi-square(k).
+    A selection that the final model's uncertainty swallows is no finding."""
+    from scipy.stats import chi2
+
+    _, p, sd = joint
+    p, sd = np.asarray(p, dtype=float), np.asarray(sd, dtype=float)
+    keep = sd > 0
+    if not keep.any():
+        return True
+    return float(np.sum((p[keep] / sd[keep]) ** 2)) > float(chi2.ppf(level, int(keep.sum())))
 
 
 def _below_relevant(st: Stats, des: Design, names: list[str], selected: list, sse_sel: np.ndarray, base: np.ndarray,

@@ -64,6 +64,8 @@ default; ``examples/setups/`` has complete ones)::
     zone_m = 0.002             # "entrance": ... or within this above it [m]
     stiffness_lat_N_per_m = 0.0          # socket: lateral spring at the tip [N/m]
     stiffness_rot_Nm_per_rad = 0.0       # socket: angular spring [N m/rad]
+    damping_lat_N_s_per_m = 0.0          # socket: lateral damper at the tip [N s/m] (0: none)
+    damping_rot_Nm_s_per_rad = 0.0       # socket: angular damper [N m s/rad] (0: none)
     [analysis]
     exclude_s = []             # [[t0, t1], ...] windows left out [s from the first sample]
     effects = []               # only these effects (empty: all that apply)
@@ -331,6 +333,8 @@ class ContactDeclCfg(_Cfg):
     axis_w: Vec3 = (0.0, 0.0, -1.0)  # socket: the axis into the fixture, world (normalised)
     stiffness_lat_N_per_m: float = Field(0.0, ge=0.0)  # [N/m] socket: lateral spring at the tip
     stiffness_rot_Nm_per_rad: float = Field(0.0, ge=0.0)  # [N m/rad] socket: angular spring
+    damping_lat_N_s_per_m: float = Field(0.0, ge=0.0)  # [N s/m] socket: lateral damper at the tip (0: none)
+    damping_rot_Nm_s_per_rad: float = Field(0.0, ge=0.0)  # [N m s/rad] socket: angular damper (0: none)
     #: the declared geometry's own account of contact, beside the data's (``detect_force_N``): the
     #: report uses contact where EITHER says so and names the windows they dispute. "entrance": a
     #: rigid fixture (a bore) can touch while the declared tip is below its entrance plane
@@ -341,7 +345,7 @@ class ContactDeclCfg(_Cfg):
     zone_m: float = Field(0.002, ge=0.0)  # [m] "entrance": the declared tip's distance above the plane that counts
 
     @field_validator("detect_force_N", "margin_s", "entry_w_m", "axis_w", "stiffness_lat_N_per_m",
-                     "stiffness_rot_Nm_per_rad", "zone_m")
+                     "stiffness_rot_Nm_per_rad", "damping_lat_N_s_per_m", "damping_rot_Nm_s_per_rad", "zone_m")
     @classmethod
     def _fin(cls, v):
         return _finite(v, "the value")

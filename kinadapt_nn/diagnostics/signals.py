@@ -84,7 +84,8 @@ class LogSignals:
         velocities and times): for effects that move the model's joint angles."""
         m, mc, I_O = ph.nominal_inertials(self.setup)
         kin = self.arm.series(q, self.qdot, self.clock)
-        return ph.tool_wrench(kin, m, mc, I_O) + contact_model.nominal_wrench(self.setup, kin.R_ws, kin.p_ws)
+        return ph.tool_wrench(kin, m, mc, I_O) + contact_model.nominal_wrench(self.setup, kin.R_ws, kin.p_ws,
+                                                                               contact_model.log_times(self))
 
     def nominal_wrench_dq(self) -> np.ndarray:
         """(n, 6, dof) ``d w_nom / d q_j``: the declared model's wrench per unit change of each joint's
@@ -188,7 +189,7 @@ def _timed(arm: ph.ArmModel, setup, data: tuple, qdot_log, has_time: bool) -> Lo
         if socket:
             pose64[0][a:b], pose64[1][a:b] = kin.R_ws[keep], kin.p_ws[keep]
     if socket:
-        out["w_nom"] += contact_model.nominal_wrench(setup, *pose64)
+        out["w_nom"] += contact_model.nominal_wrench(setup, *pose64, t)
     t0 = t[0] if has_time else 0.0
     return LogSignals(t - t0 if t0 != 0.0 else t, q, qdot, None, out["R_ws"], out["p_ws"], out["g_s"],
                       out["a_s"], out["omega_s"], out["alpha_s"], r, np.zeros(n, bool), extra, setup, out["w_nom"],

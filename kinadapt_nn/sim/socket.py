@@ -36,22 +36,32 @@ N_PARAMS = 17
 M_EFF_KG = 3.0
 
 
+def socket_damping(scene) -> tuple[float, float, float]:
+    """The socket's dampers from ``scene`` (``SceneCfg``: its stiffnesses and ``socket_damping_ratio``
+    z): ``(c_lat [N s/m], c_ax [N s/m], c_rot [N m s/rad])`` = 2 z sqrt(k m) with the arm's effective
+    mass ``M_EFF_KG`` at the tip (lateral, axial) and 0.01 kg m^2 (rotation)."""
+    z = scene.socket_damping_ratio
+    return (2.0 * z * math.sqrt(scene.socket_k_lat_N_per_m * M_EFF_KG),
+            2.0 * z * math.sqrt(max(scene.socket_k_axial_N_per_m, 0.0) * M_EFF_KG),
+            2.0 * z * math.sqrt(max(scene.socket_k_rot_Nm_per_rad, 0.0) * 0.01))
+
+
 def socket_params(cfg, entry_w: np.ndarray, bore_axis_w: np.ndarray) -> np.ndarray:
     """The kernel's parameters from the truth-side experiment config (``cfg.scene``'s socket
     stiffnesses and damping ratio, ``cfg.start.settle_s``, effect ``contact_friction_couple``)
     and the true bore entrance / axis (world). -> (N_PARAMS,)."""
     sc = cfg.scene
     fc = cfg.effects.contact_friction_couple
-    z = sc.socket_damping_ratio
+    c_lat, c_ax, c_rot = socket_damping(sc)
     prm = np.zeros(N_PARAMS)
     prm[P_ENGAGE_DRIVE] = 1.0 if sc.socket_engage == "drive" else 0.0
     prm[P_SETTLE] = cfg.start.settle_s
     prm[P_K_LAT] = sc.socket_k_lat_N_per_m
-    prm[P_C_LAT] = 2.0 * z * math.sqrt(sc.socket_k_lat_N_per_m * M_EFF_KG)
+    prm[P_C_LAT] = c_lat
     prm[P_K_AX] = sc.socket_k_axial_N_per_m
-    prm[P_C_AX] = 2.0 * z * math.sqrt(max(sc.socket_k_axial_N_per_m, 0.0) * M_EFF_KG)
+    prm[P_C_AX] = c_ax
     prm[P_K_ROT] = sc.socket_k_rot_Nm_per_rad
-    prm[P_C_ROT] = 2.0 * z * math.sqrt(max(sc.socket_k_rot_Nm_per_rad, 0.0) * 0.01)
+    prm[P_C_ROT] = c_rot
     prm[P_COUPLE] = 1.0 if fc.enabled else 0.0
     prm[P_RADIUS], prm[P_EPS] = (fc.radius_m, fc.omega_eps_rad_s) if fc.enabled else (0.0, 1.0)
     prm[P_N:P_N + 3] = bore_axis_w

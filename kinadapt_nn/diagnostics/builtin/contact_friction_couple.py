@@ -21,7 +21,8 @@ def contact_force_norm(s) -> np.ndarray:
     beyond the tool's model -- what the declared socket's springs predict plus what is left beyond
     them (a couple grows with the contact's whole force, not with the part the springs miss)."""
     st = contact_model.socket_terms(s.setup.contact, s.R_ws, s.p_ws, s.setup.tool.tip_sensor_m)
-    f = (s.wrench - s.w_nom)[:, :3] + contact_model.nominal_wrench(s.setup, s.R_ws, s.p_ws)[:, :3]
+    w_socket = contact_model.nominal_wrench(s.setup, s.R_ws, s.p_ws, contact_model.log_times(s))
+    f = (s.wrench - s.w_nom)[:, :3] + w_socket[:, :3]
     return np.linalg.norm(f, axis=1) * st.gate
 
 

@@ -37,7 +37,7 @@ def grasp_compliance(s):
     st = contact_model.socket_terms(c, s.R_ws, s.p_ws, tip)
     # the contact moment about the sensor origin: the measured one beyond the tool model (the
     # socket's nominal wrench is the contact, so it is added back), where the socket is engaged
-    w_contact = contact_model.nominal_wrench(s.setup, s.R_ws, s.p_ws)
+    w_contact = contact_model.nominal_wrench(s.setup, s.R_ws, s.p_ws, contact_model.log_times(s))
     M_s = (s.wrench - s.w_nom + w_contact)[:, 3:] * st.gate[:, None]
     M_perp = M_s.copy()
     M_perp[:, 2] = 0.0  # the grasp yields about s x and s y only
