@@ -4,14 +4,16 @@ Every import is read from the source (``ast``), including imports inside functio
 ``TYPE_CHECKING``, so a lazy import cannot slip past. Layers, bottom to top::
 
     0  the ground modules (errors, config, known, robot, geometry, sensing, trace, runio, figures)
+       and compiled/ (compile management of the numba kernels, used from sim/ up)
     1  sim/          the simulated world and its truth
     2  learning/     the network, its checkpoints, pretraining
     3  features/     J_hat = Y(q) theta (controller side)
     4  controller/   sensing -> value force -> admittance -> law (controller side)
     5  runs/         episodes, batches, sweeps, comparisons
     6  diagnostics/  model vs measurement
-    7  paper/        the preprint's claims
-    8  app/          the command line, views
+    7  monitor/      the live monitor
+    8  paper/        the preprint's claims
+    9  app/          the command line, views
 
 An import may go to the same layer or a lower one, never up, and no two modules import each
 other through any chain. From the controller side (controller/, features/) no chain of imports
@@ -28,8 +30,8 @@ import pytest
 import kinadapt_nn
 
 PKG = Path(kinadapt_nn.__file__).parent
-LAYERS = {"sim": 1, "learning": 2, "features": 3, "controller": 4, "runs": 5, "diagnostics": 6, "monitor": 7, "paper": 8,
-          "app": 9}
+LAYERS = {"compiled": 0, "sim": 1, "learning": 2, "features": 3, "controller": 4, "runs": 5, "diagnostics": 6,
+          "monitor": 7, "paper": 8, "app": 9}
 CONTROLLER_SIDE = ("kinadapt_nn.controller", "kinadapt_nn.features")
 FORBIDDEN_FROM_CONTROLLER = ("kinadapt_nn.sim", "kinadapt_nn.runs", "kinadapt_nn.diagnostics", "kinadapt_nn.paper",
                              "kinadapt_nn.app", "kinadapt_nn.learning.pretrain", "kinadapt_nn.learning.prior")
