@@ -45,8 +45,12 @@ SCENARIOS = {"payload": ("tool_gravity", "tool_gravity"), "drift": ("ft_bias_dri
              "slip": ("grasp_slip", "tool_tilt")}
 
 
+#: --set overrides applied to every run (e.g. monitor.rotation_test=true)
+SETS: list[str] = []
+
+
 def _cfg(path: str, extra: list[str]):
-    return load_config(REPO / path, ["run.progress=false", "run.tensorboard=false", "run.figure=false", *extra])
+    return load_config(REPO / path, ["run.progress=false", "run.tensorboard=false", "run.figure=false", *extra, *SETS])
 
 
 def relevant_time(cfg, onset: float) -> float:
@@ -231,7 +235,10 @@ def main() -> None:
     ap.add_argument("--save", type=Path, default=None, help="also write the table to this file")
     ap.add_argument("--lines", action="store_true", help="print each run's event line")
     ap.add_argument("--costs-only", action="store_true", help="only the costs (no scenarios, no clean runs)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a config override for every run")
+    ap.add_argument("--only", action="append", default=[], choices=list(SCENARIOS), help="only these scenarios")
     a = ap.parse_args()
+    SETS.extend(a.set)
     out = []
     say = lambda s="": (print(s, flush=True), out.append(s))  # noqa: E731
     if a.costs_only:
@@ -240,10 +247,11 @@ def main() -> None:
             a.save.parent.mkdir(parents=True, exist_ok=True)
             a.save.write_text("\n".join(out) + "\n")
         return
-    say(f"monitor_events: {a.seeds} seeds per scenario, onset uniform in [1, 4] s, online/monitor.toml")
+    say(f"monitor_events: {a.seeds} seeds per scenario, onset uniform in [1, 4] s, online/monitor.toml"
+        + (f" (--set {' '.join(a.set)})" if a.set else ""))
     say(f"{'scenario':<16}{'detected':>10}{'delay med [s]':>15}{'delay max [s]':>15}{'named':>8}{'covered':>9}"
         f"{'early':>7}")
-    for name in SCENARIOS:
+    for name in a.only or SCENARIOS:
         r = scenario(name, a.seeds)["rows"]
         d = np.array([x["delay"] for x in r])
         det = int(sum(x["detected"] for x in r))

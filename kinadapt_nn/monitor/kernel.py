@@ -26,7 +26,8 @@ import numpy as np
 C_DT, C_M, C_MC, C_IO, C_GW, C_PFS, C_RFS, C_SIGN = 0, 1, 2, 5, 14, 17, 20, 29
 C_K, C_H, C_CALIB, C_ZONE, C_ENTRY, C_UP, C_ZONE_M, C_TIP, C_DETECT, C_FLOOR_N, C_FLOOR_M, C_WINDOW = (
     30, 31, 32, 33, 34, 37, 40, 41, 44, 45, 46, 47)
-NC = 48
+C_HROT = 48
+NC = 49
 #: contact handling (c[C_ZONE]): 0 none declared (every sample judged); 1 a declared fixture: the nominal
 #: tip within zone_m of its entrance plane or past it is contact; 2 contact by force: the force
 #: beyond the model by more than detect_force_N
@@ -45,7 +46,16 @@ S_GP, S_GM, S_TP, S_TM, S_MODE, S_TALARM, S_HEAD, S_COUNT, S_NBAD, S_FREE_N = (
     45, 51, 57, 63, 69, 70, 71, 72, 73, 74)
 S_E, S_Z, S_ZONE, S_TLAST = 75, 81, 87, 88
 S_CORR = 90
-NS = S_CORR + NCORR
+# -- the rotation test (``_rotation_test``): the open block's sums, the last ROT_NB blocks' -------------
+#: H (9) = sum A^T A, g (3) = sum A^T z, samples in the open block, its first time; the blocks' ring
+#: (ROT_NB x [H (9), g (3), t0]), its head and count; a fired flag and the onset it found
+S_RH = S_CORR + NCORR
+S_RG, S_RN, S_RT0, S_RHEAD, S_RCOUNT, S_RFIRED, S_RTON = (S_RH + 9, S_RH + 12, S_RH + 13, S_RH + 14, S_RH + 15,
+                                                          S_RH + 16, S_RH + 17)
+S_RBLK = S_RH + 18
+#: samples per block and blocks (the longest window the test looks back over: ROT_BLK x ROT_NB samples)
+ROT_BLK, ROT_NB, ROT_W = 50, 20, 13
+NS = S_RBLK + ROT_NB * ROT_W
 #: monitor modes (st[S_MODE])
 MODE_CALIB, MODE_WATCH, MODE_WINDOW = 0.0, 1.0, 2.0
 #: what a call reports
@@ -76,6 +86,91 @@ def threshold(false_alarms_per_h: float, k: float, dt_s: float, sides: int = 12)
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if arl0(mid) < arl else (lo, mid)
     return hi
+
+
+def rotation_threshold(false_alarms_per_h: float, dt_s: float) -> float:
+    """The rotation test's threshold [nats] for ``false_alarms_per_h`` on white Gaussian noise: the test
+    (``_rotation_test``) evaluates, at the end of each block of ``ROT_BLK`` samples, ``ROT_NB`` windows
+    (the last 1..ROT_NB blocks); on noise each window's statistic is chi^2 with 3 degrees of freedom / 2.
+    Bonferroni over the windows of an hour: P(chi^2_3 > 2 h) = rate / (windows an hour)."""
+    from scipy.stats import chi2
+
+    windows = (3600.0 / (dt_s * ROT_BLK)) * ROT_NB
+    return 0.5 * float(chi2.isf(false_alarms_per_h / windows, 3))
+
+
+@nb.njit(cache=True)
+def _rotation_test(t, c, st, F, z) -> bool:
+    """The sensor frame's rotation, a test of its own: a turned mount reads ``r + r x delta`` (r the
+    wrench, delta the small rotation vector), so the residual of the force channels is ``[F]x delta``,
+    a regressor that turns with the pose. Per sample, A = [F]x / sd_F (3, 3) and the force residual in
+    sd z (3,) add to the open block's sums H = sum A^T A, g = sum A^T z; at the block's end the GLR of
+    delta over the last 1..ROT_NB blocks, ``max_w g_w^T H_w^-1 g_w / 2``, is compared with
+    ``c[C_HROT]``. Only the force rows: the moment rows carry the declared tool's centre-of-mass error
+    (docs/monitor.md). -> whether it fired (st[S_RTON]: the best window's first time)."""
+    if st[S_RN] == 0.0:
+        st[S_RT0] = t
+    a = np.zeros((3, 3))  # [F]x, rows / sd
+    a[0, 1], a[0, 2] = -F[2] / st[S_SD], F[1] / st[S_SD]
+    a[1, 0], a[1, 2] = F[2] / st[S_SD + 1], -F[0] / st[S_SD + 1]
+    a[2, 0], a[2, 1] = -F[1] / st[S_SD + 2], F[0] / st[S_SD + 2]
+    for j in range(3):
+        acc = 0.0
+        for i in range(3):
+            acc += a[i, j] * z[i]
+        st[S_RG + j] += acc
+        for l_ in range(3):
+            acc = 0.0
+            for i in range(3):
+                acc += a[i, j] * a[i, l_]
+            st[S_RH + 3 * j + l_] += acc
+    st[S_RN] += 1.0
+    if st[S_RN] < ROT_BLK:
+        return False
+    head = int(st[S_RHEAD])
+    b = S_RBLK + head * ROT_W
+    for i in range(12):
+        st[b + i] = st[S_RH + i]
+        st[S_RH + i] = 0.0
+    st[b + 12] = st[S_RT0]
+    st[S_RN] = 0.0
+    st[S_RHEAD] = (head + 1) % ROT_NB
+    st[S_RCOUNT] = min(st[S_RCOUNT] + 1.0, ROT_NB)
+    H = np.zeros(9)
+    g = np.zeros(3)
+    best = 0.0
+    t_on = t
+    for w in range(int(st[S_RCOUNT])):
+        b = S_RBLK + ((head - w) % ROT_NB) * ROT_W
+        for i in range(9):
+            H[i] += st[b + i]
+        for i in range(3):
+            g[i] += st[b + 9 + i]
+        # g^T H^-1 g by the adjugate (H symmetric positive semi-definite; a tiny ridge)
+        h00, h01, h02 = H[0] + 1e-9, H[1], H[2]
+        h11, h12, h22 = H[4] + 1e-9, H[5], H[8] + 1e-9
+        c00 = h11 * h22 - h12 * h12
+        c01 = h02 * h12 - h01 * h22
+        c02 = h01 * h12 - h02 * h11
+        c11 = h00 * h22 - h02 * h02
+        c12 = h01 * h02 - h00 * h12
+        c22 = h00 * h11 - h01 * h01
+        det = h00 * c00 + h01 * c01 + h02 * c02
+        if det <= 0.0:
+            continue
+        q = (g[0] * (c00 * g[0] + c01 * g[1] + c02 * g[2]) + g[1] * (c01 * g[0] + c11 * g[1] + c12 * g[2])
+             + g[2] * (c02 * g[0] + c12 * g[1] + c22 * g[2])) / det
+        if 0.5 * q > best:
+            best, t_on = 0.5 * q, st[b + 12]
+    if best > c[C_HROT]:
+        st[S_RTON] = t_on
+        return True
+    return False
+
+
+def rotation_reset(st: np.ndarray) -> None:
+    """The rotation test starts afresh (after an event or a dismissed alarm)."""
+    st[S_RH:S_RBLK + ROT_NB * ROT_W] = 0.0
 
 
 @nb.njit(cache=True, inline="always")
@@ -320,7 +415,15 @@ def sample(t, kin, raw, c, st, ring):
     if mode == MODE_WINDOW:
         st[S_FREE_N] += 1.0
         return R_WINDOW if t >= st[S_TALARM] + c[C_WINDOW] else R_NONE
-    if _cusum(t, c, st):
+    fired = _cusum(t, c, st)
+    if c[C_HROT] > 0.0:
+        F = np.empty(3)
+        for i in range(3):
+            F[i] = sgn * raw[i] - st[S_OFF + i]
+        if _rotation_test(t, c, st, F, st[S_Z:S_Z + 3]):
+            st[S_RFIRED] = 1.0
+            fired = True
+    if fired:
         st[S_MODE] = MODE_WINDOW
         st[S_TALARM] = t
         st[S_FREE_N] = 0.0

@@ -91,6 +91,7 @@ def consts(setup: SetupCfg, mcfg: MonitorCfg, dt_s: float) -> np.ndarray:
     c[K.C_SIGN] = setup.log.sign
     c[K.C_K] = mcfg.cusum_k
     c[K.C_H] = K.threshold(mcfg.false_alarms_per_h, mcfg.cusum_k, dt_s)
+    c[K.C_HROT] = K.rotation_threshold(mcfg.false_alarms_per_h, dt_s) if mcfg.rotation_test else 0.0
     c[K.C_CALIB], c[K.C_WINDOW] = mcfg.calib_s, mcfg.window_s
     ct = setup.contact
     if ct.mode == "none":
@@ -206,6 +207,9 @@ class Monitor:
         if self._alarm is None:
             fired = [i for i in range(6) if st[K.S_GP + i] > self.h or st[K.S_GM + i] > self.h]
             onsets = [st[K.S_TP + i] if st[K.S_GP + i] > self.h else st[K.S_TM + i] for i in fired]
+            if st[K.S_RFIRED] > 0.0:  # the rotation test (force channels): its best window's start
+                fired = sorted({*fired, 0, 1, 2})
+                onsets.append(float(st[K.S_RTON]))
             self._alarm = dict(t=float(st[K.S_TALARM]), fired=fired,
                                t_on=float(min(onsets)) if onsets else float(st[K.S_TALARM]), windows=0)
         al = self._alarm
@@ -287,6 +291,7 @@ class Monitor:
         st[K.S_GM:K.S_GM + 6] = 0.0
         st[K.S_TP:K.S_TP + 6] = st[K.S_TLAST]
         st[K.S_TM:K.S_TM + 6] = st[K.S_TLAST]
+        K.rotation_reset(st)
         st[K.S_MODE] = K.MODE_WATCH
 
     def _refit_last(self, rows_new: np.ndarray, f_new) -> bool:
@@ -338,7 +343,7 @@ class Monitor:
     def summary(self) -> dict:
         """What summary.json keeps of the monitor."""
         return {"events": [e.as_dict() for e in self.events], "noise_sd": self.noise_sd.tolist(),
-                "threshold_sd": self.h, "cusum_k": float(self.c[K.C_K]),
+                "threshold_sd": self.h, "rotation_threshold": float(self.c[K.C_HROT]), "cusum_k": float(self.c[K.C_K]),
                 "false_alarms_per_h": self.mcfg.false_alarms_per_h, "samples_left_out": self.n_bad,
                 "alarms_dismissed": self.dismissed,
                 "alarm_pending": bool(self.st[K.S_MODE] == K.MODE_WINDOW)}
