@@ -18,9 +18,6 @@ ROOT = PKG.parent
 #: modules, LLVM helpers, the optimisation level's internals
 INTERNALS = re.compile(r"\._cache\b|_cache_file|_load_index|_index_key|_cache_path|\.overloads\b|numba\.core|nb\.core|"
                        r"numba\.experimental|_get_jit_address|cgutils|targetctx|_OptLevel|cpu_target")
-#: files that still reach numba's internals, owned by another change this session (say why; the
-#: test fails when one is fixed, so the list is kept true)
-ELSEWHERE = {"sim/scenes.py": "its kernels' entry points (fn.overloads[...]): sim/ is another worker's this session"}
 
 
 def test_numba_internals_only_in_the_compile_module():
@@ -33,7 +30,7 @@ def test_numba_internals_only_in_the_compile_module():
                 if INTERNALS.search(line.split("#")[0])]
         if hits:
             found[rel] = hits
-    assert set(found) == set(ELSEWHERE), found
+    assert not found, found
     for f in ("build.py", "cache.py", "address.py"):  # positive control: the pattern sees them
         assert INTERNALS.search((PKG / "compiled" / f).read_text()), f
 

@@ -29,6 +29,7 @@ import mujoco.batch
 import numba as nb
 import numpy as np
 
+from kinadapt_nn import compiled
 from kinadapt_nn.config import ExperimentCfg
 from kinadapt_nn.errors import ConfigError
 from kinadapt_nn.robot import SERVO_KP, SERVO_KV
@@ -79,12 +80,9 @@ KERNELS = (_gather, _servo, contact_sums, *ft_sensor.KERNELS)
 def _bound(fn, args):
     """``fn`` compiled (or loaded from numba's cache) for the types of ``args``, and its compiled
     entry: for arguments whose types never change in the loop (the dispatcher's type resolution
-    skipped)."""
-    fn.compile(tuple(nb.typeof(a) for a in args))
-    try:
-        return fn.overloads[tuple(nb.typeof(a) for a in args)].entry_point
-    except (KeyError, AttributeError):
-        return fn
+    skipped; ``compiled.entry_point``)."""
+    compiled.compile_for(fn, args)
+    return compiled.entry_point(fn, args)
 
 
 class SceneBatch:
