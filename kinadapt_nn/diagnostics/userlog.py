@@ -1027,14 +1027,7 @@ def summary_text(rep: dict) -> str:
     parts = [completeness_text(rep)]  # the verdict on the model leads, whatever else is estimated
     sm = rep.get("sensor_mount")
     if sm and not sm.get("mount_known", True):
-        com = sm["tool_com_sensor_m"]
-        payload_said = any(e["effect"] == "tool_gravity" and e["verdict"] == "present" for e in rep["ranking"])
-        parts.append("Sensor mount estimated: " + sm["paste"] + " (± " + ", ".join(f"{v:.2g}" for v in sm["sd_deg"])
-                     + f" deg; {sm['rotation_from_declared_deg']:.1f} deg from the guess)"
-                     + ("" if payload_said else  # the tool is said once: tool_gravity's entry gives it
-                        f"; tool {sm['tool_mass_kg']:.4g} ± {sm['tool_mass_sd_kg']:.2g} kg"
-                        + (", centre of mass [" + ", ".join(f"{1000 * v:.1f}" for v in com) + "] mm in the sensor frame"
-                           if com[0] is not None else "")) + ".")
+        parts.append(_mount_text(rep, sm))
     if not rep["tip_contact_check"]["ok"]:
         parts.append("WARNING: " + rep["tip_contact_check"]["message"] + ".")
     if sm and sm.get("undetermined"):
@@ -1047,34 +1040,47 @@ def summary_text(rep: dict) -> str:
                      + ", ".join(f"{v:.2f} s" for v in seg["contact_onsets_s"]) + ".")
     cpt = (rep.get("effective_setup") or {}).get("contact_point")
     if cpt:
-        p, sd = cpt["point_sensor_m"], cpt["sd_m"]
-        parts.append("Contacts act at [" + ", ".join(f"{1000 * v:.1f}" for v in p) + "] ± ["
-                     + ", ".join(f"{1000 * v:.1g}" for v in sd) + "] mm in the sensor frame"
-                     + (" (along the force's line of action, direction [" + ", ".join(
-                         f"{v:.2f}" for v in cpt["undetermined_along_sensor"]) + "], undetermined: the force "
-                        "barely changed direction)" if cpt["undetermined_along_sensor"] else "")
-                     + ("" if cpt["declared_tip_consistent"] else
-                        f", {1000 * cpt['declared_tip_distance_m']:.0f} mm from the declared tip") + ".")
+        parts.append(_contact_point_text(cpt))
     parts.extend(_accounts_text(rep))
-    pres = [e for e in rep["ranking"] if e["verdict"] == "present"]
+    parts.extend(_verdicts_text(rep))
+    parts.append(_spans_text(rep.get("method", {}).get("rows_cover_s") or {}))
+    if "residual_rms_after" in rep:
+        b, a = rep["residual_rms_before"]["total_w"], rep["residual_rms_after"]["total_w"]
+        parts.append(f"With {', '.join(rep['added'])} added, the residual falls from {b:.3g} to {a:.3g} "
+                     "(noise-weighted RMS, all rows)" + _effect_free_text(rep) + ".")
+    return " ".join(p for p in parts if p)
+
+
+def _mount_text(rep: dict, sm: dict) -> str:
+    """The summary's sentence on an estimated sensor mount (and the tool, unless tool_gravity's
+    entry gives it)."""
+    com = sm["tool_com_sensor_m"]
+    payload_said = any(e["effect"] == "tool_gravity" and e["verdict"] == "present" for e in rep["ranking"])
+    return ("Sensor mount estimated: " + sm["paste"] + " (± " + ", ".join(f"{v:.2g}" for v in sm["sd_deg"])
+            + f" deg; {sm['rotation_from_declared_deg']:.1f} deg from the guess)"
+            + ("" if payload_said else  # the tool is said once: tool_gravity's entry gives it
+               f"; tool {sm['tool_mass_kg']:.4g} ± {sm['tool_mass_sd_kg']:.2g} kg"
+               + (", centre of mass [" + ", ".join(f"{1000 * v:.1f}" for v in com) + "] mm in the sensor frame"
+                  if com[0] is not None else "")) + ".")
+
+
+def _contact_point_text(cpt: dict) -> str:
+    """The summary's sentence on the estimated contact point (``effective_setup.contact_point``)."""
+    p, sd = cpt["point_sensor_m"], cpt["sd_m"]
+    return ("Contacts act at [" + ", ".join(f"{1000 * v:.1f}" for v in p) + "] ± ["
+            + ", ".join(f"{1000 * v:.1g}" for v in sd) + "] mm in the sensor frame"
+            + (" (along the force's line of action, direction [" + ", ".join(
+                f"{v:.2f}" for v in cpt["undetermined_along_sensor"]) + "], undetermined: the force "
+               "barely changed direction)" if cpt["undetermined_along_sensor"] else "")
+            + ("" if cpt["declared_tip_consistent"] else
+               f", {1000 * cpt['declared_tip_distance_m']:.0f} mm from the declared tip") + ".")
+
+
+def _verdicts_text(rep: dict) -> list[str]:
+    """The summary's sentences on the effects, verdict by verdict: present (with their estimates),
+    cannot decide, absent, not judged."""
+    parts = _present_text(rep)
     und = [e for e in rep["ranking"] if e["verdict"] == "cannot_decide" and e.get("judged", True)]
-    if pres:
-        txt = []
-        for e in pres:
-            est = e["estimate"]
-            txt.append(f"{e['effect']} ({_payload_text(est, rep) if _is_payload(est) else _estimate_text(est)})")
-        parts.append("Present: " + "; ".join(txt) + f" — together {100 * rep['explained_by_present']:.0f}% of the "
-                     "residual of the declared model, held-out.")
-        if not rep.get("model_complete", True):
-            parts.append("Caution: the model stays incomplete, so these may stand in for part of what is unexplained.")
-            left = next((e["estimate_params"]["left_rows"] for e in pres if "left_rows" in e.get("estimate_params", {})),
-                        None)
-            if left:  # completeness.robust
-                parts.append(f"Their estimates leave out the rows of {', '.join(left)}, which carry it; each ± "
-                             "includes the change this makes where the other rows pin the parameter "
-                             "(diagnosis.json: left_sd, left_undetermined).")
-    else:
-        parts.append("No library effect is present.")
     if und:
         parts.append("Cannot decide: " + "; ".join(
             f"{e['effect']} ({e.get('reason') or ''}"
@@ -1089,12 +1095,30 @@ def summary_text(rep: dict) -> str:
     nj = [e["effect"] for e in rep["ranking"] if not e.get("judged", True)]
     if nj:
         parts.append("Not judged (no contact geometry declared): " + ", ".join(nj) + ".")
-    parts.append(_spans_text(rep.get("method", {}).get("rows_cover_s") or {}))
-    if "residual_rms_after" in rep:
-        b, a = rep["residual_rms_before"]["total_w"], rep["residual_rms_after"]["total_w"]
-        parts.append(f"With {', '.join(rep['added'])} added, the residual falls from {b:.3g} to {a:.3g} "
-                     "(noise-weighted RMS, all rows)" + _effect_free_text(rep) + ".")
-    return " ".join(p for p in parts if p)
+    return parts
+
+
+def _present_text(rep: dict) -> list[str]:
+    """The summary's sentences on the present effects: their estimates, what they explain, and the
+    caution when the model stays incomplete."""
+    pres = [e for e in rep["ranking"] if e["verdict"] == "present"]
+    if not pres:
+        return ["No library effect is present."]
+    txt = []
+    for e in pres:
+        est = e["estimate"]
+        txt.append(f"{e['effect']} ({_payload_text(est, rep) if _is_payload(est) else _estimate_text(est)})")
+    parts = ["Present: " + "; ".join(txt) + f" — together {100 * rep['explained_by_present']:.0f}% of the "
+             "residual of the declared model, held-out."]
+    if not rep.get("model_complete", True):
+        parts.append("Caution: the model stays incomplete, so these may stand in for part of what is unexplained.")
+        left = next((e["estimate_params"]["left_rows"] for e in pres if "left_rows" in e.get("estimate_params", {})),
+                    None)
+        if left:  # completeness.robust
+            parts.append(f"Their estimates leave out the rows of {', '.join(left)}, which carry it; each ± "
+                         "includes the change this makes where the other rows pin the parameter "
+                         "(diagnosis.json: left_sd, left_undetermined).")
+    return parts
 
 
 def _effect_free_text(rep: dict) -> str:
