@@ -36,6 +36,7 @@ sys.path.insert(0, str(REPO))
 
 import kinadapt_nn.monitor.monitor  # noqa: E402,F401  (registers the live monitor with the episode loop)
 from kinadapt_nn.config import load_config  # noqa: E402
+from kinadapt_nn.monitor.monitor import RELEVANT_SD as REL_SD  # noqa: E402
 from kinadapt_nn.runs.episode import run_episode  # noqa: E402
 
 NOISE = ["faults.ft_noise_N=0.02", "faults.ft_noise_Nm=0.002"]
@@ -105,14 +106,24 @@ def scenario(name: str, seeds: int) -> dict:
         onset = float(np.random.default_rng(seed).uniform(1.0, 4.0))
         cfg = _cfg("online/monitor.toml", [f"run.seed={seed}", f"effects.{effect}.enabled=true",
                                            f"effects.{effect}.onset_s={onset}"])
-        evs = run_episode(cfg).summary["monitor"]["events"]
+        res = run_episode(cfg)
+        evs = res.summary["monitor"]["events"]
+        alarms = [x for x in res.summary["monitor"].get("alarms", []) if x["t_s"] >= onset]
+        bound = np.nan
+        if effect == "ft_frame_rotation":  # the largest change a turn by |delta| makes: |r| |delta| (force, moment) in noise sd
+            w = res.trace["wrench_raw_f"]
+            d = np.deg2rad(np.linalg.norm(cfg.effects.ft_frame_rotation.rotvec_deg))
+            bound = (float(np.linalg.norm(w[:, :3], axis=1).max() * d / cfg.faults.ft_noise_N),
+                     float(np.linalg.norm(w[:, 3:], axis=1).max() * d / cfg.faults.ft_noise_Nm))
         early = [e for e in evs if e["t_s"] < onset]
         after = [e for e in evs if e["t_s"] >= onset]
         first = after[0] if after else None
         rows.append(dict(onset=onset, early=len(early), detected=first is not None,
                          delay=first["t_s"] - relevant_time(cfg, onset) if first else np.nan,
                          named=bool(first and first["shape"] == shape), covered=bool(first and covered(cfg, first)),
-                         line=first["line"] if first else "-"))
+                         line=first["line"] if first else "-",
+                         alarm=alarms[0]["t_s"] - relevant_time(cfg, onset) if alarms else np.nan,
+                         outcome=alarms[0]["outcome"] if alarms else "-", bound=bound))
     return dict(name=name, rows=rows)
 
 
@@ -258,6 +269,17 @@ def main() -> None:
         say(f"{name:<16}{det:>7}/{len(r):<2}{np.nanmedian(d) if det else np.nan:>15.3f}"
             f"{np.nanmax(d) if det else np.nan:>15.3f}{sum(x['named'] for x in r):>5}/{len(r):<2}"
             f"{sum(x['covered'] for x in r):>6}/{len(r):<2}{sum(x['early'] for x in r):>7}")
+        al = np.array([x["alarm"] for x in r])
+        if np.isfinite(al).any():
+            outs = sorted({x["outcome"] for x in r if x["outcome"] != "-"})
+            say(f"    first alarm after the onset (any outcome): {int(np.isfinite(al).sum())}/{len(r)}, delay median "
+                f"{np.nanmedian(al):.3f} s, max {np.nanmax(al):.3f} s; outcomes: "
+                + ", ".join(f"{o} {sum(x['outcome'] == o for x in r)}" for o in outs))
+        if name == "frame rotation":
+            bf = max(x["bound"][0] for x in r)
+            bm = max(x["bound"][1] for x in r)
+            say(f"    the largest change the turn can make, |r| |delta| / noise sd over the runs: force {bf:.2f}, "
+                f"moment {bm:.2f} (an event needs {REL_SD:g} on a channel)")
         if a.lines:
             for x in r:
                 say(f"    onset {x['onset']:.2f} s: {x['line']}")

@@ -47,14 +47,15 @@ S_GP, S_GM, S_TP, S_TM, S_MODE, S_TALARM, S_HEAD, S_COUNT, S_NBAD, S_FREE_N = (
 S_E, S_Z, S_ZONE, S_TLAST = 75, 81, 87, 88
 S_CORR = 90
 # -- the rotation test (``_rotation_test``): the open block's sums, the last ROT_NB blocks' -------------
-#: H (9) = sum A^T A, g (3) = sum A^T z, samples in the open block, its first time; the blocks' ring
-#: (ROT_NB x [H (9), g (3), t0]), its head and count; a fired flag and the onset it found
+#: H (9) = sum A^T A, g (3) = sum A^T z, S (9) = sum A, samples in the open block, its first time; the
+#: blocks' ring (ROT_NB x ROT_W), its head and count; a fired flag and the onset it found
 S_RH = S_CORR + NCORR
-S_RG, S_RN, S_RT0, S_RHEAD, S_RCOUNT, S_RFIRED, S_RTON = (S_RH + 9, S_RH + 12, S_RH + 13, S_RH + 14, S_RH + 15,
-                                                          S_RH + 16, S_RH + 17)
-S_RBLK = S_RH + 18
-#: samples per block and blocks (the longest window the test looks back over: ROT_BLK x ROT_NB samples)
-ROT_BLK, ROT_NB, ROT_W = 50, 20, 13
+S_RG, S_RS, S_RN, S_RT0, S_RHEAD, S_RCOUNT, S_RFIRED, S_RTON = (S_RH + 9, S_RH + 12, S_RH + 21, S_RH + 22, S_RH + 23,
+                                                                S_RH + 24, S_RH + 25, S_RH + 26)
+S_RBLK = S_RH + 27
+#: samples per block and blocks (the longest window the test looks back over: ROT_BLK x ROT_NB samples);
+#: a block's row: H (9), g (3), S (9) = sum A, its first time
+ROT_BLK, ROT_NB, ROT_W = 50, 20, 22
 NS = S_RBLK + ROT_NB * ROT_W
 #: monitor modes (st[S_MODE])
 MODE_CALIB, MODE_WATCH, MODE_WINDOW = 0.0, 1.0, 2.0
@@ -104,10 +105,13 @@ def _rotation_test(t, c, st, F, z) -> bool:
     """The sensor frame's rotation, a test of its own: a turned mount reads ``r + r x delta`` (r the
     wrench, delta the small rotation vector), so the residual of the force channels is ``[F]x delta``,
     a regressor that turns with the pose. Per sample, A = [F]x / sd_F (3, 3) and the force residual in
-    sd z (3,) add to the open block's sums H = sum A^T A, g = sum A^T z; at the block's end the GLR of
-    delta over the last 1..ROT_NB blocks, ``max_w g_w^T H_w^-1 g_w / 2``, is compared with
-    ``c[C_HROT]``. Only the force rows: the moment rows carry the declared tool's centre-of-mass error
-    (docs/monitor.md). -> whether it fired (st[S_RTON]: the best window's first time)."""
+    sd z (3,) add to the open block's sums H = sum A^T A, g = sum A^T z, S = sum A; at the block's end
+    the GLR of delta over the last 1..ROT_NB blocks, ``max_w g_w^T V_w^-1 g_w / 2``, is compared with
+    ``c[C_HROT]``. V = H + S^T S / n_cal is g's covariance with no change: the noise's (H) and that of
+    the offset measured at the start over n_cal samples (its error, sd / sqrt(n_cal) per channel, is a
+    constant that a hanging tool's rotation looks exactly like). Only the force rows: the moment rows
+    carry the declared tool's centre-of-mass error (docs/monitor.md). -> whether it fired (st[S_RTON]:
+    the best window's first time)."""
     if st[S_RN] == 0.0:
         st[S_RT0] = t
     a = np.zeros((3, 3))  # [F]x, rows / sd
@@ -118,6 +122,7 @@ def _rotation_test(t, c, st, F, z) -> bool:
         acc = 0.0
         for i in range(3):
             acc += a[i, j] * z[i]
+            st[S_RS + 3 * i + j] += a[i, j]
         st[S_RG + j] += acc
         for l_ in range(3):
             acc = 0.0
@@ -129,26 +134,36 @@ def _rotation_test(t, c, st, F, z) -> bool:
         return False
     head = int(st[S_RHEAD])
     b = S_RBLK + head * ROT_W
-    for i in range(12):
+    for i in range(21):
         st[b + i] = st[S_RH + i]
         st[S_RH + i] = 0.0
-    st[b + 12] = st[S_RT0]
+    st[b + 21] = st[S_RT0]
     st[S_RN] = 0.0
     st[S_RHEAD] = (head + 1) % ROT_NB
     st[S_RCOUNT] = min(st[S_RCOUNT] + 1.0, ROT_NB)
     H = np.zeros(9)
     g = np.zeros(3)
+    S = np.zeros(9)
+    V = np.zeros(9)
     best = 0.0
     t_on = t
+    inv_ncal = 1.0 / max(st[S_CN], 1.0)
     for w in range(int(st[S_RCOUNT])):
         b = S_RBLK + ((head - w) % ROT_NB) * ROT_W
         for i in range(9):
             H[i] += st[b + i]
+            S[i] += st[b + 12 + i]
         for i in range(3):
             g[i] += st[b + 9 + i]
-        # g^T H^-1 g by the adjugate (H symmetric positive semi-definite; a tiny ridge)
-        h00, h01, h02 = H[0] + 1e-9, H[1], H[2]
-        h11, h12, h22 = H[4] + 1e-9, H[5], H[8] + 1e-9
+        for j in range(3):  # V = H + S^T S / n_cal
+            for l_ in range(3):
+                acc = 0.0
+                for i in range(3):
+                    acc += S[3 * i + j] * S[3 * i + l_]
+                V[3 * j + l_] = H[3 * j + l_] + acc * inv_ncal
+        # g^T V^-1 g by the adjugate (V symmetric positive semi-definite; a tiny ridge)
+        h00, h01, h02 = V[0] + 1e-9, V[1], V[2]
+        h11, h12, h22 = V[4] + 1e-9, V[5], V[8] + 1e-9
         c00 = h11 * h22 - h12 * h12
         c01 = h02 * h12 - h01 * h22
         c02 = h01 * h12 - h02 * h11
@@ -161,7 +176,7 @@ def _rotation_test(t, c, st, F, z) -> bool:
         q = (g[0] * (c00 * g[0] + c01 * g[1] + c02 * g[2]) + g[1] * (c01 * g[0] + c11 * g[1] + c12 * g[2])
              + g[2] * (c02 * g[0] + c12 * g[1] + c22 * g[2])) / det
         if 0.5 * q > best:
-            best, t_on = 0.5 * q, st[b + 12]
+            best, t_on = 0.5 * q, st[b + 21]
     if best > c[C_HROT]:
         st[S_RTON] = t_on
         return True

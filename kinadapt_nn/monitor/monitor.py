@@ -43,6 +43,9 @@ CONFIRM_P = 1e-3
 #: ... and when its fitted shape changes the wrench by at least this many noise sd on some channel within
 #: the window (smaller: what the nominal model's own errors reach; ``docs/monitor.md``)
 RELEVANT_SD = 2.0
+#: [s] the residual's mean over this long before a change is taken from the rows an event is fitted on
+#: (``Monitor._baseline``; 0: none)
+BASELINE_S = 0.5
 #: windows (``window_s`` each) an alarm may wait for a clear winner before the best is named anyway
 MAX_WINDOWS = 6
 
@@ -127,6 +130,7 @@ class Monitor:
         self._loop_fn = None
         self._kin = np.zeros((6, 3))  # [R_ws; p_ws; v_w; w_w] of one sample (``kernel.sample``)
         self._alarm: dict | None = None  #: the alarm whose window is being collected
+        self.alarms: list[dict] = []  #: every alarm named: when, which test, its best shape, what came of it
         self.dismissed = 0  #: alarms whose best shape was not significant (``CONFIRM_P``): no event
         self._fits: list = []  #: (fit, onset, event) of each event, as its correction stands in the model
         self._history: dict = {}  #: id(event) -> [(time from which, fit)]: its correction's versions in the model
@@ -211,17 +215,22 @@ class Monitor:
                 fired = sorted({*fired, 0, 1, 2})
                 onsets.append(float(st[K.S_RTON]))
             self._alarm = dict(t=float(st[K.S_TALARM]), fired=fired,
-                               t_on=float(min(onsets)) if onsets else float(st[K.S_TALARM]), windows=0)
+                               t_on=float(min(onsets)) if onsets else float(st[K.S_TALARM]), windows=0,
+                               test="rotation" if st[K.S_RFIRED] > 0.0 else "cusum")
         al = self._alarm
         al["windows"] += 1
         t_on, fired = al["t_on"], al["fired"]
         rows = K.ring_rows(st, self.ring, t_on)
         # t_on: the last sample before the change; the first SETTLE_S after it left out (the arm's transient)
         rows = rows[(rows[:, K.G_FREE] > 0.5) & (rows[:, K.G_T] > t_on + SETTLE_S)]
+        if BASELINE_S > 0.0 and len(rows):  # the change, not what the model already missed before it
+            rows = rows.copy()
+            rows[:, K.G_E:K.G_E + 6] -= self._baseline(t_on)
         if len(rows) < 20 and not final:
             st[K.S_TALARM] = st[K.S_TLAST]  # wait for another window of free-space samples
             return None
         if len(rows) < 8:
+            self._log_alarm("too few free samples")
             self._alarm = None
             self._restart()
             return None
@@ -232,20 +241,25 @@ class Monitor:
         if margin < DECISIVE and al["windows"] < MAX_WINDOWS and not final:
             st[K.S_TALARM] = st[K.S_TLAST]  # not yet clear: look longer
             return None
+        self._log_alarm("", f.shape)
         self._alarm = None
         if self._refit_last(rows, f):
+            self.alarms[-1]["outcome"] = "update"
             self._restart()
             return None
         f = shapes.fit(f.shape, rows, sd, self.mc, t_on, fmask, jackknife=True,
                        model_sd=np.maximum(self._model_sd(t_on), self._left_sd(f, rows, t_on)))
         size = np.max(np.abs(shapes.evaluate(f, rows, self.mc, t_on)), axis=0) / sd  # (6,) in noise sd
+        self.alarms[-1]["size_sd"] = float(size.max())
         if not shapes.significant(f, CONFIRM_P) or size.max() < RELEVANT_SD:  # within the model's own errors
+            self.alarms[-1]["outcome"] = "not significant" if not shapes.significant(f, CONFIRM_P) else "too small"
             self.dismissed += 1
             self._restart()
             return None
         text, est = shapes.describe(f, self.mc, self.frame, float(self.c[K.C_SIGN]))
         ev = Event(al["t"], t_on, [CHANNELS[i] for i in fired], "free space", f.shape, text, est,
                    fits[1].shape if len(fits) > 1 else "", margin, f.rows, float(rows[-1, K.G_T]))
+        self.alarms[-1]["outcome"] = "event"
         self._apply(f, t_on, +1.0)
         self._fits.append((f, t_on, ev))
         self._history[id(ev)] = [(ev.t_named_s, f)]
@@ -254,6 +268,11 @@ class Monitor:
         if self.on_event is not None:
             self.on_event(ev)
         return ev
+
+    def _log_alarm(self, outcome: str, shape: str = "") -> None:
+        al = self._alarm
+        self.alarms.append({"t_s": al["t"], "onset_s": al["t_on"], "test": al["test"], "shape": shape,
+                            "outcome": outcome, "size_sd": float("nan")})
 
     def _left_sd(self, f, rows: np.ndarray, t_on: float) -> np.ndarray:
         """(6,) [N, N m] what the fitted shape leaves of the change that persists: the RMS of the fit
@@ -264,6 +283,13 @@ class Monitor:
             return np.zeros(6)
         r = rows[:nb * k, K.G_E:K.G_E + 6] - shapes.evaluate(f, rows[:nb * k], self.mc, t_on)
         return np.sqrt(np.mean(r.reshape(nb, k, 6).mean(axis=1) ** 2, axis=0))
+
+    def _baseline(self, t_on: float) -> np.ndarray:
+        """(6,) [N, N m] the residual's mean over the free samples of the ``BASELINE_S`` before ``t_on``
+        (zero when there are fewer than 50): the model's slow error just before the change."""
+        rows = K.ring_rows(self.st, self.ring, t_on - BASELINE_S)
+        rows = rows[(rows[:, K.G_FREE] > 0.5) & (rows[:, K.G_T] <= t_on)]
+        return rows[:, K.G_E:K.G_E + 6].mean(axis=0) if len(rows) >= 50 else np.zeros(6)
 
     def _model_sd(self, t_on: float) -> np.ndarray:
         """(6,) [N, N m] the model's slow error before a change: the RMS of the residual's
@@ -345,7 +371,7 @@ class Monitor:
         return {"events": [e.as_dict() for e in self.events], "noise_sd": self.noise_sd.tolist(),
                 "threshold_sd": self.h, "rotation_threshold": float(self.c[K.C_HROT]), "cusum_k": float(self.c[K.C_K]),
                 "false_alarms_per_h": self.mcfg.false_alarms_per_h, "samples_left_out": self.n_bad,
-                "alarms_dismissed": self.dismissed,
+                "alarms_dismissed": self.dismissed, "alarms": self.alarms,
                 "alarm_pending": bool(self.st[K.S_MODE] == K.MODE_WINDOW)}
 
 

@@ -243,3 +243,50 @@ def test_agreement_with_the_offline_diagnosis_on_a_payload():
     rep = diagnose(log_of_run(raw), setup_of_run(cfg), progress=lambda msg: None)
     present = [e["effect"] for e in rep.report["ranking"] if e["verdict"] == "present"]
     assert present == ["tool_gravity"], present
+
+
+def _rest_monitor(rotation_test: bool):
+    """A monitor of the scenario's set-up fed samples at rest (the sensor axes the world's, 0.3 m above the
+    fixture's entrance: free space)."""
+    from kinadapt_nn.diagnostics.physical import nominal_inertials
+
+    cfg = load_config(REPO / "online/monitor.toml", QUIET)
+    setup = setup_of_run(cfg)
+    mcfg = cfg.monitor.model_copy(update={"rotation_test": rotation_test})
+    mon = Monitor(setup, mcfg, cfg.run.dt_s)
+    m, mc, _ = nominal_inertials(setup)
+    g = np.asarray(setup.world.g_w())
+    w = np.concatenate([m * g, np.cross(mc, g)])  # the declared tool's wrench at rest, s = world axes
+    p = mon.c[K.C_ENTRY:K.C_ENTRY + 3] + 0.3 * mon.c[K.C_UP:K.C_UP + 3]
+    return mon, w, float(setup.log.sign), cfg.run.dt_s, p
+
+
+def test_rotation_test_fires_within_two_blocks():
+    """A sensor turned by delta reads w + w x delta: with the tool hanging, 1.41 deg about x moves the
+    force by |F| delta = 1.2 noise sd on one channel, under the CUSUM's reference (1.5 sd). The rotation
+    GLR grows by 1.2^2 / 2 nats a sample, past its threshold (``rotation_threshold``: chi^2_3 at 0.1 an
+    hour over the windows, about 18 nats) after some 25 samples: it fires within its first two blocks
+    (100 samples) of the turn. Before the turn, 3 s of noise give no alarm."""
+    from scipy.stats import chi2
+
+    mon, w, sign, dt, p = _rest_monitor(True)
+    windows = 3600.0 / dt / K.ROT_BLK * K.ROT_NB
+    assert abs(mon.c[K.C_HROT] - 0.5 * chi2.isf(0.1 / windows, 3)) < 1e-9
+    assert 17.0 < mon.c[K.C_HROT] < 19.0
+    sd = np.array([0.02] * 3 + [0.002] * 3)
+    rng = np.random.default_rng(3)
+    t_on, fired = 3.0, None
+    eye, zero = np.eye(3), np.zeros(3)
+    turn = np.array([0.0246, 0.0, 0.0])  # [rad] 1.41 deg about x
+    z = np.linalg.norm(np.cross(w[:3], turn)) / 0.02
+    assert 1.0 < z < 1.4  # what the turn shows: under the CUSUM's reference
+    for k in range(6000):
+        t = k * dt
+        d = turn if t >= t_on else np.zeros(3)
+        r = np.concatenate([w[:3] + np.cross(w[:3], d), w[3:] + np.cross(w[3:], d)])
+        if mon.sample(t, eye, p, zero, zero, sign * (r + sd * rng.standard_normal(6))) == K.R_ALARM:
+            fired = t
+            break
+    assert not mon.in_contact
+    assert fired is not None and t_on <= fired <= t_on + 2 * K.ROT_BLK * dt, fired
+    assert mon.st[K.S_RFIRED] == 1.0  # the rotation test, not the CUSUM
