@@ -101,6 +101,49 @@ def rotation_threshold(false_alarms_per_h: float, dt_s: float) -> float:
 
 
 @nb.njit(cache=True)
+def _rotation_glr(t, st, head):
+    """The rotation test's statistic over the windows of the last 1..ROT_NB blocks (``_rotation_test``)
+    -> (its largest value [nats], that window's first time)."""
+    H = np.zeros(9)
+    g = np.zeros(3)
+    S = np.zeros(9)
+    V = np.zeros(9)
+    best = 0.0
+    t_on = t
+    inv_ncal = 1.0 / max(st[S_CN], 1.0)
+    for w in range(int(st[S_RCOUNT])):
+        b = S_RBLK + ((head - w) % ROT_NB) * ROT_W
+        for i in range(9):
+            H[i] += st[b + i]
+            S[i] += st[b + 12 + i]
+        for i in range(3):
+            g[i] += st[b + 9 + i]
+        for j in range(3):  # V = H + S^T S / n_cal
+            for l_ in range(3):
+                acc = 0.0
+                for i in range(3):
+                    acc += S[3 * i + j] * S[3 * i + l_]
+                V[3 * j + l_] = H[3 * j + l_] + acc * inv_ncal
+        # g^T V^-1 g by the adjugate (V symmetric positive semi-definite; a tiny ridge)
+        h00, h01, h02 = V[0] + 1e-9, V[1], V[2]
+        h11, h12, h22 = V[4] + 1e-9, V[5], V[8] + 1e-9
+        c00 = h11 * h22 - h12 * h12
+        c01 = h02 * h12 - h01 * h22
+        c02 = h01 * h12 - h02 * h11
+        c11 = h00 * h22 - h02 * h02
+        c12 = h01 * h02 - h00 * h12
+        c22 = h00 * h11 - h01 * h01
+        det = h00 * c00 + h01 * c01 + h02 * c02
+        if det <= 0.0:
+            continue
+        q = (g[0] * (c00 * g[0] + c01 * g[1] + c02 * g[2]) + g[1] * (c01 * g[0] + c11 * g[1] + c12 * g[2])
+             + g[2] * (c02 * g[0] + c12 * g[1] + c22 * g[2])) / det
+        if 0.5 * q > best:
+            best, t_on = 0.5 * q, st[b + 21]
+    return best, t_on
+
+
+@nb.njit(cache=True)
 def _rotation_test(t, c, st, F, z) -> bool:
     """The sensor frame's rotation, a test of its own: a turned mount reads ``r + r x delta`` (r the
     wrench, delta the small rotation vector), so the residual of the force channels is ``[F]x delta``,
@@ -141,42 +184,7 @@ def _rotation_test(t, c, st, F, z) -> bool:
     st[S_RN] = 0.0
     st[S_RHEAD] = (head + 1) % ROT_NB
     st[S_RCOUNT] = min(st[S_RCOUNT] + 1.0, ROT_NB)
-    H = np.zeros(9)
-    g = np.zeros(3)
-    S = np.zeros(9)
-    V = np.zeros(9)
-    best = 0.0
-    t_on = t
-    inv_ncal = 1.0 / max(st[S_CN], 1.0)
-    for w in range(int(st[S_RCOUNT])):
-        b = S_RBLK + ((head - w) % ROT_NB) * ROT_W
-        for i in range(9):
-            H[i] += st[b + i]
-            S[i] += st[b + 12 + i]
-        for i in range(3):
-            g[i] += st[b + 9 + i]
-        for j in range(3):  # V = H + S^T S / n_cal
-            for l_ in range(3):
-                acc = 0.0
-                for i in range(3):
-                    acc += S[3 * i + j] * S[3 * i + l_]
-                V[3 * j + l_] = H[3 * j + l_] + acc * inv_ncal
-        # g^T V^-1 g by the adjugate (V symmetric positive semi-definite; a tiny ridge)
-        h00, h01, h02 = V[0] + 1e-9, V[1], V[2]
-        h11, h12, h22 = V[4] + 1e-9, V[5], V[8] + 1e-9
-        c00 = h11 * h22 - h12 * h12
-        c01 = h02 * h12 - h01 * h22
-        c02 = h01 * h12 - h02 * h11
-        c11 = h00 * h22 - h02 * h02
-        c12 = h01 * h02 - h00 * h12
-        c22 = h00 * h11 - h01 * h01
-        det = h00 * c00 + h01 * c01 + h02 * c02
-        if det <= 0.0:
-            continue
-        q = (g[0] * (c00 * g[0] + c01 * g[1] + c02 * g[2]) + g[1] * (c01 * g[0] + c11 * g[1] + c12 * g[2])
-             + g[2] * (c02 * g[0] + c12 * g[1] + c22 * g[2])) / det
-        if 0.5 * q > best:
-            best, t_on = 0.5 * q, st[b + 21]
+    best, t_on = _rotation_glr(t, st, head)
     if best > c[C_HROT]:
         st[S_RTON] = t_on
         return True
