@@ -75,3 +75,27 @@ def test_rich_free_motion_before_the_same_face_contact():
     assert np.abs(tilt_w[:, 0]).max() >= 25.0 and np.abs(tilt_w[:, 1]).max() >= 25.0, np.abs(tilt_w).max(0)
     assert np.abs(turn).max() >= 45.0, np.abs(turn).max()
     assert np.abs(rich.qd[0]).max() < 1e-9  # at rest at the tare
+
+
+def test_hidden_sensor_effects_beside_the_face():
+    """The face cases that hide a library effect (issue 51) differ from the effect-free face log only by it:
+    the measuring axes' rotation reports ``R^T F``, ``R^T M`` of the same wrench (R from the rotation vector by
+    scipy, not the rig's Rodrigues), the drift adds ``rate * t``, the encoder reads joint 4 one degree short;
+    the set-up declares the mount known and the truth names the effect in the report's terms."""
+    from scipy.spatial.transform import Rotation
+
+    base = rig.case_signals("flat_face_alone_rich", noise=False)
+    rot = rig.case_signals("flat_face_rotation", noise=False)
+    R = Rotation.from_rotvec(np.deg2rad(rig.AXES_ROTVEC_DEG)).as_matrix()
+    w = base["wrench_true"]
+    expect = np.hstack([w[:, :3] @ R, w[:, 3:] @ R])  # row-wise R^T w
+    assert np.allclose(rot["wrench"], expect - expect[0], atol=1e-12)
+    drift = rig.case_signals("flat_face_drift", noise=False)
+    t = base["t"] - base["t"][0]
+    assert np.allclose(drift["wrench"] - base["wrench"], t[:, None] * np.asarray(rig.DRIFT_PER_S), atol=1e-12)
+    enc = rig.case_signals("flat_face_encoder", noise=False)
+    dq = base["q"] - enc["q"]
+    assert np.allclose(dq[:, 3], np.deg2rad(1.0)) and np.allclose(np.delete(dq, 3, axis=1), 0.0)
+    assert "mount_known = true" in rig.setup_toml("flat_face_rotation")
+    truth = rig.truth("flat_face_rotation", rot, 0)
+    assert truth["effects"]["ft_frame_rotation"] == dict(zip(("rot_x", "rot_y", "rot_z"), rig.AXES_ROTVEC_DEG))
