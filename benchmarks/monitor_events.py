@@ -123,21 +123,23 @@ def scenario(name: str, seeds: int) -> dict:
                          named=bool(first and first["shape"] == shape), covered=bool(first and covered(cfg, first)),
                          line=first["line"] if first else "-",
                          alarm=alarms[0]["t_s"] - relevant_time(cfg, onset) if alarms else np.nan,
-                         outcome=alarms[0]["outcome"] if alarms else "-", bound=bound))
+                         outcome=alarms[0]["outcome"] if alarms else "-",
+                alarm_shape=alarms[0]["shape"] if alarms else "-", bound=bound))
     return dict(name=name, rows=rows)
 
 
-def clean_alarms(path: str, seeds: int) -> tuple[int, int, float]:
-    """(runs with an event, events, simulated seconds watched)."""
-    runs = events = 0
+def clean_alarms(path: str, seeds: int) -> tuple[int, int, float, int]:
+    """(runs with an event, events, simulated seconds watched, alarms of any outcome)."""
+    runs = events = alarms = 0
     sim = 0.0
     for seed in range(seeds):
         r = run_episode(_cfg(path, [f"run.seed={seed}", "monitor.enabled=true", *NOISE]))
         n = len(r.summary["monitor"]["events"])
         runs += n > 0
         events += n
+        alarms += len(r.summary["monitor"].get("alarms", []))
         sim += float(r.trace["t_s"][-1])
-    return runs, events, sim
+    return runs, events, sim, alarms
 
 
 def kernel_cost(reps: int = 3) -> tuple[float, float]:
@@ -272,9 +274,11 @@ def main() -> None:
         al = np.array([x["alarm"] for x in r])
         if np.isfinite(al).any():
             outs = sorted({x["outcome"] for x in r if x["outcome"] != "-"})
+            shp = sorted({x["alarm_shape"] for x in r if x["outcome"] != "-"})
             say(f"    first alarm after the onset (any outcome): {int(np.isfinite(al).sum())}/{len(r)}, delay median "
                 f"{np.nanmedian(al):.3f} s, max {np.nanmax(al):.3f} s; outcomes: "
-                + ", ".join(f"{o} {sum(x['outcome'] == o for x in r)}" for o in outs))
+                + ", ".join(f"{o} {sum(x['outcome'] == o for x in r)}" for o in outs) + "; best shapes: "
+                + ", ".join(f"{o} {sum(x['alarm_shape'] == o for x in r)}" for o in shp))
         if name == "frame rotation":
             bf = max(x["bound"][0] for x in r)
             bm = max(x["bound"][1] for x in r)
@@ -284,8 +288,9 @@ def main() -> None:
             for x in r:
                 say(f"    onset {x['onset']:.2f} s: {x['line']}")
     for label, path in (("default (rollout.toml)", "online/rollout.toml"), ("excite (excite.toml)", "online/excite.toml")):
-        runs, evs, sim = clean_alarms(path, a.clean)
-        say(f"clean {label:<24} {a.clean} runs, {sim:.0f} s watched: {runs} with an alarm ({evs} events)")
+        runs, evs, sim, als = clean_alarms(path, a.clean)
+        say(f"clean {label:<24} {a.clean} runs, {sim:.0f} s watched: {runs} with an alarm ({evs} events; "
+            f"{als} alarms of any outcome)")
     costs(say)
     if a.save:
         a.save.parent.mkdir(parents=True, exist_ok=True)

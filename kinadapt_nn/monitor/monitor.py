@@ -50,6 +50,19 @@ BASELINE_S = 0.5
 MAX_WINDOWS = 6
 
 
+#: shapes whose wrench does not depend on the pose: one of them beats a pose-dependent shape (a tool that
+#: turned in the grasp, a payload) clearly only once gravity has turned in the sensor frame by TURN_DEG
+POSE_FREE = ("sensor_constant",)
+TURN_DEG = 8.0
+
+
+def _turned_deg(rows: np.ndarray) -> float:
+    """[deg] the largest angle between gravity in s (g - a) at the window's first sample and at any other."""
+    ga = rows[:, K.G_GA:K.G_GA + 3]
+    u = ga / np.maximum(np.linalg.norm(ga, axis=1, keepdims=True), 1e-300)
+    return float(np.degrees(np.arccos(np.clip(np.min(u @ u[0]), -1.0, 1.0))))
+
+
 def _nparams(f) -> int:
     return int(np.count_nonzero(np.diag(f.cov) > 0)) if f.shape == "ft_bias_drift" else len(f.p)
 
@@ -238,7 +251,8 @@ class Monitor:
         fmask = np.isin(np.arange(6), fired)
         f, fits = shapes.best(rows, sd, self.mc, t_on, fmask)
         margin = float(fits[1].bic - f.bic) if len(fits) > 1 else np.inf
-        if margin < DECISIVE and al["windows"] < MAX_WINDOWS and not final:
+        unturned = f.shape in POSE_FREE and _turned_deg(rows) < TURN_DEG
+        if (margin < DECISIVE or unturned) and al["windows"] < MAX_WINDOWS and not final:
             st[K.S_TALARM] = st[K.S_TLAST]  # not yet clear: look longer
             return None
         self._log_alarm("", f.shape)
