@@ -12,6 +12,7 @@ The logs are public data that the project does not ship: the test skips when the
 
 from __future__ import annotations
 
+import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -148,6 +149,9 @@ def _check(path: Path, tmp_path: Path) -> None:
     cp = rep["effective_setup"]["contact_point"]  # where contacts act: estimated with its sd, not assumed
     assert cp is not None and np.all(np.isfinite(cp["sd_m"])) and cp["samples"] > 500
     assert np.linalg.norm(cp["point_sensor_m"]) < 0.3  # on a tool the hand holds
+    # the tool (mass and centre of mass) said once: by the calibration or by the ranking, never both
+    s = rep["summary"]
+    assert s.count("the whole tool") + len(re.findall(r"; tool \d", s)) == 1, s
     # declared right: neither the wrench units nor the time unit is called wrong
     assert not any("torque_unit" in w or "force_unit" in w or "time_scale_s" in w for w in rep["warnings"]), rep["warnings"]
 
