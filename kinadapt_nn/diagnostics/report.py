@@ -5,7 +5,7 @@ and selection -> completeness) each return a frozen result; their sections are p
 into a ``Report`` -- read-only, nothing writes into it afterwards -- and the report writes itself
 (``Report.to_json``): the header (``format``, ``version``, ``kind``, where the log and its set-up
 came from), the summary first, then the sections, then the wall time. Read-only all the way down:
-a section's mappings are ``MappingProxyType``s and its lists tuples (``freeze``), so writing into
+a section's mappings are ``FrozenMap``s and its lists tuples (``freeze``), so writing into
 ``report["ranking"][0]`` raises a ``TypeError``; ``to_json`` gives plain dicts and lists back. The CLI only writes what
 this returns. Version 4: the sections of ``userlog._base_report`` plus completeness, ``--add`` and
 (package runs) ``rerun``.
@@ -15,7 +15,6 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
-from types import MappingProxyType
 from typing import Any, Callable, Literal
 
 import numpy as np
@@ -24,11 +23,40 @@ FORMAT = "kinadapt-diagnosis"
 VERSION = 4
 
 
+class FrozenMap(Mapping):
+    """A read-only mapping over its own dict: no item assignment or deletion (``TypeError``), and,
+    unlike ``types.MappingProxyType``, it pickles (a report handed between processes: a pool of
+    diagnoses). ``json`` writes it through ``thaw``."""
+
+    __slots__ = ("_d",)
+
+    def __init__(self, items: Mapping | None = None) -> None:
+        object.__setattr__(self, "_d", dict(items or {}))
+
+    def __getitem__(self, key: Any) -> Any:
+        return self._d[key]
+
+    def __iter__(self) -> Iterator:
+        return iter(self._d)
+
+    def __len__(self) -> int:
+        return len(self._d)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise TypeError("a report is read-only: build a new one (Report.with_section) or thaw() a copy")
+
+    def __reduce__(self):
+        return (FrozenMap, (self._d,))
+
+    def __repr__(self) -> str:
+        return f"FrozenMap({self._d!r})"
+
+
 def freeze(value: Any) -> Any:
-    """``value`` read-only all the way down: mappings -> ``MappingProxyType`` (over a new dict),
-    lists and tuples -> tuples, numpy arrays -> read-only copies; scalars as they are."""
+    """``value`` read-only all the way down: mappings -> ``FrozenMap`` (over a new dict), lists and
+    tuples -> tuples, numpy arrays -> read-only copies; scalars as they are."""
     if isinstance(value, Mapping):
-        return MappingProxyType({k: freeze(v) for k, v in value.items()})
+        return FrozenMap({k: freeze(v) for k, v in value.items()})
     if isinstance(value, (list, tuple)):
         return tuple(freeze(v) for v in value)
     if isinstance(value, np.ndarray):
@@ -75,7 +103,7 @@ class Report(Mapping):
 
     def with_section(self, name: str, content: Any) -> Report:
         """This report with one more section (the summary kept): a package run's ``rerun``."""
-        return Report(MappingProxyType({**self.sections, name: freeze(content)}), self.summary)
+        return Report(FrozenMap({**self.sections, name: freeze(content)}), self.summary)
 
     def __getitem__(self, key: str) -> Any:
         return self.summary if key == "summary" else self.sections[key]

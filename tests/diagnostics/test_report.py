@@ -62,3 +62,16 @@ def test_to_json_gives_back_what_it_was_built_from():
     assert json.loads(json.dumps(js))["ranking"] == SECTIONS["ranking"]
     js["ranking"][0]["verdict"] = "absent"  # the JSON is the caller's copy
     assert rep["ranking"][0]["verdict"] == "present" and thaw(rep["ranking"]) == SECTIONS["ranking"]
+
+
+def test_a_report_pickles_and_stays_read_only():
+    """A report crosses process boundaries (a pool of diagnoses): pickled and back, equal and still frozen."""
+    import pickle
+
+    rep = Report.of(SECTIONS, _summary)
+    back = pickle.loads(pickle.dumps(rep))
+    assert thaw(back.sections) == thaw(rep.sections) and back.summary == rep.summary
+    with pytest.raises(TypeError):
+        back["ranking"][0].__setitem__("verdict", "absent")
+    part = pickle.loads(pickle.dumps(rep["ranking"][0]["estimate"]))
+    assert part["mass"]["value"] == 0.25
