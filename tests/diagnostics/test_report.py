@@ -72,6 +72,6 @@ def test_a_report_pickles_and_stays_read_only():
     back = pickle.loads(pickle.dumps(rep))
     assert thaw(back.sections) == thaw(rep.sections) and back.summary == rep.summary
     with pytest.raises(TypeError):
-        back["ranking"][0].__setitem__("verdict", "absent")
+        back["ranking"][0]["verdict"] = "absent"
     part = pickle.loads(pickle.dumps(rep["ranking"][0]["estimate"]))
     assert part["mass"]["value"] == 0.25
