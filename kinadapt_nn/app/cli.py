@@ -652,23 +652,17 @@ _DESCRIPTIONS = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="kinadapt", description="Online kinematic adaptation by feel (MuJoCo Panda). "
-                "Exit codes: 0 done, 1 online episode not seated, 2 bad input, 3 internal error, 130 interrupted.")
-    p.add_argument("--version", action="version", version=f"kinadapt {__version__}")
-    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    d = _DESCRIPTIONS
+def _add_online(sub) -> None:
     on = _job_parser(sub, "online", "run one insertion episode", "online/rollout.toml", "run.seed=3", cmd_online,
-                     d["online"])
+                     _DESCRIPTIONS["online"])
     on.add_argument("--monitor", action="store_true",
                     help="run the live monitor beside the controller: it compares the wrist F/T reading with the "
                          "nominal model and prints each change it finds (monitor.enabled; docs/monitor.md)")
-    _job_parser(sub, "pretrain", "train the neural Jacobian basis on randomised tools and arms (rerun to resume)",
-                "pretrain/default.toml", "train.steps=200", cmd_pretrain, d["pretrain"])
-    _job_parser(sub, "compare", "adjoint vs RBF vs neural features on the same held-out tools",
-                "online/compare.toml", "n_tools=2", cmd_compare, d["compare"])
+
+
+def _add_view(sub) -> None:
     vw = sub.add_parser("view", help="render a run to GIF/MP4 offscreen, or open the viewer when a display exists",
-                        description=d["view"])
+                        description=_DESCRIPTIONS["view"])
     vw.add_argument("run", help="a run folder written by kinadapt online (config.toml + trace.npz)")
     vw.add_argument("--out", help="video file (.gif or .mp4); default: RUN/rollout.gif when headless")
     vw.add_argument("--fps", type=_float_in(0.0, 1000.0), default=25.0,
@@ -683,18 +677,31 @@ def build_parser() -> argparse.ArgumentParser:
     vw.add_argument("--overwrite", action="store_true", help="replace an existing video file")
     vw.add_argument("--quiet", action="store_true", help="no progress bar, no summary line")
     vw.set_defaults(func=cmd_view)
+
+
+def _add_reproduce(sub) -> None:
     rp = sub.add_parser("reproduce", help="check the paper's claims by running code; figures + paper-vs-ours table",
-                        description=d["reproduce"])
+                        description=_DESCRIPTIONS["reproduce"])
     rp.add_argument("--only", help="one part: rollout, observability, gain_sweep, ablations, qp, video")
     rp.add_argument("--out", help="output folder (default: runs/reproduce-<timestamp>)")
     rp.add_argument("--jobs", type=_int_in(1, 256), default=2, help="worker processes, 1..256 (default: 2)")
     rp.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     rp.add_argument("--quiet", action="store_true", help="no progress lines, no table")
     rp.set_defaults(func=cmd_reproduce)
+
+
+def _add_sweep(sub) -> None:
     sw = _job_parser(sub, "sweep", "many episodes over groups x seeds, locally or on a Ray cluster (rerun to resume)",
-                     "online/sweep.toml", "seeds=5", cmd_sweep, d["sweep"])
+                     "online/sweep.toml", "seeds=5", cmd_sweep, _DESCRIPTIONS["sweep"])
+    sw.add_argument("--executor", choices=["local", "ray"], default="local",
+                    help="run episodes in local worker processes or on a Ray cluster (default: local)")
+    sw.add_argument("--address", help="with --executor ray: a running Ray cluster's address (default: start a Ray of "
+                    "this command's own with 'jobs' CPUs, stopped at the end)")
+
+
+def _add_diagnose(sub) -> None:
     dg = sub.add_parser("diagnose", help="model vs measurement: which physical effect is missing (your robot's log "
-                        "with --setup, or a run of this package)", description=d["diagnose"])
+                        "with --setup, or a run of this package)", description=_DESCRIPTIONS["diagnose"])
     dg.add_argument("logs", nargs="+", metavar="LOG", help="with --setup: .csv, .csv.gz, .parquet, a ROS 2 bag or a "
                     "trace.npz -- several logs of one set-up are pooled (one tool and mount; the logs that "
                     "contradict the others named); without: a run folder, a trace.npz, or a CSV in this package's "
@@ -732,20 +739,41 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     dg.add_argument("--quiet", action="store_true", help="no progress lines, no summary")
     dg.set_defaults(func=cmd_diagnose)
+
+
+def _add_setup_template(sub) -> None:
     st = sub.add_parser("setup-template", help="print a setup-file template for kinadapt diagnose LOG --setup",
-                        description=d["setup-template"])
+                        description=_DESCRIPTIONS["setup-template"])
     st.add_argument("--out", help="write it to this file instead of printing it")
     st.add_argument("--overwrite", action="store_true", help="replace an existing file")
     st.set_defaults(func=cmd_setup_template, uses_mujoco=False)
+
+
+def _add_config(sub) -> None:
     cf = sub.add_parser("config", help="list every experiment config key with its value, unit and meaning",
-                        description=d["config"])
+                        description=_DESCRIPTIONS["config"])
     cf.add_argument("--config", help="TOML config (default: built-in defaults = online/rollout.toml)")
     cf.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key, e.g. run.seed=3")
     cf.set_defaults(func=cmd_config, uses_mujoco=False)
-    sw.add_argument("--executor", choices=["local", "ray"], default="local",
-                    help="run episodes in local worker processes or on a Ray cluster (default: local)")
-    sw.add_argument("--address", help="with --executor ray: a running Ray cluster's address (default: start a Ray of "
-                    "this command's own with 'jobs' CPUs, stopped at the end)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``kinadapt`` parser: one ``_add_*`` step per sub-command (their order is the help's)."""
+    p = _Parser(prog="kinadapt", description="Online kinematic adaptation by feel (MuJoCo Panda). "
+                "Exit codes: 0 done, 1 online episode not seated, 2 bad input, 3 internal error, 130 interrupted.")
+    p.add_argument("--version", action="version", version=f"kinadapt {__version__}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    _add_online(sub)
+    _job_parser(sub, "pretrain", "train the neural Jacobian basis on randomised tools and arms (rerun to resume)",
+                "pretrain/default.toml", "train.steps=200", cmd_pretrain, _DESCRIPTIONS["pretrain"])
+    _job_parser(sub, "compare", "adjoint vs RBF vs neural features on the same held-out tools",
+                "online/compare.toml", "n_tools=2", cmd_compare, _DESCRIPTIONS["compare"])
+    _add_view(sub)
+    _add_reproduce(sub)
+    _add_sweep(sub)
+    _add_diagnose(sub)
+    _add_setup_template(sub)
+    _add_config(sub)
     p.set_defaults(in_place=False)
     for name in ("pretrain", "sweep"):  # these write into --out as they go (resumable)
         sub.choices[name].set_defaults(in_place=True)

@@ -394,6 +394,75 @@ def shifted(x: np.ndarray, dx: np.ndarray) -> np.ndarray:
     return np.concatenate([Rotation.from_matrix(D).as_rotvec(), x[3:] + dx[3:]])
 
 
+def _solve(d: MountData) -> tuple[np.ndarray, np.ndarray, float]:
+    """The mount's rotation D (3, 3), theta and the robust cost: Gauss-Newton from the identity and
+    the linear start, refined; a mirror branch of positive mass taken when the data cannot tell
+    the two apart."""
+    starts = [np.eye(3)]
+    lin = _linear_start(d)
+    if lin is not None and np.all(np.isfinite(lin)):
+        starts.append(lin)
+    D, theta, best = _refine(d, *_best_start(d, starts))
+    if theta[0] <= 0:  # a weakly turned sensor leaves a mirror branch (D turned by 180 deg, -m): a mass is positive
+        Dp, thp, cp = _best_start(d, [D0 @ rotvec_matrix(np.pi * e) for D0 in (*starts, D) for e in np.eye(3)], True)
+        if thp[0] > 0:
+            Dp, thp, cp = _refine(d, Dp, thp, cp)
+        if thp[0] > 0 and _mirror_indistinguishable(d, (D, theta, best), (Dp, thp, cp)):
+            D, theta, best = Dp, thp, cp  # as good a fit: the data cannot tell them, physics can
+    return D, theta, best
+
+
+def _info_covariance(d: MountData, D: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """(13, 13) information-limited covariance in (local rotation, theta), theta held at the
+    solution; the inertia nuisance (moving logs) is marginalised: the block of the whole inverse."""
+    e = _resid_at(D, theta, d)
+    npar = 3 + len(theta)
+    J = np.empty((len(e), npar))
+    for k in range(3):
+        dv = np.zeros(3)
+        dv[k] = 1e-6
+        J[:, k] = (_resid_at(D @ rotvec_matrix(dv), theta, d) - e) / 1e-6
+    A, _ = _linear_part(D, d)
+    J[:, 3:] = -(A * d.w[None, :, None]).reshape(-1, A.shape[2])
+    return _info_cov(J, e)[:3 + N_THETA, :3 + N_THETA]
+
+
+def _jackknife(d: MountData, D: np.ndarray, R_decl: np.ndarray, rpy: np.ndarray,
+               max_blocks: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """Delete-one-block jackknife sd (correlated residuals of a moving log make the information sd
+    small): -> (13,) of (local rotation [rad], theta), (3,) of rpy [deg], the angle's [deg]."""
+    from scipy.spatial.transform import Rotation
+
+    groups = _jackknife_groups(d, max_blocks)
+    reps, devs, rpys, angs = [], [], [], []
+    for g in steps.counted(groups, "sensor mount: its uncertainty, refit without block"):
+        Db, thb, _ = _gauss_newton(_without(d, np.isin(d.block, g)), D, iters=4)
+        reps.append(thb[:N_THETA])
+        devs.append(Rotation.from_matrix(D.T @ Db).as_rotvec())
+        rpys.append(_wrap_deg(np.rad2deg(matrix_rpy(R_decl @ Db)) - rpy))
+        angs.append(np.rad2deg(rotation_angle(Db)))
+    if not reps:
+        return np.zeros(13), np.zeros(3), 0.0
+    return (np.concatenate([_jackknife_sd(devs), _jackknife_sd(reps)]), _jackknife_sd(rpys),
+            float(_jackknife_sd(angs)[0]))
+
+
+def _angle_sds(D: np.ndarray, R_decl: np.ndarray, rpy: np.ndarray, cov_loc: np.ndarray) -> tuple[np.ndarray, float]:
+    """Information sd of rpy (3,) [deg] and of the rotation angle [deg], through derivatives in the
+    local rotation whose (3, 3) covariance is ``cov_loc``."""
+    th = rotation_angle(D)
+    G = np.zeros((3, 3))
+    ga_ = np.zeros(3)
+    for k in range(3):
+        dv = np.zeros(3)
+        dv[k] = 1e-6
+        Dk = D @ rotvec_matrix(dv)
+        G[:, k] = _wrap_deg(np.rad2deg(matrix_rpy(R_decl @ Dk)) - rpy) / 1e-6
+        ga_[k] = (rotation_angle(Dk) - th) / 1e-6
+    return (np.sqrt(np.maximum(np.diag(G @ cov_loc @ G.T), 0.0)),
+            float(np.rad2deg(np.sqrt(max(ga_ @ cov_loc @ ga_, 0.0)))))
+
+
 def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: int = 20,
         residual: bool = True) -> MountFit:
     """The calibration fit on the free-space samples ``free`` (n,) bool of ``LogSignals`` s.
@@ -413,63 +482,20 @@ def fit(s, free: np.ndarray, block: np.ndarray, sigma: np.ndarray, max_blocks: i
     turn = _turn_mps2(d)
     if turn < TURN_MIN_MPS2:  # the log cannot calibrate: nothing to search for
         return _declared_fit(d, s, free, residual, (m_decl, mc_decl), turn)
-    starts = [np.eye(3)]
-    lin = _linear_start(d)
-    if lin is not None and np.all(np.isfinite(lin)):
-        starts.append(lin)
-    D, theta, best = _refine(d, *_best_start(d, starts))
-    if theta[0] <= 0:  # a weakly turned sensor leaves a mirror branch (D turned by 180 deg, -m): a mass is positive
-        Dp, thp, cp = _best_start(d, [D0 @ rotvec_matrix(np.pi * e) for D0 in (*starts, D) for e in np.eye(3)], True)
-        if thp[0] > 0:
-            Dp, thp, cp = _refine(d, Dp, thp, cp)
-        if thp[0] > 0 and _mirror_indistinguishable(d, (D, theta, best), (Dp, thp, cp)):
-            D, theta, best = Dp, thp, cp  # as good a fit: the data cannot tell them, physics can
+    D, theta, best = _solve(d)
     x = np.concatenate([Rotation.from_matrix(D).as_rotvec(), theta[:N_THETA]])
     cost_declared = _cost_at(np.eye(3), d)
     rot_explains = float(max(0.0, 1.0 - best / max(cost_declared, 1e-300)))
-    # information-limited covariance in (local rotation, theta), theta held at the solution; the
-    # inertia nuisance (moving logs) is marginalised: the (13, 13) block of the whole inverse
-    e = _resid_at(D, theta, d)
-    npar = 3 + len(theta)
-    J = np.empty((len(e), npar))
-    for k in range(3):
-        dv = np.zeros(3)
-        dv[k] = 1e-6
-        J[:, k] = (_resid_at(D @ rotvec_matrix(dv), theta, d) - e) / 1e-6
-    A, _ = _linear_part(D, d)
-    J[:, 3:] = -(A * d.w[None, :, None]).reshape(-1, A.shape[2])
-    cov = _info_cov(J, e)[:3 + N_THETA, :3 + N_THETA]
+    cov = _info_covariance(d, D, theta)
     sd_info = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    # delete-one-block jackknife (correlated residuals of a moving log make the information sd small)
-    groups = _jackknife_groups(d, max_blocks)
     R_decl = setup.sensor.R_fs()
     rpy = _rpy_deg(x, R_decl)
     th = rotation_angle(D)
-    reps, devs, rpys, angs = [], [], [], []
-    for g in steps.counted(groups, "sensor mount: its uncertainty, refit without block"):
-        Db, thb, _ = _gauss_newton(_without(d, np.isin(d.block, g)), D, iters=4)
-        reps.append(thb[:N_THETA])
-        devs.append(Rotation.from_matrix(D.T @ Db).as_rotvec())
-        rpys.append(_wrap_deg(np.rad2deg(matrix_rpy(R_decl @ Db)) - rpy))
-        angs.append(np.rad2deg(rotation_angle(Db)))
-    if reps:
-        sd_jk = np.concatenate([_jackknife_sd(devs), _jackknife_sd(reps)])
-        rpy_sd_jk, ang_sd_jk = _jackknife_sd(rpys), float(_jackknife_sd(angs)[0])
-    else:
-        sd_jk, rpy_sd_jk, ang_sd_jk = np.zeros(13), np.zeros(3), 0.0
+    sd_jk, rpy_sd_jk, ang_sd_jk = _jackknife(d, D, R_decl, rpy, max_blocks)
     sd = np.maximum(sd_info, sd_jk)
-    # information sd of rpy and of the angle, through derivatives in the local rotation
-    G = np.zeros((3, 3))
-    ga_ = np.zeros(3)
-    for k in range(3):
-        dv = np.zeros(3)
-        dv[k] = 1e-6
-        Dk = D @ rotvec_matrix(dv)
-        G[:, k] = _wrap_deg(np.rad2deg(matrix_rpy(R_decl @ Dk)) - rpy) / 1e-6
-        ga_[k] = (rotation_angle(Dk) - th) / 1e-6
-    cov_loc = cov[:3, :3]
-    rpy_sd = np.maximum(np.sqrt(np.maximum(np.diag(G @ cov_loc @ G.T), 0.0)), rpy_sd_jk)
-    ang_sd = max(float(np.rad2deg(np.sqrt(max(ga_ @ cov_loc @ ga_, 0.0)))), ang_sd_jk)
+    rpy_sd_info, ang_sd_info = _angle_sds(D, R_decl, rpy, cov[:3, :3])
+    rpy_sd = np.maximum(rpy_sd_info, rpy_sd_jk)
+    ang_sd = max(ang_sd_info, ang_sd_jk)
     # the fitted residual on every free sample (not only the subset)
     summary, res = _free_residual(x, s, free, residual)
     rep = report((x, sd), (rpy, rpy_sd), (float(np.rad2deg(th)), ang_sd), summary, s, rot_explains)

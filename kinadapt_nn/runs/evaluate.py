@@ -238,6 +238,68 @@ def contact_quality(t_s: np.ndarray, contact_force_N: np.ndarray) -> dict:
             "contact_fraction": float(on.mean())}
 
 
+def _outcome(cfg: ExperimentCfg, trace: Trace, monitor: SeatMonitor, diverged: bool,
+             active: np.ndarray) -> tuple[bool, str]:
+    """(success, failure class) of a run; ``active`` (T,) marks the steps with the drive on."""
+    t, s, w = trace["t_s"], trace["s"], trace["w_env_w"]
+    success = monitor.seat_time is not None and not diverged
+    failure = "none" if success else classify_failure(cfg, t[active], s[active], w[active], diverged)
+    if trace.meta.get("rank_gate_breach_t_s") is not None:  # a breach is its own failure class
+        success, failure = False, "rank_gate"
+    if cfg.control.program == "excite":  # an identification experiment: it completes, it does not seat
+        success = not diverged and failure != "divergence"
+        failure = "none" if success else failure
+    return success, failure
+
+
+def _peaks(trace: Trace) -> dict:
+    """The largest measured force |F| [N], lateral force |(s_1, s_2)| [N] and moment |M| [N m]."""
+    s, w = trace["s"], trace["w_env_w"]
+    fmag = np.linalg.norm(w[:, :3], axis=1)
+    mmag = np.linalg.norm(w[:, 3:], axis=1)
+    flat = np.hypot(s[:, 1], s[:, 2])
+    return {"max_force_N": float(fmag.max()) if len(fmag) else None,
+            "max_lateral_force_N": float(flat.max()) if len(flat) else None,
+            "max_moment_Nm": float(mmag.max()) if len(mmag) else None}
+
+
+def _prediction_errors(trace: Trace, active: np.ndarray) -> dict:
+    """RMS of the prediction error ds/dt measured - predicted (through the same filter on both
+    sides) per channel, over the driven steps and over those where the law adapts (in contact)."""
+    eps = trace["s_dot_meas"][active] - trace["s_dot_pred"][active]
+    pred_rms = {name: float(np.sqrt(np.mean(eps[:, i] ** 2))) if len(eps) else None for i, name in enumerate(CHANNEL_NAMES)}
+    in_contact = trace["adapt_gate"][active] > 0  # where the law adapts (S's contact model applies)
+    eps_c = eps[in_contact]
+    pred_rms_contact = {name: float(np.sqrt(np.mean(eps_c[:, i] ** 2))) if len(eps_c) else None
+                        for i, name in enumerate(CHANNEL_NAMES)}
+    return {"pred_error_rms": pred_rms, "pred_error_rms_contact": pred_rms_contact,
+            "pred_error_rms_units": {n: u + "/s" for n, u in zip(CHANNEL_NAMES, CHANNEL_UNITS)}}
+
+
+def _offset_ends(ctrl: Controller, trace: Trace, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The tool offset estimate (3,) [m, flange frame] at the first and the last step: the estimate
+    itself (adjoint) or the offset implied by a LS fit of J_hat (others); NaN for an empty trace."""
+    if not len(trace):
+        return np.full(3, np.nan), np.full(3, np.nan)
+    if ctrl.features.theta_is_offset:
+        return trace["theta"][0], theta
+    return (implied_offset(ctrl, trace["q_rad"][0], trace["theta"][0]),
+            implied_offset(ctrl, trace["q_rad"][-1], theta))
+
+
+def _drift_and_touch(trace: Trace) -> dict:
+    """The tip's lateral drift [m] (before the first contact and overall, from the truth) and which
+    surfaces the peg touched."""
+    tip = trace["truth_tip_pos_w_m"]
+    touched = trace["truth_contact_face"] | trace["truth_contact_bore"]
+    first_touch = int(np.argmax(touched)) if touched.any() else len(trace)
+    drift = np.linalg.norm(tip[:, :2] - tip[0, :2], axis=1) if len(trace) else np.zeros(1)
+    return {"lateral_drift_free_space_m": float(drift[: max(first_touch, 1)].max()),
+            "lateral_drift_max_m": float(drift.max()),
+            "truth_touched_block_face": bool(trace["truth_contact_face"].any()),
+            "truth_touched_bore": bool(trace["truth_contact_bore"].any())}
+
+
 def summarize(
     cfg: ExperimentCfg,
     trace: Trace,
@@ -249,43 +311,14 @@ def summarize(
     wall: float,
 ) -> dict:
     """The ``summary.json`` contract (README, "What the run writes") plus run-specific figures."""
-    t, s, w = trace["t_s"], trace["s"], trace["w_env_w"]
+    t, s = trace["t_s"], trace["s"]
     active = trace["drive_scale"] > 0
-    success = monitor.seat_time is not None and not diverged
-    failure = "none" if success else classify_failure(cfg, t[active], s[active], w[active], diverged)
-    if trace.meta.get("rank_gate_breach_t_s") is not None:  # a breach is its own failure class
-        success, failure = False, "rank_gate"
-    if cfg.control.program == "excite":  # an identification experiment: it completes, it does not seat
-        success = not diverged and failure != "divergence"
-        failure = "none" if success else failure
-    fmag = np.linalg.norm(w[:, :3], axis=1)
-    mmag = np.linalg.norm(w[:, 3:], axis=1)
-    flat = np.hypot(s[:, 1], s[:, 2])
-    # prediction error through the same filter on both sides
-    eps = trace["s_dot_meas"][active] - trace["s_dot_pred"][active]
-    pred_rms = {name: float(np.sqrt(np.mean(eps[:, i] ** 2))) if len(eps) else None for i, name in enumerate(CHANNEL_NAMES)}
-    in_contact = trace["adapt_gate"][active] > 0  # where the law adapts (S's contact model applies)
-    eps_c = eps[in_contact]
-    pred_rms_contact = {name: float(np.sqrt(np.mean(eps_c[:, i] ** 2))) if len(eps_c) else None
-                        for i, name in enumerate(CHANNEL_NAMES)}
+    success, failure = _outcome(cfg, trace, monitor, diverged, active)
     theta = trace["theta"][-1] if len(trace) else ctrl.theta
     true_off = np.asarray(cfg.tool.offset_f_m)
     jerr = trace["truth_jacobian_rel_error"]
     jac_err = float(jerr[-1]) if len(trace) else None
-    # offset: the estimate itself (adjoint) or the offset implied by a LS fit of J_hat (others)
-    if not len(trace):
-        off0 = off_T = np.full(3, np.nan)
-    elif ctrl.features.theta_is_offset:
-        off0, off_T = trace["theta"][0], theta
-    elif len(trace):
-        off0 = implied_offset(ctrl, trace["q_rad"][0], trace["theta"][0])
-        off_T = implied_offset(ctrl, trace["q_rad"][-1], theta)
-    else:
-        off0 = off_T = np.full(3, np.nan)
-    tip = trace["truth_tip_pos_w_m"]
-    touched = trace["truth_contact_face"] | trace["truth_contact_bore"]
-    first_touch = int(np.argmax(touched)) if touched.any() else len(trace)
-    drift = np.linalg.norm(tip[:, :2] - tip[0, :2], axis=1) if len(trace) else np.zeros(1)
+    off0, off_T = _offset_ends(ctrl, trace, theta)
     seated = success and monitor.seat_time is not None
     seat_idx = int(np.searchsorted(t, monitor.seat_time)) if seated else None
     ident = identification_report(trace, ctrl, true_off)
@@ -296,9 +329,7 @@ def summarize(
         "final_depth_m": float(s[-1, 0]) if len(trace) else None,
         "true_final_depth_m": float(trace["truth_tip_depth_m"][-1]) if len(trace) else None,
         "true_depth_at_seat_m": float(trace["truth_tip_depth_m"][min(seat_idx, len(trace) - 1)]) if seated else None,
-        "max_force_N": float(fmag.max()) if len(fmag) else None,
-        "max_lateral_force_N": float(flat.max()) if len(flat) else None,
-        "max_moment_Nm": float(mmag.max()) if len(mmag) else None,
+        **_peaks(trace),
         "identification": identification_words(ctrl, cfg),
         "theta_sd_final": (None if ctrl.law.information_sd() is None
                            else [float(x) for x in ctrl.law.information_sd()][:12]),
@@ -310,17 +341,12 @@ def summarize(
         "offset_error_final_m": [float(x) for x in (off_T - true_off)],
         "jacobian_rel_error_initial": float(jerr[0]) if len(trace) else None,
         "jacobian_rel_error_final": jac_err,
-        "pred_error_rms": pred_rms,
-        "pred_error_rms_contact": pred_rms_contact,
-        "pred_error_rms_units": {n: u + "/s" for n, u in zip(CHANNEL_NAMES, CHANNEL_UNITS)},
+        **_prediction_errors(trace, active),
         "offset_error_lateral_initial_m": float(np.hypot(*(off0[:2] - true_off[:2]))),
         "offset_error_lateral_final_m": float(np.hypot(*(off_T[:2] - true_off[:2]))),
         **ident,
         **contact_quality(t, trace["truth_contact_force_N"]),
-        "lateral_drift_free_space_m": float(drift[: max(first_touch, 1)].max()),
-        "lateral_drift_max_m": float(drift.max()),
-        "truth_touched_block_face": bool(trace["truth_contact_face"].any()),
-        "truth_touched_bore": bool(trace["truth_contact_bore"].any()),
+        **_drift_and_touch(trace),
         "features": cfg.run.features,
         "program": cfg.control.program,
         "hidden_effects": cfg.effects.enabled(),
