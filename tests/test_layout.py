@@ -110,7 +110,7 @@ def layer(mod: str) -> int:
 def test_the_walker_sees_imports_inside_functions():
     """Positive control: the walker must find what a lazy import reaches (runs -> sim)."""
     assert "kinadapt_nn.sim.adapter" in reach("kinadapt_nn.runs.episode")
-    assert "kinadapt_nn.runs.episode" in reach("kinadapt_nn.app.cli")  # imported inside cmd_online
+    assert "kinadapt_nn.runs.episode" in reach("kinadapt_nn.app.cli")  # imported inside cmd_online (app/online.py)
 
 
 @pytest.mark.parametrize("start", sorted(m for m in MODULES if m.startswith(CONTROLLER_SIDE)))

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinadapt_nn.app.cli import _summary_lines
+from kinadapt_nn.app.online import summary_lines
 from kinadapt_nn.config import load_config
 from kinadapt_nn.controller import core
 from kinadapt_nn.runs import episode as episode_mod
@@ -73,14 +73,14 @@ def test_wall_time_excludes_the_one_time_compile(monkeypatch):
     assert s["compile_time_s"] >= 0.6
     assert s["wall_time_s"] + s["compile_time_s"] <= total + 1e-6
     assert s["wall_time_s"] < total - 0.6
-    line = next(ln for ln in _summary_lines(s, Path("out")) if ln.startswith("  sim "))
+    line = next(ln for ln in summary_lines(s, Path("out")) if ln.startswith("  sim "))
     assert f"{s['wall_time_s']:.2f} s wall" in line and f"one-time compile before it {s['compile_time_s']:.1f} s" in line
 
 
 def test_excitation_run_prints_no_paper_seat_time(bore_run):
     """An excitation run has no seat time to compare: its line names the program, not the paper's 5.1 s."""
-    insert = _summary_lines(bore_run.summary, Path("out"))
-    excite = _summary_lines(dict(bore_run.summary, program="excite", seat_time_s=None), Path("out"))
+    insert = summary_lines(bore_run.summary, Path("out"))
+    excite = summary_lines(dict(bore_run.summary, program="excite", seat_time_s=None), Path("out"))
     assert any("paper, with adaptation: 5.1 s" in ln for ln in insert)
     assert not any("paper" in ln for ln in excite)
     assert any("it does not insert" in ln for ln in excite)
