@@ -76,3 +76,16 @@ def test_the_length_check_counts_lines(tmp_path):
     body = lambda k: "\n".join(f"    x{i} = {i}" for i in range(k))  # noqa: E731
     (pkg / "a.py").write_text(f"def long():\n{body(80)}\n\n\ndef fits():\n{body(79)}\n\n\ndef short():\n    pass\n")
     assert long_functions(pkg) == ["pkg/a.py:1 long (81 lines)"]
+
+
+MAX_MODULE_LINES = 800
+# Still over 800 lines (issue 52, open): the controller's per-step kernels (the hot path) and the
+# diagnosis's pipeline (under other work). Any other module over the limit fails.
+LONG_MODULE_EXEMPT = frozenset({"kinadapt_nn/controller/core.py", "kinadapt_nn/diagnostics/userlog.py"})
+
+
+def test_no_module_over_800_lines():
+    sizes = {str(p.relative_to(ROOT)): len(p.read_text().splitlines()) for p in (ROOT / "kinadapt_nn").rglob("*.py")}
+    bad = sorted(f"{k} ({n} lines)" for k, n in sizes.items() if n > MAX_MODULE_LINES and k not in LONG_MODULE_EXEMPT)
+    assert not bad, "modules over 800 lines: " + ", ".join(bad)
+    assert all(sizes[k] > MAX_MODULE_LINES for k in LONG_MODULE_EXEMPT), "an exempt module is short now: drop it"
