@@ -104,7 +104,10 @@ def run_one(job: tuple) -> dict:
     raw = RawLog(tr["t_s"], tr["q_rad"], tr["qdot_rad_s"], tr["wrench_raw_f"], name)
     seen = cfg.model_copy(update={"effects": type(cfg.effects)()})  # the diagnosis does not know them
     log, setup = ownrun.as_log(raw, seen)
-    rep = userlog.diagnose(log, setup, hints=True).report
+    from kinadapt_nn.diagnostics.report import thaw
+
+    report = userlog.diagnose(log, setup, hints=True).report
+    rep = {**thaw(report.sections), "summary": report.summary}  # plain dicts and lists (JSON, the pool)
     out = {"row": name, "sets": sets, "injected": list(injected),
            "present": [e["effect"] for e in rep["ranking"] if e["verdict"] == "present"],
            "model_complete": rep.get("model_complete"), "blocked": rep.get("blocked"),
