@@ -542,6 +542,8 @@ def _fit(st: sel.Stats, idx: np.ndarray, sc: sel.SelCfg) -> tuple[np.ndarray, np
     from kinadapt_nn.diagnostics import intervals
 
     _, reps, p = st.cv(idx, sc.ridge)
+    if len(reps) < 2:  # the rows left hold fewer than two blocks: they pin nothing (no jackknife either)
+        return p, np.full(len(idx), np.inf)
     var = np.diag(sel.jackknife_cov(reps)) * intervals.t_widen(len(reps) - 1)
     rows = int(np.count_nonzero(st.des.block < st.des.n_blocks))
     var_h = intervals.honest_sd(st.G[:, idx][:, :, idx], st.h[:, idx], st.yy, p, rows) ** 2

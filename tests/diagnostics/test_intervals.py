@@ -126,3 +126,25 @@ def test_explained_rows_fit_is_least_squares_on_the_other_channels():
     ref = np.linalg.lstsq(X[keep], y[keep], rcond=None)[0]
     assert np.allclose(p, ref, rtol=1e-7, atol=1e-10), (p, ref)
     assert np.all(np.abs(ref - theta) < 0.01) and not np.all(np.abs(np.linalg.lstsq(X, y, rcond=None)[0] - theta) < 0.01)
+
+
+def test_rows_left_in_one_block_pin_nothing_and_do_not_raise():
+    """The rows the unexplained channels spare may all fall in one block (an iiwa14 calibration log with a
+    wrong mount declared known raised ZeroDivisionError in the block jackknife): the fit then reports an
+    infinite sd -- every parameter undetermined by those rows -- instead of failing."""
+    from kinadapt_nn.diagnostics import selection as sel
+    from kinadapt_nn.diagnostics.completeness import _fit, explained_rows
+
+    n_t, B = 40, 4
+    t = np.repeat(np.linspace(0.0, 1.0, n_t), 2)
+    channel = np.tile(np.arange(2), n_t)
+    X = np.stack([np.sin(5 * t + channel), t * (1 + channel)], axis=1)
+    y = X @ np.array([0.8, -1.5])
+    block = np.where(channel == 0, 0, np.minimum((t * B).astype(int), B - 1))  # channel 0's rows: one block
+    des = sel.Design(y, {"e": X}, np.zeros((len(y), 0)), block, B, {"e": np.array([0.1, 0.1])}, {"e": False},
+                     np.ones(len(y)), channel, ("c0", "c1"), t)
+    st = sel.Stats(explained_rows(None, None, des, [1]))
+    p, sd = _fit(st, st.idx["e"], sel.SelCfg())
+    assert p.shape == (2,) and np.all(np.isinf(sd))
+    p_all, sd_all = _fit(sel.Stats(des), sel.Stats(des).idx["e"], sel.SelCfg())
+    assert np.all(np.isfinite(sd_all))
