@@ -1,6 +1,6 @@
 """The excitation experiment's table on package runs, as a new user diagnoses them (issue 49).
 
-    python benchmarks/excite_table.py [--seeds 5] [--jobs 2] [--json FILE]
+    python benchmarks/excite_table.py [--seeds 5] [--jobs 2] [--json FILE] [--only TEXT] [--shift-wrench K]
 
 Every run is ``kinadapt online --config online/excite.toml`` with a seed and hidden effects, then
 ``kinadapt diagnose RUN`` with **no** ``--baseline`` (the set-up generated from the run's config:
@@ -18,7 +18,10 @@ Every run is ``kinadapt online --config online/excite.toml`` with a seed and hid
 * three pairs (payload + sensor rotation, stiffness + friction couple, drift + encoder offset).
 
 It prints one line per row: right or not, what was present, the largest coverage error in sd, and
-for every row that is not right the measured reason.
+for every row that is not right the measured reason and each judged estimate against the injected value.
+``--shift-wrench K`` pairs each encoder sample with the wrench read K samples later: the simulated
+reading is one physics step behind the encoders (``sim.adapter.PegInHoleSim.sense``), a timing offset
+no library effect models; K = 1 aligns them (a diagnostic of what that offset does to a row).
 """
 
 from __future__ import annotations
@@ -98,10 +101,13 @@ def run_one(job: tuple) -> dict:
     from kinadapt_nn.diagnostics.importers import RawLog
     from kinadapt_nn.runs.episode import run_episode
 
-    name, sets, injected = job
+    name, sets, injected, shift = (*job, 0) if len(job) == 3 else job
     cfg = load_config(EXCITE, [*QUIET, *sets])
     tr = run_episode(cfg).trace
-    raw = RawLog(tr["t_s"], tr["q_rad"], tr["qdot_rad_s"], tr["wrench_raw_f"], name)
+    t, q, qd, w = (np.asarray(tr[k]) for k in ("t_s", "q_rad", "qdot_rad_s", "wrench_raw_f"))
+    if shift:  # encoder sample k with the reading of sample k + shift
+        t, q, qd, w = t[:-shift], q[:-shift], qd[:-shift], w[shift:]
+    raw = RawLog(t, q, qd, w, name)
     seen = cfg.model_copy(update={"effects": type(cfg.effects)()})  # the diagnosis does not know them
     log, setup = ownrun.as_log(raw, seen)
     from kinadapt_nn.diagnostics.report import thaw
@@ -130,7 +136,7 @@ def run_one(job: tuple) -> dict:
         keep = sd > 0
         z = np.where(keep, (val - truth[:len(val)]) / np.where(keep, sd, 1.0), 0.0)
         out["coverage"][n] = {"z": [float(v) for v in z], "truth": truth.tolist(), "est": val.tolist(),
-                              "names": ep["names"]}
+                              "sd": sd.tolist(), "names": ep["names"]}
     if "tool_gravity" in injected and "tool_inertia" in out["present"]:
         e = next(x for x in rep["ranking"] if x["effect"] == "tool_inertia")
         ep = e["estimate_params"]
@@ -183,8 +189,10 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--only", default="", help="rows whose name contains this")
     ap.add_argument("--json", default="", help="write every row's result here")
+    ap.add_argument("--shift-wrench", type=int, default=0,
+                    help="pair each encoder sample with the wrench read K samples later (module docstring)")
     a = ap.parse_args()
-    todo = [j for j in jobs(a.seeds) if a.only in j[0]]
+    todo = [(*j, a.shift_wrench) for j in jobs(a.seeds) if a.only in j[0]]
     with ProcessPoolExecutor(max_workers=a.jobs) as ex:
         results = list(ex.map(run_one, todo))
     n_ok = 0
@@ -194,6 +202,12 @@ def main() -> None:
         worst = max((abs(z) for c in r["coverage"].values() for z in c["z"]), default=0.0)
         print(f"{'right' if ok else 'WRONG'}  {r['row']:<44} present: {', '.join(r['present']) or '-':<40} "
               f"complete: {r['model_complete']}  worst |z| {worst:.1f}" + (f"\n       why: {why}" if why else ""))
+        if why:
+            for n, c in r["coverage"].items():
+                names = c.get("names") or [f"p{i}" for i in range(len(c["z"]))]
+                sds = c.get("sd") or [float("nan")] * len(c["z"])
+                print(f"       {n}: " + ", ".join(f"{names[i]} {c['est'][i]:.4g} +- {sds[i]:.2g} (injected {c['truth'][i]:.4g})"
+                                            for i in range(len(c["z"]))))
     print(f"{n_ok}/{len(results)} rows right")
     if a.json:
         Path(a.json).write_text(json.dumps(results, indent=1))
