@@ -96,18 +96,25 @@ def _sensor_constant(s) -> np.ndarray:
     return np.broadcast_to(np.eye(6)[None], (s.n, 6, 6)).copy()
 
 
-def _world_force(s) -> np.ndarray:
-    """Force ``F_w`` (3) and ``M = p F^T`` (9, p the point of action in s): force rows ``R^T F``,
-    moment rows ``p x R^T F`` = sum_il M_il (e_i x R^T e_l) (linear in F and M)."""
-    C = np.zeros((s.n, 6, 12))
+def world_force_columns(R_ws: np.ndarray) -> np.ndarray:
+    """A constant world-frame force at a fixed point of the tool, linear in ``F_w`` (3) and
+    ``M = p F^T`` (9, p the point of action in s): (n, 6, 12) columns along the sensor's axes
+    ``R_ws`` (n, 3, 3) -- force rows ``R^T F``, moment rows ``p x R^T F`` = sum_il M_il (e_i x R^T e_l).
+    The hint ``world_force`` and the live monitor's shape of the same name."""
+    R_ws = np.asarray(R_ws)
+    C = np.zeros((len(R_ws), 6, 12))
     for l_ in range(3):
-        u = s.R_ws[:, l_, :]  # (n, 3): R_ws^T e_l, the world axis l in s
+        u = R_ws[:, l_, :]  # (n, 3): R_ws^T e_l, the world axis l in s
         C[:, :3, l_] = u
         for i in range(3):
             e = np.zeros(3)
             e[i] = 1.0
             C[:, 3:, 3 + 3 * i + l_] = np.cross(e, u)
     return C
+
+
+def _world_force(s) -> np.ndarray:
+    return world_force_columns(s.R_ws)
 
 
 def _whole(s, key: str, local: Callable):

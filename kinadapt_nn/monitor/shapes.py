@@ -28,6 +28,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from kinadapt_nn.diagnostics.completeness import world_force_columns
 from kinadapt_nn.monitor import kernel as K
 
 #: shapes in the order they are tried (ties: the earlier, fewer parameters first)
@@ -77,15 +78,7 @@ def columns(shape: str, rows: np.ndarray, mc: np.ndarray, t_onset: float) -> np.
         G = _gravity_cols(om, al, ga)[:, :, 1:]  # (n, 6, 3) per dmc
         return (G @ (-_skew(np.broadcast_to(mc, (n, 3)))))[:, :, :2]
     if shape == "world_force":
-        C = np.zeros((n, 6, 12))
-        for l_ in range(3):
-            u = R[:, l_, :]  # world axis l in s
-            C[:, :3, l_] = u
-            for i in range(3):
-                e = np.zeros(3)
-                e[i] = 1.0
-                C[:, 3:, 3 + 3 * i + l_] = np.cross(e, u)
-        return C
+        return world_force_columns(R)
     if shape == "ft_bias_drift":
         C = np.zeros((n, 6, 12))
         dt = rows[:, K.G_T] - t_onset
