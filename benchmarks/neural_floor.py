@@ -26,7 +26,7 @@ import argparse
 import numpy as np
 
 from kinadapt_nn.config import arm_mjcf_path, load_config
-from kinadapt_nn.controller.laws import LawParams, kalman
+from kinadapt_nn.controller.laws import kalman
 from kinadapt_nn.controller.standalone import StandaloneLaw
 from kinadapt_nn.geometry import skew
 from kinadapt_nn.known import BORE_AXIS_W
@@ -46,7 +46,7 @@ def _jerr(J_hat: np.ndarray, J_true: np.ndarray, W: np.ndarray) -> float:
 
 def _kalman_law(cfg, p: int, P0: np.ndarray) -> StandaloneLaw:
     ad = cfg.adaptation
-    return StandaloneLaw("kalman", LawParams.of(ad, cfg.run.dt_s, P0), channel_metric(cfg.sensing), np.full(p, -np.inf),
+    return StandaloneLaw("kalman", kalman.LAW.params_of(ad, cfg.run.dt_s, P0), channel_metric(cfg.sensing), np.full(p, -np.inf),
                          np.full(p, np.inf), filter_tau_s=cfg.sensing.filter_tau_s,
                          contact_gate=(ad.contact_force_N, ad.contact_moment_Nm))
 

@@ -239,6 +239,9 @@ class AdaptationCfg(_Cfg):
     resid_floor_w: float = Field(1.0e-4, gt=0.0)  # [W-scaled^2] floor of the residual level
     act_sd_ratio: float = Field(0.4, gt=0.0, le=1.0)  # [-] act on a direction of theta once its sd < this x the prior sd (1: all)
     persist_tau_s: float = Field(0.5, gt=0.0)  # [s] window of the residual's mean: a persistent residual counts once per 2 tau
+    # a law's own parameters, by law name: [adaptation.params.<law>] name = value, declared (unit, default, bounds) in
+    # the law's module (its Params) and checked when the run builds the law; the keys above are the built-in laws'
+    params: dict[str, dict[str, float | int | bool | str]] = {}
 
     @field_validator("initial_error_dir_f")
     @classmethod

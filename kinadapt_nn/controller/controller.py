@@ -32,7 +32,7 @@ from typing import NamedTuple
 import numpy as np
 
 from kinadapt_nn.controller import core
-from kinadapt_nn.controller.laws import AdaptStep, LawParams, LawSpec, law_spec
+from kinadapt_nn.controller.laws import AdaptStep, LawSpec, law_params, law_spec
 from kinadapt_nn.controller.laws.base import law_state
 from kinadapt_nn.errors import SensorError
 from kinadapt_nn.features.base import Features, KinState
@@ -165,7 +165,7 @@ def core_consts(known: KnownCfg, features: Features, law_address: bool = True) -
     spec = law_spec(run_law(known, features))
     p = features.n_params
     # the law's constants; theta's prior covariance: the features' (make_features), else Omega/3
-    lc = spec.constants(LawParams.of(ad, dt, prior_cov_of(features)), S.shape[0], p)
+    lc = spec.constants(law_params(ad, spec.name, dt, prior_cov_of(features)), S.shape[0], p)
     v = np.zeros(core.N_C)
     alpha, inv_tau = dt / (sc.filter_tau_s + dt), 1.0 / (sc.filter_tau_s + dt)
     dither = np.asarray(c.dither_rad_s, dtype=float)

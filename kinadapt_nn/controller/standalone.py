@@ -23,7 +23,7 @@ from kinadapt_nn.known import KnownCfg
 class StandaloneLaw:
     """The law ``name`` for one episode of p parameters on m channels (B = 1).
 
-    ``params``: the law's numbers (``LawParams``); ``W`` (m,) the channel metric; ``lo``, ``hi``
+    ``params``: the law's own parameters (an instance of its ``Params``: ``LawSpec.params_of``); ``W`` (m,) the channel metric; ``lo``, ``hi``
     (p,) the box Omega (``-inf``/``inf`` for none); ``filter_tau_s`` the rate filter's time
     constant (the regressor rows go through the same filter); ``contact_gate`` the free-space
     rule, (force [N], moment [N m]) (default (0, 0): always in contact); ``track_mask`` (p,) the
@@ -34,6 +34,9 @@ class StandaloneLaw:
                  filter_tau_s: float, contact_gate: tuple[float, float] = (0.0, 0.0),
                  track_mask: np.ndarray | None = None) -> None:
         spec = law_spec(name)
+        if not isinstance(params, spec.params):
+            raise TypeError(f"the {name} law takes its own parameters ({spec.params.__module__}.{spec.params.__qualname__}"
+                            f", from law_spec({name!r}).params_of(...)), not {type(params).__qualname__}")
         W = np.asarray(W, dtype=float)
         lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
         m, p = W.size, lo.size

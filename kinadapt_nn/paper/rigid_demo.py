@@ -23,7 +23,7 @@ import mujoco
 import numpy as np
 
 from kinadapt_nn.config import AdaptationCfg
-from kinadapt_nn.controller.laws import LawParams
+from kinadapt_nn.controller.laws import law_spec
 from kinadapt_nn.controller.standalone import StandaloneLaw
 from kinadapt_nn.features.base import Features, KinState, Regressor
 from kinadapt_nn.geometry import skew
@@ -125,8 +125,8 @@ def run_rigid_demo(
         feats = _AdjointTip()
         theta = l_true + np.asarray(theta_error_m)
         lo, hi = l_true - 0.05, l_true + 0.05
-    params = LawParams.of(AdaptationCfg(), dt_s, np.eye(feats.n_params), gamma=gamma, gamma_d=1.0, eta=0.5,
-                          eps_norm=1e-6)
+    params = law_spec(mode).params_of(AdaptationCfg(), dt_s, np.eye(feats.n_params), gamma=gamma, gamma_d=1.0,
+                                      eta=0.5, eps_norm=1e-6)
     # Omega: unbounded for the RBF weights, +-5 cm about the truth for the offset; no gate (rigid task)
     law = StandaloneLaw(mode, params, np.ones(3), lo, hi, filter_tau_s=1e-12)
     n = int(round(duration_s / dt_s))

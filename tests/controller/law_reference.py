@@ -24,14 +24,16 @@ def one_law_step(name: str, Phi: np.ndarray, eps: np.ndarray, theta: np.ndarray 
     """One step of the registered law ``name`` in contact on rows given directly: no filter lag
     (``filter_tau_s = 0``), W = 1, known = 0, so the law sees ``H = Phi`` (m, p) and ``e = eps -
     Phi theta`` (m,); ``F`` (m,) the value force of the tracking term (default 0). ``params``:
-    ``LawParams`` fields (default the config's). -> (theta_next (p,), AdaptStep, StandaloneLaw)."""
+    the law's ``Params`` fields (default the config's; another law's fields are ignored). ->
+    (theta_next (p,), AdaptStep, StandaloneLaw)."""
     from kinadapt_nn.config import AdaptationCfg
-    from kinadapt_nn.controller.laws import LawParams
+    from kinadapt_nn.controller.laws import law_spec
     from kinadapt_nn.controller.standalone import StandaloneLaw
 
     m, p = Phi.shape
     prior = params.pop("prior_cov", np.eye(p))
-    law = StandaloneLaw(name, LawParams.of(AdaptationCfg(), params.pop("dt_s", 1e-3), prior, **params), np.ones(m),
+    law_params = law_spec(name).params_of(AdaptationCfg(), params.pop("dt_s", 1e-3), prior, **params)
+    law = StandaloneLaw(name, law_params, np.ones(m),
                         np.full(p, -np.inf) if lo is None else lo, np.full(p, np.inf) if hi is None else hi,
                         filter_tau_s=0.0)
     theta = np.zeros(p) if theta is None else np.asarray(theta, dtype=float)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from kinadapt_nn.config import AdaptationCfg, load_config
-from kinadapt_nn.controller.laws import LawParams
+from kinadapt_nn.controller.laws import kalman
 from kinadapt_nn.controller.standalone import StandaloneLaw
 from kinadapt_nn.runs.build import make_features
 from kinadapt_nn.runs.episode import run_episode
@@ -74,7 +74,7 @@ def test_kalman_updates_equal_the_batch_posterior():
     p, m, N = 4, 3, 50
     P0 = np.diag(rng.uniform(0.5, 2.0, p))
     th0 = rng.normal(size=p)
-    law = StandaloneLaw("kalman", LawParams.of(AdaptationCfg(), 1e-3, P0, gamma_d=0.0, act_sd_ratio=1.0), np.ones(m),
+    law = StandaloneLaw("kalman", kalman.LAW.params_of(AdaptationCfg(), 1e-3, P0, gamma_d=0.0, act_sd_ratio=1.0), np.ones(m),
                         np.full(p, -np.inf), np.full(p, np.inf), filter_tau_s=0.0)
     theta = th0.copy()
     info, vec = np.linalg.inv(P0), np.linalg.inv(P0) @ th0
@@ -90,8 +90,8 @@ def test_kalman_updates_equal_the_batch_posterior():
 
 def _law(Phi, P0):
     """The kalman law on a fixed regressor Phi (m, p) scaled by qdot[0] (no gate, no Omega)."""
-    params = LawParams.of(AdaptationCfg(), 1e-3, P0, gamma=1.0, gamma_d=0.0, eta=0.5, eps_norm=1e-4, corr_s=0.05,
-                          resid_tau_s=1.0, resid_floor_w=1e-4, persist_tau_s=0.5, act_sd_ratio=0.4)
+    params = kalman.LAW.params_of(AdaptationCfg(), 1e-3, P0, gamma_d=0.0, corr_s=0.05, resid_tau_s=1.0,
+                                  resid_floor_w=1e-4, persist_tau_s=0.5, act_sd_ratio=0.4)
     p = P0.shape[0]
     return StandaloneLaw("kalman", params, np.ones(6), np.full(p, -np.inf), np.full(p, np.inf), filter_tau_s=1e-6), Phi
 

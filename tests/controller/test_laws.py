@@ -7,50 +7,27 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
-import numba as nb
 import numpy as np
 import pytest
 
 from kinadapt_nn.config import load_config
 from kinadapt_nn.controller import core
 from kinadapt_nn.controller.controller import Controller
-from kinadapt_nn.controller.laws import LAWS, LawSpec, law_spec
-from kinadapt_nn.controller.laws.base import STEP_SIG, project_omega
+from kinadapt_nn.controller.laws import LAWS, law_spec
+from kinadapt_nn.controller.laws.base import STEP_SIG
 from kinadapt_nn.controller.standalone import StandaloneLaw
 from kinadapt_nn.errors import ConfigError
 from kinadapt_nn.known import KnownCfg
 from kinadapt_nn.runs.build import make_features
 from tests.controller.law_reference import one_law_step
+from tests.diagnostics.example_scripts import EXAMPLES, load_script
 
 REPLAY = Path(__file__).parent / "data" / "law_replay_ed8ad81.npz"
 BUILT_IN = ("kalman", "composite", "prediction", "tracking", "frozen")
 
 
-# ---------------------------------------------------------------- a law written in a test module
-MU = 1e-4  #: the toy law's fixed gain
-
-
-@nb.njit(cache=True)
-def _sign_lms_step(theta, H_T, G, e, PhiF, lo, hi, consts, x, k, unc, d_track, d_pred):
-    """sign-LMS with a fixed gain: theta = Proj_Omega(theta + mu sign(H^T e)); it keeps its last
-    increment (block ``last``) and counts its steps (counter ``steps``)."""
-    p, m = H_T.shape
-    th = theta.copy()
-    for j in range(p):
-        v = 0.0
-        for i in range(m):
-            v += H_T[j, i] * e[i]
-        d_pred[j] = consts[0] * np.sign(v)
-        th[j] += d_pred[j]
-        x[j] = d_pred[j]
-    k[0] += 1
-    project_omega(th, lo, hi, theta)
-    return 0.0
-
-
-SIGN_LMS = LawSpec(name="sign_lms", doc="sign-LMS, fixed gain (a test law)", step=_sign_lms_step,
-                   constants=lambda params, m, p: np.array([MU]), blocks=lambda m, p: (("last", (p,)),),
-                   counters=("steps",))
+# ---------------------------------------------------------------- the example law (examples/laws/)
+SIGN_LMS = load_script(EXAMPLES / "laws" / "sign_lms.py", "sign_lms").LAW  # a law with a parameter of its own
 
 
 @pytest.fixture
@@ -70,13 +47,15 @@ def _mid_insertion(ctrl: Controller, theta: np.ndarray) -> None:
         st.k[0, col] = 1
 
 
-def test_a_law_registered_in_a_test_module_runs_through_the_controller(sign_lms):
-    """One new module (here: the test module) and one registry line: the controller runs the toy
-    law on its own state blocks, in the same compiled kernel as the built-in laws, and the
-    summary's view of it is the contract's default (no covariance)."""
+def test_the_example_law_runs_through_the_controller_with_its_own_parameter(sign_lms):
+    """Two files (examples/laws/sign_lms.py and the registry line): the controller runs the example
+    law on its own state blocks, in the same compiled kernel as the built-in laws, with its own
+    parameter ``mu`` from the config's ``[adaptation.params.sign_lms]``, and the summary's view
+    of it is the contract's default (no covariance)."""
     from kinadapt_nn.runs.evaluate import identification_words
 
-    cfg = load_config(None, ["run.progress=false"])
+    mu = 3e-5
+    cfg = load_config(None, ["run.progress=false", f"adaptation.params.sign_lms.mu={mu}"])
     feats, theta0 = make_features(cfg)
     q = np.array([0.05, -0.55, 0.02, -2.35, 0.03, 1.85, 0.75])
     qdot = 0.05 * np.random.default_rng(1).normal(size=7)
@@ -92,7 +71,8 @@ def test_a_law_registered_in_a_test_module_runs_through_the_controller(sign_lms)
     a = ctrl.last.adapt
     assert a.gate == 1.0
     H = ctrl.W[:, None] * ctrl.state.Phi_fT[0].T  # this step's filtered rows, W-scaled
-    step = MU * np.sign(H.T @ a.eps_w)
+    step = mu * np.sign(H.T @ a.eps_w)
+    assert np.all(step != 0.0)
     np.testing.assert_allclose(a.d_pred, step, rtol=1e-15)
     np.testing.assert_allclose(ctrl.theta, theta + step, rtol=1e-15)
     np.testing.assert_array_equal(ctrl.state.law_x[0], a.d_pred)  # its own block
@@ -101,10 +81,49 @@ def test_a_law_registered_in_a_test_module_runs_through_the_controller(sign_lms)
     assert ctrl.law.name == "sign_lms" and ctrl.law.identified_directions() is None
     words = identification_words(ctrl, cfg)["text"]
     assert words.startswith("theta moved by") and "sign_lms law has no covariance" in words
-    # and stand-alone, through the registry
+    # and stand-alone, through the registry: the declared default
     Phi, e = np.random.default_rng(2).normal(size=(6, 3)), np.random.default_rng(3).normal(size=6)
     theta_next, _, _ = one_law_step("sign_lms", Phi, e)
-    np.testing.assert_array_equal(theta_next, MU * np.sign(Phi.T @ e))
+    np.testing.assert_array_equal(theta_next, SIGN_LMS.params.model_fields["mu"].default * np.sign(Phi.T @ e))
+
+
+@pytest.mark.parametrize("over, match", [
+    ("adaptation.params.sign_lms.mu=-1e-5", r"'adaptation.params.sign_lms.mu': Input should be greater than 0"),
+    ("adaptation.params.sign_lms.mu=1", r"'adaptation.params.sign_lms.mu': Input should be less than or equal to"),
+    ("adaptation.params.sign_lms.mu=true", r"'adaptation.params.sign_lms.mu': Input should be a valid number"),
+    ("adaptation.params.sign_lms.muu=1e-5", r"'adaptation.params.sign_lms.muu' is not a parameter of the sign_lms "
+                                            r"law \(did you mean 'mu'\?; it has: mu\)"),
+    ("adaptation.params.sign_lms.corr_s=0.1", r"the sign_lms law reads the flat key 'adaptation.corr_s'"),
+    ("adaptation.params.kalman.corr_s=0.1", r"the kalman law reads the flat key 'adaptation.corr_s'"),
+    ("adaptation.params.signlms.mu=1e-5", r"'signlms' is not a registered law \(choose from kalman, "),
+])
+def test_a_laws_parameters_are_checked_when_the_run_builds_it(sign_lms, over, match):
+    """A bad value, an unknown name, a flat key in a law's table, a table of no law: one line
+    naming the key, raised when the controller is built (whichever law runs)."""
+    cfg = load_config(None, ["run.progress=false", over])
+    feats, theta0 = make_features(cfg)
+    with pytest.raises(ConfigError, match=match) as err:
+        Controller(KnownCfg.of(cfg), feats, theta0)
+    assert "\n" not in str(err.value)
+
+
+def test_the_built_in_laws_read_the_flat_keys_through_their_own_params():
+    """``adaptation.corr_s`` and the other flat keys are the built-in laws' declared fields: each
+    law's Params holds exactly the keys its constants read, with the config's bounds."""
+    from kinadapt_nn.config import AdaptationCfg
+
+    own = {name: set(spec.params.model_fields) - {"dt_s", "prior_cov"} for name, spec in LAWS.items()}
+    assert own == {"kalman": {"gamma_d", "corr_s", "resid_tau_s", "resid_floor_w", "persist_tau_s", "act_sd_ratio"},
+                   "composite": {"gamma", "gamma_d", "eta", "eps_norm"}, "prediction": {"eta", "eps_norm"},
+                   "tracking": {"gamma", "gamma_d"}, "frozen": set()}
+    ad = load_config(None, ["adaptation.corr_s=0.05", "adaptation.gamma=250"]).adaptation
+    k = LAWS["kalman"].params_of(ad, 1e-3, np.eye(3))
+    assert k.corr_s == 0.05 and k.act_sd_ratio == AdaptationCfg().act_sd_ratio
+    assert LAWS["kalman"].constants(k, 6, 3)[2] == 50.0  # N_CORR = corr_s / dt
+    assert LAWS["composite"].constants(LAWS["composite"].params_of(ad, 1e-3, np.eye(3)), 6, 3)[0] == pytest.approx(
+        -1e-3 * 250 * ad.gamma_d, rel=1e-15)
+    with pytest.raises(ConfigError, match="'adaptation.corr_s': Input should be greater than 0"):
+        load_config(None, ["adaptation.corr_s=-1"])
 
 
 def test_the_registry_names_every_law_and_refuses_others():

@@ -9,8 +9,12 @@ same step outside the controller. Adding a law: one new module and one line in `
 
 from __future__ import annotations
 
+import numpy as np
+
+from kinadapt_nn.config import AdaptationCfg
 from kinadapt_nn.controller.laws import composite, frozen, kalman, prediction, tracking
 from kinadapt_nn.controller.laws.base import AdaptStep, LawParams, LawSpec, LawState, LawView, lookup, registry
+from kinadapt_nn.errors import ConfigError
 
 #: every law by name, the default first (the config's ``adaptation.mode``)
 LAWS: dict[str, LawSpec] = registry(
@@ -27,4 +31,17 @@ def law_spec(name: str) -> LawSpec:
     return lookup(LAWS, name)
 
 
-__all__ = ["LAWS", "AdaptStep", "LawParams", "LawSpec", "LawState", "LawView", "law_spec"]
+def law_params(adaptation: AdaptationCfg, name: str, dt_s: float, prior_cov: np.ndarray) -> LawParams:
+    """The parameters of the registered law ``name`` (its ``Params``, ``LawSpec.params_of``), after
+    checking every table ``[adaptation.params.<law>]`` of the config: each names a registered law
+    and holds valid values for it (a one-line ConfigError otherwise)."""
+    for other in adaptation.params:
+        if other not in LAWS:
+            raise ConfigError(f"config key 'adaptation.params.{other}': {other!r} is not a registered law "
+                              f"(choose from {', '.join(LAWS)})")
+        if other != name:
+            LAWS[other].params_of(adaptation, dt_s, prior_cov)
+    return law_spec(name).params_of(adaptation, dt_s, prior_cov)
+
+
+__all__ = ["LAWS", "AdaptStep", "LawParams", "LawSpec", "LawState", "LawView", "law_params", "law_spec"]

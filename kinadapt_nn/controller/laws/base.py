@@ -20,24 +20,28 @@ A law is one module (``laws/kalman.py``, ``composite.py``, ...) that defines:
   fraction of the prior (the trace's ``theta_uncertainty``; NaN for a law without covariance);
   ``d_track, d_pred``: the increments for the trace (zero on entry). Returns ``||W Phi_f||^2`` as
   the law defines it (the trace's ``phi_norm2``; 0 when it has none).
-* ``LAW = LawSpec(...)`` -- its name, constants, state blocks, reset and summary view.
+* ``Params`` -- its parameters, a :class:`LawParams` subclass (unit, default and bounds per
+  field; set in a config as ``[adaptation.params.<law>]``), when it has any.
+* ``LAW = LawSpec(...)`` -- its name, parameters, constants, state blocks, reset and summary view.
 
 Registering it is one line in ``laws/__init__.py`` (docs/architecture.md, "Adding a law").
 """
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
-from typing import Callable, NamedTuple
+from typing import Any, Callable, NamedTuple
 
 import numba as nb
 import numpy as np
 from numba import types
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from kinadapt_nn import compiled
 from kinadapt_nn.config import AdaptationCfg
-from kinadapt_nn.errors import ConfigError
+from kinadapt_nn.errors import ConfigError, did_you_mean
 
 _F1 = types.Array(types.float64, 1, "C")
 _F2 = types.Array(types.float64, 2, "C")
@@ -90,34 +94,87 @@ class AdaptStep(NamedTuple):
     phi_norm2: float  #: ||W Phi_f||^2 as the law defines it (0 when not adapting)
 
 
-class LawParams(NamedTuple):
-    """The numbers a law's constants are built from (SI units; each law reads what it needs)."""
+class LawParams(BaseModel):
+    """A law's own parameters: the base every law's ``Params`` extends with its fields (SI units
+    in each field's comment, a default, pydantic bounds), declared in the law's module and named
+    by its ``LawSpec(params=...)``. The base holds what every law gets from the run: the control
+    period and theta's prior covariance.
 
-    dt_s: float  #: [s] control period
-    gamma: float  #: [m^2] Gamma = gamma I (composite, tracking); negative: the myopic sign
-    gamma_d: float  #: [1/J] weight of V(s) in V_aug
-    eta: float  #: [-] fraction of the exact per-sample QP step (composite, prediction)
-    eps_norm: float  #: [-] regulariser of the normalised step, W-scaled units of ||W Phi||^2
-    corr_s: float  #: [s] kalman: residual correlation time (samples within it count as one)
-    resid_tau_s: float  #: [s] kalman: time constant of the measured residual level
-    resid_floor_w: float  #: [W-scaled^2] kalman: floor of the residual level
-    persist_tau_s: float  #: [s] kalman: window of the residual's mean (a persistent residual)
-    act_sd_ratio: float  #: [-] kalman: act on a direction once its sd < this x the prior sd
-    prior_cov: np.ndarray  #: (p, p) theta's prior covariance (kalman)
+    Where a field's value comes from (:meth:`of`): a field declared with :func:`config_key` is a
+    flat key of the config (``adaptation.<name>``: the built-in laws' knobs, several shared by
+    more than one law); any other field is read from the law's own table
+    ``[adaptation.params.<law>]``, else its default. A bad value is a one-line ``ConfigError``
+    naming the key when the run builds the law."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False,
+                              arbitrary_types_allowed=True)
+
+    dt_s: float = Field(gt=0.0)  # [s] control period (the run's)
+    prior_cov: np.ndarray  # (p, p) theta's prior covariance (the features')
+
+    @field_validator("prior_cov", mode="before")
+    @classmethod
+    def _as_array(cls, v):
+        return np.asarray(v, dtype=float)
 
     @classmethod
-    def of(cls, adaptation: AdaptationCfg, dt_s: float, prior_cov: np.ndarray, **override) -> "LawParams":
-        """From the known adaptation config; ``override``: fields set directly (unvalidated, e.g.
-        a negative gamma for the myopic-sign demo)."""
-        ad = adaptation
-        vals = dict(dt_s=dt_s, gamma=ad.gamma, gamma_d=ad.gamma_d, eta=ad.eta, eps_norm=ad.eps_norm, corr_s=ad.corr_s,
-                    resid_tau_s=ad.resid_tau_s, resid_floor_w=ad.resid_floor_w, persist_tau_s=ad.persist_tau_s,
-                    act_sd_ratio=ad.act_sd_ratio, prior_cov=np.asarray(prior_cov, dtype=float))
-        unknown = set(override) - set(vals)
+    def of(cls, adaptation: AdaptationCfg, dt_s: float, prior_cov: np.ndarray, law: str = "",
+           **override) -> "LawParams":
+        """This law's parameters (``cls``: the law's ``Params``) from the known adaptation config;
+        ``law``: the law's name (its table ``adaptation.params.<law>``); ``override``: fields set
+        directly, unvalidated (e.g. a negative gamma for the myopic-sign demo); a field some other
+        law declares is ignored, one that no law declares is a TypeError."""
+        table = dict(adaptation.params.get(law, {}))
+        _check_table(cls, law, table)
+        flat = {k: getattr(adaptation, k) for k in cls.model_fields if k in AdaptationCfg.model_fields}
+        try:
+            params = cls.model_validate({**flat, **table, "dt_s": dt_s, "prior_cov": prior_cov})
+        except ValidationError as err:
+            raise ConfigError(_params_error(err, law, flat)) from None
+        unknown = set(override) - _declared_anywhere()
         if unknown:
-            raise TypeError(f"LawParams has no field(s) {sorted(unknown)}")
-        vals.update(override)
-        return cls(**vals)
+            raise TypeError(f"no law declares the parameter(s) {sorted(unknown)}")
+        return params.model_copy(update={k: v for k, v in override.items() if k in cls.model_fields})
+
+
+def config_key(name: str) -> Any:
+    """A law's field that *is* the flat config key ``adaptation.<name>`` (declared there, with its
+    unit, default and bounds; read by the runs and the paper off the controller side): in a law's
+    ``Params``, ``corr_s: float = config_key("corr_s")``."""
+    return copy.copy(AdaptationCfg.model_fields[name])
+
+
+def _declared_anywhere() -> set[str]:
+    """Every field any law's ``Params`` declares (the subclasses of LawParams defined so far)."""
+    names, todo = set(LawParams.model_fields), [LawParams]
+    while todo:
+        for sub in todo.pop().__subclasses__():
+            names |= set(sub.model_fields)
+            todo.append(sub)
+    return names
+
+
+def _check_table(cls: type[LawParams], law: str, table: dict) -> None:
+    """Every key of ``[adaptation.params.<law>]`` is one of the law's own (not flat) fields."""
+    own = [k for k in cls.model_fields if k not in LawParams.model_fields and k not in AdaptationCfg.model_fields]
+    for key in table:
+        if key in AdaptationCfg.model_fields:
+            raise ConfigError(f"config key 'adaptation.params.{law}.{key}': the {law} law reads the flat key "
+                              f"'adaptation.{key}'; set that instead")
+        if key not in own:
+            hint = did_you_mean(key, own)
+            has = f"it has: {', '.join(own)}" if own else "it has none"
+            raise ConfigError(f"config key 'adaptation.params.{law}.{key}' is not a parameter of the {law} law "
+                              f"({hint + '; ' if hint else ''}{has})")
+
+
+def _params_error(err: ValidationError, law: str, flat: dict) -> str:
+    """One line for a law's parameter out of its bounds: the config key, what is wrong, the value."""
+    first = err.errors()[0]
+    name = ".".join(str(x) for x in first["loc"])
+    key = f"adaptation.{name}" if name in flat else f"adaptation.params.{law}.{name}"
+    msg = " ".join(str(first["msg"]).split()).removeprefix("Value error, ")
+    return f"config key '{key}': {msg} (got {first.get('input')!r}; a parameter of the {law} law)"
 
 
 class LawState(NamedTuple):
@@ -189,8 +246,11 @@ class LawSpec:
     name: str  #: the config's ``adaptation.mode`` value
     doc: str  #: one line for help texts and docs tables
     step: Callable  #: the numba step (module docstring, :data:`STEP_SIG`)
-    #: (params, m, p) -> the law's constants (nc,), passed to every step
-    constants: Callable[[LawParams, int, int], np.ndarray] = _no_consts
+    #: the law's own parameters (a :class:`LawParams` subclass in the law's module; the base: none)
+    params: type[LawParams] = LawParams
+    #: (params, m, p) -> the law's constants (nc,), passed to every step; ``params``: an instance of
+    #: :attr:`params`
+    constants: Callable[[Any, int, int], np.ndarray] = _no_consts
     #: (m, p) -> ((name, shape), ...): the law's float state blocks, in the order ``step`` reads them
     blocks: Callable[[int, int], tuple[tuple[str, tuple[int, ...]], ...]] = _no_blocks
     counters: tuple[str, ...] = ()  #: names of the law's integer counters
@@ -199,6 +259,10 @@ class LawSpec:
     reset: Callable[[np.ndarray, LawState, bool], None] = reset_plain
     view: type[LawView] = LawView  #: the summary's view of the law's state
     _address: list = field(default_factory=list, repr=False, compare=False)
+
+    def params_of(self, adaptation: AdaptationCfg, dt_s: float, prior_cov: np.ndarray, **override) -> LawParams:
+        """The law's parameters from the known adaptation config (:meth:`LawParams.of`)."""
+        return self.params.of(adaptation, dt_s, prior_cov, law=self.name, **override)
 
     def sizes(self, m: int, p: int) -> tuple[int, int]:
         """(nx, nk): the law's float state and counter sizes."""

@@ -20,12 +20,16 @@ import numba as nb
 import numpy as np
 
 from kinadapt_nn.controller.laws import prediction, tracking
-from kinadapt_nn.controller.laws.base import LawParams, LawSpec, project_omega
+from kinadapt_nn.controller.laws.base import LawSpec, project_omega
 
 C_TRACK, ETA, EPS_NORM = 0, 1, 2  #: consts indices
 
 
-def constants(params: LawParams, m: int, p: int) -> np.ndarray:
+class Params(tracking.Params, prediction.Params):
+    """Both terms' parameters: gamma, gamma_d (tracking.py), eta, eps_norm (prediction.py)."""
+
+
+def constants(params: Params, m: int, p: int) -> np.ndarray:
     """[-dt Gamma gamma_d, eta, eps_norm] (3,)."""
     return np.concatenate([tracking.constants(params, m, p), prediction.constants(params, m, p)])
 
@@ -42,4 +46,4 @@ def step(theta, H_T, G, e, PhiF, lo, hi, consts, x, k, unc, d_track, d_pred):
 
 
 LAW = LawSpec(name="composite", doc="the paper's composite law, eq. ft_composite (kinadapt reproduce)",
-              step=step, constants=constants)
+              step=step, params=Params, constants=constants)

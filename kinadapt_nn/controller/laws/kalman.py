@@ -35,7 +35,8 @@ import numba as nb
 import numpy as np
 
 from kinadapt_nn.controller.dense import chol, chol_solve_cols, mm, mm_nt, vcopy
-from kinadapt_nn.controller.laws.base import LawParams, LawSpec, LawState, LawView
+from kinadapt_nn.controller.laws import tracking
+from kinadapt_nn.controller.laws.base import LawSpec, LawState, LawView, config_key
 
 #: consts indices (scalars; then P0, L and L^-1 (p, p) each, L L^T = P0)
 (DT, GAMMA_D, N_CORR, R_ALPHA, R_FLOOR, M_ALPHA, N_PERSIST, ACT_RATIO, ACT_EVERY, TR_P0) = range(10)
@@ -51,7 +52,17 @@ def blocks(m: int, p: int) -> tuple[tuple[str, tuple[int, ...]], ...]:
             ("r1", (m,)), ("R", (m,)))
 
 
-def constants(params: LawParams, m: int, p: int) -> np.ndarray:
+class Params(tracking.Weight):
+    """The kalman law's parameters (flat config keys): gamma_d (tracking.py), then its own."""
+
+    corr_s: float = config_key("corr_s")  # [s] adaptation.corr_s: residual correlation time
+    resid_tau_s: float = config_key("resid_tau_s")  # [s] adaptation.resid_tau_s: the residual level's time constant
+    resid_floor_w: float = config_key("resid_floor_w")  # [W-scaled^2] adaptation.resid_floor_w: its floor
+    persist_tau_s: float = config_key("persist_tau_s")  # [s] adaptation.persist_tau_s: the residual mean's window
+    act_sd_ratio: float = config_key("act_sd_ratio")  # [-] adaptation.act_sd_ratio: act once sd < this x prior sd
+
+
+def constants(params: Params, m: int, p: int) -> np.ndarray:
     """Scalars (N_SCALARS,), then P0, L, L^-1 (p * p each)."""
     dt = params.dt_s
     P0 = np.asarray(params.prior_cov, dtype=float)
@@ -382,4 +393,4 @@ class KalmanView(LawView):
 
 
 LAW = LawSpec(name="kalman", doc="information-weighted: theta moves only where the data beat the prior (default)",
-              step=step, constants=constants, blocks=blocks, counters=COUNTERS, reset=reset, view=KalmanView)
+              step=step, params=Params, constants=constants, blocks=blocks, counters=COUNTERS, reset=reset, view=KalmanView)

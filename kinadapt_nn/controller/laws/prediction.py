@@ -18,12 +18,19 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from kinadapt_nn.controller.laws.base import LawParams, LawSpec, lambda_max_sym3, project_omega
+from kinadapt_nn.controller.laws.base import LawParams, LawSpec, config_key, lambda_max_sym3, project_omega
 
 ETA, EPS_NORM = 0, 1  #: consts indices
 
 
-def constants(params: LawParams, m: int, p: int) -> np.ndarray:
+class Params(LawParams):
+    """The normalised step's parameters (flat config keys)."""
+
+    eta: float = config_key("eta")  # [-] adaptation.eta: fraction of the exact per-sample QP step
+    eps_norm: float = config_key("eps_norm")  # [-] adaptation.eps_norm: regulariser, W-scaled units of ||W Phi||^2
+
+
+def constants(params: Params, m: int, p: int) -> np.ndarray:
     """[eta, eps_norm] (2,)."""
     return np.array([params.eta, params.eps_norm])
 
@@ -64,4 +71,4 @@ def step(theta, H_T, G, e, PhiF, lo, hi, consts, x, k, unc, d_track, d_pred):
 
 
 LAW = LawSpec(name="prediction", doc="the normalised identification step alone (eq. ident_qp_solution)",
-              step=step, constants=constants)
+              step=step, params=Params, constants=constants)

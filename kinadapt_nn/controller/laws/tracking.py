@@ -15,12 +15,24 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from kinadapt_nn.controller.laws.base import LawParams, LawSpec, project_omega
+from kinadapt_nn.controller.laws.base import LawParams, LawSpec, config_key, project_omega
 
 C_TRACK = 0  #: consts index: -dt Gamma gamma_d [m^2 s / J]
 
 
-def constants(params: LawParams, m: int, p: int) -> np.ndarray:
+class Weight(LawParams):
+    """gamma_d, the weight of V(s) in V_aug (also the kalman law's tracking term)."""
+
+    gamma_d: float = config_key("gamma_d")  # [1/J] adaptation.gamma_d
+
+
+class Params(Weight):
+    """The tracking term's parameters (flat config keys)."""
+
+    gamma: float = config_key("gamma")  # [m^2] adaptation.gamma: Gamma = gamma I
+
+
+def constants(params: Params, m: int, p: int) -> np.ndarray:
     """[-dt Gamma gamma_d] (1,)."""
     return np.array([-params.dt_s * params.gamma * params.gamma_d])
 
@@ -45,4 +57,4 @@ def step(theta, H_T, G, e, PhiF, lo, hi, consts, x, k, unc, d_track, d_pred):
 
 
 LAW = LawSpec(name="tracking", doc="eq. ft_composite's tracking term alone (-dt Gamma gamma_d Phi^T F)",
-              step=step, constants=constants)
+              step=step, params=Params, constants=constants)
