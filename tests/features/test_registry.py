@@ -1,5 +1,5 @@
-"""The features registry (features/): a type written in a test module and registered with one
-line runs an episode by ``run.features=<name>`` alone; the registry names every built-in type, the
+"""The features registry (features/): the example type (examples/features/adjoint_mm.py),
+registered with one line, runs an episode by ``run.features=<name>`` alone; the registry names every built-in type, the
 config's default and the choices that help texts list, and refuses other names in one line."""
 
 from __future__ import annotations
@@ -13,51 +13,17 @@ from kinadapt_nn.app.cli import main
 from kinadapt_nn.config import load_config
 from kinadapt_nn.errors import ConfigError
 from kinadapt_nn.features import FEATURES, compared_types, features_spec
-from kinadapt_nn.features.adjoint import nominal_adjoint
-from kinadapt_nn.features.base import Features, KinState, Regressor
-from kinadapt_nn.features.registry import Built, FeaturesContext, FeaturesSpec
 from kinadapt_nn.runs.build import make_features
 from kinadapt_nn.runs.episode import run_episode
+from tests.diagnostics.example_scripts import EXAMPLES, load_script
 
 BUILT_IN = ("adjoint", "rbf", "neural", "oracle")
 ARCHITECTURE = Path(__file__).resolve().parents[2] / "docs" / "architecture.md"
-MM = 1e3  #: the toy type's theta unit: millimetres per metre
 
 
-# ------------------------------------------------------------ a features type written in a test module
-class MillimetreAdjoint(Features):
-    """The adjoint with theta in millimetres (p = 3): ``J_hat(q; theta) = J_adjoint(q; theta / 1000)``,
-    ``Phi = Phi_adjoint / 1000``. Not the adjoint's class, so the controller takes its rows from
-    Python (no in-kernel implementation)."""
-
-    name = "adjoint_mm"
-    n_params = 3
-
-    def __init__(self, adjoint) -> None:
-        self.adjoint = adjoint
-        self.P0 = MM**2 * adjoint.P0  # the same prior, in mm^2
-
-    def jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray:
-        return self.adjoint.jacobian(kin, theta / MM)
-
-    def twist_jacobian(self, kin: KinState, theta: np.ndarray) -> np.ndarray:
-        return self.adjoint.twist_jacobian(kin, theta / MM)
-
-    def regressor(self, kin: KinState, qdot: np.ndarray) -> Regressor:
-        reg = self.adjoint.regressor(kin, qdot)
-        return Regressor(reg.known, reg.Phi / MM)
-
-    def omega(self) -> tuple[np.ndarray, np.ndarray]:
-        centre, half = self.adjoint.omega()
-        return MM * centre, MM * half
-
-
-def build(ctx: FeaturesContext) -> Built:
-    return Built(MillimetreAdjoint(nominal_adjoint(ctx.known)), MM * np.asarray(ctx.offset_estimate_f_m))
-
-
-ADJOINT_MM = FeaturesSpec(name="adjoint_mm", doc="the adjoint, theta in mm (a test type)", build=build,
-                          theta0_per_episode=True)
+# ------------------------------------------------------------ the example type (examples/features/)
+EXAMPLE = load_script(EXAMPLES / "features" / "adjoint_mm.py", "adjoint_mm")
+ADJOINT_MM, MM = EXAMPLE.SPEC, EXAMPLE.MM
 
 
 @pytest.fixture
@@ -66,8 +32,8 @@ def adjoint_mm(monkeypatch):
     return ADJOINT_MM
 
 
-def test_a_features_type_registered_in_a_test_module_runs_an_episode(adjoint_mm):
-    """One new module (here: the test module) and one registry line: ``run.features=adjoint_mm``
+def test_the_example_features_type_runs_an_episode(adjoint_mm):
+    """Two files (examples/features/adjoint_mm.py and the registry line): ``run.features=adjoint_mm``
     builds it, the controller adapts its theta (from Python: no kernel knows it) and the episode's
     theta is the adjoint's own episode's in millimetres -- the kalman law is invariant to the unit
     of theta, so the two agree to rounding."""
