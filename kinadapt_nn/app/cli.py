@@ -32,7 +32,7 @@ from pathlib import Path
 
 from kinadapt_nn import __version__
 from kinadapt_nn.app.common import (EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_NOT_SEATED, EXIT_OK, Parser,
-                                    default_out, float_in, int_in, progress_printer)
+                                    default_out, float_in, int_in, progress_printer, with_monitor)
 from kinadapt_nn.app.diagnose import add_diagnose, add_setup_template
 from kinadapt_nn.app.online import cmd_online
 from kinadapt_nn.errors import KinadaptError, OutputExistsError
@@ -75,15 +75,15 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from kinadapt_nn.runs.compare import load_compare_config, run_compare
     from kinadapt_nn.runio import check_output_dir, staged_output
 
-    cfg = load_compare_config(Path(args.config) if args.config else None, args.set or [])
+    cfg, setup = with_monitor(load_compare_config(Path(args.config) if args.config else None, args.set or []), args)
     out = args.run_dir = Path(args.out) if args.out else default_out("compare")
     check_output_dir(out, args.overwrite)
     with staged_output(out, args.overwrite) as stage:
-        run_compare(cfg, stage, progress=not args.quiet)
+        run_compare(cfg, stage, progress=not args.quiet, worker_setup=setup)
     if not args.quiet:
         print((out / "comparison.md").read_text())
-        wrote = [f for f in ("comparison.csv", "comparison.md", "jacobian_error.png", "cell_learning.png")
-                 if (out / f).is_file()]
+        wrote = [f for f in ("comparison.csv", "comparison.md", "jacobian_error.png", "cell_learning.png",
+                             "monitor.json") if (out / f).is_file()]
         print(f"wrote {out}/ ({', '.join(wrote)}, tb/)")
     return 0
 
@@ -131,14 +131,15 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     from kinadapt_nn.runs.sweep import load_sweep_config, run_sweep
 
-    cfg = load_sweep_config(Path(args.config) if args.config else None, args.set or [])
+    cfg, setup = with_monitor(load_sweep_config(Path(args.config) if args.config else None, args.set or []), args)
     out = args.run_dir = Path(args.out) if args.out else default_out("sweep")
     if out.exists() and not (out / "sweep_config.json").is_file() and any(out.iterdir()):
         if not args.overwrite:
             raise OutputExistsError(f"output folder '{out}' exists and is not a sweep (pass --overwrite or another --out)")
         shutil.rmtree(out)
     try:
-        s = run_sweep(cfg, out, executor=args.executor, address=args.address, progress=not args.quiet)
+        s = run_sweep(cfg, out, executor=args.executor, address=args.address, progress=not args.quiet,
+                      worker_setup=setup)
     except KeyboardInterrupt:
         print(f"kinadapt: interrupted; finished episodes are kept in {out}/episodes; rerun to complete", file=sys.stderr)
         return 130
@@ -151,6 +152,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             med = st["seat_time_s_quantiles"].get("p50")
             print(f"  {g:40s} {st['successes']:4d}/{st['episodes']:<4d} {st['success_rate']:.3f} [{lo:.3f}, {hi:.3f}] "
                   f"seat p50 {med if med is None else round(med, 3)} failures {st['failures']}")
+            if st.get("monitor"):
+                m = st["monitor"]
+                print(f"  {'':40s} monitor: {m['events']} event(s) in {m['episodes_with_events']}/{m['episodes']} "
+                      f"episodes" + (f" ({', '.join(f'{k} x{v}' for k, v in m['shapes'].items())})" if m["shapes"]
+                                     else ""))
         print(f"wrote {out}/ (sweep.csv, sweep.json, episodes/)")
     return 0
 
@@ -215,6 +221,11 @@ def _add_online(sub) -> None:
                          "nominal model and prints each change it finds (monitor.enabled; docs/monitor.md)")
 
 
+#: ``--monitor``'s help for the commands that run many episodes
+MONITOR_HELP = ("run the live monitor beside the controller of {where} (monitor.enabled in every run; "
+                "docs/monitor.md)")
+
+
 def _add_view(sub) -> None:
     vw = sub.add_parser("view", help="render a run to GIF/MP4 offscreen, or open the viewer when a display exists",
                         description=_DESCRIPTIONS["view"])
@@ -248,6 +259,8 @@ def _add_reproduce(sub) -> None:
 def _add_sweep(sub) -> None:
     sw = _job_parser(sub, "sweep", "many episodes over groups x seeds, locally or on a Ray cluster (rerun to resume)",
                      "online/sweep.toml", "seeds=5", cmd_sweep, _DESCRIPTIONS["sweep"])
+    sw.add_argument("--monitor", action="store_true", help=MONITOR_HELP.format(
+        where="each episode (batched too); sweep.csv and sweep.json say how many events and their shapes"))
     sw.add_argument("--executor", choices=["local", "ray"], default="local",
                     help="run episodes in local worker processes or on a Ray cluster (default: local)")
     sw.add_argument("--address", help="with --executor ray: a running Ray cluster's address (default: start a Ray of "
@@ -271,8 +284,10 @@ def build_parser() -> argparse.ArgumentParser:
     _add_online(sub)
     _job_parser(sub, "pretrain", "train the neural Jacobian basis on randomised tools and arms (rerun to resume)",
                 "pretrain/default.toml", "train.steps=200", cmd_pretrain, _DESCRIPTIONS["pretrain"])
-    _job_parser(sub, "compare", "adjoint vs RBF vs neural features on the same held-out tools",
-                "online/compare.toml", "n_tools=2", cmd_compare, _DESCRIPTIONS["compare"])
+    cp = _job_parser(sub, "compare", "adjoint vs RBF vs neural features on the same held-out tools",
+                     "online/compare.toml", "n_tools=2", cmd_compare, _DESCRIPTIONS["compare"])
+    cp.add_argument("--monitor", action="store_true", help=MONITOR_HELP.format(
+        where="each run; the table says per run how many events and their shapes, monitor.json has them all"))
     _add_view(sub)
     _add_reproduce(sub)
     _add_sweep(sub)

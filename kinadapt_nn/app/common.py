@@ -96,3 +96,19 @@ def progress_printer(args: argparse.Namespace, name: str):
 
 def default_out(kind: str) -> Path:
     return Path("runs") / f"{kind}-{time.strftime('%Y%m%d-%H%M%S')}"
+
+
+def with_monitor(cfg, args: argparse.Namespace):
+    """``--monitor`` of ``compare`` and ``sweep``: their job config (a ``base`` list of online config
+    keys) with ``monitor.enabled=true`` added, and the worker set-up that registers the live monitor
+    with the episode loop in each worker process (``runs.jobs.Runner``'s ``setup``). -> (cfg, setup or
+    None); without ``--monitor``: (cfg, None)."""
+    if not getattr(args, "monitor", False):
+        return cfg, None
+    from functools import partial
+
+    from kinadapt_nn.monitor.monitor import monitor_of_run  # (importing it registers it in this process)
+    from kinadapt_nn.runs.loop import register_monitor
+
+    return cfg.model_copy(update={"base": [*cfg.base, "monitor.enabled=true"]}), partial(register_monitor,
+                                                                                         monitor_of_run)

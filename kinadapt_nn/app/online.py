@@ -54,6 +54,12 @@ def _monitor_lines(summary: dict) -> list[str]:
     sd = mon["noise_sd"]
     head = (f"  monitor            {len(mon['events'])} event(s); noise sd {max(sd[:3]):.3g} N / {max(sd[3:]):.3g} N m, "
             f"threshold {mon['threshold_sd']:.1f} sd ({mon['false_alarms_per_h']:g} false alarms/h on white noise)")
+    rows = summary.get("insertions") or []
+    if len(rows) > 1 and all("monitor_shapes" in r for r in rows):  # a work cell: a monitor per insertion
+        head += f" in insertion {len(rows)}"
+        per = "; ".join(f"{r['insertion']}: {r['monitor_events']}"
+                        + (f" ({', '.join(r['monitor_shapes'])})" if r["monitor_shapes"] else "") for r in rows)
+        return [head, *(f"    {e['line']}" for e in mon["events"]), f"    events per insertion: {per}"]
     return [head, *(f"    {e['line']}" for e in mon["events"])]
 
 

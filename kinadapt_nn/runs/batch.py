@@ -40,8 +40,9 @@ class BatchResult(NamedTuple):
 def run_batch(cfgs: list[ExperimentCfg], nthread: int = 2, record_ctrl: bool = False) -> BatchResult:
     """Run len(cfgs) episodes together, summaries only. All cfgs share every KNOWN setting
     (sensing, control, adaptation, success, bore pose) and differ in hidden truth (tool, start,
-    seed). ``record_ctrl``: keep the servo set-points (``BatchResult.ctrl_log``). BLAS at one
-    thread meanwhile (``runs.build.one_blas_thread``)."""
+    seed). ``record_ctrl``: keep the servo set-points (``BatchResult.ctrl_log``). With
+    ``monitor.enabled`` each episode's summary has its own monitor's ``monitor`` (its events; no
+    residual: there is no trace). BLAS at one thread meanwhile (``runs.build.one_blas_thread``)."""
     compile_loop(cfgs[0])
     with one_blas_thread():
         t0 = time.perf_counter()
@@ -77,6 +78,9 @@ def _summaries(lp: Loop, log: SummaryLog) -> list[dict]:
             "offset_error_final_m": err.tolist(), "offset_error_lateral_final_m": float(math.hypot(err[0], err[1])),
             "seed": cfg.run.seed, "law": kn.law.name, "steps": int(w["n_ctrl"][b]),
         })
+    for b, mon in lp.monitors:  # the live monitor's events (kinadapt_nn.monitor): no trace, so no residual
+        mon.finish()
+        out[b]["monitor"] = mon.summary()
     return out
 
 
@@ -177,8 +181,8 @@ def _episode_results(lp: Loop, log: TraceLog, wall_s: float, keep_regressor: boo
                          lam_min_all=float(w["lam_min"][b]), rank_breach_t=breach_t)
         res = episode_result(cfg, lp.world.sims[b], ctrl, monitor, logs, end, keep_regressor)
         res.summary["compile_time_s"] = lp.kn.compile_s
-        for bm, mon in lp.monitors:  # the live monitor's events and residual (kinadapt_nn.monitor)
-            if bm == b:
+        for bm, mon in lp.monitors:  # the live monitor's events and residual (kinadapt_nn.monitor): the
+            if bm == b:  # episode's own monitor, fed its row of the batch (runs.loop.run)
                 mon.finish()
                 res.summary["monitor"] = mon.summary()
                 n_rec = len(res.trace)

@@ -145,7 +145,8 @@ def _run_task(task: Task, report) -> list[dict]:
 def _job_result(job: CompareJob, cfg, res) -> dict:
     """A job's row material from its run ``res``; writes its TensorBoard run."""
     from kinadapt_nn.runs.insertions import judged_whole
-    from kinadapt_nn.runs.tb import write_cell_tensorboard, write_tensorboard
+    from kinadapt_nn.runs.outcome import monitor_brief
+    from kinadapt_nn.runs.tb import write_cell_tensorboard, write_monitor_events, write_tensorboard
 
     s = judged_whole(res.summary)  # several insertions: judged from the first one's start to the last one's end
     hp = {"features": job.features, "tool_family": job.family, "scenario": job.scenario, "tool": job.tool,
@@ -153,6 +154,8 @@ def _job_result(job: CompareJob, cfg, res) -> dict:
     write_tensorboard(Path(job.tb_dir), res.trace, s, hp)
     if "cell" in s:
         write_cell_tensorboard(Path(job.tb_dir), s)
+    if s.get("monitor"):  # --monitor: its events as text beside the residual scalars (the trace's monitor_z)
+        write_monitor_events(Path(job.tb_dir), s)
     t = res.trace["t_s"]
     idx = np.arange(0, len(t), 10)
     return {
@@ -160,6 +163,7 @@ def _job_result(job: CompareJob, cfg, res) -> dict:
         "summary": s, "law": cfg.adaptation.mode,
         "t": t[idx].tolist(), "jac_err": res.trace["truth_jacobian_rel_error"][idx].tolist(),
         "insertions": s.get("insertions"), "cell": s.get("cell"),
+        "monitor": s.get("monitor"), "monitor_brief": monitor_brief(s),
     }
 
 
@@ -187,10 +191,14 @@ def compare_jobs(cfg: CompareCfg, out: Path) -> list[CompareJob]:
     return jobs
 
 
-def run_compare(cfg: CompareCfg, out: Path, progress: bool = True) -> list[dict]:
-    """Run every episode, write tb/, comparison.csv/.md and jacobian_error.png into ``out``."""
-    results = _run_jobs(cfg, out, progress)
+def run_compare(cfg: CompareCfg, out: Path, progress: bool = True, worker_setup=None) -> list[dict]:
+    """Run every episode, write tb/, comparison.csv/.md and jacobian_error.png into ``out``; with the live
+    monitor on (``base`` sets ``monitor.enabled``; ``worker_setup`` registers it in each worker,
+    ``runs.jobs.Runner``) also ``monitor.json`` (each run's events) and the table's monitor columns."""
+    results = _run_jobs(cfg, out, progress, worker_setup)
     rows = _rows(cfg, results)
+    if any(r["monitor_brief"] is not None for r in results):
+        _monitor_json(results, out / "monitor.json")
     cols = list(rows[0].keys()) if rows else []
     with open(out / "comparison.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=cols)
@@ -205,7 +213,7 @@ def run_compare(cfg: CompareCfg, out: Path, progress: bool = True) -> list[dict]
     return rows
 
 
-def _run_jobs(cfg: CompareCfg, out: Path, progress: bool) -> list[dict]:
+def _run_jobs(cfg: CompareCfg, out: Path, progress: bool, worker_setup=None) -> list[dict]:
     """Every job of the comparison on ``cfg.jobs`` workers (``runs.jobs.Runner``) -> each job's
     row material (:func:`_job_result`), in :func:`compare_jobs`' order."""
     jobs = compare_jobs(cfg, out)
@@ -214,7 +222,7 @@ def _run_jobs(cfg: CompareCfg, out: Path, progress: bool) -> list[dict]:
     def figures() -> None:  # matplotlib, while the workers run: the figure then only draws
         import kinadapt_nn.figures  # noqa: F401
 
-    with Runner(cfg.jobs, progress=progress) as runner:
+    with Runner(cfg.jobs, progress=progress, setup=worker_setup) as runner:
         kinds = {(j.features, j.law): j for j in jobs}  # the tool changes no kernel
         runner.precompile(j.config() for j in kinds.values())  # before the workers
         per_task = runner.run(_run_task, tasks, f"compare ({len(jobs)} runs)", meanwhile=figures)
@@ -255,10 +263,35 @@ def _rows(cfg: CompareCfg, results: list[dict]) -> list[dict]:
             "insertion": None,
             "jacobian_error_cell_median": None,
         })
+        briefs = [r["monitor_brief"] for r in results
+                  if (r["scenario"], r["features"], r["tool_family"], r["law"]) == (scen, feat, fam, law)]
+        if any(b is not None for b in briefs):  # --monitor: per run (tool), its events and their shapes
+            rows[-1]["monitor_events"] = " ".join(str(b.events) for b in briefs)
+            rows[-1]["monitor_shapes"] = _shape_counts(briefs)
         cells = [g["cell"] for g in grp if g.get("cell")]
         if cells:  # a work cell: one row per insertion (0 = before the first), medians over tools
             rows += _cell_rows(rows.pop(), grp, cells)
     return rows
+
+
+def _shape_counts(briefs: list) -> str:
+    """The shapes the runs' monitors named, with how many runs named each: ``"world_force x4"``
+    (``-``: none)."""
+    counts: dict[str, int] = {}
+    for b in briefs:
+        for sh in dict.fromkeys(b.shapes if b is not None else []):
+            counts[sh] = counts.get(sh, 0) + 1
+    return ", ".join(f"{k} x{v}" for k, v in counts.items()) or "-"
+
+
+def _monitor_json(results: list[dict], path: Path) -> None:
+    """``monitor.json``: per run (its job's TensorBoard folder's name, ``scenario/family/features/tool``)
+    how many events, their shapes and its monitor's summary (the last insertion's for a work cell)."""
+    from kinadapt_nn.runio import write_json
+
+    write_json(path, {"/".join((r["scenario"], r["tool_family"], r["features"], r["law"], f"tool{r['tool']}")):
+                      {"events": r["monitor_brief"].events, "shapes": r["monitor_brief"].shapes,
+                       "monitor": r["monitor"]} for r in results if r["monitor_brief"] is not None})
 
 
 def _cell_rows(row: dict, grp: list[dict], cells: list[dict]) -> list[dict]:
@@ -289,6 +322,12 @@ def _cell_rows(row: dict, grp: list[dict], cells: list[dict]) -> list[dict]:
             "insertion": k,
             "jacobian_error_cell_median": _median([c["jacobian_error_cell_median"][k] for c in cells]),
         })
+        if "monitor_events" in row:  # --monitor: each insertion's own monitor, per run (tool)
+            from kinadapt_nn.runs.outcome import MonitorBrief
+
+            briefs = [MonitorBrief(r["monitor_events"], r["monitor_shapes"]) for r in ins]
+            rows[-1]["monitor_events"] = " ".join(str(b.events) for b in briefs) if ins else None
+            rows[-1]["monitor_shapes"] = _shape_counts(briefs) if ins else None
     return rows
 
 
@@ -303,9 +342,12 @@ def _fmt(v) -> str:
 def _markdown(rows: list[dict], cols: list[str]) -> str:
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for r in rows:
-        lines.append("| " + " | ".join(_fmt(r[c]) for c in cols) + " |")
+        lines.append("| " + " | ".join(_fmt(r.get(c)) for c in cols) + " |")
     note = ("\npred_error_rms: W-scaled prediction error RMS in contact; jacobian errors: |W (J_hat - J_true)| / "
             "|W J_true| at the last step (initial: first step); J_true includes the arm errors.\n")
+    if "monitor_events" in cols:
+        note += ("monitor_events: the live monitor's events of each run (tool), in tool order; monitor_shapes: the "
+                 "shapes they were named, with how many runs named each (monitor.json: every event).\n")
     return "\n".join(lines) + "\n" + note
 
 

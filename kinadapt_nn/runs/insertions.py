@@ -215,6 +215,9 @@ class _Cell:
                           "identified": s["identification"].get("identified"),
                           "refit": refit_note,
                           "theta_sd_final": s.get("theta_sd_final"), "max_force_N": s["max_force_N"]})
+        if s.get("monitor"):  # the insertion's own live monitor (a new one each insertion): what it found
+            self.rows[-1]["monitor_events"] = len(s["monitor"]["events"])
+            self.rows[-1]["monitor_shapes"] = [e["shape"] for e in s["monitor"]["events"]]
         k = i + 1
         if k in counts and k not in self.out:
             self.out[k] = EpisodeResult(res.trace, dict(s, insertions=list(self.rows), cell={

@@ -148,8 +148,10 @@ def _each(fn: Callable, task: Task, report: Callable[[int], None]) -> list:
 _QUEUE: list = [None]  # a local worker's progress queue (set by _init_worker)
 
 
-def _init_worker(queue) -> None:
+def _init_worker(queue, setup: Callable[[], None] | None = None) -> None:
     _QUEUE[0] = queue
+    if setup is not None:
+        setup()
 
 
 def _local_call(fn: Callable, index: int, task: Task) -> list:
@@ -158,23 +160,28 @@ def _local_call(fn: Callable, index: int, task: Task) -> list:
     return fn(task, lambda n: queue.put((index, n)))
 
 
-def _ray_call(fn: Callable, task: Task) -> list:
-    """A Ray worker's call: ``fn(task, report)``; the bar moves when the task ends."""
+def _ray_call(fn: Callable, task: Task, setup: Callable[[], None] | None = None) -> list:
+    """A Ray worker's call: ``setup()`` (if given), then ``fn(task, report)``; the bar moves when the task ends."""
+    if setup is not None:
+        setup()
     return fn(task, lambda n: None)
 
 
 class Runner:
     """Tasks on ``workers`` local processes (``executor="local"``) or on Ray (``"ray"``; module
     docstring). A context manager: the pool (or Ray) lives until the ``with`` block ends.
-    ``progress``: one bar per :meth:`run`, lines on stderr."""
+    ``progress``: one bar per :meth:`run`, lines on stderr. ``setup``: a module-level callable each
+    worker calls before its first task (what a worker process needs that this one has set up: the live
+    monitor's registration with the episode loop, ``kinadapt compare --monitor``)."""
 
     def __init__(self, workers: int, executor: str = "local", address: str | None = None,
-                 progress: bool = False) -> None:
+                 progress: bool = False, setup: Callable[[], None] | None = None) -> None:
         if executor not in EXECUTORS:
             raise KinadaptError(f"executor {executor!r}: choose one of {', '.join(EXECUTORS)}")
         if address and executor != "ray":
             raise KinadaptError("--address is a Ray cluster's address: pass it with --executor ray")
         self.workers, self.executor, self.address, self.progress = workers, executor, address, progress
+        self.setup = setup
         self._pool = self._queue = self._ray = None
 
     def __enter__(self) -> Runner:
@@ -187,7 +194,7 @@ class Runner:
             ctx = mp.get_context()
             self._queue = ctx.Queue()
             self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=ctx, initializer=_init_worker,
-                                             initargs=(self._queue,))
+                                             initargs=(self._queue, self.setup))
         return self
 
     def __exit__(self, *exc) -> None:
@@ -282,7 +289,7 @@ class Runner:
     def _ray_completions(self, fn, tasks, order, bar, meanwhile):
         ray = self._ray
         remote = ray.remote(_ray_call)
-        refs = {remote.remote(fn, tasks[i]): i for i in order}
+        refs = {remote.remote(fn, tasks[i], self.setup): i for i in order}
         if meanwhile is not None:
             meanwhile()
         pending = list(refs)

@@ -386,10 +386,13 @@ class Loop:
 def setup(cfgs: list[ExperimentCfg], ctrls: list | None, *, traces: bool, nthread: int = 1,
           progress: bool = False) -> Loop:
     """The loop of the episodes ``cfgs``: their scenes (a persistent batch with ``traces``, for the
-    contact truth), the controllers (``ctrls``: the episodes' own, None entries new; None: built
-    from the known config, summaries only)."""
+    contact truth, or with a live monitor: a batch that is not persistent gives each episode's first
+    F/T sample without the tool's weight and, on ``online/monitor.toml``, departs from ``mj_step``
+    at the next step -- docs/monitor.md), the controllers (``ctrls``: the episodes' own, None
+    entries new; None: built from the known config, summaries only)."""
     _known_of(cfgs)
-    world = SceneBatch(cfgs, nthread, persistent=True if traces else None)
+    persistent = True if traces or any(c.monitor.enabled for c in cfgs) else None
+    world = SceneBatch(cfgs, nthread, persistent=persistent)
     kn = kernels_of_controllers(cfgs, ctrls, progress) if ctrls is not None else kernels_of_known(cfgs)
     dt = cfgs[0].run.dt_s
     return Loop(cfgs, world, kn, round(cfgs[0].run.duration_s / dt), dt)

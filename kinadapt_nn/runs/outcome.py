@@ -58,6 +58,33 @@ class EpisodeEnd(NamedTuple):
     rank_breach_t: float | None  #: when the rank gate was first breached [s], else None
 
 
+class MonitorBrief(NamedTuple):
+    """What a run's live monitor found, in brief (``kinadapt_nn.monitor``; the aggregates of compare,
+    sweep and work cells)."""
+
+    events: int  #: events named (0 with the monitor on and nothing found)
+    shapes: list[str]  #: each event's shape, in the order named
+
+    @property
+    def text(self) -> str:
+        """``"2: world_force, ft_bias_drift"``, ``"0"``."""
+        return f"{self.events}" + (f": {', '.join(self.shapes)}" if self.shapes else "")
+
+
+def monitor_brief(summary: dict) -> MonitorBrief | None:
+    """The monitor's events of a run (``summary["monitor"]``); a work cell's or a run of several
+    insertions' summed over its insertions (``summary["insertions"]`` rows' ``monitor_shapes``).
+    None: the run had no monitor."""
+    rows = summary.get("insertions") or []
+    if rows and all("monitor_shapes" in r for r in rows):
+        shapes = [sh for r in rows for sh in r["monitor_shapes"]]
+        return MonitorBrief(len(shapes), shapes)
+    mon = summary.get("monitor")
+    if not mon:
+        return None
+    return MonitorBrief(len(mon["events"]), [e["shape"] for e in mon["events"]])
+
+
 def sensor_reason(message: str) -> str:
     """The divergence reason of an episode stopped by a dropout longer than ``max_dropout_s``
     (``message``: the controller's, ``controller.sensor_error_message``)."""

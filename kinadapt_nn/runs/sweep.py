@@ -131,6 +131,9 @@ def _record(job: SweepJob, s: dict) -> dict:
     are judged as a whole (``runs.insertions.judged_whole``)."""
     from kinadapt_nn.runs.insertions import judged_whole
 
+    from kinadapt_nn.runs.outcome import monitor_brief
+
+    brief = monitor_brief(s)  # (before judged_whole: a cell's insertions' monitors summed)
     s = judged_whole(s)
     rec = {"id": job.id, "group": job.group, "seed": job.seed, "overrides": " ".join(job.overrides)}
     for k, v in s.items():
@@ -139,6 +142,10 @@ def _record(job: SweepJob, s: dict) -> dict:
         elif isinstance(v, list) and len(v) <= 3 and all(isinstance(x, (int, float)) for x in v):
             for i, x in enumerate(v):
                 rec[f"{k}_{i}"] = x
+    if brief is not None:  # --monitor: how many events, their shapes (";"-joined), the first one's time
+        evs = s["monitor"]["events"]
+        rec.update(monitor_events=brief.events, monitor_shapes=";".join(brief.shapes),
+                   monitor_first_event_s=evs[0]["t_s"] if evs and not s.get("insertions") else None)
     return rec
 
 
@@ -172,8 +179,17 @@ def _stats(recs: list[dict]) -> dict:
         if not r.get("success"):
             fails[r.get("failure", "?")] = fails.get(r.get("failure", "?"), 0) + 1
     q = {f"p{p}": float(np.percentile(seats, p)) for p in (5, 25, 50, 75, 95)} if len(seats) else {}
-    return {"episodes": n, "successes": k, "success_rate": k / n if n else None, "success_rate_ci95": [lo, hi],
-            "seat_time_s_quantiles": q, "failures": fails}
+    out = {"episodes": n, "successes": k, "success_rate": k / n if n else None, "success_rate_ci95": [lo, hi],
+           "seat_time_s_quantiles": q, "failures": fails}
+    mon = [r for r in recs if r.get("monitor_events") is not None]
+    if mon:  # --monitor: episodes with an event, events, and how many episodes named each shape
+        shapes: dict[str, int] = {}
+        for r in mon:
+            for sh in dict.fromkeys(filter(None, r["monitor_shapes"].split(";"))):
+                shapes[sh] = shapes.get(sh, 0) + 1
+        out["monitor"] = {"episodes": len(mon), "episodes_with_events": sum(r["monitor_events"] > 0 for r in mon),
+                          "events": sum(r["monitor_events"] for r in mon), "shapes": shapes}
+    return out
 
 
 def aggregate(out: Path, jobs: list[dict]) -> dict:
@@ -205,11 +221,14 @@ def aggregate(out: Path, jobs: list[dict]) -> dict:
 
 
 def run_sweep(cfg: SweepCfg, out: Path, executor: str = "local", address: str | None = None,
-              progress: bool = True) -> dict:
+              progress: bool = True, worker_setup=None) -> dict:
     """Run the sweep's episodes not yet in ``out/episodes`` on ``cfg.jobs`` local workers or on Ray
     (``runs.jobs.Runner``: without ``address`` a Ray of this call's own), each episode's record
     written as its task ends; then ``sweep.csv`` and ``sweep.json`` from every record. -> the
-    aggregate (``sweep.json``) plus ``wall_time_s_this_run``."""
+    aggregate (``sweep.json``) plus ``wall_time_s_this_run``. With the live monitor on (``base`` sets
+    ``monitor.enabled``; ``worker_setup`` registers it in each worker, ``runs.jobs.Runner``) each record
+    has ``monitor_events``, ``monitor_shapes`` and ``monitor_first_event_s`` and each group's statistics
+    a ``monitor`` entry."""
     out = Path(out)
     (out / "episodes").mkdir(parents=True, exist_ok=True)
     cfg_text = json.dumps(cfg.model_dump(mode="json"), indent=1, sort_keys=True)
@@ -225,7 +244,7 @@ def run_sweep(cfg: SweepCfg, out: Path, executor: str = "local", address: str | 
             write_text_atomic(out / "episodes" / f"{rec['id']}.json", json.dumps(rec) + "\n")
 
     t0 = time.perf_counter()
-    with Runner(cfg.jobs, executor, address, progress) as runner:
+    with Runner(cfg.jobs, executor, address, progress, setup=worker_setup) as runner:
         if todo:  # the kernels once here, not in every worker at once (one config per group: the seed changes none)
             runner.precompile([j.config() for j in {j.group: j for j in todo}.values()])
         finished = [j for j in jobs if j not in set(todo)]
