@@ -74,3 +74,24 @@ def test_an_edited_callee_in_another_file_is_recompiled(tmp_path):
     assert _run(tmp_path, check=False)[0] == 11.0  # numba alone: the kernel's cache keeps the old callee
     assert _run(tmp_path, check=True) == (21.0, "True")  # the edit seen: stale code dropped, recompiled
     assert _run(tmp_path, check=True) == (21.0, "False")  # unchanged since: loaded from the cache
+
+
+def test_the_controllers_fingerprint_covers_every_kernel_file():
+    """Every file of the controller that defines a numba kernel (the kernels moved out of core.py
+    included) and the layout their constants come from are in the fingerprint the compile phase
+    checks (``core.kernel_sources``)."""
+    import importlib
+
+    from kinadapt_nn.controller import core
+
+    pkg = PKG.resolve()
+    files = sorted(f.resolve() for f in (pkg / "controller").rglob("*.py"))
+    for f in files:  # load them all, as a run with any law does
+        importlib.import_module("kinadapt_nn." + ".".join(f.relative_to(pkg).with_suffix("").parts).removesuffix(
+            ".__init__"))
+    with_kernels = {f for f in files if "@nb.njit" in f.read_text()}
+    assert {"step_kernels.py", "features_kernels.py", "arm_chain.py", "dense.py", "kalman.py"} <= {
+        f.name for f in with_kernels}  # positive control: the scan sees the moved kernels
+    sources = {Path(s).resolve() for s in core.kernel_sources()}
+    assert with_kernels | {pkg / "controller" / "layout.py"} <= sources, sorted(
+        str(f) for f in with_kernels - sources)

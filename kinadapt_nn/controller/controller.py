@@ -166,31 +166,23 @@ def core_consts(known: KnownCfg, features: Features, law_address: bool = True) -
     p = features.n_params
     # the law's constants; theta's prior covariance: the features' (make_features), else Omega/3
     lc = spec.constants(law_params(ad, spec.name, dt, prior_cov_of(features)), S.shape[0], p)
-    v = np.zeros(core.N_C)
     alpha, inv_tau = dt / (sc.filter_tau_s + dt), 1.0 / (sc.filter_tau_s + dt)
     dither = np.asarray(c.dither_rad_s, dtype=float)
-    scal = {
-        core.DT: dt, core.T_SETTLE: known.settle_s, core.T_TARE0: max(0.0, known.settle_s - sc.tare_window_s),
-        core.RAMP: c.ramp_s, core.D_STAR: c.depth_target_m, core.K_D: c.k_depth_N_per_m, core.F_MAX: c.depth_force_max_N,
-        core.C_F: c.compliance_lat_m_per_N, core.C_M: c.compliance_mom_rad_per_Nm, core.V_MAX: c.v_max_m_per_s,
-        core.W_MAX: c.w_max_rad_per_s, core.K_NS: c.nullspace_gain, core.DAMP: 1e-6, core.ALPHA: alpha,
-        core.INV_TAU: inv_tau, core.N_ENTRY: float(n_axis @ np.asarray(known.bore_entry_w_m, dtype=float)),
-        core.RIGID: float(c.loop == "rigid"), core.DITHER_ON: float(np.any(dither)),
-        core.TWO_PI_F: 2.0 * math.pi * c.dither_hz, core.EXCITE: float(c.program == "excite"),
-        core.BLEND: known.excite.blend_s, core.F_GATE: ad.contact_force_N, core.M_GATE: ad.contact_moment_Nm,
-        core.MAX_HOLD: max(0, int(round(sc.max_dropout_s / dt))), core.FEAT: feature_kind(features),
-        core.RANK_ON: 1.0, core.RANK_GATE_V: core.RANK_GATE,  # 1: lambda_min every step; 2: the gate only
-    }
-    for i, val in scal.items():
-        v[i] = val
-    v[core.V_N:core.V_N + 3] = n_axis
-    v[core.V_LNOM:core.V_LNOM + 3] = l_nom
-    v[core.V_M:core.V_M + 6] = M_virt
-    v[core.V_INVDEN:core.V_INVDEN + 6] = 1.0 / (M_virt + dt * D_virt)
-    v[core.V_GRIGID:core.V_GRIGID + 6] = gain / (1.0 + beta)  # rigid: the admittance's DC gain
-    v[core.V_W:core.V_W + 6] = W
-    v[core.V_D:core.V_D + 6] = D_virt
-    v[core.V_DITHER:core.V_DITHER + 3] = dither
+    v = core.pack_c({  # by the names declared in controller/layout.py (C_FIELDS): every one, at its size
+        "DT": dt, "T_SETTLE": known.settle_s, "T_TARE0": max(0.0, known.settle_s - sc.tare_window_s),
+        "RAMP": c.ramp_s, "D_STAR": c.depth_target_m, "K_D": c.k_depth_N_per_m, "F_MAX": c.depth_force_max_N,
+        "C_F": c.compliance_lat_m_per_N, "C_M": c.compliance_mom_rad_per_Nm, "V_MAX": c.v_max_m_per_s,
+        "W_MAX": c.w_max_rad_per_s, "K_NS": c.nullspace_gain, "DAMP": 1e-6, "ALPHA": alpha, "INV_TAU": inv_tau,
+        "N_ENTRY": float(n_axis @ np.asarray(known.bore_entry_w_m, dtype=float)), "RIGID": float(c.loop == "rigid"),
+        "DITHER_ON": float(np.any(dither)), "TWO_PI_F": 2.0 * math.pi * c.dither_hz,
+        "EXCITE": float(c.program == "excite"), "BLEND": known.excite.blend_s, "F_GATE": ad.contact_force_N,
+        "M_GATE": ad.contact_moment_Nm, "MAX_HOLD": max(0, int(round(sc.max_dropout_s / dt))),
+        "FEAT": feature_kind(features),
+        "RANK_ON": 1.0, "RANK_GATE_V": core.RANK_GATE,  # 1: lambda_min every step; 2: the gate only
+        "V_N": n_axis, "V_LNOM": l_nom, "V_M": M_virt, "V_INVDEN": 1.0 / (M_virt + dt * D_virt),
+        "V_GRIGID": gain / (1.0 + beta),  # rigid: the admittance's DC gain
+        "V_W": W, "V_D": D_virt, "V_DITHER": dither,
+    })
     G = np.zeros((6, 6))  # s[1:] = G[1:] w_env: F_lat = -P f_env, M = -m_env
     G[1:3, 0:3] = -P
     G[3:6, 3:6] = -np.eye(3)

@@ -41,10 +41,11 @@ class StandaloneLaw:
         lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
         m, p = W.size, lo.size
         dt = float(params.dt_s)
-        c = np.zeros(core.N_C)
-        c[core.ALPHA] = dt / (filter_tau_s + dt)  # the rate filter's (sensing.LowPass)
-        c[core.F_GATE], c[core.M_GATE] = contact_gate
-        c[core.V_W:core.V_W + m] = W
+        if m > core.C_SIZE["V_W"]:
+            raise ValueError(f"W has {m} channels; the kernels take at most {core.C_SIZE['V_W']}")
+        c = core.pack_c({"ALPHA": dt / (filter_tau_s + dt),  # the rate filter's (sensing.LowPass)
+                         "F_GATE": contact_gate[0], "M_GATE": contact_gate[1],
+                         "V_W": np.pad(W, (0, core.C_SIZE["V_W"] - m))}, complete=False)
         mask = np.ones(p) if track_mask is None else np.asarray(track_mask, dtype=float)
         consts = core.CoreConsts(
             c=c, mats=np.zeros((2, 6, 6)), pv=np.ascontiguousarray(np.stack([lo, hi, mask])),
