@@ -7,12 +7,17 @@ the model frozen): each truth-side effect at its default size (``kinadapt config
 drawn uniformly in [1, 4] s per seed (``run.seed`` seeds the onset and the sensor noise).
 
 * detected: an event at or after the onset (an event before it is a false alarm);
-* delay: the first such event's time minus when the effect reaches its relevant size -- the onset
-  (plus the ramp) for a step; for the drift, when it reaches 3 noise sd of its largest channel;
+* delay: the first such event's time (its alarm) minus when the effect reaches its relevant size -- the
+  onset (plus the ramp) for a step (the frame rotation's 2 deg are above its relevant 1 deg at once); for
+  the drift, when it reaches 3 noise sd of its largest channel; named after: when the event was named
+  (printed with its shape and estimate, ``t_first_named_s``) minus the same time;
 * named: the event's shape is the effect's (the grasp slip reads as the library's ``tool_tilt``);
 * covered: the event's 95 % region covers the truth (the payload's mass and the drift's rate on its
   channel: intervals; the snag's world force, the sensor's rotation vector and the slip's two angles:
   ellipsoids at the chi^2 95 % quantile).
+
+Control (``--bias-step``, not a target): a sensor bias step of 0.03 N in F_y (``faults.ft_bias_N``), what
+the first event after it is named.
 
 False alarms: events in clean runs of ``online/rollout.toml`` (the default) and ``online/excite.toml``
 (34.4 s), each with the same sensor noise, ``--clean`` seeds each.
@@ -36,7 +41,6 @@ sys.path.insert(0, str(REPO))
 
 import kinadapt_nn.monitor.monitor  # noqa: E402,F401  (registers the live monitor with the episode loop)
 from kinadapt_nn.config import load_config  # noqa: E402
-from kinadapt_nn.monitor.monitor import RELEVANT_SD as REL_SD  # noqa: E402
 from kinadapt_nn.runs.episode import run_episode  # noqa: E402
 
 NOISE = ["faults.ft_noise_N=0.02", "faults.ft_noise_Nm=0.002"]
@@ -120,12 +124,27 @@ def scenario(name: str, seeds: int) -> dict:
         first = after[0] if after else None
         rows.append(dict(onset=onset, early=len(early), detected=first is not None,
                          delay=first["t_s"] - relevant_time(cfg, onset) if first else np.nan,
+                         named_after=first["t_first_named_s"] - relevant_time(cfg, onset) if first else np.nan,
                          named=bool(first and first["shape"] == shape), covered=bool(first and covered(cfg, first)),
                          line=first["line"] if first else "-",
                          alarm=alarms[0]["t_s"] - relevant_time(cfg, onset) if alarms else np.nan,
                          outcome=alarms[0]["outcome"] if alarms else "-",
                 alarm_shape=alarms[0]["shape"] if alarms else "-", bound=bound))
     return dict(name=name, rows=rows)
+
+
+def bias_step(seeds: int, size_N: float = 0.03) -> dict:
+    """A sensor bias step of ``size_N`` in F_y at a random time (``faults.ft_bias_N``, ``bias_onset_s``; a
+    control, not a target): the first event after it -> {shape: runs}."""
+    out: dict = {}
+    for seed in range(seeds):
+        onset = float(np.random.default_rng(seed).uniform(1.0, 4.0))
+        cfg = _cfg("online/monitor.toml", [f"run.seed={seed}", f"faults.ft_bias_N=[0,{size_N},0]",
+                                           f"faults.bias_onset_s={onset}"])
+        evs = [e for e in run_episode(cfg).summary["monitor"]["events"] if e["t_s"] >= onset]
+        key = evs[0]["shape"] if evs else "none"
+        out[key] = out.get(key, 0) + 1
+    return out
 
 
 def clean_alarms(path: str, seeds: int) -> tuple[int, int, float, int]:
@@ -250,6 +269,9 @@ def main() -> None:
     ap.add_argument("--costs-only", action="store_true", help="only the costs (no scenarios, no clean runs)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a config override for every run")
     ap.add_argument("--only", action="append", default=[], choices=list(SCENARIOS), help="only these scenarios")
+    ap.add_argument("--bias-step", type=int, default=0, metavar="SEEDS",
+                    help="also a control: a 0.03 N sensor bias step in F_y, what its first event is named (SEEDS runs)")
+    ap.add_argument("--no-clean", action="store_true", help="skip the clean runs and the costs (while iterating)")
     a = ap.parse_args()
     SETS.extend(a.set)
     out = []
@@ -263,14 +285,15 @@ def main() -> None:
     say(f"monitor_events: {a.seeds} seeds per scenario, onset uniform in [1, 4] s, online/monitor.toml"
         + (f" (--set {' '.join(a.set)})" if a.set else ""))
     say(f"{'scenario':<16}{'detected':>10}{'delay med [s]':>15}{'delay max [s]':>15}{'named':>8}{'covered':>9}"
-        f"{'early':>7}")
+        f"{'early':>7}{'named after med [s]':>21}")
     for name in a.only or SCENARIOS:
         r = scenario(name, a.seeds)["rows"]
         d = np.array([x["delay"] for x in r])
         det = int(sum(x["detected"] for x in r))
         say(f"{name:<16}{det:>7}/{len(r):<2}{np.nanmedian(d) if det else np.nan:>15.3f}"
             f"{np.nanmax(d) if det else np.nan:>15.3f}{sum(x['named'] for x in r):>5}/{len(r):<2}"
-            f"{sum(x['covered'] for x in r):>6}/{len(r):<2}{sum(x['early'] for x in r):>7}")
+            f"{sum(x['covered'] for x in r):>6}/{len(r):<2}{sum(x['early'] for x in r):>7}"
+            f"{np.nanmedian([x['named_after'] for x in r]) if det else np.nan:>21.3f}")
         al = np.array([x["alarm"] for x in r])
         if np.isfinite(al).any():
             outs = sorted({x["outcome"] for x in r if x["outcome"] != "-"})
@@ -283,10 +306,19 @@ def main() -> None:
             bf = max(x["bound"][0] for x in r)
             bm = max(x["bound"][1] for x in r)
             say(f"    the largest change the turn can make, |r| |delta| / noise sd over the runs: force {bf:.2f}, "
-                f"moment {bm:.2f} (an event needs {REL_SD:g} on a channel)")
+                f"moment {bm:.2f}")
         if a.lines:
             for x in r:
                 say(f"    onset {x['onset']:.2f} s: {x['line']}")
+    if a.bias_step:
+        shp = bias_step(a.bias_step)
+        say(f"control, a sensor bias step of 0.03 N in F_y ({a.bias_step} runs): first event named "
+            + ", ".join(f"{k} {v}" for k, v in sorted(shp.items())))
+    if a.no_clean:
+        if a.save:
+            a.save.parent.mkdir(parents=True, exist_ok=True)
+            a.save.write_text("\n".join(out) + "\n")
+        return
     for label, path in (("default (rollout.toml)", "online/rollout.toml"), ("excite (excite.toml)", "online/excite.toml")):
         runs, evs, sim, als = clean_alarms(path, a.clean)
         say(f"clean {label:<24} {a.clean} runs, {sim:.0f} s watched: {runs} with an alarm ({evs} events; "

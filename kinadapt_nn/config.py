@@ -423,7 +423,7 @@ class MonitorCfg(_Cfg):
     calib_s: float = Field(0.2, gt=0.0, le=10.0)  # [s] at the start, at rest: the sensor's offset and noise are measured this long
     window_s: float = Field(0.5, gt=0.01, le=10.0)  # [s] after an alarm: samples this long are fitted to name the shape
     contact_zone_m: float = Field(0.004, ge=0.0, le=0.1)  # [m] the nominal tip within this of the entrance plane (or below it): contact, not judged
-    rotation_test: bool = False  # also a GLR test of the sensor frame's rotation on the force channels, threshold from false_alarms_per_h (docs/monitor.md: its alarms at the default 2 deg are dismissed)
+    rotation_test: bool = True  # also a GLR test of the sensor frame's rotation on the force channels, threshold from false_alarms_per_h (docs/monitor.md)
 
 
 class ModelCfg(_Cfg):

@@ -38,11 +38,10 @@ MODEL_LOOK_S = 2.0
 #: [s] right after a change the arm's transient (a sudden load) is left out of the fit
 SETTLE_S = 0.02
 #: an alarm becomes an event only when its best shape's estimate differs from none beyond this chance
-#: (chi^2 of the estimate against its whole covariance: noise, the window's jackknife, the model's error)
+#: (chi^2 of the estimate against its whole covariance: noise, the window's jackknife, the model's error),
+#: and when the estimate reaches the effect's relevant size in SI, the offline diagnosis's (``shapes.relevance``
+#: >= 1: a 1 deg turn, 30 g, 0.03 N/s, ...; docs/monitor.md)
 CONFIRM_P = 1e-3
-#: ... and when its fitted shape changes the wrench by at least this many noise sd on some channel within
-#: the window (smaller: what the nominal model's own errors reach; ``docs/monitor.md``)
-RELEVANT_SD = 2.0
 #: [s] the residual's mean over this long before a change is taken from the rows an event is fitted on
 #: (``Monitor._baseline``; 0: none)
 BASELINE_S = 0.5
@@ -82,6 +81,7 @@ class Event:
     delta_bic: float  #: its BIC minus the best's (how clearly the best won)
     rows: int  #: residual rows fitted
     t_named_s: float = float("nan")  #: [s] the last sample its estimate has seen
+    t_first_named_s: float = float("nan")  #: [s] when it was first named (reported with its shape)
     open: bool = True  #: still open at the end (its shape stays in the model)
     updates: int = 0  #: times a later look refitted its estimate (the same effect seen better)
 
@@ -90,7 +90,8 @@ class Event:
         return f"{self.t_s:.2f} s: {self.text} -- looks like {self.shape}"
 
     def as_dict(self) -> dict:
-        return {"t_s": self.t_s, "onset_s": self.onset_s, "t_named_s": self.t_named_s, "channels": self.channels,
+        return {"t_s": self.t_s, "onset_s": self.onset_s, "t_named_s": self.t_named_s,
+                "t_first_named_s": self.t_first_named_s, "channels": self.channels,
                 "phase": self.phase, "shape": self.shape, "text": self.text, "line": self.line,
                 "estimate": self.estimate, "runner_up": self.runner_up, "delta_bic": self.delta_bic,
                 "rows": self.rows, "open": self.open, "updates": self.updates}
@@ -249,7 +250,7 @@ class Monitor:
             return None
         sd = self.noise_sd
         fmask = np.isin(np.arange(6), fired)
-        f, fits = shapes.best(rows, sd, self.mc, t_on, fmask)
+        f, fits = shapes.best(rows, self._naming_sd(t_on), self.mc, t_on, fmask)
         margin = float(fits[1].bic - f.bic) if len(fits) > 1 else np.inf
         unturned = f.shape in POSE_FREE and _turned_deg(rows) < TURN_DEG
         if (margin < DECISIVE or unturned) and al["windows"] < MAX_WINDOWS and not final:
@@ -257,22 +258,25 @@ class Monitor:
             return None
         self._log_alarm("", f.shape)
         self._alarm = None
-        if self._refit_last(rows, f):
+        if self._refit_last(rows, shapes.fit(f.shape, rows, sd, self.mc, t_on, fmask)):  # chi^2 in noise sd, as its refit
             self.alarms[-1]["outcome"] = "update"
             self._restart()
             return None
         f = shapes.fit(f.shape, rows, sd, self.mc, t_on, fmask, jackknife=True,
                        model_sd=np.maximum(self._model_sd(t_on), self._left_sd(f, rows, t_on)))
-        size = np.max(np.abs(shapes.evaluate(f, rows, self.mc, t_on)), axis=0) / sd  # (6,) in noise sd
-        self.alarms[-1]["size_sd"] = float(size.max())
-        if not shapes.significant(f, CONFIRM_P) or size.max() < RELEVANT_SD:  # within the model's own errors
-            self.alarms[-1]["outcome"] = "not significant" if not shapes.significant(f, CONFIRM_P) else "too small"
+        change = np.max(np.abs(shapes.evaluate(f, rows, self.mc, t_on)), axis=0)  # (6,) [N, N m] within the window
+        rel = shapes.relevance(f, self.setup.analysis.relevant_force_N)
+        self.alarms[-1]["size_sd"], self.alarms[-1]["size_relevant"] = float(np.max(change / sd)), rel
+        sig = shapes.significant(f, CONFIRM_P)
+        if not sig or rel < 1.0:  # within the model's own errors, or smaller than the effect's relevant size
+            self.alarms[-1]["outcome"] = "not significant" if not sig else "too small"
             self.dismissed += 1
             self._restart()
             return None
         text, est = shapes.describe(f, self.mc, self.frame, float(self.c[K.C_SIGN]))
         ev = Event(al["t"], t_on, [CHANNELS[i] for i in fired], "free space", f.shape, text, est,
-                   fits[1].shape if len(fits) > 1 else "", margin, f.rows, float(rows[-1, K.G_T]))
+                   fits[1].shape if len(fits) > 1 else "", margin, f.rows, float(rows[-1, K.G_T]),
+                   float(rows[-1, K.G_T]))
         self.alarms[-1]["outcome"] = "event"
         self._apply(f, t_on, +1.0)
         self._fits.append((f, t_on, ev))
@@ -286,7 +290,7 @@ class Monitor:
     def _log_alarm(self, outcome: str, shape: str = "") -> None:
         al = self._alarm
         self.alarms.append({"t_s": al["t"], "onset_s": al["t_on"], "test": al["test"], "shape": shape,
-                            "outcome": outcome, "size_sd": float("nan")})
+                            "outcome": outcome, "size_sd": float("nan"), "size_relevant": float("nan")})
 
     def _left_sd(self, f, rows: np.ndarray, t_on: float) -> np.ndarray:
         """(6,) [N, N m] what the fitted shape leaves of the change that persists: the RMS of the fit
@@ -297,6 +301,26 @@ class Monitor:
             return np.zeros(6)
         r = rows[:nb * k, K.G_E:K.G_E + 6] - shapes.evaluate(f, rows[:nb * k], self.mc, t_on)
         return np.sqrt(np.mean(r.reshape(nb, k, 6).mean(axis=1) ** 2, axis=0))
+
+    def _naming_sd(self, t_on: float) -> np.ndarray:
+        """(6,) [N, N m] the sd each channel's rows are divided by to name a change: the noise sd, widened
+        by the model's own slow error before the change. Over the ``MODEL_LOOK_S`` before ``t_on`` the
+        residual's ``MODEL_BLOCK_S`` means (k samples each) vary by more than white noise would (``sd^2 /
+        k``) where the nominal model misses something that changes with the pose (the declared tool's
+        centre of mass: the moment rows); that excess variance, spread over the k samples of a block,
+        ``sd^2 + k * excess``, is what a row of that channel carries besides the noise, so a shape is not
+        named for fitting the model's own error better (docs/monitor.md). The noise sd where there are
+        fewer than three blocks."""
+        k = max(1, int(round(MODEL_BLOCK_S / self.dt_s)))
+        sd = self.noise_sd
+        rows = K.ring_rows(self.st, self.ring, t_on - MODEL_LOOK_S)
+        rows = rows[(rows[:, K.G_FREE] > 0.5) & (rows[:, K.G_T] <= t_on)]
+        nb = len(rows) // k
+        if nb < 3:
+            return sd
+        means = rows[:nb * k, K.G_E:K.G_E + 6].reshape(nb, k, 6).mean(axis=1)
+        excess = np.maximum(means.var(axis=0, ddof=1) - sd ** 2 / k, 0.0)
+        return np.sqrt(sd ** 2 + k * excess)
 
     def _baseline(self, t_on: float) -> np.ndarray:
         """(6,) [N, N m] the residual's mean over the free samples of the ``BASELINE_S`` before ``t_on``
@@ -321,9 +345,14 @@ class Monitor:
     def _apply(self, f, t_on: float, sign: float) -> None:
         """Add (sign +1) or take out (-1) a fitted shape's correction of the model."""
         corr = shapes.correction(f, self.mc, t_on)
-        self.st[K.S_CORR:K.S_CORR + K.NCORR] += sign * corr
-        if f.shape == "ft_bias_drift":
-            self.st[K.S_CORR + K.K_T0] = t_on
+        st = self.st
+        if f.shape == "ft_bias_drift":  # one drift slot: a drift already there is re-expressed from t_on
+            t0 = st[K.S_CORR + K.K_T0]
+            if np.isfinite(t0) and t0 != t_on:
+                rate = st[K.S_CORR + K.K_RATE:K.S_CORR + K.K_RATE + 6]
+                st[K.S_CORR + K.K_CONST:K.S_CORR + K.K_CONST + 6] += rate * (t_on - t0)
+            st[K.S_CORR + K.K_T0] = t_on
+        st[K.S_CORR:K.S_CORR + K.NCORR] += sign * corr
 
     def _restart(self) -> None:
         st = self.st

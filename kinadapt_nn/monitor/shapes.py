@@ -204,6 +204,27 @@ def _fit1(shape: str, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset:
     return Fit(shape, p, cov, chi2, chi2 + k * np.log(m), m)
 
 
+def relevant_sizes(shape: str, relevant_force_N: float) -> np.ndarray:
+    """Each parameter's relevant size in SI, the smallest worth reporting (the offline diagnosis's: its
+    effect library's ``relevant``, ``diagnostics.builtin``): ``tool_gravity`` 30 g and 1.5 g m,
+    ``tool_tilt`` and ``ft_frame_rotation`` 1 deg a component, ``ft_bias_drift`` 0.03 N/s and 0.003 N m/s
+    (its constants and ``sensor_constant``: ``ft_offset``'s 0.2 N, 0.02 N m); ``world_force``: the set-up's
+    ``[analysis] relevant_force_N`` per component of the force (its point: none, inf). -> (k,)"""
+    from kinadapt_nn.diagnostics.builtin import BUILTINS
+
+    if shape == "world_force":
+        return np.array([relevant_force_N] * 3 + [np.inf] * 3)
+    if shape == "ft_bias_drift":
+        return np.concatenate([BUILTINS["ft_bias_drift"].relevant, BUILTINS["ft_offset"].relevant])
+    return np.asarray(BUILTINS["ft_offset" if shape == "sensor_constant" else shape].relevant, dtype=float)
+
+
+def relevance(f: Fit, relevant_force_N: float) -> float:
+    """The estimate's size in relevant sizes, ``|p / relevant_sizes|`` (for a turn: its angle over 1 deg);
+    an event needs at least 1."""
+    return float(np.linalg.norm(f.p / relevant_sizes(f.shape, relevant_force_N)))
+
+
 def significant(f: Fit, p_false: float) -> bool:
     """Whether the estimate differs from no change: ``p^T cov^+ p`` beyond the chi^2 quantile at
     ``1 - p_false`` with the covariance's rank as the degrees of freedom."""

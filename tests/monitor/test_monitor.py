@@ -290,3 +290,76 @@ def test_rotation_test_fires_within_two_blocks():
     assert not mon.in_contact
     assert fired is not None and t_on <= fired <= t_on + 2 * K.ROT_BLK * dt, fired
     assert mon.st[K.S_RFIRED] == 1.0  # the rotation test, not the CUSUM
+
+
+def _tilting_run(mon, w_of, sign, dt, p, change, t_on=3.0, t_end=7.0, seed=5):
+    """Feed ``mon`` a tool that tilts about the world x axis (0.35 rad amplitude, 4 s period, from 0.5 s;
+    the sensor's origin fixed, its axes the world's at rest) with white noise at 0.02 N / 0.002 N m, and
+    ``change(r) -> reading`` applied from ``t_on``. The reading of each sample belongs to the previous
+    sample's pose with the angular acceleration between the two (the kernel's convention)."""
+    rng = np.random.default_rng(seed)
+    sd = np.array([0.02] * 3 + [0.002] * 3)
+    zero = np.zeros(3)
+    ang = lambda t: 0.35 * np.sin(2 * np.pi * (t - 0.5) / 4.0) if t > 0.5 else 0.0  # noqa: E731
+    rate = lambda t: 0.35 * 2 * np.pi / 4.0 * np.cos(2 * np.pi * (t - 0.5) / 4.0) if t > 0.5 else 0.0  # noqa: E731
+    prev = None
+    for k in range(int(round(t_end / dt))):
+        t = k * dt
+        c, s = np.cos(ang(t)), np.sin(ang(t))
+        R = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+        om_w = np.array([rate(t), 0.0, 0.0])
+        if prev is None:
+            r = w_of(R, om_w, zero)
+        else:
+            R0, om0 = prev
+            r = w_of(R0, om0, (om_w - om0) / dt)
+        if t >= t_on:
+            r = change(r)
+        mon.sample(t, R, p, zero, om_w, sign * (r + sd * rng.standard_normal(6)))
+        prev = (R, om_w)
+    mon.finish()
+    return mon.events
+
+
+def _tool_wrench(setup):
+    """The declared tool's Newton-Euler wrench at the sensor, s, for a sensor at rest in position: an
+    independent numpy form of ``docs/monitor.md``'s model. -> w_of(R_ws, omega_w, alpha_w) (6,)."""
+    from kinadapt_nn.diagnostics.physical import nominal_inertials
+
+    m, mc, I_O = nominal_inertials(setup)
+    g_w = np.asarray(setup.world.g_w())
+
+    def w_of(R, om_w, al_w):
+        g, om, al = R.T @ g_w, R.T @ om_w, R.T @ al_w
+        F = m * g - np.cross(al, mc) - np.cross(om, np.cross(om, mc))
+        M = np.cross(mc, g) - I_O @ al - np.cross(om, I_O @ om)
+        return np.concatenate([F, M])
+    return w_of
+
+
+def test_a_turned_mount_is_named_and_a_bias_step_is_not_relevant():
+    """With the tool tilting by 0.35 rad (20 deg), a sensor mount turned by 2 deg (1.41 deg about x and z)
+    changes the reading by at most 1.2 noise sd a sample, but the turn of the reading tells it from a
+    constant: the monitor (its rotation test on by default) names ``ft_frame_rotation`` and its 95 %
+    region (chi^2_3) holds the turn. A 0.03 N bias step in F_y instead -- the same size on the reading,
+    but a constant, below the offline diagnosis's relevant ``ft_offset`` (0.2 N) -- is no rotation
+    event (``shapes.relevance``: the turn's 1.99 deg is 1.99 relevant sizes of 1 deg)."""
+    from kinadapt_nn.monitor import shapes
+
+    mon, _, sign, dt, p = _rest_monitor(MonitorCfg().rotation_test)
+    w_of = _tool_wrench(mon.setup)
+    turn = np.deg2rad([1.41, 0.0, 1.41])
+    evs = _tilting_run(mon, w_of, sign, dt, p,
+                       lambda r: np.concatenate([r[:3] + np.cross(r[:3], turn), r[3:] + np.cross(r[3:], turn)]))
+    assert [e.shape for e in evs] == ["ft_frame_rotation"], [e.line for e in evs]
+    est = evs[0].estimate
+    d = np.asarray(est["rotvec_deg"]) - np.rad2deg(turn)
+    assert d @ np.linalg.solve(np.asarray(est["rotvec_cov_deg2"]), d) <= 7.815  # chi^2_3 at 95 %
+    assert 3.0 <= evs[0].t_s <= 3.2  # caught within 0.2 s
+    f = shapes.Fit("ft_frame_rotation", turn, np.eye(3), 0.0, 0.0, 1)
+    assert abs(shapes.relevance(f, 0.2) - np.hypot(1.41, 1.41)) < 1e-9  # the angle in degrees over 1 deg
+
+    mon, _, sign, dt, p = _rest_monitor(MonitorCfg().rotation_test)
+    step = np.array([0.0, 0.03, 0.0, 0.0, 0.0, 0.0])
+    evs = _tilting_run(mon, w_of, sign, dt, p, lambda r: r + step)
+    assert all(e.shape != "ft_frame_rotation" for e in evs), [e.line for e in evs]
