@@ -292,12 +292,12 @@ def test_rotation_test_fires_within_two_blocks():
     assert mon.st[K.S_RFIRED] == 1.0  # the rotation test, not the CUSUM
 
 
-def _tilting_run(mon, w_of, sign, dt, p, change, t_on=3.0, t_end=7.0, seed=5):
+def _tilting_run(mon, w_of, sign, dt, p, change, t_on=3.0, t_end=7.0):
     """Feed ``mon`` a tool that tilts about the world x axis (0.35 rad amplitude, 4 s period, from 0.5 s;
     the sensor's origin fixed, its axes the world's at rest) with white noise at 0.02 N / 0.002 N m, and
     ``change(r) -> reading`` applied from ``t_on``. The reading of each sample belongs to the previous
     sample's pose with the angular acceleration between the two (the kernel's convention)."""
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(5)
     sd = np.array([0.02] * 3 + [0.002] * 3)
     zero = np.zeros(3)
     ang = lambda t: 0.35 * np.sin(2 * np.pi * (t - 0.5) / 4.0) if t > 0.5 else 0.0  # noqa: E731
