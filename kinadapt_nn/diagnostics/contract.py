@@ -24,6 +24,12 @@ holds the built-ins, one module each)::
 * Built-ins may also give ``report`` (the estimate in the user's units), ``plausible`` (why an
   estimate is physically impossible) and ``applies`` (whether it is judged for a set-up); a user's
   effect may too.
+* ``online=True``: the same effect is also usable by the controller online (``model.effects``): its
+  columns, evaluated on what the controller has (``s.t``, ``s.wrench``, ``s.R_ws``, ``s.omega_s``),
+  are mapped into the controller's level channels by one generic map
+  (``kinadapt_nn.features.effect_library.from_wrench``). An effect that needs more (the contact
+  kinematics, a declared set-up) gives ``online=fn`` instead, ``fn(sig) -> Terms`` in the same
+  parameters, in the same module (``docs/effect_library.md``).
 * Parameters that depend on the set-up (one per arm joint, say): give
   ``params_for=lambda setup: (params, relevant)`` instead of (or besides) ``params``/``relevant``.
   The diagnosis calls ``Effect.for_setup(setup)``, which fixes the parameters for that set-up;
@@ -74,6 +80,10 @@ class Effect:
     uses_contact: bool = True  #: the columns depend on the contact mask (recomputed when it changes)
     params_for: Callable | None = None  #: setup -> (params {name: unit}, relevant (k,)); ``for_setup``
     exact: Callable | None = None  #: (s, p (k,)) -> (n, 6) the exact change where the columns are first order
+    #: the controller's online columns (``model.effects``): True derives them from ``columns`` (which then
+    #: reads only s.t, s.wrench, s.R_ws, s.omega_s: ``features.effect_library.from_wrench``); a function
+    #: ``effect_library.Signals -> Terms`` gives them in the controller's level domain; False: none
+    online: bool | Callable = False
 
     @property
     def k(self) -> int:
@@ -144,11 +154,13 @@ def effect(params: dict[str, str] | None = None, relevant=None, doc: str = "", e
            # (the public decorator's options, every one but the first five keyword-only)
            one_of: bool = False, *, report: Callable | None = None, plausible: Callable | None = None,
            applies: Callable | None = None, uses_contact: bool = True,
-           params_for: Callable | None = None, exact: Callable | None = None) -> Callable[[Callable], Effect]:
+           params_for: Callable | None = None, exact: Callable | None = None,
+           online: bool | Callable = False) -> Callable[[Callable], Effect]:
     """Decorator: a function ``f(s) -> (n, 6, k)`` becomes an ``Effect`` named ``f.__name__``
     (module docstring). ``params_for(setup) -> (params, relevant)``: parameters that depend on the
     set-up (``Effect.for_setup``). ``exact(s, p) -> (n, 6)``: the exact change where the columns are a
-    first-order model (``diagnostics.nonlinear``). Bad arguments raise a one-line ``KinadaptError``."""
+    first-order model (``diagnostics.nonlinear``). ``online``: the controller's columns of the same effect
+    (``Effect.online``; ``model.effects``). Bad arguments raise a one-line ``KinadaptError``."""
     def wrap(fn: Callable) -> Effect:
         name = getattr(fn, "__name__", "")
         src = _source_of(fn)
@@ -157,6 +169,9 @@ def effect(params: dict[str, str] | None = None, relevant=None, doc: str = "", e
             raise KinadaptError(f"@effect must decorate a named function ({src})")
         if params_for is not None and not callable(params_for):
             raise KinadaptError(f"{where}: params_for must be a function setup -> (params, relevant)")
+        if not (isinstance(online, bool) or callable(online)):
+            raise KinadaptError(f"{where}: online must be True (derived from the columns), a function "
+                                "Signals -> Terms, or False")
         proto = Effect(name, (), (), (), "", fn, source=src, params_for=params_for)
         if params is None and relevant is None and params_for is not None:
             from kinadapt_nn.diagnostics.setup import SetupCfg
@@ -171,7 +186,7 @@ def effect(params: dict[str, str] | None = None, relevant=None, doc: str = "", e
         if not isinstance(doc, str) or not doc.strip():
             raise KinadaptError(f"{where}: doc must be a one-line description")
         return Effect(name, names, units, rel, doc.strip().splitlines()[0], fn, str(excite), bool(one_of), src,
-                      report, plausible, applies, bool(uses_contact), params_for, exact)
+                      report, plausible, applies, bool(uses_contact), params_for, exact, online)
     return wrap
 
 

@@ -37,16 +37,28 @@ encoder_offset             joint 1..6 zero offsets, 6 [rad]            d/dq_j of
 A joint-7 zero offset is not in the library: it turns the reading about the flange axis exactly
 like a sensor rotation about z_f (the nominal tip is on that axis), so no force/encoder
 experiment can tell them apart; it shows up as ``ft_frame_rotation``.
+
+One definition, both sides. An effect written in the diagnosis's contract
+(``kinadapt_nn.diagnostics.effect``) with ``online=True`` is an online effect too (``online_of``; in
+``model.effects`` as ``PATH.py:NAME``): ``from_wrench`` evaluates its function on what the controller
+has (``WrenchView``) and maps the change of the tool's wrench on the sensor into the level channels,
+tared at the controller's tare. ``online=fn`` gives the controller's own ``Terms`` in the same module.
+The built-ins above are still written here as well as in ``diagnostics/builtin/``: this module is on
+the controller side, which may not import the diagnosis (``tests/test_layout.py``), and four of their
+diagnosis functions need the declared socket's model (``diagnostics/contact_model``).
 """
 
 from __future__ import annotations
 
+import importlib.util
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable, NamedTuple
 
 import numpy as np
 
 from kinadapt_nn.config import EffectsCfg
+from kinadapt_nn.errors import ConfigError, KinadaptError, did_you_mean
 from kinadapt_nn.geometry import adjoint_offset
 from kinadapt_nn.sensing import lateral_projector
 
@@ -118,7 +130,7 @@ def moving_average(x: np.ndarray, k: int) -> np.ndarray:
     return (c[hi] - c[lo]) / (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
 
 
-def _contact_rate(sig: Signals, tip_twist_w: np.ndarray) -> np.ndarray:
+def contact_rate(sig: Signals, tip_twist_w: np.ndarray) -> np.ndarray:
     """Rate of the tip-contact model for a tip twist (N, 6) -> (N, 6) level-channel rates,
     gated: lateral force ``-k_t P v_tip`` and the couple ``-k_r omega`` (S's rows without the
     lever term, which the level ``Z`` takes from the measured force; no axial row)."""
@@ -226,13 +238,13 @@ def _cols_tool_tilt(sig: Signals) -> Terms:
         dl_w = _rot(sig.R_wf, np.broadcast_to(np.cross(e, sig.l_nom_f), (len(sig.t_s), 3)))
         tw = np.zeros((len(sig.t_s), 6))
         tw[:, :3] = np.cross(sig.twist_tip_w[:, 3:], dl_w)  # the true tip's extra velocity
-        integ[:, :, j] = _contact_rate(sig, tw)
+        integ[:, :, j] = contact_rate(sig, tw)
         lev[:, 3:, j] = sig.gate[:, None] * np.cross(dl_w, f_tool)  # moment of the contact force about O
     return Terms(lev, integ)
 
 
 def _cols_contact_stiffness(sig: Signals) -> Terms:
-    return Terms(None, _contact_rate(sig, sig.twist_tip_w)[:, :, None])
+    return Terms(None, contact_rate(sig, sig.twist_tip_w)[:, :, None])
 
 
 def _cols_contact_friction_couple(sig: Signals) -> Terms:
@@ -249,7 +261,7 @@ def _cols_grasp_compliance(sig: Signals) -> Terms:
     M_perp = M - np.sum(M * z, axis=1)[:, None] * z  # the hinges yield about f x, f y only
     lever = _rot(sig.R_wf, np.broadcast_to(sig.l_nom_f, (len(sig.t_s), 3)))
     disp = np.concatenate([np.cross(M_perp, lever), M_perp], axis=1)  # tip displacement + rotation per unit compliance
-    return Terms(_contact_rate(sig, disp)[:, :, None], None)  # the map is linear: displacement -> level change
+    return Terms(contact_rate(sig, disp)[:, :, None], None)  # the map is linear: displacement -> level change
 
 
 def encoder_derivatives(sig: Signals, eps: float = 1e-6, grid_s: float = 0.005) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -300,7 +312,7 @@ def _cols_encoder_offset(sig: Signals, eps: float = 1e-6, grid_s: float = 0.005,
     integ = np.zeros((n, 6, 6))
     for j, (dR_f, dtw) in enumerate(derivs if derivs is not None else encoder_derivatives(sig, eps, grid_s)):
         dRr = np.concatenate([_rot(dR_f, sig.r_tared_f[:, :3]), _rot(dR_f, sig.r_tared_f[:, 3:])], axis=1)
-        integ[:, :, j] = _contact_rate(sig, dtw)
+        integ[:, :, j] = contact_rate(sig, dtw)
         dZ = to_level(sig, dRr)  # d/dq_j of Z = to_level(R r) with the lever R l_nom:
         dZ[:, 3:] -= sig.gate[:, None] * np.cross(_rot(dR_f, np.broadcast_to(sig.l_nom_f, (n, 3))), -sig.w_env_w[:, :3])
         lev[:, :, j] = -dZ
@@ -309,9 +321,11 @@ def _cols_encoder_offset(sig: Signals, eps: float = 1e-6, grid_s: float = 0.005,
 
 # ---------------------------------------------------------------------------------------- library
 @dataclass(frozen=True)
-class Effect:
-    """One library entry: columns, parameter names/units, the default magnitude, the
-    injected truth in the same parameters (for validation) and what motion excites it."""
+class OnlineEffect:
+    """An effect as the online model adapts it (``model.effects``): columns, parameter names/units, the
+    default magnitude, and what motion excites it. A built-in is an entry of ``LIBRARY``; a user's
+    one-file effect (``kinadapt_nn.diagnostics.effect(..., online=...)``) becomes one through
+    ``online_of``."""
 
     name: str
     params: tuple[str, ...]
@@ -319,7 +333,8 @@ class Effect:
     #: Signals -> Terms(level, rate); the rate part is integrated by ``columns`` and used as is by
     #: the online regressor (``kinadapt_nn.features.effects``)
     terms: Callable[[Signals], "Terms"]
-    default: Callable[[EffectsCfg], np.ndarray]  #: the config's magnitude as model parameters (k,)
+    #: the simulator config's magnitude as model parameters (k,) (the prior's scale, validation), or None
+    default: Callable[[EffectsCfg], np.ndarray] | None
     excite_hint: str
     doc: str
     #: True: the effect is "one of" its columns (e.g. one joint's offset): one column at a time
@@ -334,6 +349,125 @@ class Effect:
         (``kw``: passed to ``terms``, e.g. the encoder derivatives already computed)."""
         lev, rate = self.terms(sig, **kw)
         return Terms(lev, None if rate is None else cumulative(rate, sig.dt_s))
+
+    def magnitude(self) -> np.ndarray:
+        """(k,) the default config's magnitude in these parameters, zeros without ``default``."""
+        return np.zeros(self.k) if self.default is None else np.asarray(self.default(EffectsCfg()), dtype=float)
+
+
+# ------------------------------------------------------------------- one definition, both sides
+class WrenchView(NamedTuple):
+    """What an effect's diagnosis columns may read when the controller evaluates them online
+    (``from_wrench``): the attributes of ``diagnostics.signals.LogSignals`` the controller has, in its
+    convention (sensor frame = the flange frame f). Reading another one (``s.setup``, ``s.contact``...)
+    is a one-line ``KinadaptError`` naming it."""
+
+    t: np.ndarray  #: (N,) [s] from the start of the log
+    wrench: np.ndarray  #: (N, 6) [N, N m] the tared reading as the tool's wrench ON the sensor, f
+    R_ws: np.ndarray  #: (N, 3, 3) sensor (flange) axes in the world (encoders)
+    omega_s: np.ndarray  #: (N, 3) [rad/s] angular velocity in the sensor frame (encoders)
+
+    @property
+    def n(self) -> int:
+        return len(self.t)
+
+    def __getattr__(self, name: str):
+        if name.startswith("__"):
+            raise AttributeError(name)
+        raise KinadaptError(f"s.{name} is not known online: an effect derived with online=True reads only "
+                            f"s.{', s.'.join((*self._fields, 'n'))}; give online=<function Signals -> Terms> "
+                            "(kinadapt_nn.features.effect_library) for the controller's own columns")
+
+
+def wrench_view(sig: Signals) -> tuple[WrenchView, WrenchView]:
+    """(now, at the tare): the controller's signals as an effect function reads them (``WrenchView``).
+    The package's reading is the sensor's wrench on the tool, so the tool's on the sensor is its
+    negative; at the tare the tared reading is zero and the arm at rest."""
+    omega_f = np.einsum("nji,nj->ni", sig.R_wf, sig.twist_tip_w[:, 3:])  # R^T omega
+    now = WrenchView(sig.t_s, -sig.r_tared_f, sig.R_wf, omega_f)
+    tare = WrenchView(np.full(1, sig.t_tare_s), np.zeros((1, 6)), sig.R_tare[None], np.zeros((1, 3)))
+    return now, tare
+
+
+def from_wrench(columns: Callable, name: str = "effect") -> Callable[[Signals], Terms]:
+    """The controller's online columns derived from an effect's diagnosis columns, one generic map:
+    ``columns(s) -> (N, 6, k)`` is the change of the tool's wrench on the sensor (sensor frame, the
+    diagnosis's contract); the controller's reading is tared, so its change is ``C(now) - C(tare)``;
+    that reading change, as the world wrench ``w_env = R_wf r`` with ``r = -wrench``, goes into the
+    level channels by ``to_level`` (the lever of the nominal tip taken out in contact). A closed-form
+    level: ``Terms(level, None)``. Valid where the columns read only ``WrenchView``'s attributes; an
+    error in them is one line naming the effect ``name``."""
+    def evaluate(s: WrenchView) -> np.ndarray:
+        try:
+            C = np.asarray(columns(s), dtype=float)
+        except KinadaptError as exc:
+            raise KinadaptError(f"effect '{name}' online: {exc}") from None
+        except Exception as exc:  # a user's code: one line
+            msg = str(exc).splitlines()[0] if str(exc) else ""
+            raise KinadaptError(f"effect '{name}' online raised {type(exc).__name__}: {msg}"[:300]) from None
+        if C.ndim not in (2, 3) or C.shape[:2] != (s.n, 6):
+            raise KinadaptError(f"effect '{name}' online returned shape {C.shape}; expected (n, 6, k) with n = {s.n}")
+        return C
+
+    def terms(sig: Signals) -> Terms:
+        now, tare = wrench_view(sig)
+        C, C0 = evaluate(now), evaluate(tare)
+        if C.ndim == 2:
+            C, C0 = C[:, :, None], C0[:, :, None]
+        dC = C - C0  # (N, 6, k): the tared reading's change (tool on sensor)
+        level = np.empty_like(dC)
+        for j in range(dC.shape[2]):
+            w_env_w = -np.concatenate([_rot(sig.R_wf, dC[:, :3, j]), _rot(sig.R_wf, dC[:, 3:, j])], axis=1)
+            level[:, :, j] = to_level(sig, w_env_w)
+        return Terms(level, None)
+    return terms
+
+
+def online_of(eff) -> OnlineEffect:
+    """An ``OnlineEffect`` from a library name, ``"PATH.py:NAME"`` (a user's effects file), an
+    ``OnlineEffect``, or a diagnosis ``Effect`` with an online side (``@effect(..., online=True | fn)``:
+    derived by ``from_wrench``, or ``fn`` Signals -> Terms in the same parameters). A one-line
+    ``ConfigError`` otherwise, with the closest name."""
+    if isinstance(eff, OnlineEffect):
+        return eff
+    if isinstance(eff, str) and ".py:" in eff:
+        eff = _from_file(*eff.rsplit(":", 1))
+    elif isinstance(eff, str):
+        if eff not in LIBRARY:
+            hint = did_you_mean(eff, LIBRARY)
+            raise ConfigError(f"model.effects: unknown effect '{eff}'{' (' + hint + ')' if hint else ''}; the online "
+                              f"library has {', '.join(LIBRARY)}, or give PATH.py:NAME of an effect with online=True")
+        return LIBRARY[eff]
+    online = getattr(eff, "online", None)
+    name = getattr(eff, "name", repr(eff))
+    if online is None or online is False:
+        raise ConfigError(f"model.effects: effect '{name}' has no online side; declare @effect(..., online=True) "
+                          "when its columns read only s.t, s.wrench, s.R_ws, s.omega_s (or online=<Signals -> Terms>)")
+    terms = from_wrench(eff.columns, name) if online is True else online
+    return OnlineEffect(name, tuple(eff.params), tuple(eff.units), terms, None, getattr(eff, "excite", ""),
+                        getattr(eff, "doc", ""), bool(getattr(eff, "one_of", False)))
+
+
+def _from_file(path: str, name: str):
+    """The effect ``name`` defined at the module level of the effects file ``path`` (Python code that
+    runs, like the diagnosis's ``--effects`` files); a one-line ``ConfigError`` otherwise."""
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"model.effects: effects file '{p}' not found (give PATH.py:NAME of an existing file)")
+    spec = importlib.util.spec_from_file_location(f"kinadapt_online_effects_{abs(hash(str(p.resolve())))}", p)
+    mod = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(mod)
+    except Exception as exc:  # a user's file: one line
+        msg = str(exc).splitlines()[0] if str(exc) else ""
+        raise ConfigError(f"model.effects: effects file '{p}' raised {type(exc).__name__} while loading: {msg}"[:300]) \
+            from None
+    found = {getattr(v, "name", None): v for v in vars(mod).values() if hasattr(v, "online") and hasattr(v, "columns")}
+    if name not in found:
+        hint = did_you_mean(name, [n for n in found if n])
+        raise ConfigError(f"model.effects: effects file '{p}' defines no effect '{name}'"
+                          f"{' (' + hint + ')' if hint else ''}; it has {', '.join(n for n in found if n) or 'none'}")
+    return found[name]
 
 
 def _p_gravity(e: EffectsCfg) -> np.ndarray:
@@ -352,38 +486,38 @@ def _p_encoder(e: EffectsCfg) -> np.ndarray:
     return p
 
 
-LIBRARY: dict[str, Effect] = {
+LIBRARY: dict[str, OnlineEffect] = {
     e.name: e
     for e in (
-        Effect("tool_gravity", ("mass", "mass*com_x_f", "mass*com_y_f", "mass*com_z_f"), ("kg", "kg m", "kg m", "kg m"),
+        OnlineEffect("tool_gravity", ("mass", "mass*com_x_f", "mass*com_y_f", "mass*com_z_f"), ("kg", "kg m", "kg m", "kg m"),
                _cols_tool_gravity, _p_gravity,
                "reorient the tool in free space through several poses (tilts of 20-30 deg about two axes)",
                "tool mass and centre of mass loading the wrist sensor"),
-        Effect("ft_bias_drift", ("rate_fx", "rate_fy", "rate_fz", "rate_tx", "rate_ty", "rate_tz"),
+        OnlineEffect("ft_bias_drift", ("rate_fx", "rate_fy", "rate_fz", "rate_tx", "rate_ty", "rate_tz"),
                ("N/s", "N/s", "N/s", "N m/s", "N m/s", "N m/s"), _cols_ft_bias_drift,
                lambda e: np.asarray(e.ft_bias_drift.rate_f, dtype=float),
                "hold still in free space for several seconds, at more than one orientation",
                "the F/T offset drifts linearly in time"),
-        Effect("ft_frame_rotation", ("rot_x_f", "rot_y_f", "rot_z_f"), ("rad", "rad", "rad"), _cols_ft_frame_rotation,
+        OnlineEffect("ft_frame_rotation", ("rot_x_f", "rot_y_f", "rot_z_f"), ("rad", "rad", "rad"), _cols_ft_frame_rotation,
                lambda e: np.deg2rad(np.asarray(e.ft_frame_rotation.rotvec_deg, dtype=float)),
                "press axially and push laterally in both directions (large forces along several axes)",
                "the sensor is mounted slightly rotated"),
-        Effect("tool_tilt", ("tilt_x_f", "tilt_y_f"), ("rad", "rad"), _cols_tool_tilt, _p_tilt,
+        OnlineEffect("tool_tilt", ("tilt_x_f", "tilt_y_f"), ("rad", "rad"), _cols_tool_tilt, _p_tilt,
                "rotate about the tip in contact and push laterally (the tip lever shows in the moment)",
                "the tool sits rotated in the grasp"),
-        Effect("contact_stiffness", ("stiffness_factor_minus_1",), ("-",), _cols_contact_stiffness,
+        OnlineEffect("contact_stiffness", ("stiffness_factor_minus_1",), ("-",), _cols_contact_stiffness,
                lambda e: np.array([e.contact_stiffness.factor - 1.0]),
                "push laterally into the contact and rotate about the tip in contact",
                "the contact stiffness differs from the model's S"),
-        Effect("contact_friction_couple", ("radius",), ("m",), _cols_contact_friction_couple,
+        OnlineEffect("contact_friction_couple", ("radius",), ("m",), _cols_contact_friction_couple,
                lambda e: np.array([e.contact_friction_couple.radius_m]),
                "rotate back and forth in contact under a steady normal force (a couple that flips with omega)",
                "a torsional friction couple opposing rotation in contact"),
-        Effect("grasp_compliance", ("compliance",), ("rad/(N m)",), _cols_grasp_compliance,
+        OnlineEffect("grasp_compliance", ("compliance",), ("rad/(N m)",), _cols_grasp_compliance,
                lambda e: np.array([1.0 / e.grasp_compliance.stiffness_Nm_per_rad]),
                "load the tool with a moment in contact (lateral pushes at the tip)",
                "the tool yields in the grasp under moment"),
-        Effect("encoder_offset", tuple(f"offset_joint{j}" for j in range(1, 7)), ("rad",) * 6, _cols_encoder_offset,
+        OnlineEffect("encoder_offset", tuple(f"offset_joint{j}" for j in range(1, 7)), ("rad",) * 6, _cols_encoder_offset,
                _p_encoder,
                "push in contact at two tool-axis angles (turn the tool between contacts) and move the arm",
                "a joint encoder zero offset (one of joints 1-6)", one_of=True),

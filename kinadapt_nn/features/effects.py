@@ -8,7 +8,8 @@ drive use the base parameters only, and the tracking term does not act on the ef
 parameters (``track_rows``). Per step the columns are evaluated on a one-sample ``Signals``
 built from what the controller already has (encoders, the tared wrench, time); a closed-form
 level column enters as its backward difference / dt (so the law's low-pass makes it the same
-filtered derivative as the measured rate), a rate column as is. The library writes the moment
+filtered derivative as the measured rate), a rate column as is. An effect written once in the
+diagnosis's contract with ``online=True`` enters the same way (``effect_library.online_of``). The library writes the moment
 channels in the tip-contact form ``Z_M = M - (R l_nom) x f_tool``; the controller's S keeps the
 lever, so the columns are mapped back (``M = Z_M + (R l_nom) x f_tool``) in contact.
 """
@@ -17,8 +18,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from kinadapt_nn.config import EffectsCfg
-from kinadapt_nn.features.effect_library import LIBRARY, Signals, projector, tip_twist_map
+from typing import Sequence
+
+from kinadapt_nn.features.effect_library import OnlineEffect, Signals, online_of, projector, tip_twist_map
 from kinadapt_nn.features.base import Features, KinState, Regressor
 from kinadapt_nn.known import KnownCfg
 from kinadapt_nn.robot import ArmKinematics
@@ -28,15 +30,18 @@ _LEVEL_TO_S = np.array([0, 1, 3, 4, 5])
 
 
 class EffectFeatures(Features):
-    """``base`` + effect columns. Parameters: ``[theta_base (p0,); p_effects (k,)]``."""
+    """``base`` + effect columns. Parameters: ``[theta_base (p0,); p_effects (k,)]``. ``effects``: names
+    of the library (``effect_library.LIBRARY``), ``OnlineEffect``s, or one-file effects with an online
+    side (``@effect(..., online=True)``; ``effect_library.online_of``)."""
 
-    def __init__(self, base: Features, effects: list[str], known: KnownCfg, S: np.ndarray) -> None:
+    def __init__(self, base: Features, effects: Sequence[str | OnlineEffect | object], known: KnownCfg,
+                 S: np.ndarray) -> None:
         self.base = base
-        self.effects = [LIBRARY[n] for n in effects]
+        self.effects = [online_of(e) for e in effects]
         self.p0 = base.n_params
         self.k = sum(e.k for e in self.effects)
         self.n_params = self.p0 + self.k
-        self.name = base.name + "+" + "+".join(effects)
+        self.name = base.name + "+" + "+".join(e.name for e in self.effects)
         self.fixed_law = base.fixed_law  # (the oracle's frozen law holds its effect columns too)
         self.S = S
         self._P = projector(S)  # lateral projector (2, 3)
@@ -49,7 +54,7 @@ class EffectFeatures(Features):
         # kalman law: the base prior, and 3x each effect's default magnitude (1 where it is 0)
         base_P0 = getattr(base, "P0", None)
         if base_P0 is not None:
-            d = np.concatenate([np.abs(e.default(EffectsCfg())) for e in self.effects])
+            d = np.concatenate([np.abs(e.magnitude()) for e in self.effects])
             sd = np.where(d > 0, 3.0 * d, 1.0)
             self.P0 = np.zeros((self.n_params, self.n_params))
             self.P0[: self.p0, : self.p0] = base_P0

@@ -6,7 +6,10 @@ Until they are one source, this pins which are one formula written twice: the di
 tared in the sensor frame at the online tare sample and mapped the way the online library maps a
 wrench (``to_level(sig, [R_ws f; R_ws m])``), equal the online columns up to one sign per effect
 (the sides' wrench conventions differ). ``python benchmarks/effect_model_sides.py`` prints the
-whole table, the effects that differ in substance included (tool_tilt, encoder_offset)."""
+whole table, the effects that differ in substance included (tool_tilt, encoder_offset). The one-file
+form (``@effect(..., online=True)``: the online columns derived from the diagnosis's by
+``effect_library.from_wrench``) is tested in ``tests/features/test_effect_one_file.py``, against the
+simulator and against the hand-written online columns of the sensor rotation and the drift."""
 
 from __future__ import annotations
 
