@@ -12,6 +12,12 @@ written twice (up to frame, sign and tare); a misfit near 1 means two different 
 contact-kinematic effects: the online side integrates the admittance's map S at the nominal tip,
 the diagnosis differentiates the declared socket's springs).
 
+Then the one-file form (``tests/features/test_effect_one_file.py``): ``examples/effects/cable_pull.py``
+(``online=True``) against the simulator's ``world_force`` at its clamp, both sides, as the largest
+error over the largest prediction per group (forces, moments); and the generic map
+``effect_library.from_wrench`` applied to the built-ins' diagnosis functions of the sensor rotation and
+the drift against the online library's hand-written columns.
+
 Usage: python benchmarks/effect_model_sides.py [--duration 20]
 """
 
@@ -37,6 +43,18 @@ def main() -> None:
           f"{'rms diag':>9s}")
     for name, par, scale, mis, r_on, r_dg in compare(sig, s):
         print(f"{name:24s} {par[:40]:40s} {scale:9.4g} {mis:7.3f} {r_on:10.3g} {r_dg:9.3g}")
+
+    from tests.features.test_effect_one_file import example_errors, generic_map_gaps, pull_runs
+
+    pair = pull_runs(8.0)
+    print("\none file, both sides: examples/effects/cable_pull.py (online=True) vs the simulated pull, 8 s")
+    for side, (err, scale) in example_errors(pair).items():
+        print(f"  {side:10s} forces: max error {err[:3].max():.2g} N of {scale[:3].max():.3g} N "
+              f"({100 * err[:3].max() / scale[:3].max():.2f} %); moments: {err[3:].max():.2g} N m of "
+              f"{scale[3:].max():.3g} N m ({100 * err[3:].max() / scale[3:].max():.2f} %)")
+    print("generic map (from_wrench) on the built-ins' diagnosis functions vs the hand-written online columns")
+    for name, (same, opposite, scale) in generic_map_gaps(pair["pull"][0]).items():
+        print(f"  {name:20s} max |derived - hand| {same:.3g}, max |derived + hand| {opposite:.3g} (columns up to {scale:.3g})")
 
 
 if __name__ == "__main__":

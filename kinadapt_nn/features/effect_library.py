@@ -172,7 +172,160 @@ def _rot(R: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.einsum("nij,nj->ni", R, v)
 
 
-# ---------------------------------------------------------------------------------------- columns
+# ---------------------------------------------------------------------------------------- library
+@dataclass(frozen=True)
+class OnlineEffect:
+    """An effect as the online model adapts it (``model.effects``): columns, parameter names/units, the
+    default magnitude, and what motion excites it. A built-in is an entry of ``LIBRARY``; a user's
+    one-file effect (``kinadapt_nn.diagnostics.effect(..., online=...)``) becomes one through
+    ``online_of``."""
+
+    name: str
+    params: tuple[str, ...]
+    units: tuple[str, ...]
+    #: Signals -> Terms(level, rate); the rate part is integrated by ``columns`` and used as is by
+    #: the online regressor (``kinadapt_nn.features.effects``)
+    terms: Callable[[Signals], "Terms"]
+    #: the simulator config's magnitude as model parameters (k,) (the prior's scale, validation), or None
+    default: Callable[[EffectsCfg], np.ndarray] | None
+    excite_hint: str
+    doc: str
+    #: True: the effect is "one of" its columns (e.g. one joint's offset): one column at a time
+    one_of: bool = False
+
+    @property
+    def k(self) -> int:
+        return len(self.params)
+
+    def columns(self, sig: Signals, **kw) -> Terms:
+        """Level columns: (closed-form level, integral of the rate), (N, 6, k) each or None
+        (``kw``: passed to ``terms``, e.g. the encoder derivatives already computed)."""
+        lev, rate = self.terms(sig, **kw)
+        return Terms(lev, None if rate is None else cumulative(rate, sig.dt_s))
+
+    def magnitude(self) -> np.ndarray:
+        """(k,) the default config's magnitude in these parameters, zeros without ``default``."""
+        return np.zeros(self.k) if self.default is None else np.asarray(self.default(EffectsCfg()), dtype=float)
+
+
+# ------------------------------------------------------------------- one definition, both sides
+class WrenchView(NamedTuple):
+    """What an effect's diagnosis columns may read when the controller evaluates them online
+    (``from_wrench``): the attributes of ``diagnostics.signals.LogSignals`` the controller has, in its
+    convention (sensor frame = the flange frame f). Reading another one (``s.setup``, ``s.contact``...)
+    is a one-line ``KinadaptError`` naming it."""
+
+    t: np.ndarray  #: (N,) [s] from the start of the log
+    wrench: np.ndarray  #: (N, 6) [N, N m] the tared reading as the tool's wrench ON the sensor, f
+    R_ws: np.ndarray  #: (N, 3, 3) sensor (flange) axes in the world (encoders)
+    omega_s: np.ndarray  #: (N, 3) [rad/s] angular velocity in the sensor frame (encoders)
+
+    @property
+    def n(self) -> int:
+        return len(self.t)
+
+    def __getattr__(self, name: str):
+        if name.startswith("__"):
+            raise AttributeError(name)
+        raise KinadaptError(f"s.{name} is not known online: an effect derived with online=True reads only "
+                            f"s.{', s.'.join((*self._fields, 'n'))}; give online=<function Signals -> Terms> "
+                            "(kinadapt_nn.features.effect_library) for the controller's own columns")
+
+
+def wrench_view(sig: Signals) -> tuple[WrenchView, WrenchView]:
+    """(now, at the tare): the controller's signals as an effect function reads them (``WrenchView``).
+    The package's reading is the sensor's wrench on the tool, so the tool's on the sensor is its
+    negative; at the tare the tared reading is zero and the arm at rest."""
+    omega_f = np.einsum("nji,nj->ni", sig.R_wf, sig.twist_tip_w[:, 3:])  # R^T omega
+    now = WrenchView(sig.t_s, -sig.r_tared_f, sig.R_wf, omega_f)
+    tare = WrenchView(np.full(1, sig.t_tare_s), np.zeros((1, 6)), sig.R_tare[None], np.zeros((1, 3)))
+    return now, tare
+
+
+def from_wrench(columns: Callable, name: str = "effect") -> Callable[[Signals], Terms]:
+    """The controller's online columns derived from an effect's diagnosis columns, one generic map:
+    ``columns(s) -> (N, 6, k)`` is the change of the tool's wrench on the sensor (sensor frame, the
+    diagnosis's contract); the controller's reading is tared, so its change is ``C(now) - C(tare)``;
+    that reading change, as the world wrench ``w_env = R_wf r`` with ``r = -wrench``, goes into the
+    level channels by ``to_level`` (the lever of the nominal tip taken out in contact). A closed-form
+    level: ``Terms(level, None)``. Valid where the columns read only ``WrenchView``'s attributes and are
+    linear in ``s.wrench`` or independent of it (the controller has the tared reading, a log the raw
+    one); an error in them is one line naming the effect ``name``."""
+    def evaluate(s: WrenchView) -> np.ndarray:
+        try:
+            C = np.asarray(columns(s), dtype=float)
+        except KinadaptError as exc:
+            raise KinadaptError(f"effect '{name}' online: {exc}") from None
+        except Exception as exc:  # a user's code: one line
+            msg = str(exc).splitlines()[0] if str(exc) else ""
+            raise KinadaptError(f"effect '{name}' online raised {type(exc).__name__}: {msg}"[:300]) from None
+        if C.ndim not in (2, 3) or C.shape[:2] != (s.n, 6):
+            raise KinadaptError(f"effect '{name}' online returned shape {C.shape}; expected (n, 6, k) with n = {s.n}")
+        return C
+
+    def terms(sig: Signals) -> Terms:
+        now, tare = wrench_view(sig)
+        C, C0 = evaluate(now), evaluate(tare)
+        if C.ndim == 2:
+            C, C0 = C[:, :, None], C0[:, :, None]
+        dC = C - C0  # (N, 6, k): the tared reading's change (tool on sensor)
+        level = np.empty_like(dC)
+        for j in range(dC.shape[2]):
+            w_env_w = -np.concatenate([_rot(sig.R_wf, dC[:, :3, j]), _rot(sig.R_wf, dC[:, 3:, j])], axis=1)
+            level[:, :, j] = to_level(sig, w_env_w)
+        return Terms(level, None)
+    return terms
+
+
+def online_of(eff) -> OnlineEffect:
+    """An ``OnlineEffect`` from a library name, ``"PATH.py:NAME"`` (a user's effects file), an
+    ``OnlineEffect``, or a diagnosis ``Effect`` with an online side (``@effect(..., online=True | fn)``:
+    derived by ``from_wrench``, or ``fn`` Signals -> Terms in the same parameters). A one-line
+    ``ConfigError`` otherwise, with the closest name."""
+    if isinstance(eff, OnlineEffect):
+        return eff
+    if isinstance(eff, str) and ".py:" in eff:
+        eff = _from_file(*eff.rsplit(":", 1))
+    elif isinstance(eff, str):
+        if eff not in LIBRARY:
+            hint = did_you_mean(eff, LIBRARY)
+            raise ConfigError(f"model.effects: unknown effect '{eff}'{' (' + hint + ')' if hint else ''}; the online "
+                              f"library has {', '.join(LIBRARY)}, or give PATH.py:NAME of an effect with online=True")
+        return LIBRARY[eff]
+    online = getattr(eff, "online", None)
+    name = getattr(eff, "name", repr(eff))
+    if online is None or online is False:
+        raise ConfigError(f"model.effects: effect '{name}' has no online side; declare @effect(..., online=True) "
+                          "when its columns read only s.t, s.wrench, s.R_ws, s.omega_s (or online=<Signals -> Terms>)")
+    terms = from_wrench(eff.columns, name) if online is True else online
+    return OnlineEffect(name, tuple(eff.params), tuple(eff.units), terms, None, getattr(eff, "excite", ""),
+                        getattr(eff, "doc", ""), bool(getattr(eff, "one_of", False)))
+
+
+def _from_file(path: str, name: str):
+    """The effect ``name`` defined at the module level of the effects file ``path`` (Python code that
+    runs, like the diagnosis's ``--effects`` files); a one-line ``ConfigError`` otherwise."""
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"model.effects: effects file '{p}' not found (give PATH.py:NAME of an existing file)")
+    spec = importlib.util.spec_from_file_location(f"kinadapt_online_effects_{abs(hash(str(p.resolve())))}", p)
+    mod = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(mod)
+    except Exception as exc:  # a user's file: one line
+        msg = str(exc).splitlines()[0] if str(exc) else ""
+        raise ConfigError(f"model.effects: effects file '{p}' raised {type(exc).__name__} while loading: {msg}"[:300]) \
+            from None
+    found = {getattr(v, "name", None): v for v in vars(mod).values() if hasattr(v, "online") and hasattr(v, "columns")}
+    if name not in found:
+        hint = did_you_mean(name, [n for n in found if n])
+        raise ConfigError(f"model.effects: effects file '{p}' defines no effect '{name}'"
+                          f"{' (' + hint + ')' if hint else ''}; it has {', '.join(n for n in found if n) or 'none'}")
+    return found[name]
+
+
+# ------------------------------------------------- the built-ins' online columns (LIBRARY)
+# (their diagnosis side is diagnostics/builtin/<name>.py; the controller side may not import it)
 def _smooth_derivative(x: np.ndarray, dt: float, width_s: float = 0.002) -> np.ndarray:
     """d/dt of a (N, 3) series, central differences then a ``width_s`` moving average."""
     if len(x) < 3:
@@ -317,157 +470,6 @@ def _cols_encoder_offset(sig: Signals, eps: float = 1e-6, grid_s: float = 0.005,
         dZ[:, 3:] -= sig.gate[:, None] * np.cross(_rot(dR_f, np.broadcast_to(sig.l_nom_f, (n, 3))), -sig.w_env_w[:, :3])
         lev[:, :, j] = -dZ
     return Terms(lev, integ)
-
-
-# ---------------------------------------------------------------------------------------- library
-@dataclass(frozen=True)
-class OnlineEffect:
-    """An effect as the online model adapts it (``model.effects``): columns, parameter names/units, the
-    default magnitude, and what motion excites it. A built-in is an entry of ``LIBRARY``; a user's
-    one-file effect (``kinadapt_nn.diagnostics.effect(..., online=...)``) becomes one through
-    ``online_of``."""
-
-    name: str
-    params: tuple[str, ...]
-    units: tuple[str, ...]
-    #: Signals -> Terms(level, rate); the rate part is integrated by ``columns`` and used as is by
-    #: the online regressor (``kinadapt_nn.features.effects``)
-    terms: Callable[[Signals], "Terms"]
-    #: the simulator config's magnitude as model parameters (k,) (the prior's scale, validation), or None
-    default: Callable[[EffectsCfg], np.ndarray] | None
-    excite_hint: str
-    doc: str
-    #: True: the effect is "one of" its columns (e.g. one joint's offset): one column at a time
-    one_of: bool = False
-
-    @property
-    def k(self) -> int:
-        return len(self.params)
-
-    def columns(self, sig: Signals, **kw) -> Terms:
-        """Level columns: (closed-form level, integral of the rate), (N, 6, k) each or None
-        (``kw``: passed to ``terms``, e.g. the encoder derivatives already computed)."""
-        lev, rate = self.terms(sig, **kw)
-        return Terms(lev, None if rate is None else cumulative(rate, sig.dt_s))
-
-    def magnitude(self) -> np.ndarray:
-        """(k,) the default config's magnitude in these parameters, zeros without ``default``."""
-        return np.zeros(self.k) if self.default is None else np.asarray(self.default(EffectsCfg()), dtype=float)
-
-
-# ------------------------------------------------------------------- one definition, both sides
-class WrenchView(NamedTuple):
-    """What an effect's diagnosis columns may read when the controller evaluates them online
-    (``from_wrench``): the attributes of ``diagnostics.signals.LogSignals`` the controller has, in its
-    convention (sensor frame = the flange frame f). Reading another one (``s.setup``, ``s.contact``...)
-    is a one-line ``KinadaptError`` naming it."""
-
-    t: np.ndarray  #: (N,) [s] from the start of the log
-    wrench: np.ndarray  #: (N, 6) [N, N m] the tared reading as the tool's wrench ON the sensor, f
-    R_ws: np.ndarray  #: (N, 3, 3) sensor (flange) axes in the world (encoders)
-    omega_s: np.ndarray  #: (N, 3) [rad/s] angular velocity in the sensor frame (encoders)
-
-    @property
-    def n(self) -> int:
-        return len(self.t)
-
-    def __getattr__(self, name: str):
-        if name.startswith("__"):
-            raise AttributeError(name)
-        raise KinadaptError(f"s.{name} is not known online: an effect derived with online=True reads only "
-                            f"s.{', s.'.join((*self._fields, 'n'))}; give online=<function Signals -> Terms> "
-                            "(kinadapt_nn.features.effect_library) for the controller's own columns")
-
-
-def wrench_view(sig: Signals) -> tuple[WrenchView, WrenchView]:
-    """(now, at the tare): the controller's signals as an effect function reads them (``WrenchView``).
-    The package's reading is the sensor's wrench on the tool, so the tool's on the sensor is its
-    negative; at the tare the tared reading is zero and the arm at rest."""
-    omega_f = np.einsum("nji,nj->ni", sig.R_wf, sig.twist_tip_w[:, 3:])  # R^T omega
-    now = WrenchView(sig.t_s, -sig.r_tared_f, sig.R_wf, omega_f)
-    tare = WrenchView(np.full(1, sig.t_tare_s), np.zeros((1, 6)), sig.R_tare[None], np.zeros((1, 3)))
-    return now, tare
-
-
-def from_wrench(columns: Callable, name: str = "effect") -> Callable[[Signals], Terms]:
-    """The controller's online columns derived from an effect's diagnosis columns, one generic map:
-    ``columns(s) -> (N, 6, k)`` is the change of the tool's wrench on the sensor (sensor frame, the
-    diagnosis's contract); the controller's reading is tared, so its change is ``C(now) - C(tare)``;
-    that reading change, as the world wrench ``w_env = R_wf r`` with ``r = -wrench``, goes into the
-    level channels by ``to_level`` (the lever of the nominal tip taken out in contact). A closed-form
-    level: ``Terms(level, None)``. Valid where the columns read only ``WrenchView``'s attributes; an
-    error in them is one line naming the effect ``name``."""
-    def evaluate(s: WrenchView) -> np.ndarray:
-        try:
-            C = np.asarray(columns(s), dtype=float)
-        except KinadaptError as exc:
-            raise KinadaptError(f"effect '{name}' online: {exc}") from None
-        except Exception as exc:  # a user's code: one line
-            msg = str(exc).splitlines()[0] if str(exc) else ""
-            raise KinadaptError(f"effect '{name}' online raised {type(exc).__name__}: {msg}"[:300]) from None
-        if C.ndim not in (2, 3) or C.shape[:2] != (s.n, 6):
-            raise KinadaptError(f"effect '{name}' online returned shape {C.shape}; expected (n, 6, k) with n = {s.n}")
-        return C
-
-    def terms(sig: Signals) -> Terms:
-        now, tare = wrench_view(sig)
-        C, C0 = evaluate(now), evaluate(tare)
-        if C.ndim == 2:
-            C, C0 = C[:, :, None], C0[:, :, None]
-        dC = C - C0  # (N, 6, k): the tared reading's change (tool on sensor)
-        level = np.empty_like(dC)
-        for j in range(dC.shape[2]):
-            w_env_w = -np.concatenate([_rot(sig.R_wf, dC[:, :3, j]), _rot(sig.R_wf, dC[:, 3:, j])], axis=1)
-            level[:, :, j] = to_level(sig, w_env_w)
-        return Terms(level, None)
-    return terms
-
-
-def online_of(eff) -> OnlineEffect:
-    """An ``OnlineEffect`` from a library name, ``"PATH.py:NAME"`` (a user's effects file), an
-    ``OnlineEffect``, or a diagnosis ``Effect`` with an online side (``@effect(..., online=True | fn)``:
-    derived by ``from_wrench``, or ``fn`` Signals -> Terms in the same parameters). A one-line
-    ``ConfigError`` otherwise, with the closest name."""
-    if isinstance(eff, OnlineEffect):
-        return eff
-    if isinstance(eff, str) and ".py:" in eff:
-        eff = _from_file(*eff.rsplit(":", 1))
-    elif isinstance(eff, str):
-        if eff not in LIBRARY:
-            hint = did_you_mean(eff, LIBRARY)
-            raise ConfigError(f"model.effects: unknown effect '{eff}'{' (' + hint + ')' if hint else ''}; the online "
-                              f"library has {', '.join(LIBRARY)}, or give PATH.py:NAME of an effect with online=True")
-        return LIBRARY[eff]
-    online = getattr(eff, "online", None)
-    name = getattr(eff, "name", repr(eff))
-    if online is None or online is False:
-        raise ConfigError(f"model.effects: effect '{name}' has no online side; declare @effect(..., online=True) "
-                          "when its columns read only s.t, s.wrench, s.R_ws, s.omega_s (or online=<Signals -> Terms>)")
-    terms = from_wrench(eff.columns, name) if online is True else online
-    return OnlineEffect(name, tuple(eff.params), tuple(eff.units), terms, None, getattr(eff, "excite", ""),
-                        getattr(eff, "doc", ""), bool(getattr(eff, "one_of", False)))
-
-
-def _from_file(path: str, name: str):
-    """The effect ``name`` defined at the module level of the effects file ``path`` (Python code that
-    runs, like the diagnosis's ``--effects`` files); a one-line ``ConfigError`` otherwise."""
-    p = Path(path)
-    if not p.is_file():
-        raise ConfigError(f"model.effects: effects file '{p}' not found (give PATH.py:NAME of an existing file)")
-    spec = importlib.util.spec_from_file_location(f"kinadapt_online_effects_{abs(hash(str(p.resolve())))}", p)
-    mod = importlib.util.module_from_spec(spec)
-    try:
-        spec.loader.exec_module(mod)
-    except Exception as exc:  # a user's file: one line
-        msg = str(exc).splitlines()[0] if str(exc) else ""
-        raise ConfigError(f"model.effects: effects file '{p}' raised {type(exc).__name__} while loading: {msg}"[:300]) \
-            from None
-    found = {getattr(v, "name", None): v for v in vars(mod).values() if hasattr(v, "online") and hasattr(v, "columns")}
-    if name not in found:
-        hint = did_you_mean(name, [n for n in found if n])
-        raise ConfigError(f"model.effects: effects file '{p}' defines no effect '{name}'"
-                          f"{' (' + hint + ')' if hint else ''}; it has {', '.join(n for n in found if n) or 'none'}")
-    return found[name]
 
 
 def _p_gravity(e: EffectsCfg) -> np.ndarray:
