@@ -309,8 +309,10 @@ class Monitor:
         k``) where the nominal model misses something that changes with the pose (the declared tool's
         centre of mass: the moment rows); that excess variance, spread over the k samples of a block,
         ``sd^2 + k * excess``, is what a row of that channel carries besides the noise, so a shape is not
-        named for fitting the model's own error better (docs/monitor.md). The noise sd where there are
-        fewer than three blocks."""
+        named for fitting the model's own error better (docs/monitor.md). The excess is estimated
+        without a test (floored at 0): a channel of noise alone is widened by its chance excess, within
+        ``sqrt(chi^2_(n-1) / (n - 1))`` of its sd (n blocks). The noise sd where there are fewer than three
+        blocks."""
         k = max(1, int(round(MODEL_BLOCK_S / self.dt_s)))
         sd = self.noise_sd
         rows = K.ring_rows(self.st, self.ring, t_on - MODEL_LOOK_S)

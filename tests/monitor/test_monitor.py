@@ -363,3 +363,28 @@ def test_a_turned_mount_is_named_and_a_bias_step_is_not_relevant():
     step = np.array([0.0, 0.03, 0.0, 0.0, 0.0, 0.0])
     evs = _tilting_run(mon, w_of, sign, dt, p, lambda r: r + step)
     assert all(e.shape != "ft_frame_rotation" for e in evs), [e.line for e in evs]
+
+
+def test_naming_sd_widens_a_channel_by_the_models_slow_error():
+    """``Monitor._naming_sd``: over the 2 s before a change, a channel whose residual carries a slow error
+    (+-a, switching every 0.1 s block) besides white noise is named with sd ``sqrt(sd^2 + k var)``, var
+    the variance of its block means beyond the noise's ``sd^2 / k`` (k = 100 samples: here ``a^2 n / (n -
+    1)`` over n = 20 blocks, to the noise's share); a channel of white noise alone keeps its sd but for
+    its chance excess: within ``sqrt(chi^2_19 at 0.99 / 19)`` of it (each with chance 0.99; seed 1)."""
+    mon, _, _, dt, _ = _rest_monitor(True)
+    sd = np.array([0.02] * 3 + [0.002] * 3)
+    mon.st[K.S_SD:K.S_SD + 6] = sd
+    k, n, a = 100, 20, 0.001
+    rng = np.random.default_rng(1)
+    rows = n * k
+    t = 1.0 + dt * np.arange(rows)
+    e = sd * rng.standard_normal((rows, 6))
+    e[:, 5] += a * np.repeat(np.where(np.arange(n) % 2 == 0, 1.0, -1.0), k)
+    mon.ring[:rows, K.G_T], mon.ring[:rows, K.G_E:K.G_E + 6], mon.ring[:rows, K.G_FREE] = t, e, 1.0
+    mon.st[K.S_HEAD], mon.st[K.S_COUNT] = rows, rows
+    got = mon._naming_sd(float(t[-1]))  # noqa: SLF001
+    want = np.sqrt(sd[5] ** 2 + k * a ** 2 * n / (n - 1))
+    assert abs(got[5] / want - 1.0) < 0.05, (got[5], want)
+    from scipy.stats import chi2
+
+    assert np.all(got[:5] >= sd[:5]) and np.all(got[:5] <= sd[:5] * np.sqrt(chi2.ppf(0.99, n - 1) / (n - 1))), got / sd
