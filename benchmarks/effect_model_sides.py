@@ -15,8 +15,8 @@ the diagnosis differentiates the declared socket's springs).
 Then the one-file form (``tests/features/test_effect_one_file.py``): ``examples/effects/cable_pull.py``
 (``online=True``) against the simulator's ``world_force`` at its clamp, both sides, as the largest
 error over the largest prediction per group (forces, moments); and the generic map
-``effect_library.from_wrench`` applied to the built-ins' diagnosis functions of the sensor rotation and
-the drift against the online library's hand-written columns.
+``effect_library.from_wrench`` applied to the built-ins' diagnosis functions of the payload, the sensor
+rotation and the drift against the online library's hand-written columns.
 
 Usage: python benchmarks/effect_model_sides.py [--duration 20]
 """

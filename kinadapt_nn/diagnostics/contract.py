@@ -25,7 +25,8 @@ holds the built-ins, one module each)::
   estimate is physically impossible) and ``applies`` (whether it is judged for a set-up); a user's
   effect may too.
 * ``online=True``: the same effect is also usable by the controller online (``model.effects``): its
-  columns, evaluated on what the controller has (``s.t``, ``s.wrench``, ``s.R_ws``, ``s.omega_s``),
+  columns, evaluated on what the controller has (``s.t``, ``s.wrench``, ``s.R_ws``, ``s.omega_s``, ``s.g_s``,
+  ``s.a_s``, ``s.alpha_s``),
   are mapped into the controller's level channels by one generic map
   (``kinadapt_nn.features.effect_library.from_wrench``). An effect that needs more (the contact
   kinematics, a declared set-up) gives ``online=fn`` instead, ``fn(sig) -> Terms`` in the same
@@ -81,7 +82,7 @@ class Effect:
     params_for: Callable | None = None  #: setup -> (params {name: unit}, relevant (k,)); ``for_setup``
     exact: Callable | None = None  #: (s, p (k,)) -> (n, 6) the exact change where the columns are first order
     #: the controller's online columns (``model.effects``): True derives them from ``columns`` (which then
-    #: reads only s.t, s.wrench, s.R_ws, s.omega_s: ``features.effect_library.from_wrench``); a function
+    #: reads only what ``features.effect_library.WrenchView`` has: ``from_wrench``); a function
     #: ``effect_library.Signals -> Terms`` gives them in the controller's level domain; False: none
     online: bool | Callable = False
 

@@ -45,7 +45,9 @@ has (``WrenchView``) and maps the change of the tool's wrench on the sensor into
 tared at the controller's tare. ``online=fn`` gives the controller's own ``Terms`` in the same module.
 The built-ins above are still written here as well as in ``diagnostics/builtin/``: this module is on
 the controller side, which may not import the diagnosis (``tests/test_layout.py``), and four of their
-diagnosis functions need the declared socket's model (``diagnostics/contact_model``).
+diagnosis functions need the declared socket's model (``diagnostics/contact_model``). For three
+(gravity, sensor rotation, drift) ``from_wrench`` of the diagnosis function equals the columns here to
+rounding (``tests/features/test_effect_one_file.py``).
 """
 
 from __future__ import annotations
@@ -128,6 +130,14 @@ def moving_average(x: np.ndarray, k: int) -> np.ndarray:
     lo = np.clip(i - k // 2, 0, len(x))
     hi = np.clip(i + (k - k // 2), 0, len(x))
     return (c[hi] - c[lo]) / (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
+
+
+def smooth_derivative(x: np.ndarray, dt: float, width_s: float = 0.002) -> np.ndarray:
+    """d/dt of a (N, 3) series, central differences then a ``width_s`` moving average (zeros for
+    fewer than 3 samples: the controller's one-sample step has no history)."""
+    if len(x) < 3:
+        return np.zeros_like(x)
+    return moving_average(np.gradient(x, dt, axis=0), max(1, int(round(width_s / dt))))
 
 
 def contact_rate(sig: Signals, tip_twist_w: np.ndarray) -> np.ndarray:
@@ -219,6 +229,9 @@ class WrenchView(NamedTuple):
     wrench: np.ndarray  #: (N, 6) [N, N m] the tared reading as the tool's wrench ON the sensor, f
     R_ws: np.ndarray  #: (N, 3, 3) sensor (flange) axes in the world (encoders)
     omega_s: np.ndarray  #: (N, 3) [rad/s] angular velocity in the sensor frame (encoders)
+    g_s: np.ndarray  #: (N, 3) [m/s^2] gravity in the sensor frame
+    a_s: np.ndarray  #: (N, 3) [m/s^2] acceleration of the sensor origin, s (encoders, ``smooth_derivative``; 0 off drive)
+    alpha_s: np.ndarray  #: (N, 3) [rad/s^2] angular acceleration, s (likewise)
 
     @property
     def n(self) -> int:
@@ -236,9 +249,17 @@ def wrench_view(sig: Signals) -> tuple[WrenchView, WrenchView]:
     """(now, at the tare): the controller's signals as an effect function reads them (``WrenchView``).
     The package's reading is the sensor's wrench on the tool, so the tool's on the sensor is its
     negative; at the tare the tared reading is zero and the arm at rest."""
-    omega_f = np.einsum("nji,nj->ni", sig.R_wf, sig.twist_tip_w[:, 3:])  # R^T omega
-    now = WrenchView(sig.t_s, -sig.r_tared_f, sig.R_wf, omega_f)
-    tare = WrenchView(np.full(1, sig.t_tare_s), np.zeros((1, 6)), sig.R_tare[None], np.zeros((1, 3)))
+    n = len(sig.t_s)
+    w = sig.twist_tip_w[:, 3:]
+    v_O = sig.twist_tip_w[:, :3] - np.cross(w, _lever_w(sig))  # the flange origin's velocity
+    a_O = smooth_derivative(v_O, sig.dt_s) * sig.active[:, None]
+    alpha = smooth_derivative(w, sig.dt_s) * sig.active[:, None]
+    R_T = np.swapaxes(sig.R_wf, 1, 2)
+    now = WrenchView(sig.t_s, -sig.r_tared_f, sig.R_wf, _rot(R_T, w), _rot(R_T, np.broadcast_to(G_W, (n, 3))),
+                     _rot(R_T, a_O), _rot(R_T, alpha))
+    zero = np.zeros((1, 3))
+    tare = WrenchView(np.full(1, sig.t_tare_s), np.zeros((1, 6)), sig.R_tare[None], zero, (sig.R_tare.T @ G_W)[None],
+                      zero, zero)
     return now, tare
 
 
@@ -296,7 +317,7 @@ def online_of(eff) -> OnlineEffect:
     name = getattr(eff, "name", repr(eff))
     if online is None or online is False:
         raise ConfigError(f"model.effects: effect '{name}' has no online side; declare @effect(..., online=True) "
-                          "when its columns read only s.t, s.wrench, s.R_ws, s.omega_s (or online=<Signals -> Terms>)")
+                          f"when its columns read only s.{', s.'.join(WrenchView._fields)} (or online=<Signals -> Terms>)")
     terms = from_wrench(eff.columns, name) if online is True else online
     return OnlineEffect(name, tuple(eff.params), tuple(eff.units), terms, None, getattr(eff, "excite", ""),
                         getattr(eff, "doc", ""), bool(getattr(eff, "one_of", False)))
@@ -326,13 +347,6 @@ def _from_file(path: str, name: str):
 
 # ------------------------------------------------- the built-ins' online columns (LIBRARY)
 # (their diagnosis side is diagnostics/builtin/<name>.py; the controller side may not import it)
-def _smooth_derivative(x: np.ndarray, dt: float, width_s: float = 0.002) -> np.ndarray:
-    """d/dt of a (N, 3) series, central differences then a ``width_s`` moving average."""
-    if len(x) < 3:
-        return np.zeros_like(x)
-    return moving_average(np.gradient(x, dt, axis=0), max(1, int(round(width_s / dt))))
-
-
 def _cols_tool_gravity(sig: Signals) -> Terms:
     """Payload (m, m c_f) on the tool: the flange holds ``m (a_com - g)`` with
     ``a_com = a_O + alpha x (R c) + w x (w x (R c))`` (encoder accelerations), tared at the still
@@ -341,8 +355,8 @@ def _cols_tool_gravity(sig: Signals) -> Terms:
     n = len(sig.t_s)
     w = sig.twist_tip_w[:, 3:]
     v_O = sig.twist_tip_w[:, :3] - np.cross(w, _lever_w(sig))
-    a_O = _smooth_derivative(v_O, sig.dt_s) * sig.active[:, None]
-    alpha = _smooth_derivative(w, sig.dt_s) * sig.active[:, None]
+    a_O = smooth_derivative(v_O, sig.dt_s) * sig.active[:, None]
+    alpha = smooth_derivative(w, sig.dt_s) * sig.active[:, None]
     # force per unit mass, tared: (a_O - g) - R R0^T (-g)
     df_w = a_O - G_W[None, :] + _rot(sig.R_wf, np.broadcast_to(sig.R_tare.T @ G_W, (n, 3)))
     cols = np.zeros((n, 6, 4))

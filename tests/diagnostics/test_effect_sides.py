@@ -9,7 +9,7 @@ wrench (``to_level(sig, [R_ws f; R_ws m])``), equal the online columns up to one
 whole table, the effects that differ in substance included (tool_tilt, encoder_offset). The one-file
 form (``@effect(..., online=True)``: the online columns derived from the diagnosis's by
 ``effect_library.from_wrench``) is tested in ``tests/features/test_effect_one_file.py``, against the
-simulator and against the hand-written online columns of the sensor rotation and the drift."""
+simulator and against the hand-written online columns of the payload, the sensor rotation and the drift."""
 
 from __future__ import annotations
 

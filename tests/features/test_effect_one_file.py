@@ -2,8 +2,8 @@
 the diagnosis's contract with ``online=True``, gives the diagnosis's columns and the controller's
 online columns (``effect_library.from_wrench``). Both are checked against the simulator: a run with
 the truth side's ``world_force`` at the example's clamp point, against the same run without it.
-The generic map is also checked against the two built-ins whose online columns are written out by
-hand in ``effect_library`` (the sensor rotation and the drift). ``python benchmarks/effect_model_sides.py``
+The generic map is also checked against three built-ins whose online columns are written out by
+hand in ``effect_library`` (the payload, the sensor rotation and the drift). ``python benchmarks/effect_model_sides.py``
 prints the same figures."""
 
 from __future__ import annotations
@@ -71,7 +71,7 @@ def generic_map_gaps(sig: Signals) -> dict[str, tuple[float, float, float]]:
     """The built-ins' diagnosis functions through ``from_wrench`` against the online library's
     hand-written columns -> {name: (max |derived - hand|, max |derived + hand|, max |hand|)}."""
     out = {}
-    for name in ("ft_frame_rotation", "ft_bias_drift"):
+    for name in ("tool_gravity", "ft_frame_rotation", "ft_bias_drift"):
         hand, _ = LIBRARY[name].terms(sig)
         derived, _ = from_wrench(BUILTINS[name].columns, name)(sig)
         out[name] = (float(np.abs(derived - hand).max()), float(np.abs(derived + hand).max()),
@@ -134,11 +134,12 @@ def test_the_controller_builds_the_example_from_its_path(pull_pair):
     assert not feats.track_rows[feats.p0:].any()
 
 
-@pytest.mark.parametrize("name, sign", [("ft_frame_rotation", 1.0), ("ft_bias_drift", -1.0)])
+@pytest.mark.parametrize("name, sign", [("tool_gravity", 1.0), ("ft_frame_rotation", 1.0), ("ft_bias_drift", -1.0)])
 def test_the_generic_map_reproduces_the_hand_written_online_columns(pull_pair, name, sign):
     """The built-in's diagnosis function through ``from_wrench`` equals the online library's hand-written
-    columns to rounding (the drift's parameter is in the package reading's own convention online, the
-    sensor's wrench on the tool: the diagnosis's opposite, so one sign)."""
+    columns to rounding (gravity: with the controller's own encoder accelerations in ``WrenchView``; the
+    drift's parameter is in the package reading's own convention online, the sensor's wrench on the
+    tool: the diagnosis's opposite, so one sign)."""
     same, opposite, scale = generic_map_gaps(pull_pair["pull"][0])[name]
     assert scale > 0.1
     assert (same if sign > 0 else opposite) <= 1e-12 * scale, (same, opposite, scale)
