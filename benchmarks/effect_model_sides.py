@@ -12,8 +12,8 @@ written twice (up to frame, sign and tare); a misfit near 1 means two different 
 contact-kinematic effects: the online side integrates the admittance's map S at the nominal tip,
 the diagnosis differentiates the declared socket's springs).
 
-Then the one-file form (``tests/features/test_effect_one_file.py``): ``examples/effects/cable_pull.py``
-(``online=True``) against the simulator's ``world_force`` at its clamp, both sides, as the largest
+Then the one-file form (``tests/features/test_effect_one_file.py``): ``examples/effects/hose_weight.py``
+(``online=True``) against the simulator's ``world_force`` (its weight) at its clamp, both sides, as the largest
 error over the largest prediction per group (forces, moments); and the generic map
 ``effect_library.from_wrench`` applied to the built-ins' diagnosis functions of the payload, the sensor
 rotation and the drift against the online library's hand-written columns.
@@ -47,7 +47,7 @@ def main() -> None:
     from tests.features.test_effect_one_file import example_errors, generic_map_gaps, pull_runs
 
     pair = pull_runs(8.0)
-    print("\none file, both sides: examples/effects/cable_pull.py (online=True) vs the simulated pull, 8 s")
+    print("\none file, both sides: examples/effects/hose_weight.py (online=True) vs the simulated weight, 8 s")
     for side, (err, scale) in example_errors(pair).items():
         print(f"  {side:10s} forces: max error {err[:3].max():.2g} N of {scale[:3].max():.3g} N "
               f"({100 * err[:3].max() / scale[:3].max():.2f} %); moments: {err[3:].max():.2g} N m of "

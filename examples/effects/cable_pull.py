@@ -1,14 +1,7 @@
 """A kinadapt effect file (Python code that runs, like a test file): a hose pulling the tool.
 
 Matches the ``world_pull`` case of examples/foreign_rig_outside.py (a constant world-frame pull at a
-fixed clamp point on the tool), and the simulator's ``effects.world_force`` with its point at the clamp.
-
-One file serves both model sides: ``kinadapt diagnose LOG --effects examples/effects/cable_pull.py``
-judges it in a log, and ``online=True`` lets the controller adapt the same three parameters online
-(``kinadapt_nn.features.effects.EffectFeatures``): the columns read only ``s.R_ws``, which the
-controller has from its encoders, so its online columns are derived from this one function
-(``kinadapt_nn.features.effect_library.from_wrench``). tests/features/test_effect_one_file.py checks
-both against the simulator.
+fixed clamp point on the tool).
 """
 import numpy as np
 
@@ -21,8 +14,7 @@ _SKEW = np.array([[0.0, -CLAMP_S_M[2], CLAMP_S_M[1]], [CLAMP_S_M[2], 0.0, -CLAMP
 
 @effect(params={"fx_w": "N", "fy_w": "N", "fz_w": "N"}, relevant=[0.2, 0.2, 0.2],
         doc="a hose pulling with a constant world-frame force, clamped 35 mm off the tool axis",
-        excite="reorient the tool in free space (a world-fixed pull turns in the sensor frame, unlike an offset)",
-        online=True)
+        excite="reorient the tool in free space (a world-fixed pull turns in the sensor frame, unlike an offset)")
 def cable_pull(s):
     """(n, 6, 3): the change of s.wrench per unit of each parameter."""
     f = np.swapaxes(s.R_ws, 1, 2)  # f[:, :, j] = R_ws^T e_j: world axis j in the sensor frame

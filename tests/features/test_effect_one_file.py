@@ -1,7 +1,8 @@
-"""One effect file, both model sides (issue 52): ``examples/effects/cable_pull.py``, written once in
+"""One effect file, both model sides (issue 52): ``examples/effects/hose_weight.py``, written once in
 the diagnosis's contract with ``online=True``, gives the diagnosis's columns and the controller's
 online columns (``effect_library.from_wrench``). Both are checked against the simulator: a run with
-the truth side's ``world_force`` at the example's clamp point, against the same run without it.
+the truth side's ``world_force`` (the hose's weight, straight down) at the example's clamp point,
+against the same run without it.
 The generic map is also checked against three built-ins whose online columns are written out by
 hand in ``effect_library`` (the payload, the sensor rotation and the drift). ``python benchmarks/effect_model_sides.py``
 prints the same figures."""
@@ -20,13 +21,14 @@ from kinadapt_nn.errors import ConfigError, KinadaptError
 from kinadapt_nn.features.effect_library import LIBRARY, Signals, Terms, contact_rate, from_wrench, online_of, to_level
 
 REPO = Path(__file__).resolve().parents[2]
-EXAMPLE = REPO / "examples" / "effects" / "cable_pull.py"
-F_PULL_W_N = np.array([2.0, 1.2, -0.6])  # [N] the hidden pull, world frame
+EXAMPLE = REPO / "examples" / "effects" / "hose_weight.py"
+HOSE_MASS_KG = 0.3  # [kg] the hidden hose's hanging mass
+G_M_S2 = 9.81  # [m/s^2] the simulator's gravity
 
 
 def _clamp_s_m() -> np.ndarray:
     """The example's clamp point (3,) [m], sensor frame (= the package's flange frame)."""
-    spec = importlib.util.spec_from_file_location("cable_pull_example", EXAMPLE)
+    spec = importlib.util.spec_from_file_location("hose_weight_example", EXAMPLE)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return np.asarray(mod.CLAMP_S_M, dtype=float)
@@ -34,13 +36,14 @@ def _clamp_s_m() -> np.ndarray:
 
 def pull_runs(duration_s: float = 8.0) -> dict:
     """The excitation program's first ``duration_s`` (free-space reorientation) with and without a hidden
-    world-frame pull at the example's clamp point -> {"none" | "pull": (online Signals, LogSignals)}."""
+    hose weight (a world force ``-m g z_w``) at the example's clamp point -> {"none" | "pull": (online
+    Signals, LogSignals)}."""
     from kinadapt_nn.diagnostics import ownrun
     from kinadapt_nn.diagnostics import signals as sg
     from tests.diagnostics.test_effects import _run
 
     point = "[" + ", ".join(str(float(v)) for v in _clamp_s_m()) + "]"
-    force = "[" + ", ".join(str(float(v)) for v in F_PULL_W_N) + "]"
+    force = f"[0.0, 0.0, {-HOSE_MASS_KG * G_M_S2}]"
     out = {}
     for key, sets in (("none", []), ("pull", ["effects.world_force.enabled=true", f"effects.world_force.point_f_m={point}",
                                               f"effects.world_force.force_w_N={force}"])):
@@ -51,18 +54,19 @@ def pull_runs(duration_s: float = 8.0) -> dict:
 
 
 def example_errors(pair: dict) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """The example's columns at the injected pull against the simulator, drive on after 0.6 s (moving or
-    held: the hose is massless) -> {"online" | "diagnosis": (max |error| (6,), max |prediction| (6,))}:
+    """The example's columns at the injected mass against the simulator, drive on after 0.6 s (moving or
+    held: the simulated pull has no dynamics of its own) -> {"online" | "diagnosis": (max |error| (6,),
+    max |prediction| (6,))}:
     the controller's level change (tared reading, level channels) and the logged wrench's change
     (internal convention, untared) between the runs with and without the pull."""
     sig0, s0 = pair["none"]
     sig1, s1 = pair["pull"]
-    eff = load_effect_file(EXAMPLE)["cable_pull"]
+    eff = load_effect_file(EXAMPLE)["hose_weight"]
     lev, _ = online_of(eff).columns(sig1)
     m = sig1.active & (sig1.t_s > 0.6)
-    meas_on, pred_on = (to_level(sig1, sig1.w_env_w) - to_level(sig0, sig0.w_env_w))[m], (lev @ F_PULL_W_N)[m]
+    meas_on, pred_on = (to_level(sig1, sig1.w_env_w) - to_level(sig0, sig0.w_env_w))[m], (lev @ [HOSE_MASS_KG])[m]
     n = min(s0.n, s1.n, len(sig1.t_s))
-    meas_dg, pred_dg = (s1.wrench - s0.wrench)[:n][m[:n]], (eff.evaluate(s1) @ F_PULL_W_N)[:n][m[:n]]
+    meas_dg, pred_dg = (s1.wrench - s0.wrench)[:n][m[:n]], (eff.evaluate(s1) @ [HOSE_MASS_KG])[:n][m[:n]]
     return {k: (np.abs(a - b).max(axis=0), np.abs(b).max(axis=0))
             for k, (a, b) in (("online", (meas_on, pred_on)), ("diagnosis", (meas_dg, pred_dg)))}
 
@@ -90,18 +94,18 @@ def errors(pull_pair):
 
 
 def test_the_example_has_both_sides():
-    eff = load_effect_file(EXAMPLE)["cable_pull"]
+    eff = load_effect_file(EXAMPLE)["hose_weight"]
     on = online_of(eff)
-    assert eff.online is True and on.name == "cable_pull" and on.params == eff.params == ("fx_w", "fy_w", "fz_w")
-    assert online_of(f"{EXAMPLE}:cable_pull").params == eff.params  # model.effects' form of a user's file
+    assert eff.online is True and on.name == "hose_weight" and on.params == eff.params == ("hose_mass",)
+    assert online_of(f"{EXAMPLE}:hose_weight").params == eff.params  # model.effects' form of a user's file
 
 
 @pytest.mark.parametrize("side", ["online", "diagnosis"])
 def test_the_example_matches_the_simulated_pull(errors, side):
     """Both sides of the one file at the injected pull against the simulator (``example_errors``): within
     1 % of the largest force / moment of the prediction, per group (the simulator's pull acts at the
-    clamp through a massless body). A wrong sign, frame or tare fails by far more (the untared pull is
-    ~2 N; the tared online change under 1 N)."""
+    clamp through a massless body). A wrong sign, frame or tare fails by far more (the untared weight is
+    2.9 N; the tared online change about 1 N)."""
     err, scale = errors[side]
     assert scale[:3].max() > 0.5 and scale[3:].max() > 0.05, scale  # the reorientation turns the pull in s
     assert np.all(err[:3] <= 0.01 * scale[:3].max()), (err, scale)
@@ -112,7 +116,7 @@ def test_the_controller_evaluates_the_example_per_step_as_in_the_batch(pull_pair
     """Per control step the controller evaluates the derived columns on a one-sample Signals (its own
     tare each time); the same numbers as on the whole run."""
     sig, _ = pull_pair["pull"]
-    on = online_of(load_effect_file(EXAMPLE)["cable_pull"])
+    on = online_of(load_effect_file(EXAMPLE)["hose_weight"])
     batch, _ = on.terms(sig)
     for i in np.flatnonzero(sig.active)[::250]:
         one = Signals(*(f[i:i + 1] if isinstance(f, np.ndarray) and f.shape[:1] == (len(sig.t_s),) else f for f in sig))
@@ -122,15 +126,15 @@ def test_the_controller_evaluates_the_example_per_step_as_in_the_batch(pull_pair
 
 def test_the_controller_builds_the_example_from_its_path(pull_pair):
     """``EffectFeatures`` (what ``model.effects`` builds) takes the example as ``PATH.py:NAME``: three
-    parameters after the base's, adapted by the prediction rows only."""
+    parameter after the base's, adapted by the prediction rows only."""
     from kinadapt_nn.config import load_config
     from kinadapt_nn.runs.build import make_features
 
     cfg = load_config(REPO / "online" / "excite.toml", ["run.tensorboard=false", "run.figure=false"])
     # config.ModelCfg.effects still lists the built-in names only: set the field as its str form will allow
-    cfg = cfg.model_copy(update={"model": cfg.model.model_copy(update={"effects": (f"{EXAMPLE}:cable_pull",)})})
+    cfg = cfg.model_copy(update={"model": cfg.model.model_copy(update={"effects": (f"{EXAMPLE}:hose_weight",)})})
     feats, theta0 = make_features(cfg)
-    assert feats.name.endswith("+cable_pull") and feats.k == 3 and len(theta0) == feats.p0 + 3
+    assert feats.name.endswith("+hose_weight") and feats.k == 1 and len(theta0) == feats.p0 + 1
     assert not feats.track_rows[feats.p0:].any()
 
 
@@ -178,8 +182,8 @@ def test_online_errors_are_one_line(pull_pair, tmp_path):
         online_of(diag_only)
     with pytest.raises(ConfigError, match="did you mean 'contact_stiffness'"):
         online_of("contact_stifness")
-    with pytest.raises(ConfigError, match="did you mean 'cable_pull'"):
-        online_of(f"{EXAMPLE}:cable_pul")
+    with pytest.raises(ConfigError, match="did you mean 'hose_weight'"):
+        online_of(f"{EXAMPLE}:hose_weigth")
     with pytest.raises(ConfigError, match="not found"):
         online_of(f"{tmp_path / 'none.py'}:x")
     with pytest.raises(KinadaptError, match="online must be"):
