@@ -33,7 +33,7 @@ import numpy as np
 
 from kinadapt_nn.controller import core
 from kinadapt_nn.controller.laws import AdaptStep, LawSpec, law_params, law_spec
-from kinadapt_nn.controller.laws.base import law_state
+from kinadapt_nn.controller.laws.base import LawState, law_state
 from kinadapt_nn.errors import SensorError
 from kinadapt_nn.features.base import Features, KinState
 from kinadapt_nn.known import KnownCfg
@@ -200,6 +200,32 @@ def core_consts(known: KnownCfg, features: Features, law_address: bool = True) -
     ), spec
 
 
+class KernelParts(NamedTuple):
+    """What the compiled step of B episodes of one features type is built from, on the controller
+    side alone (:func:`kernel_parts`)."""
+
+    chain: np.ndarray  #: the bare arm's kinematic chain (``core.arm_chain``)
+    consts: core.CoreConsts  #: the kernels' constants (:func:`core_consts`)
+    law: LawSpec  #: the law :func:`run_law`
+    layout: core.Layout  #: n, m, p and the state/out layout
+    state: core.ControllerState  #: (B, ...) filter and law state, zero
+    fx: np.ndarray  #: the in-kernel features' constants (:func:`feature_consts`)
+    law_state: LawState  #: the law's named views of ``state`` (``laws.base.law_state``)
+
+
+def kernel_parts(known: KnownCfg, features: Features, arm_model, site: int, B: int,
+                 law_address: bool = True) -> KernelParts:
+    """The kernels' parts for B episodes of ``features`` on the bare arm ``arm_model`` (a
+    ``mujoco.MjModel``) whose flange is site ``site``: the one construction that the single
+    controller (B = 1) and the batched loop share."""
+    consts, spec = core_consts(known, features, law_address)
+    m, p = consts.mats.shape[1], features.n_params
+    layout = core.Layout(arm_model.nq, m, p, spec.sizes(m, p))
+    state = core.ControllerState(layout, B)
+    return KernelParts(core.arm_chain(arm_model, site), consts, spec, layout, state, feature_consts(features),
+                       law_state(spec, state.law_x, state.law_k, state.unc, m, p))
+
+
 def sensor_error_message(t: float, bad_run: int) -> str:
     """What a controller says of a dropout longer than ``sensing.max_dropout_s`` at ``t`` [s]:
     ``bad_run`` non-finite samples in a row (``SensorError``; the batched runs report the same)."""
@@ -234,23 +260,20 @@ class Controller:
         self.P = lateral_projector(self.S, sc.stiffness_lat_N_per_m)  # (2, 3)
         self.W = channel_metric(sc)
         self.value_fn = ValueFunction(known)
-        self.consts, self.law_spec = core_consts(known, features, law_address=False)  # (compile_kernels)
-        self.chain = core.arm_chain(self.kin.model, self.kin.site)  # the kernels' kinematics of the bare arm
+        parts = kernel_parts(known, features, self.kin.model, self.kin.site, 1, law_address=False)  # (compile_kernels)
+        self.consts, self.law_spec, self.chain = parts.consts, parts.law, parts.chain
+        self.layout, self.state, self._law_state = parts.layout, parts.state, parts.law_state
         self.M_virt = self.consts.c[core.V_M:core.V_M + 6].copy()
         self.D_virt = self.consts.c[core.V_D:core.V_D + 6].copy()
         self.theta0 = np.asarray(theta0, dtype=float).copy()
         p, m = features.n_params, self.S.shape[0]
-        self.layout = core.Layout(n, m, p, self.law_spec.sizes(m, p))
-        self.state = core.ControllerState(self.layout, 1)
-        st = self.state
-        self._law_state = law_state(self.law_spec, st.law_x, st.law_k, st.unc, m, p)
         #: what the law learned, read from its own state (the summary's view; LawView)
         self.law = self.law_spec.view(self.law_spec, self.consts.lc, self._law_state, 0)
         #: the fused step kernel (features computed in the kernel: one call per step), else None
         self._fused = core.FUSED.get(int(self.consts.c[core.FEAT]))
         self._kernels_ready = False  # compile_kernels done
         self._fused_call, self._fused_args = self._fused, ()  # (compile_kernels binds them)
-        self._fx = feature_consts(features)
+        self._fx = parts.fx
         self._observe = getattr(features, "observe", None)
         # -- kernel buffers (B = 1), allocated once
         self._inp = np.zeros((1, 2 * n + 6))

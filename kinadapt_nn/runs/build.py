@@ -13,7 +13,7 @@ import numpy as np
 
 from kinadapt_nn.config import ExperimentCfg
 from kinadapt_nn.controller.controller import Controller
-from kinadapt_nn.features import FeaturesContext, features_spec
+from kinadapt_nn.features import FeaturesContext, FeaturesSpec, features_spec
 from kinadapt_nn.features.base import Features
 from kinadapt_nn.known import BORE_AXIS_W, KnownCfg
 from kinadapt_nn.sensing import nominal_sensor_map
@@ -66,17 +66,28 @@ def make_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
     columns (``kinadapt_nn.features.effects``; their parameters start at 0). BLAS at one thread
     meanwhile (:func:`one_blas_thread`: the same roundings wherever it is called from)."""
     with one_blas_thread():
-        return _make_features(cfg)
+        return _make_features(cfg, features_spec(cfg.run.features))
 
 
-def _make_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
-    feats, theta0 = features_spec(cfg.run.features).build(features_context(cfg))
+def _make_features(cfg: ExperimentCfg, spec: FeaturesSpec) -> tuple[Features, np.ndarray]:
+    feats, theta0 = spec.build(features_context(cfg))
     if cfg.model.effects:
         from kinadapt_nn.features.effects import EffectFeatures
 
         feats = EffectFeatures(feats, list(cfg.model.effects), KnownCfg.of(cfg), nominal_sensor_map(cfg.sensing, BORE_AXIS_W))
         theta0 = np.r_[theta0, np.zeros(feats.k)]
     return feats, theta0
+
+
+def batch_features(cfgs: list[ExperimentCfg]) -> list[tuple[Features, np.ndarray]]:
+    """(features, theta0) of each episode of a batch that shares its known side: built per episode
+    where the type's theta0 is experiment design (``FeaturesSpec.theta0_per_episode``) or effect
+    columns keep per-episode state (``model.effects``), else the first episode's, shared."""
+    spec = features_spec(cfgs[0].run.features)  # looked up once for the batch
+    with one_blas_thread():
+        if spec.theta0_per_episode or cfgs[0].model.effects:
+            return [_make_features(c, spec) for c in cfgs]
+        return [_make_features(cfgs[0], spec)] * len(cfgs)
 
 
 def features_context(cfg: ExperimentCfg) -> FeaturesContext:

@@ -30,15 +30,13 @@ import numpy as np
 
 from kinadapt_nn.config import ExperimentCfg
 from kinadapt_nn.controller import core
-from kinadapt_nn.controller.controller import Controller, core_consts, feature_consts, rank_margin, sensor_error_message
+from kinadapt_nn.controller.controller import Controller, feature_consts, kernel_parts, rank_margin, sensor_error_message
 from kinadapt_nn.controller.core import K_ERROR, RANK_GATE
-from kinadapt_nn.controller.laws.base import law_state
 from kinadapt_nn.errors import ConfigError
-from kinadapt_nn.features import features_spec
 from kinadapt_nn.features.base import KinState
 from kinadapt_nn.known import KnownCfg
 from kinadapt_nn.robot import FLANGE_SITE
-from kinadapt_nn.runs.build import make_controller, make_features
+from kinadapt_nn.runs.build import batch_features, make_controller
 from kinadapt_nn.runs.monitor import seat_step
 from kinadapt_nn.runs.outcome import sensor_reason, warning_reason
 from kinadapt_nn.sensing import channel_metric
@@ -324,20 +322,16 @@ def kernels_of_known(cfgs: list[ExperimentCfg]) -> Kernels:
     known = _known_of(cfgs)
     # controller side: the bare arm's kinematic chain (forward kinematics in the kernel, from encoders)
     arm_model = mujoco.MjModel.from_xml_path(str(known.arm_mjcf))
-    chain = core.arm_chain(arm_model, mujoco.mj_name2id(arm_model, mujoco.mjtObj.mjOBJ_SITE, FLANGE_SITE))
-    feats, theta_c0 = make_features(cfgs[0])  # the known side is shared; theta0 is per episode (experiment design)
-    per_episode = features_spec(known.features_kind).theta0_per_episode or bool(known.model_effects)
-    built = [make_features(c) if per_episode else (feats, theta_c0) for c in cfgs]
+    site = mujoco.mj_name2id(arm_model, mujoco.mjtObj.mjOBJ_SITE, FLANGE_SITE)
+    built = batch_features(cfgs)  # the known side is shared; theta0 may be per episode (experiment design)
+    feats = built[0][0]
     # effect columns keep per-episode state (what the last step observed): one features object each
     feats_b = [f for f, _th in built] if known.model_effects else [feats] * len(cfgs)
-    cs, law = core_consts(known, feats)
-    m, p = 6, feats.n_params
-    lay = core.Layout(arm_model.nq, m, p, law.sizes(m, p))
-    st = core.ControllerState(lay, len(cfgs))
-    st.theta[:] = np.array([th for _f, th in built])
-    law.reset(cs.lc, law_state(law, st.law_x, st.law_k, st.unc, m, p), False)
-    cs.c[core.RANK_ON] = 2.0  # the rank gate every step as a Cholesky test; lambda_min itself only on a breach
-    kn = Kernels(None, feats_b, chain, cs, law, lay, st, feature_consts(feats))
+    kp = kernel_parts(known, feats, arm_model, site, len(cfgs))
+    kp.state.theta[:] = np.array([th for _f, th in built])
+    kp.law.reset(kp.consts.lc, kp.law_state, False)
+    kp.consts.c[core.RANK_ON] = 2.0  # the rank gate every step as a Cholesky test; lambda_min itself only on a breach
+    kn = Kernels(None, feats_b, kp.chain, kp.consts, kp.law, kp.layout, kp.state, kp.fx)
     kn.W = channel_metric(known.sensing)
     return kn
 
