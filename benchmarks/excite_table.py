@@ -19,9 +19,10 @@ Every run is ``kinadapt online --config online/excite.toml`` with a seed and hid
 
 It prints one line per row: right or not, what was present, the largest coverage error in sd, and
 for every row that is not right the measured reason and each judged estimate against the injected value.
-``--shift-wrench K`` pairs each encoder sample with the wrench read K samples later: the simulated
-reading is one physics step behind the encoders (``sim.adapter.PegInHoleSim.sense``), a timing offset
-no library effect models; K = 1 aligns them (a diagnostic of what that offset does to a row).
+``--shift-wrench K`` pairs each encoder sample with the wrench read K samples later: a timing offset
+of K control periods between the encoders and the reading, which no library effect models (a
+diagnostic of what such an offset does to a row; the simulator hands out one instant's encoders and
+reading, ``sim.ft_sensor``, so K = 0 is the aligned log).
 """
 
 from __future__ import annotations

@@ -134,8 +134,8 @@ def excite_log(duration_s: float = 7.9) -> tuple[SensorLog, object]:
 def newton_euler(log: SensorLog, tool) -> Expected:
     """The reading a real sensor gives for the logged motion: the tool (``ToolCfg``: mass, a box
     of side x side x length ending at the tip, tilted in the grasp) moved by the flange of the bare
-    arm. Row k's reading belongs to the state of row k-1 and the acceleration (qdot_k - qdot_{k-1})/dt
-    (the simulator's timing); the flange's acceleration is MuJoCo's kinematics of the bare arm
+    arm. Row k's reading belongs to the state of row k and the acceleration (qdot_{k+1} - qdot_k)/dt
+    (the simulator's timing: one instant's encoders and reading); the flange's acceleration is MuJoCo's kinematics of the bare arm
     (gravity off) at that state, the rest is written here."""
     m = mujoco.MjModel.from_xml_path(str(MODEL))
     m.opt.gravity[:] = 0.0
@@ -155,9 +155,9 @@ def newton_euler(log: SensorLog, tool) -> Expected:
     T = len(log.q)
     out = np.zeros((3, T - 1, 6))
     acc6, vel6 = np.zeros(6), np.zeros(6)
-    for k in range(1, T):
-        d.qpos[:7], d.qvel[:7] = log.q[k - 1], log.qdot[k - 1]
-        d.qacc[:7] = (log.qdot[k] - log.qdot[k - 1]) / log.dt_s
+    for k in range(T - 1):
+        d.qpos[:7], d.qvel[:7] = log.q[k], log.qdot[k]
+        d.qacc[:7] = (log.qdot[k + 1] - log.qdot[k]) / log.dt_s
         mujoco.mj_kinematics(m, d)
         mujoco.mj_comPos(m, d)
         mujoco.mj_comVel(m, d)
@@ -175,9 +175,9 @@ def newton_euler(log: SensorLog, tool) -> Expected:
         f_g, t_g = -mass * g_w, np.cross(r, -mass * g_w)
         f_c = -log.contact_f_w[k]
         t_c = -(log.contact_m_w[k] - np.cross(O, log.contact_f_w[k]))  # the contacts' moment about O
-        out[0, k - 1] = np.r_[R.T @ (f_in + f_g + f_c), R.T @ (t_in + t_g + t_c)]
-        out[1, k - 1] = np.r_[R.T @ f_in, R.T @ t_in]
-        out[2, k - 1] = np.r_[R.T @ (f_g + f_c), R.T @ (t_g + t_c)]
+        out[0, k] = np.r_[R.T @ (f_in + f_g + f_c), R.T @ (t_in + t_g + t_c)]
+        out[1, k] = np.r_[R.T @ f_in, R.T @ t_in]
+        out[2, k] = np.r_[R.T @ (f_g + f_c), R.T @ (t_g + t_c)]
     return Expected(*out)
 
 
@@ -209,7 +209,7 @@ def qacc_factors(steps: int = 1500) -> np.ndarray:
 def factors(reading: np.ndarray, exp: Expected, rows: np.ndarray) -> np.ndarray:
     """(6,) the slope of a logged reading's (T, 6) inertial part (reading minus gravity and contact)
     against the one the motion implies, per channel, over ``rows`` of ``exp`` (bool (T-1,))."""
-    meas = reading[1:][rows] - exp.rest[rows]
+    meas = reading[:-1][rows] - exp.rest[rows]
     ref = exp.inertial[rows]
     return np.array([float(ref[:, j] @ meas[:, j] / (ref[:, j] @ ref[:, j])) for j in range(6)])
 
@@ -224,8 +224,8 @@ def main() -> None:
     ex_log, ex_cfg = excite_log()
     log, cfg = record(a.steps)
     exp = newton_euler(log, cfg.tool)
-    contact = log.in_contact[1:]
-    n_free = int(0.4 * a.steps) - 1
+    contact = log.in_contact[:-1]
+    n_free = int(0.4 * a.steps)
     T = len(ex_log.q)
     phases = {"the package's excite run, free space (online/excite.toml, 7.9 s)": (ex_log, newton_euler(ex_log, ex_cfg.tool),
                                                                                  np.arange(T - 1) >= 500),
@@ -235,13 +235,13 @@ def main() -> None:
     for name, (log, exp, rows) in phases.items():
         fac = factors(log.wrench, exp, rows)
         old = factors(log.mujoco_own, exp, rows)
-        diff = np.abs(log.wrench[1:][rows] - exp.wrench[rows])
+        diff = np.abs(log.wrench[:-1][rows] - exp.wrench[rows])
         peak = np.abs(exp.inertial[rows]).max(axis=0)
         print(f"{name}: {int(rows.sum())} rows; the inertial part's factor (logged / Newton-Euler): "
               + ", ".join(f"{c} {v:.4f}" for c, v in zip(chans, fac)))
         print(f"  largest |logged - Newton-Euler|: force {diff[:, :3].max():.2e} N, torque {diff[:, 3:].max():.2e} N m "
               f"(largest inertial part: force {peak[:3].max():.3f} N, torque {peak[3:].max():.4f} N m; "
-              f"largest contact force {np.linalg.norm(log.contact_f_w[1:][rows], axis=1).max():.2f} N)")
+              f"largest contact force {np.linalg.norm(log.contact_f_w[:-1][rows], axis=1).max():.2f} N)")
         if np.isfinite(old).all():
             print("  MuJoCo's own sensor values (the old reading): " + ", ".join(f"{c} {v:.2f}" for c, v in zip(chans, old)))
 

@@ -23,7 +23,7 @@ from kinadapt_nn.geometry import rotvec_from_matrix, tilt_rotation
 from kinadapt_nn.known import BORE_AXIS_W
 from kinadapt_nn.robot import JOINT_LIMITS_RAD, Q_HOME_RAD, SERVO_KP, SERVO_KV
 from kinadapt_nn.sim.effects import SensorEffects, TimedEffects, timed, truth_config
-from kinadapt_nn.sim.ft_sensor import FIELDS as FT_FIELDS
+from kinadapt_nn.sim.ft_sensor import SOURCE_FIELDS as FT_FIELDS
 from kinadapt_nn.sim.ft_sensor import RealisedSensor, sensor_chain
 from kinadapt_nn.sim.scene import FORCE_SENSOR, TORQUE_SENSOR, TRUTH_CONTACT_SLOTS, SceneIds, build_model
 from kinadapt_nn.sim.socket import N_STATE, socket_params, socket_step
@@ -133,13 +133,14 @@ class PegInHoleSim:
         # views into MjData fetched once (each attribute access builds a new array object; the
         # buffers live as long as self.data): encoders, F/T reading, servo set-point, true tip
         d, a = self.data, self.ids
-        self._q_v = d.qpos[_as_slice(a.qpos_adr)]  # a copy (refreshed in sense) if not contiguous
-        self._qdot_v = d.qvel[_as_slice(a.dof_adr)]
-        self._views = isinstance(_as_slice(a.qpos_adr), slice) and isinstance(_as_slice(a.dof_adr), slice)
-        #: the F/T reading for the motion each step realises (``sim.ft_sensor``), MuJoCo's own at rest
+        #: the F/T reading for the motion each step realises (``sim.ft_sensor``), MuJoCo's own at rest,
+        #: and the encoders of the reading's instant (``ft.qpos0``, ``ft.qvel0``)
         self.ft_chain = sensor_chain(self.model, FORCE_SENSOR, TORQUE_SENSOR)
         self.ft = RealisedSensor(SimpleNamespace(**{f: getattr(d, f)[None] for f in FT_FIELDS}), self.ft_chain,
                                  cfg.run.dt_s)
+        self._q_v = self.ft.qpos0[0, _as_slice(a.qpos_adr)]  # a copy (refreshed in sense) if not contiguous
+        self._qdot_v = self.ft.qvel0[0, _as_slice(a.dof_adr)]
+        self._views = isinstance(_as_slice(a.qpos_adr), slice) and isinstance(_as_slice(a.dof_adr), slice)
         self._wrench_v = self.ft.wrench[0]
         self._row0 = np.zeros(1, dtype=np.int64)
         self._ctrl_v = d.ctrl
@@ -179,15 +180,16 @@ class PegInHoleSim:
 
     # -- the interface a real robot offers ---------------------------------------------
     def sense(self) -> SensorSample:
-        """Encoders and the raw F/T reading (copies): the reading of the last step's start state with
-        the acceleration the step realised (``sim.ft_sensor``), one physics step behind the encoders."""
+        """Encoders and the raw F/T reading (copies) of one instant: the last step's start state, its
+        reading with the acceleration the step realised (``sim.ft_sensor``); they reach the caller
+        one physics step after that instant (at rest before the first step: the current state)."""
         d, a = self.data, self.ids
         wrench = self._wrench_v.copy()
         if self.sensor_effects.active:
             self.sensor_effects(float(d.time), wrench)
         if self._views:
             return SensorSample(self._q_v.copy(), self._qdot_v.copy(), wrench)
-        return SensorSample(d.qpos[a.qpos_adr], d.qvel[a.dof_adr], wrench)  # fancy indexing copies
+        return SensorSample(self.ft.qpos0[0, a.qpos_adr], self.ft.qvel0[0, a.dof_adr], wrench)  # copies
 
     def sense_into(self, q: np.ndarray, qdot: np.ndarray, wrench: np.ndarray) -> None:
         """``sense()`` written into the caller's arrays (no new arrays)."""
@@ -206,13 +208,15 @@ class PegInHoleSim:
         _servo_setpoint(self._ctrl_v, q_ref, qdot_ref, self._kv_over_kp)
 
     def step(self) -> None:
-        """One physics step (``mj_step``), the socket contact's wrench applied first when it is on."""
-        if self._socket_step is not None:
-            self._socket_step(float(self.data.time))
+        """One physics step (``mj_step1``, the socket contact's wrench for the state the step starts
+        from when it is on, ``mj_step2``: together bit-identical to ``mj_step``)."""
         if self.timed is not None:
             self.timed(float(self.data.time), self.model, self.data.xfrc_applied)
+        mujoco.mj_step1(self.model, self.data)
+        if self._socket_step is not None:
+            self._socket_step(float(self.data.time))
         self.ft.before_step()
-        mujoco.mj_step(self.model, self.data)
+        mujoco.mj_step2(self.model, self.data)
         self.ft.after_step(self._row0)
 
     def bind_socket(self, src) -> Callable[[float], None] | None:

@@ -22,8 +22,13 @@ Newton-Euler force of a subtree)::
 ``I_b``: body b's spatial inertia about the subtree root's centre of mass (MuJoCo's ``cinert``),
 ``cdof_j``: dof j's motion axis in the same frame; the force then moved to the site and rotated into
 its frame as MuJoCo's ``mj_sensorAcc`` does. The reading belongs to the state the step started from
-(positions, velocities, contacts of step k) with the acceleration over [k, k+1]; it is handed out
-with the encoders of k+1, one physics step (1 ms) behind them, as before.
+(positions, velocities, contacts of step k) with the acceleration over [k, k+1], and it is handed
+out with the encoders of that same state (:attr:`RealisedSensor.qpos0`, ``qvel0``): one instant's
+encoders and wrench, as a real robot samples them together. The sample reaches the controller one
+physics step after that instant (a transport delay, as on a real robot's bus); before, the encoders
+of k+1 were paired with the reading of k, a 1 ms offset between the two that no model of the
+diagnosis has (it turned the socket's angular spring by omega dt between them:
+``benchmarks/excite_table.py --shift-wrench``).
 
 Checked against MuJoCo's own recursive Newton-Euler with ``qacc`` set to the realised acceleration
 (``mj_rnePostConstraint`` + ``mj_sensorAcc``, to rounding) and against an independent Newton-Euler
@@ -130,16 +135,20 @@ def realised_wrench(out, state, qvel0, inv_dt, model, rows):
 
 #: the fields of a step's start state the reading reads (all MjData fields; a batch binds them)
 FIELDS = ("sensordata", "qacc", "qvel", "cinert", "cdof", "site_xpos", "site_xmat", "subtree_com")
+#: the fields a :class:`RealisedSensor` is built on: :data:`FIELDS` and the positions (its encoders)
+SOURCE_FIELDS = (*FIELDS, "qpos")
 
 
 class RealisedSensor:
     """The F/T reading of B episodes' scenes for the motion each step realised.
 
-    ``src``: an object with the (B, ...) arrays of :data:`FIELDS` (one MjData's fields with a
-    leading axis of 1, or a ``mujoco.batch.Batch``'s bound fields); ``chain``: the model's
+    ``src``: an object with the (B, ...) arrays of :data:`SOURCE_FIELDS` (one MjData's fields with
+    a leading axis of 1, or a ``mujoco.batch.Batch``'s bound fields); ``chain``: the model's
     :class:`SensorChain`; ``dt_s``: the timestep [s]. Call :meth:`before_step` with the episodes
     about to step, then :meth:`after_step`; :attr:`wrench` (B, 6) [N, N m] holds each episode's
-    latest reading (MuJoCo's own until its first step: at rest there is no realised motion yet)."""
+    latest reading (MuJoCo's own until its first step: at rest there is no realised motion yet),
+    and :attr:`qpos0` (B, nq) [rad], :attr:`qvel0` (B, nv) [rad/s] the encoders of the same instant
+    (the state that reading's step started from; the current state before the first step)."""
 
     def __init__(self, src, chain: SensorChain, dt_s: float) -> None:
         self._src, self._c, self._inv_dt = src, chain, 1.0 / dt_s
@@ -148,17 +157,22 @@ class RealisedSensor:
                        np.array([chain.site, chain.root, chain.force_adr, chain.torque_adr], dtype=np.int64))
         B = src.qvel.shape[0]
         self.qvel0 = np.zeros((B, src.qvel.shape[1]))
+        self.qpos0 = np.zeros((B, src.qpos.shape[1]))
         self.wrench = np.zeros((B, 6))
         self.reset()
 
     def reset(self) -> None:
-        """Every episode's reading back to MuJoCo's own (after a reset or a forward)."""
+        """Every episode's reading back to MuJoCo's own and its encoders to the current state (after
+        a reset or a forward)."""
+        self.qpos0[:] = self._src.qpos
+        self.qvel0[:] = self._src.qvel
         c, s = self._c, self._src.sensordata
         self.wrench[:, :3] = s[:, c.force_adr:c.force_adr + 3]
         self.wrench[:, 3:] = s[:, c.torque_adr:c.torque_adr + 3]
 
     def before_step(self) -> None:
-        """Keep the velocities the step starts from."""
+        """Keep the positions and velocities the step starts from (the reading's instant)."""
+        self.qpos0[:] = self._src.qpos
         self.qvel0[:] = self._src.qvel
 
     def after_step(self, rows: np.ndarray) -> None:

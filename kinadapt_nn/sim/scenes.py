@@ -8,7 +8,7 @@ per-call copies. Either way the loop sees the same (B, ...) arrays.
 
 What it offers the loop, and nothing else:
 
-* :meth:`sense_into` -- what a real robot's sensors hand the controller: encoders and the raw
+* :meth:`sense_into` -- what a real robot's sensors hand the controller: one instant's encoders and raw
   F/T reading (for the motion each step realised: ``sim.ft_sensor``), with the hidden sensor effects (``sim.effects.SensorEffects``) and simulated
   faults (``sim.faults.SensorFaults``) applied, (B, 2n+6) rows;
 * :meth:`apply` and :meth:`step` -- the joint servo set-points, then one physics step (the socket
@@ -36,7 +36,7 @@ from kinadapt_nn.robot import SERVO_KP, SERVO_KV
 from kinadapt_nn.sim.adapter import PegInHoleSim, SensorSample, contact_sums
 from kinadapt_nn.sim.faults import SensorFaults
 from kinadapt_nn.sim import ft_sensor
-from kinadapt_nn.sim.ft_sensor import FIELDS as FT_FIELDS
+from kinadapt_nn.sim.ft_sensor import SOURCE_FIELDS as FT_FIELDS
 from kinadapt_nn.sim.ft_sensor import RealisedSensor
 
 #: the fields a socket contact reads and writes (``PegInHoleSim.bind_socket``)
@@ -169,8 +169,8 @@ class SceneBatch:
         ``inp`` (B, 2n+6), as a real robot gives it: the hidden sensor effects and the simulated
         faults applied to the ``active`` (B,) bool episodes' samples at time ``t`` [s]."""
         if self._gather is None:
-            self._gather = _bound(_gather, (self.qpos, self.qvel, self.ft.wrench, self._qadr, self._vadr, inp))
-        self._gather(self.qpos, self.qvel, self.ft.wrench, self._qadr, self._vadr, inp)
+            self._gather = _bound(_gather, (self.ft.qpos0, self.ft.qvel0, self.ft.wrench, self._qadr, self._vadr, inp))
+        self._gather(self.ft.qpos0, self.ft.qvel0, self.ft.wrench, self._qadr, self._vadr, inp)
         n = self.n
         for b, fx, faults in self._sensor_side:
             if active[b]:
@@ -192,28 +192,32 @@ class SceneBatch:
 
     def step(self, t: float, active: np.ndarray, every_one: bool) -> None:
         """One physics step of the ``active`` (B,) bool episodes (``every_one``: all of them), the
-        socket contact's wrench at time ``t`` [s] applied first where it is on."""
-        for b, socket in self._sockets:
-            if active[b]:
-                socket(t)
+        socket contact's wrench at time ``t`` [s] applied first where it is on: for the state the
+        step starts from (its positions and velocities computed first: ``mj_step1``, then the
+        socket, then ``mj_step2``; a batch computes those stages with ``forward(stage=VEL)`` and
+        then steps), so the fixture's spring acts on the pose the reading belongs to."""
         for b, fx in self._timed:  # hidden effects with an onset (``sim.effects.TimedEffects``)
             if active[b]:
                 fx(t, self.sims[b].model if self.physics is None else None, self._src.xfrc_applied[b])
         if self.physics is None:
             if every_one or active[0]:
                 s = self.sims[0]
+                mujoco.mj_step1(s.model, s.data)
+                for _b, socket in self._sockets:
+                    socket(t)
                 s.ft.before_step()
-                mujoco.mj_step(s.model, s.data)
+                mujoco.mj_step2(s.model, s.data)
                 s.ft.after_step(self._all)
             return
+        rows = None if every_one else np.flatnonzero(active)
+        if self._sockets:
+            self.physics.forward(rows, stage=mujoco.mjtStage.mjSTAGE_VEL.value)
+            for b, socket in self._sockets:
+                if active[b]:
+                    socket(t)
         self.ft.before_step()
-        if every_one:
-            self.physics.step(None)
-            self.ft.after_step(self._all)
-        else:
-            rows = np.flatnonzero(active)
-            self.physics.step(rows)
-            self.ft.after_step(rows.astype(np.int64))
+        self.physics.step(rows)
+        self.ft.after_step(self._all if rows is None else rows.astype(np.int64))
 
     # -- ground truth (evaluation only) -------------------------------------------------------
     def truth_into(self, rows, truth: StepTruth) -> None:

@@ -1,9 +1,12 @@
 """The low-bias socket contact (``scene.contact_model = "socket"``) as one numba kernel.
 
 Truth side only (the simulator applies it; the controller never sees it). One call per physics
-step, before ``mj_step``, for one simulation: the single episode (``PegInHoleSim.step``) passes
-views of its ``MjData``, a batch (``sim.scenes.SceneBatch``) the rows of its bound ``(B, ...)`` arrays, so
-both run the same arithmetic.
+step, for one simulation, on the state the step starts from (after ``mj_step1``, before ``mj_step2``;
+a batch: after its ``forward(stage=VEL)``, before its step), so the fixture pushes on the pose the
+step's reading belongs to: the single episode (``PegInHoleSim.step``) passes views of its ``MjData``,
+a batch (``sim.scenes.SceneBatch``) the rows of its bound ``(B, ...)`` arrays, so both run the same
+arithmetic. (Before, it read the kinematics the previous step had computed: a spring acting on the
+pose one step late, 1 ms, which biased the friction couple's estimate by -0.6 %.)
 
 The wrench, at the tool body (``xfrc_applied``: force at its centre of mass, world)::
 

@@ -28,7 +28,7 @@ import pytest
 
 from kinadapt_nn.config import load_config
 from kinadapt_nn.sim.adapter import PegInHoleSim
-from kinadapt_nn.sim.ft_sensor import FIELDS, RealisedSensor, sensor_chain
+from kinadapt_nn.sim.ft_sensor import SOURCE_FIELDS, RealisedSensor, sensor_chain
 from kinadapt_nn.sim.scene import FORCE_SENSOR, TORQUE_SENSOR
 from tests.diagnostics.example_scripts import load_script
 
@@ -42,7 +42,7 @@ def test_reading_equals_mujocos_newton_euler_with_the_realised_acceleration(effe
     sim = PegInHoleSim(load_config(None, ["start.tip_height_m=0.03", *effects]))
     m, d = sim.model, sim.data
     ch = sensor_chain(m, FORCE_SENSOR, TORQUE_SENSOR)
-    rs = RealisedSensor(types.SimpleNamespace(**{f: getattr(d, f)[None] for f in FIELDS}), ch, m.opt.timestep)
+    rs = RealisedSensor(types.SimpleNamespace(**{f: getattr(d, f)[None] for f in SOURCE_FIELDS}), ch, m.opt.timestep)
     pre = mujoco.MjData(m)
     worst, moved = 0.0, 0.0
     for k in range(400):
@@ -77,10 +77,10 @@ def driven(bench):
 
 def test_free_space_fast_reorientation_matches_newton_euler(bench, driven):
     log, exp = driven
-    rows = (np.arange(len(log.q) - 1) < 1000) & ~log.in_contact[1:]
+    rows = (np.arange(len(log.q) - 1) < 1000) & ~log.in_contact[:-1]
     assert rows.sum() > 900
     assert np.abs(exp.inertial[rows, :3]).max() > 0.5  # a real inertial load [N]
-    diff = np.abs(log.wrench[1:][rows] - exp.wrench[rows])
+    diff = np.abs(log.wrench[:-1][rows] - exp.wrench[rows])
     assert diff[:, :3].max() < 1e-9 and diff[:, 3:].max() < 1e-9, diff.max(axis=0)
     np.testing.assert_allclose(bench.factors(log.wrench, exp, rows), 1.0, atol=1e-6)
     # MuJoCo's own values are not the motion's (what the package's sensor replaces)
@@ -89,8 +89,8 @@ def test_free_space_fast_reorientation_matches_newton_euler(bench, driven):
 
 def test_in_contact_matches_newton_euler_with_the_logged_contact_forces(bench, driven):
     log, exp = driven
-    rows = log.in_contact[1:]
+    rows = log.in_contact[:-1]
     assert rows.sum() > 500
-    assert np.linalg.norm(log.contact_f_w[1:][rows], axis=1).max() > 5.0  # pressed [N]
-    diff = np.abs(log.wrench[1:][rows] - exp.wrench[rows])
+    assert np.linalg.norm(log.contact_f_w[:-1][rows], axis=1).max() > 5.0  # pressed [N]
+    diff = np.abs(log.wrench[:-1][rows] - exp.wrench[rows])
     assert diff[:, :3].max() < 1e-9 and diff[:, 3:].max() < 1e-9, diff.max(axis=0)
