@@ -219,10 +219,11 @@ def kernel_parts(known: KnownCfg, features: Features, arm_model, site: int, B: i
     ``mujoco.MjModel``) whose flange is site ``site``: the one construction that the single
     controller (B = 1) and the batched loop share."""
     consts, spec = core_consts(known, features, law_address)
+    fx = feature_consts(features)
     m, p = consts.mats.shape[1], features.n_params
     layout = core.Layout(arm_model.nq, m, p, spec.sizes(m, p))
     state = core.ControllerState(layout, B)
-    return KernelParts(core.arm_chain(arm_model, site), consts, spec, layout, state, feature_consts(features),
+    return KernelParts(core.arm_chain(arm_model, site), consts, spec, layout, state, fx,
                        law_state(spec, state.law_x, state.law_k, state.unc, m, p))
 
 

@@ -60,23 +60,22 @@ def initial_estimate(cfg: ExperimentCfg) -> np.ndarray:
     return true + ad.initial_error_m * direction / np.linalg.norm(direction)
 
 
-def make_features(cfg: ExperimentCfg) -> tuple[Features, np.ndarray]:
+def make_features(cfg: ExperimentCfg, spec: FeaturesSpec | None = None) -> tuple[Features, np.ndarray]:
     """The features and theta0 of the registered type ``run.features`` (``features.FEATURES``; an
-    unregistered name is a one-line ConfigError) plus, with ``model.effects``, the library effects'
-    columns (``kinadapt_nn.features.effects``; their parameters start at 0). BLAS at one thread
-    meanwhile (:func:`one_blas_thread`: the same roundings wherever it is called from)."""
+    unregistered name is a one-line ConfigError; ``spec``: that type's entry, when the caller has
+    looked it up already) plus, with ``model.effects``, the library effects' columns
+    (``kinadapt_nn.features.effects``; their parameters start at 0). BLAS at one thread meanwhile
+    (:func:`one_blas_thread`: the same roundings wherever it is called from)."""
     with one_blas_thread():
-        return _make_features(cfg, features_spec(cfg.run.features))
+        spec = features_spec(cfg.run.features) if spec is None else spec
+        feats, theta0 = spec.build(features_context(cfg))
+        if cfg.model.effects:
+            from kinadapt_nn.features.effects import EffectFeatures
 
-
-def _make_features(cfg: ExperimentCfg, spec: FeaturesSpec) -> tuple[Features, np.ndarray]:
-    feats, theta0 = spec.build(features_context(cfg))
-    if cfg.model.effects:
-        from kinadapt_nn.features.effects import EffectFeatures
-
-        feats = EffectFeatures(feats, list(cfg.model.effects), KnownCfg.of(cfg), nominal_sensor_map(cfg.sensing, BORE_AXIS_W))
-        theta0 = np.r_[theta0, np.zeros(feats.k)]
-    return feats, theta0
+            feats = EffectFeatures(feats, list(cfg.model.effects), KnownCfg.of(cfg),
+                                   nominal_sensor_map(cfg.sensing, BORE_AXIS_W))
+            theta0 = np.r_[theta0, np.zeros(feats.k)]
+        return feats, theta0
 
 
 def batch_features(cfgs: list[ExperimentCfg]) -> list[tuple[Features, np.ndarray]]:
@@ -84,10 +83,9 @@ def batch_features(cfgs: list[ExperimentCfg]) -> list[tuple[Features, np.ndarray
     where the type's theta0 is experiment design (``FeaturesSpec.theta0_per_episode``) or effect
     columns keep per-episode state (``model.effects``), else the first episode's, shared."""
     spec = features_spec(cfgs[0].run.features)  # looked up once for the batch
-    with one_blas_thread():
-        if spec.theta0_per_episode or cfgs[0].model.effects:
-            return [_make_features(c, spec) for c in cfgs]
-        return [_make_features(cfgs[0], spec)] * len(cfgs)
+    if spec.theta0_per_episode or cfgs[0].model.effects:
+        return [make_features(c, spec) for c in cfgs]
+    return [make_features(cfgs[0], spec)] * len(cfgs)
 
 
 def features_context(cfg: ExperimentCfg) -> FeaturesContext:
