@@ -30,13 +30,14 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "benchmarks"))
-
-from monitor_events import SCENARIOS  # noqa: E402
 
 from kinadapt_nn.app.cli import main as cli  # noqa: E402
 from kinadapt_nn.monitor.agreement import agreement  # noqa: E402
 
+#: scenario -> (the truth-side effect, the monitor's shape that names it): benchmarks/monitor_events.py's five
+SCENARIOS = {"payload": ("tool_gravity", "tool_gravity"), "drift": ("ft_bias_drift", "ft_bias_drift"),
+             "frame rotation": ("ft_frame_rotation", "ft_frame_rotation"), "snag": ("world_force", "world_force"),
+             "slip": ("grasp_slip", "tool_tilt")}
 #: [s] after the onset, left out of the segment's diagnosis (the monitor's SETTLE_S: the arm's transient)
 SETTLE_S = 0.02
 
@@ -76,6 +77,17 @@ def segment_report(run: Path, t_from: float):
     raw = SimpleNamespace(t_s=tr["t_s"][m], q_rad=tr["q_rad"][m], qdot_rad_s=tr["qdot_rad_s"][m],
                           wrench_raw_f=tr["wrench_raw_f"][m], source=f"{run} from {t_from:.3f} s")
     return diagnose(log_of_run(raw), setup_of_run(load_config(run / "config.toml")), progress=lambda msg: None).report
+
+
+def _code_state() -> str:
+    """The commit measured, and the package's files that differ from it (uncommitted edits)."""
+    import subprocess
+
+    def git(*a: str) -> str:
+        return subprocess.run(["git", *a], cwd=REPO, capture_output=True, text=True).stdout.strip()
+
+    dirty = git("diff", "--name-only", "HEAD", "--", "kinadapt_nn").split()
+    return f"HEAD {git('rev-parse', '--short', 'HEAD')}" + (f", edited: {' '.join(dirty)}" if dirty else "")
 
 
 def _said(names: list[str]) -> str:
@@ -120,6 +132,7 @@ def main() -> None:
 
     say(f"monitor_agreement: {args.seeds} seed(s) per scenario, online/monitor.toml, onset uniform in [1, 4] s; "
         "agree = the monitor's open events and the diagnosis name the same set (kinadapt_nn/monitor/agreement.py)")
+    say(f"code: {_code_state()}")
     rows = []
     with tempfile.TemporaryDirectory(prefix="monitor_agreement-") as tmp:
         for name in args.scenarios:
