@@ -380,9 +380,9 @@ class Loop:
 def setup(cfgs: list[ExperimentCfg], ctrls: list | None, *, traces: bool, nthread: int = 1,
           progress: bool = False) -> Loop:
     """The loop of the episodes ``cfgs``: their scenes (a persistent batch with ``traces``, for the
-    contact truth, or with a live monitor: a batch that is not persistent gives each episode's first
-    F/T sample without the tool's weight and, on ``online/monitor.toml``, departs from ``mj_step``
-    at the next step -- docs/monitor.md), the controllers (``ctrls``: the episodes' own, None
+    contact truth, or with a live monitor: a batch that is not persistent hands each episode's first
+    F/T sample without the tool's weight, which would enter the monitor's noise calibration --
+    docs/monitor.md), the controllers (``ctrls``: the episodes' own, None
     entries new; None: built from the known config, summaries only)."""
     _known_of(cfgs)
     persistent = True if traces or any(c.monitor.enabled for c in cfgs) else None
