@@ -1,6 +1,6 @@
 """The excitation experiment's table on package runs, as a new user diagnoses them (issue 49).
 
-    python benchmarks/excite_table.py [--seeds 5] [--jobs 2] [--json FILE] [--only TEXT] [--shift-wrench K]
+    python benchmarks/excite_table.py [--seeds 5] [--jobs 2] [--json FILE] [--only TEXT] [--shift-wrench K] [--set KEY=VALUE]
 
 Every run is ``kinadapt online --config online/excite.toml`` with a seed and hidden effects, then
 ``kinadapt diagnose RUN`` with **no** ``--baseline`` (the set-up generated from the run's config:
@@ -192,8 +192,10 @@ def main() -> None:
     ap.add_argument("--json", default="", help="write every row's result here")
     ap.add_argument("--shift-wrench", type=int, default=0,
                     help="pair each encoder sample with the wrench read K samples later (module docstring)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a config override added to every row (after the row's own), e.g. scene.socket_damping_ratio=0")
     a = ap.parse_args()
-    todo = [(*j, a.shift_wrench) for j in jobs(a.seeds) if a.only in j[0]]
+    todo = [(name, [*ov, *a.set], inj, a.shift_wrench) for name, ov, inj in jobs(a.seeds) if a.only in name]
     with ProcessPoolExecutor(max_workers=a.jobs) as ex:
         results = list(ex.map(run_one, todo))
     n_ok = 0

@@ -137,7 +137,9 @@ def cmd_diagnose_run(args: argparse.Namespace) -> int:
 def _with_effect_free_level(report, baseline: Path, args: argparse.Namespace, tip, progress):
     """``report`` with the section ``effect_free_level``: the baseline run (the same program without
     the hidden effect) diagnosed with the same set-up and the same ``--add`` refit, its residual
-    after that refit (noise-weighted RMS, all rows) and this run's over it; the summary says it."""
+    after that refit (noise-weighted RMS, all rows: 1 is the noise floor the rows are weighted by) and
+    this run's over it; the summary says it -- and, when both are under that floor (a simulated run
+    without sensor noise), that the ratio compares two residuals the diagnosis does not resolve."""
     from kinadapt_nn.diagnostics import ownrun
     from kinadapt_nn.diagnostics.report import Report
     from kinadapt_nn.diagnostics.userlog import diagnose, summary_text
@@ -147,7 +149,8 @@ def _with_effect_free_level(report, baseline: Path, args: argparse.Namespace, ti
     level = float(diagnose(blog, bsetup, list(args.add), hints=False).report["residual_rms_after"]["total_w"])
     after = float(report["residual_rms_after"]["total_w"])
     sections = {**report.sections, "effect_free_level": {
-        "baseline": str(baseline), "residual_rms_total_w": level, "after_over_effect_free": after / level}}
+        "baseline": str(baseline), "residual_rms_total_w": level, "after_over_effect_free": after / level,
+        "under_noise_floor": bool(after <= 1.0 and level <= 1.0)}}
     return Report.of(sections, summary_text)
 
 

