@@ -6,10 +6,11 @@ the sample's pose and twist (world), the declared tool's Newton-Euler wrench (th
 ``M = mc x (g_s - a_s) - I_O alpha - omega x (I_O omega)``), the corrections of the events found
 so far (:data:`CORR`), the residual, and per channel a two-sided CUSUM on ``residual / sd``.
 
-The reading belongs to the previous sample's pose and twist with the acceleration between the two
-samples (the wrist sensor's realised reading, ``sim.ft_sensor``; a real sensor's reading and the
-encoders are a sample apart at most): the prediction uses the previous pose and twist and the
-finite difference of the twist.
+A sample's reading belongs to its own pose and twist (one instant's encoders and reading, as a real
+robot samples them and as the simulator hands them out, ``sim.ft_sensor``), and to the acceleration
+from it to the next sample: each sample is judged when the next one arrives, with its own pose,
+twist and reading and the forward difference of the twist (the residual's time is that sample's,
+one control period behind the latest).
 
 Layouts (float64 vectors, indices below): ``c`` the constants (:func:`consts`), ``st`` the state,
 ``ring`` (RING, NCOL) the last samples for the event fit (``monitor.shapes``).
@@ -56,7 +57,9 @@ S_RBLK = S_RH + 27
 #: samples per block and blocks (the longest window the test looks back over: ROT_BLK x ROT_NB samples);
 #: a block's row: H (9), g (3), S (9) = sum A, its first time
 ROT_BLK, ROT_NB, ROT_W = 50, 20, 22
-NS = S_RBLK + ROT_NB * ROT_W
+#: the previous sample's raw reading (6): judged when the next sample arrives
+S_RAWPREV = S_RBLK + ROT_NB * ROT_W
+NS = S_RAWPREV + 6
 #: monitor modes (st[S_MODE])
 MODE_CALIB, MODE_WATCH, MODE_WINDOW = 0.0, 1.0, 2.0
 #: what a call reports
@@ -279,8 +282,10 @@ def _finite(kin, raw) -> bool:
 
 
 @nb.njit(cache=True)
-def _keep(t, kin, st) -> None:
-    """This sample's pose and twist, the next one's previous."""
+def _keep(t, kin, raw, st) -> None:
+    """This sample's pose, twist and reading, the next one's previous."""
+    for i in range(6):
+        st[S_RAWPREV + i] = raw[i]
     for i in range(3):
         st[S_VPREV + i] = kin[4, i]
         st[S_WPREV + i] = kin[5, i]
@@ -402,12 +407,12 @@ def sample(t, kin, raw, c, st, ring):
     have = st[S_HAVE] > 0.0
     if have:
         h = t - st[S_TLAST]
-        if h <= 0.0 or h > 0.1:  # time went back or a long gap: the kinematics starts afresh
-            have = False
-        elif h < 5.0 * dt:
+        if h <= 0.0 or h > 1.5 * dt:  # time went back or samples are missing: the previous sample's
+            have = False  # acceleration (to the next one) is unknown; the kinematics starts afresh
+        else:
             dt = h
     if not have:  # the first sample (or after a gap): its kinematics is the next one's previous
-        _keep(t, kin, st)
+        _keep(t, kin, raw, st)
         st[S_HAVE] = 1.0
         return R_NONE
     R = np.empty((3, 3))
@@ -415,15 +420,19 @@ def sample(t, kin, raw, c, st, ring):
     al = np.empty(3)
     ga = np.empty(3)
     _sensor_kinematics(kin, dt, c, st, R, om, al, ga)
+    t_now = t
+    t = st[S_TLAST]  # the judged sample: the previous one (module docstring)
+    prev = st[S_RAWPREV:S_RAWPREV + 6].copy()
     pred = np.empty(6)
     predict(c, st, t, R, om, al, ga, pred)
     sgn = c[C_SIGN]
     e = st[S_E:S_E + 6]
     for i in range(6):
-        e[i] = sgn * raw[i] - pred[i]
+        e[i] = sgn * prev[i] - pred[i]
     zone = _in_contact(c, st, R, e)
     st[S_ZONE] = 1.0 if zone else 0.0
-    _keep(t, kin, st)
+    _keep(t_now, kin, raw, st)
+    raw = prev
     st[S_N] += 1.0
     mode = st[S_MODE]
     if mode == MODE_CALIB:
