@@ -701,7 +701,12 @@ def _added(rd: Ranked, add: list[str], forced: dict, lib: dict, setup: SetupCfg,
         entry = {"estimate": est}
         why = eff.why_impossible(full, setup)
         if why:
-            entry["warning"] = f"physically impossible estimate: {why}; not a finding"
+            why = f"physically impossible estimate: {why}"
+        elif not np.any(np.asarray(full, float)[c]) and not np.any(np.asarray(sd, float)[c]):
+            why = ("no estimate: its column is zero on this log, the effect gives it no signal here (encoder_offset: "
+                   "a joint turning about the sensor's z axis, which ft_frame_rotation's rot_z reports)")
+        if why:
+            entry["warning"] = f"{why}; not a finding"
             warnings.append(f"--add {n}: {entry['warning']}")
         added[n] = entry
     return Added({"residual_rms_before": _rms_by_channel(des, before), "residual_rms_after": _rms_by_channel(des, after),

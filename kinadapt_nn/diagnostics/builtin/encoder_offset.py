@@ -7,6 +7,14 @@ against central differences of ``LogSignals.nominal_wrench``). Whether a joint's
 seen at all comes from the data (its column), not from the arm's make.
 One parameter per arm joint (``offset_joint1..offset_jointN``, N = the set-up's ``[log] q``):
 ``params_for``, the public form of set-up-dependent parameters.
+
+A joint whose axis is the sensor's z axis (the wrist's last joint when the sensor sits on the flange
+axis; :func:`sensor_z_joint`) turns the sensor frame about z_s: its offset changes the reading as a
+sensor rotation about z_s does (``ft_frame_rotation``'s ``rot_z``), apart from the tool's asymmetry
+about that axis. Where ``ft_frame_rotation`` is judged (a known mount) the two are one finding: that
+joint has no column here (it is never selected; the turn is reported once, as ``rot_z``) -- fitted
+as two, they split one turn between them at will (the excitation table: rot_z and a joint-7 offset
+0.988 correlated, each estimate off by its share).
 """
 
 from __future__ import annotations
@@ -40,4 +48,27 @@ def report(p, sd, setup) -> dict:
                "horizontal push against a fixture)",
         one_of=True, report=report, plausible=plausible_small_angle, uses_contact=False)
 def encoder_offset(s):
-    return s.nominal_wrench_dq()
+    C = s.nominal_wrench_dq()
+    j = sensor_z_joint(s) if s.setup.sensor.mount_known else None
+    if j is not None:
+        C[:, :, j] = 0.0  # the sensor's turn about z_s: ft_frame_rotation's rot_z (module docstring)
+    return C
+
+
+#: [rad] a joint's axis within this of the sensor's z axis at every row is that axis
+AXIS_TOL_RAD = 1e-5
+
+
+def sensor_z_joint(s) -> int | None:
+    """The joint (0-based) whose axis is the sensor's z axis (+-) at every row of the log ``s``, or
+    None: its angular Jacobian column in the sensor frame, ``R_ws^T J_w[:, :, j]``, on the first,
+    middle and last rows."""
+    rows = np.unique([0, s.n // 2, s.n - 1])
+    _, J_w = s.arm.sensor_jacobian(np.asarray(s.q, dtype=float)[rows])
+    R_ws = np.asarray(s.R_ws, dtype=float)[rows]
+    axis_s = np.einsum("nji,njk->nik", R_ws, J_w)  # (r, 3, dof)
+    for j in range(axis_s.shape[2] - 1, -1, -1):
+        a = axis_s[:, :, j]
+        if np.all(np.abs(a[:, 2]) > 0.5) and np.all(np.abs(a[:, :2]) < AXIS_TOL_RAD):  # a hinge (unit axis) along z_s
+            return j
+    return None
