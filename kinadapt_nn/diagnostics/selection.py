@@ -567,6 +567,8 @@ def _excitation(cx: _EntryCtx, n: str, e: dict, sel: bool) -> list[int]:
     else:
         ratio = float(np.linalg.eigvalsh(st.schur(st.idx[n], others))[0] / sse_ref)
     undecided = [] if eq is None else [j for j in range(k) if not eq["inside"][j]]
+    if des.one_of[n]:  # a column the effect leaves zero here is no parameter of this log (encoder_offset's z_s joint)
+        undecided = [j for j in undecided if lam[j] > 0.0]
     e["excitation"] = {"ratio": ratio, "enough": not undecided, "weak_parameters": undecided}
     if eq is not None:
         e["equivalence"] = {"ci_low": eq["lo"] * scale, "ci_high": eq["hi"] * scale, "relevant": scale,
