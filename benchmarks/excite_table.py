@@ -118,9 +118,7 @@ def _payload_inertia(cfg) -> np.ndarray:
     sensor origin (``tool_inertia``'s parameters): its own (a 2 cm solid sphere, ``sim.scene``) and
     ``m (|c|^2 1 - c c^T)`` of its mass at its COM ``c``."""
     g = cfg.effects.tool_gravity
-    c = np.asarray(g.com_f_m, dtype=float)
-    dI = 0.4 * g.mass_kg * 0.02 ** 2 * np.eye(3) + g.mass_kg * (c @ c * np.eye(3) - np.outer(c, c))
-    return np.array([dI[0, 0], dI[1, 1], dI[2, 2], dI[0, 1], dI[0, 2], dI[1, 2]])
+    return _inertia_about_O(g.mass_kg, np.asarray(g.com_f_m, dtype=float), 0.4 * g.mass_kg * 0.02 ** 2 * np.eye(3))
 
 
 def run_one(job: tuple) -> dict:
