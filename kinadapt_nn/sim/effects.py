@@ -17,7 +17,8 @@ ft_bias_drift              reading += rate_f * (t - onset_s) (sensor frame) for 
 ft_frame_rotation          reading = R(rotvec)^T r: force and moment expressed in a rotated frame,
                            from onset_s (the angle ramped over ramp_s)
 tool_tilt                  the tool is rotated in the grasp about O: tip = R_tilt offset
-contact_stiffness          bore: solref time constant / sqrt(factor); socket: springs x factor
+contact_stiffness          bore: solref time constant / sqrt(factor); socket: springs x factor, its
+                           dampers unchanged (the declared ones)
 contact_friction_couple    bore: condim 4 torsional friction (radius); socket: -radius |f| w/(|w|+eps)
 grasp_compliance           the tool hangs on two hinges about f x, y at O (stiffness, damped)
 encoder_offset             the joint sits at reading + offset (arm.joint_offset_rad)
@@ -54,11 +55,14 @@ def truth_config(cfg: ExperimentCfg) -> ExperimentCfg:
     sc = cfg.scene
     if e.contact_stiffness.enabled:
         k = e.contact_stiffness.factor
+        # the springs change; the socket's dampers stay the declared ones (``socket_damping`` is
+        # 2 z sqrt(k m): z / sqrt(k) keeps c): the effect is the stiffness, one physical property
         upd["scene"] = sc.model_copy(update={
             "contact_timeconst_s": sc.contact_timeconst_s / np.sqrt(k),
             "socket_k_lat_N_per_m": sc.socket_k_lat_N_per_m * k,
             "socket_k_rot_Nm_per_rad": sc.socket_k_rot_Nm_per_rad * k,
             "socket_k_axial_N_per_m": sc.socket_k_axial_N_per_m * k,
+            "socket_damping_ratio": sc.socket_damping_ratio / np.sqrt(k),
         })
     if e.encoder_offset.enabled:
         off = list(cfg.arm.joint_offset_rad)

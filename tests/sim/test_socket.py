@@ -112,3 +112,25 @@ def mujoco_rot(rv):
     mujoco.mju_axisAngle2Quat(q, rv / angle, angle)
     mujoco.mju_quat2Mat(M, q)
     return M.reshape(3, 3)
+
+
+@pytest.mark.parametrize("factor", [0.5, 2.0])
+def test_hidden_stiffness_changes_the_springs_not_the_dampers(factor):
+    """Effect ``contact_stiffness``: the socket's springs scale by the factor, its dampers stay the
+    declared ones (the diagnosis's ``contact_stiffness`` is the spring's factor against the set-up's
+    declared dampers; before, c = 2 z sqrt(k m) followed k and a friction couple fitted beside it
+    absorbed the damper's change, benchmarks/results/excite_reasons.txt)."""
+    from kinadapt_nn.sim.effects import truth_config
+    from kinadapt_nn.sim.socket import P_C_AX, P_C_LAT, P_C_ROT, P_K_AX, P_K_LAT, P_K_ROT
+
+    base = load_config(None, ["scene.contact_model=socket", "scene.socket_k_axial_N_per_m=3000"])
+    hid = truth_config(load_config(None, ["scene.contact_model=socket", "scene.socket_k_axial_N_per_m=3000",
+                                          "effects.contact_stiffness.enabled=true",
+                                          f"effects.contact_stiffness.factor={factor}"]))
+    entry = np.array([0.5, 0.0, 0.1])
+    p0, p1 = socket_params(base, entry, BORE_AXIS_W), socket_params(hid, entry, BORE_AXIS_W)
+    for k in (P_K_LAT, P_K_AX, P_K_ROT):
+        assert p1[k] == pytest.approx(factor * p0[k], rel=1e-12)
+    for c in (P_C_LAT, P_C_AX, P_C_ROT):
+        assert p0[c] > 0.0
+        assert p1[c] == pytest.approx(p0[c], rel=1e-12)
