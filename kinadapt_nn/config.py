@@ -424,6 +424,14 @@ class MonitorCfg(_Cfg):
     window_s: float = Field(0.5, gt=0.01, le=10.0)  # [s] after an alarm: samples this long are fitted to name the shape
     contact_zone_m: float = Field(0.004, ge=0.0, le=0.1)  # [m] the nominal tip within this of the entrance plane (or below it): contact, not judged
     rotation_test: bool = True  # also a GLR test of the sensor frame's rotation on the force channels, threshold from false_alarms_per_h (docs/monitor.md)
+    pause_law: bool = False  # the law listens: while an alarm is being named or an event is open (to the run's end) the adaptive law does not step -- theta held, the controller acts on its last estimate (docs/monitor.md)
+
+    @model_validator(mode="after")
+    def _pause_needs_monitor(self) -> MonitorCfg:
+        if self.pause_law and not self.enabled:
+            raise ValueError("monitor.pause_law = true pauses the law on the live monitor's events: turn the monitor "
+                             "on too (monitor.enabled = true, or --monitor)")
+        return self
 
 
 class ModelCfg(_Cfg):

@@ -358,10 +358,10 @@ class Controller:
     def set_state(self, x: np.ndarray, k: np.ndarray, out: np.ndarray) -> None:
         """Take the state a batched loop stepped this controller in (``runs.loop``: its row of a
         B-episode ``ControllerState``): ``x`` (NX,) float state, ``k`` (N_K + law nk,) counters
-        (the error and done flags cleared) and ``out`` (nout,) the last step's out row."""
+        (the error, done and paused flags cleared) and ``out`` (nout,) the last step's out row."""
         st = self.state
         st.x[0], st.k[0] = x, k
-        st.k[0, core.K_ERROR] = st.k[0, core.K_DONE] = 0
+        st.k[0, core.K_ERROR] = st.k[0, core.K_DONE] = st.k[0, core.K_PAUSED] = 0
         self.out[0] = out
         self._stepped = True
 

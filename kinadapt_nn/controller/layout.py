@@ -63,9 +63,11 @@ C_FIELDS: tuple[tuple[str, int, str], ...] = (
     ("V_DITHER", 3, "[rad/s] dither amplitudes"),
 )
 
-#: the controller's counters, columns of ``ControllerState.k`` (the law's own follow, from N_K)
+#: the controller's counters, columns of ``ControllerState.k`` (the law's own follow, from N_K); K_DONE and
+#: K_PAUSED are set from outside the kernels: a batch episode that has stopped, and the law paused this step
+#: (``monitor.pause_law``: a live monitor's event open, ``runs.loop.run``)
 K_FIELDS: tuple[str, ...] = ("K_TARE_N", "K_TARED", "K_PRIMED", "K_STARTED", "K_HAVE_HELD", "K_BAD_RUN",
-                             "K_DROPOUTS", "K_HOLDING", "K_ERROR", "K_GRAM_N", "K_DONE")
+                             "K_DROPOUTS", "K_HOLDING", "K_ERROR", "K_GRAM_N", "K_DONE", "K_PAUSED")
 
 Size = Callable[[int, int, int, int], int]  #: (n, m, p, law nx) -> a block's size
 

@@ -19,15 +19,15 @@ from kinadapt_nn.controller.features_kernels import (_adjoint_drive, _adjoint_re
                                                      _jhat_prior, _lever, _neural_body, _neural_jhat, _neural_rows,
                                                      _rbf_jhat, _rbf_psi, _rbf_rows)
 from kinadapt_nn.controller.layout import (ALPHA, BLEND, C_F, C_M, DAMP, DITHER_ON, DT, D_STAR, EXCITE, FEAT,
-                                           FEAT_ADJOINT, FEAT_NEURAL, FEAT_RBF, FEAT_TWIST, F_GATE, F_MAX,
-                                           INV_TAU, K_BAD_RUN, K_D, K_DONE, K_DROPOUTS, K_ERROR, K_GRAM_N,
-                                           K_HAVE_HELD, K_HOLDING, K_NS, K_PRIMED, K_STARTED, K_TARED, K_TARE_N,
-                                           L_LNK, L_LNX, L_M, L_N, L_P, MAX_HOLD, M_GATE, N_ENTRY, N_K, O_DPR, O_DTR,
-                                           O_EPS, O_F, O_GATE, O_LAM, O_N2, O_QDR, O_RHO, O_S, O_SDM, O_SDP, O_TH,
-                                           O_UNC, O_WENV, O_XI, RAMP, RANK_GATE_V, RANK_ON, RIGID, TWO_PI_F, T_SETTLE,
+                                           FEAT_ADJOINT, FEAT_NEURAL, FEAT_RBF, FEAT_TWIST, F_GATE, F_MAX, INV_TAU,
+                                           K_BAD_RUN, K_D, K_DONE, K_DROPOUTS, K_ERROR, K_GRAM_N, K_HAVE_HELD,
+                                           K_HOLDING, K_NS, K_PAUSED, K_PRIMED, K_STARTED, K_TARED, K_TARE_N, L_LNK,
+                                           L_LNX, L_M, L_N, L_P, MAX_HOLD, M_GATE, N_ENTRY, N_K, O_DPR, O_DTR, O_EPS,
+                                           O_F, O_GATE, O_LAM, O_N2, O_QDR, O_RHO, O_S, O_SDM, O_SDP, O_TH, O_UNC,
+                                           O_WENV, O_XI, RAMP, RANK_GATE_V, RANK_ON, RIGID, TWO_PI_F, T_SETTLE,
                                            T_TARE0, V_D, V_DITHER, V_GRIGID, V_INVDEN, V_LNOM, V_M, V_MAX, V_N, V_W,
-                                           W_MAX, X_FILT, X_GRAM, X_HELD, X_LAW, X_QPOST, X_QREF, X_TARE, X_TH,
-                                           X_TSUM, X_UNC, X_XI)
+                                           W_MAX, X_FILT, X_GRAM, X_HELD, X_LAW, X_QPOST, X_QREF, X_TARE, X_TH, X_TSUM,
+                                           X_UNC, X_XI)
 from kinadapt_nn.controller.laws.base import law_step_fn
 
 @nb.njit(cache=True)
@@ -257,7 +257,8 @@ def _filter_regressor(b, reg, x, lay, c):
 @nb.njit(cache=True)
 def _law(b, reg, x, k, lay, c, pv, lc, law_fn, out):
     """The law-independent part of a law step on this step's filtered rows -- a held sample adapts
-    nothing; eq. ft_pred; the contact gate; the Gram log; Phi_r^T F on the tracking rows -- then,
+    nothing; eq. ft_pred; a paused law (``K_PAUSED``) adapts nothing; the contact gate; the Gram log;
+    Phi_r^T F on the tracking rows -- then,
     in contact, the law's own step (``laws.base``: the step contract) at address ``law_fn[0]``;
     theta_{k+1} is written to the state (used next step)."""
     m, p = lay[L_M], lay[L_P]
@@ -283,6 +284,8 @@ def _law(b, reg, x, k, lay, c, pv, lc, law_fn, out):
             v += theta[j] * Phi_fT[j, i]
         pred[i] = v + known_f[i]
         eps[i] = (sdm[i] - pred[i]) * W[i]
+    if k[b, K_PAUSED] != 0:  # paused from outside (monitor.pause_law: an event open): theta and the law's state stay
+        return
     w_env = o[lay[O_WENV]:lay[O_WENV] + 6]
     fn = math.sqrt(w_env[0] ** 2 + w_env[1] ** 2 + w_env[2] ** 2)
     mn = math.sqrt(w_env[3] ** 2 + w_env[4] ** 2 + w_env[5] ** 2)

@@ -149,6 +149,7 @@ class Monitor:
         self._fits: list = []  #: (fit, onset, event) of each event, as its correction stands in the model
         self._history: dict = {}  #: id(event) -> [(time from which, fit)]: its correction's versions in the model
         self.res_log = self.z_log = None  #: (rows, 6) residual and residual / sd at logged rows (``record``)
+        self.pauses: list[list] = []  #: [from_s, to_s or None: still paused] of the law (``law_paused``)
 
     def start_log(self, rows: int) -> None:
         """Keep the residual of ``rows`` logged rows (``record``)."""
@@ -212,6 +213,22 @@ class Monitor:
     @property
     def n_bad(self) -> int:
         return int(self.st[K.S_NBAD])
+
+    @property
+    def event_open(self) -> bool:
+        """Whether an alarm is being named (its window) or an event is open (its shape in the model: to
+        the end of the stream)."""
+        return self.st[K.S_MODE] == K.MODE_WINDOW or any(e.open for e in self.events)
+
+    def law_paused(self, t: float) -> bool:
+        """``monitor.pause_law``: whether the law pauses in the control period at ``t`` [s] -- an event
+        open after the samples before it (``event_open``); each pause's interval is kept (``pauses``)."""
+        on = self.event_open
+        if on and (not self.pauses or self.pauses[-1][1] is not None):
+            self.pauses.append([t, None])
+        elif not on and self.pauses and self.pauses[-1][1] is None:
+            self.pauses[-1][1] = t
+        return on
 
     # -- an event ---------------------------------------------------------------------------------
     def name_event(self, final: bool = False) -> Event | None:
@@ -417,7 +434,18 @@ class Monitor:
                 "threshold_sd": self.h, "rotation_threshold": float(self.c[K.C_HROT]), "cusum_k": float(self.c[K.C_K]),
                 "false_alarms_per_h": self.mcfg.false_alarms_per_h, "samples_left_out": self.n_bad,
                 "alarms_dismissed": self.dismissed, "alarms": self.alarms,
-                "alarm_pending": bool(self.st[K.S_MODE] == K.MODE_WINDOW)}
+                "alarm_pending": bool(self.st[K.S_MODE] == K.MODE_WINDOW), **self._pause_summary()}
+
+    def _pause_summary(self) -> dict:
+        """``monitor.pause_law``: the law's pauses, ``law_paused_s`` [[from, to]] [s] (the control periods
+        from ``from`` up to ``to``; one still paused at the end runs to the end of its last period), and
+        their total ``law_paused_total_s``."""
+        if not self.mcfg.pause_law:
+            return {}
+        end = float(self.st[K.S_TLAST]) + self.dt_s
+        spans = [[round(float(a), 9), round(end if b is None else float(b), 9)] for a, b in self.pauses]
+        return {"law_paused_s": spans, "law_paused_total_s": round(float(sum(b - a for a, b in spans)), 9),
+                "law_paused_at_end": bool(self.pauses and self.pauses[-1][1] is None)}
 
 
 def monitor_of_run(cfg, on_event=None) -> Monitor:

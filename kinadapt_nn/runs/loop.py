@@ -8,7 +8,8 @@ built from the known config alone for summaries). Then per control step (:func:`
 2. the controller (``controller.core``: one fused kernel call for the adjoint, neural and RBF
    features; other features supply their rows from Python, as ``Controller`` does); with
    ``monitor.enabled`` the live monitor on the same samples and the controller's own flange
-   kinematics (``kinadapt_nn.monitor``: never the truth);
+   kinematics (``kinadapt_nn.monitor``: never the truth); with ``monitor.pause_law`` the law of the
+   next period pauses while the monitor has an event open (``core.K_PAUSED``);
 3. the watch (:func:`_watch`: sensor errors, the seat check, peak wrenches, the rank gate);
 4. the log (:class:`TraceLog`: every channel of a trace; :class:`SummaryLog`: what a summary needs);
 5. the servo set-points and one physics step (``SceneBatch.apply``, ``step``);
@@ -371,6 +372,8 @@ class Loop:
                                       "monitor first (it registers itself with the episode loop; kinadapt online "
                                       "--monitor does)")
                 self.monitors.append((b, MONITOR_FACTORY[0](c)))
+        #: the monitors whose events pause their episode's law (``monitor.pause_law``): (b, Monitor)
+        self.pausing = [(b, mon) for b, mon in self.monitors if self.cfgs[b].monitor.pause_law]
 
     def _watch_args(self, t: float) -> tuple:
         kn = self.kn
@@ -501,6 +504,8 @@ def run(lp: Loop, log, bar=None) -> int:
         rows = slice(None) if lp.every_one else active
         if logged:
             log.sample(k // every, rows)
+        for b, mon in lp.pausing:  # monitor.pause_law: the law pauses while an event is open (its samples so far)
+            kn.st.k[b, core.K_PAUSED] = mon.law_paused(t) if active[b] else 0
         kn.control(t, active)
         for b, mon in lp.monitors:  # exactly what the controller received, and its own kinematics
             if active[b]:
