@@ -38,6 +38,9 @@ def cmd_diagnose_setup(args: argparse.Namespace) -> int:
                                 "set-up (drop the option)")
     if args.rerun:
         raise KinadaptError("--rerun is for this package's own runs; drop it with --setup")
+    if args.whole_log:
+        raise KinadaptError("--whole-log is for this package's own runs (a user's log is always judged whole; "
+                            "[analysis] exclude_s leaves parts out); drop it with --setup")
     setup = load_setup(Path(args.setup), args.set or [])
     check_request(setup, list(args.add or []), list(args.effects or []))  # before any log is read
     out = args.run_dir = Path(args.out) if args.out else default_out("diagnose")
@@ -117,9 +120,13 @@ def cmd_diagnose_run(args: argparse.Namespace) -> int:
     if args.baseline:
         progress(f"where contacts act, calibrated on the baseline {args.baseline}")
     tip = ownrun.calibrated_tip(Path(args.baseline)) if args.baseline else None
+    window = None if args.whole_log or not src.is_dir() else ownrun.monitor_window(src)
     progress("reading the run; its set-up generated from its config")
-    log, setup = ownrun.as_log(src, cfg, list(args.effects or []), tip)
+    log, setup = ownrun.as_log(src, cfg, list(args.effects or []), tip, (None, None) if window is None else
+                               (window.from_s, None))
     res = diagnose(log, setup, list(args.add or []), progress=progress)
+    if window is not None:
+        res = dataclasses.replace(res, report=_with_window(res.report, window, src, cfg, args, tip, progress))
     if args.baseline and args.add:
         res = dataclasses.replace(res, report=_with_effect_free_level(res.report, Path(args.baseline), args,
                                                                       tip, progress))
@@ -132,6 +139,31 @@ def cmd_diagnose_run(args: argparse.Namespace) -> int:
     prov = Provenance("package_run", log.source, "generated from the run's config")
     _write_diagnosis(out, args, [(None, log, res)], setup, prov, t0, rerun)
     return 0
+
+
+def _with_window(report, window, src: Path, cfg, args: argparse.Namespace, tip, progress):
+    """``report`` (the log from the monitor's event on) with the section ``window``: where it starts
+    and why, and the log before the onset diagnosed on its own as the baseline (its present effects
+    were there before the change; hints not sought). The summary leads with it."""
+    from kinadapt_nn.diagnostics import ownrun
+    from kinadapt_nn.diagnostics.report import Report
+    from kinadapt_nn.diagnostics.userlog import diagnose, summary_text
+
+    progress(f"the baseline: the log before the monitor's event ({window.onset_s:.2f} s) diagnosed on its own")
+    before = {"to_s": window.onset_s}
+    try:
+        blog, bsetup = ownrun.as_log(src, cfg, list(args.effects or []), tip, (None, window.onset_s))
+        brep = diagnose(blog, bsetup, hints=False).report
+        before.update(present=[e["effect"] for e in brep["ranking"] if e["verdict"] == "present"],
+                      model_complete=brep.get("model_complete"),
+                      residual_rms_total_w=brep["residual_rms_by_channel"]["total_w"], summary=brep["summary"])
+    except KinadaptError as exc:  # too short a baseline: said, the window stands
+        before["not_diagnosed"] = str(exc)
+    sections = {**report.sections, "window": {
+        "from_s": window.from_s, "onset_s": window.onset_s, "why": "the monitor's first open event",
+        "event": window.line, "monitor_shapes": list(window.shapes), "later_onsets_s": list(window.later),
+        "before": before}}
+    return Report.of(sections, summary_text)
 
 
 def _with_effect_free_level(report, baseline: Path, args: argparse.Namespace, tip, progress):
@@ -289,6 +321,9 @@ def add_diagnose(sub, description: str) -> None:
                          "written to OUT/rerun/ with the same TensorBoard tags")
     dg.add_argument("--baseline", metavar="RUN", help="package runs: where contacts act (the tip) calibrated on this "
                     "run of the same cell (default: the config's nominal tip)")
+    dg.add_argument("--whole-log", action="store_true",
+                    help="package runs: judge the whole log even when the run's monitor raised an event (default: "
+                         "the log from the monitor's first open event on, the part before as its baseline)")
     dg.add_argument("--as-log", action="store_true",
                     help="accepted for compatibility: a package run always goes through the same stages as a "
                          "robot's log, its set-up generated from its config (diagnostics/ownrun.py)")

@@ -27,12 +27,21 @@ set-up             from the run's config (what the cell's integrator knows)
 
 The hidden effects (``[effects]``) and the true tool pose are not read: the set-up is the
 nominal model, as the package's own diagnosis uses it.
+
+A run with the live monitor (``kinadapt online --monitor``) says in ``summary.json`` when the wrench
+changed: an effect that starts mid-run is present only after its onset, while every effect of the
+diagnosis is taken as present through the whole log it judges. ``monitor_window`` reads the first
+open event there (only the ``monitor`` section: the summary's truth, ``hidden_effects``, is not read);
+the diagnosis then judges the log from that onset on (the monitor's settle time after it left out,
+as the monitor's own fit does), and the log before the onset is its effect-free baseline, diagnosed
+on its own (``kinadapt diagnose RUN``; ``--whole-log`` judges the whole log as one).
 """
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -89,6 +98,61 @@ def setup_of_run(cfg: ExperimentCfg, effects_files=(), tip_sensor_m=None) -> Set
     return setup
 
 
+#: [s] after the monitor's onset, left out of the judged log: the arm's transient (the monitor's own
+#: ``monitor.SETTLE_S``, which its fit leaves out; the monitor is a layer above, so the value is here too)
+SETTLE_S = 0.02
+
+
+class Window(NamedTuple):
+    """The part of a monitored run its diagnosis judges: from the monitor's first open event on."""
+
+    from_s: float  #: [s] run time the judged log starts at (the event's onset + the monitor's settle time)
+    onset_s: float  #: [s] run time of the event's onset (the log before it is the baseline)
+    line: str  #: the event as the monitor printed it
+    shapes: tuple  #: the monitor's shapes of every open event, in order
+    later: tuple  #: [s] onsets of the other open events (inside the judged log)
+
+
+def monitor_window(folder) -> Window | None:
+    """The first open event of a run's monitor (``folder/summary.json``, section ``monitor``), or None
+    (not a run folder, no monitor, no open event). A summary that is not JSON is a one-line error."""
+    path = Path(folder) / "summary.json"
+    if not path.is_file():
+        return None
+    try:
+        mon = json.loads(path.read_text()).get("monitor")
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise KinadaptError(f"'{path}' is not a run's summary ({exc}); pass --whole-log to diagnose the log "
+                            "without the monitor's events") from None
+    opened = [e for e in (mon or {}).get("events", []) if e.get("open", True)]
+    if not opened:
+        return None
+    first = min(opened, key=lambda e: float(e["onset_s"]))
+    t0 = float(first["onset_s"])
+    return Window(t0 + SETTLE_S, t0, str(first.get("line", first.get("shape", ""))),
+                  tuple(str(e.get("shape", "")) for e in opened),
+                  tuple(sorted(float(e["onset_s"]) for e in opened if e is not first)))
+
+
+def cut(raw, from_s: float | None = None, to_s: float | None = None):
+    """The samples of a ``RawLog`` with ``from_s < t_s <= to_s`` [s] (run time; None: no bound), its
+    source saying which; a part too short to judge is a one-line error. -> ``RawLog``."""
+    from kinadapt_nn.diagnostics.importers import RawLog
+
+    t = np.asarray(raw.t_s, dtype=float)
+    keep = np.ones(len(t), bool)
+    if from_s is not None:
+        keep &= t > from_s
+    if to_s is not None:
+        keep &= t <= to_s
+    span = f"{'start' if from_s is None else f'{from_s:.3f} s'} to {'end' if to_s is None else f'{to_s:.3f} s'}"
+    if keep.sum() < 2:
+        raise KinadaptError(f"'{raw.source}' has {int(keep.sum())} samples from {span}: too few to diagnose (pass "
+                            "--whole-log)")
+    return RawLog(t[keep], np.asarray(raw.q_rad)[keep], np.asarray(raw.qdot_rad_s)[keep],
+                  np.asarray(raw.wrench_raw_f)[keep], f"{raw.source} ({span})")
+
+
 def log_of_run(raw) -> UserLog:
     """A ``importers.RawLog`` (a run's trace or the package's CSV) as a ``UserLog``: time from the
     first sample, the raw reading as logged (its convention is the set-up's ``wrench_acts``)."""
@@ -97,13 +161,16 @@ def log_of_run(raw) -> UserLog:
                    np.asarray(raw.wrench_raw_f, dtype=float), str(raw.source))
 
 
-def as_log(src, cfg: ExperimentCfg | None = None, effects_files=(), tip_sensor_m=None) -> tuple[UserLog, SetupCfg]:
+def as_log(src, cfg: ExperimentCfg | None = None, effects_files=(), tip_sensor_m=None,
+           span_s: tuple[float | None, float | None] = (None, None)) -> tuple[UserLog, SetupCfg]:
     """A package run (a run folder, its ``trace.npz``, the package's CSV or a ``RawLog``) and its
     config (the folder's ``config.toml`` when ``cfg`` is None) -> (log, set-up) for
-    ``userlog.diagnose``."""
+    ``userlog.diagnose``; ``span_s`` (from, to) [s] run time: only that part of the log (``cut``)."""
     from kinadapt_nn.diagnostics.importers import load_log
 
     raw = load_log(Path(src)) if isinstance(src, (str, Path)) else src
+    if span_s != (None, None):
+        raw = cut(raw, *span_s)
     if cfg is None:
         folder = Path(src) if isinstance(src, (str, Path)) else None
         folder = folder if folder is not None and folder.is_dir() else (folder.parent if folder is not None else None)
@@ -171,4 +238,5 @@ def rerun_with_effects(src: Path, add: list[str]):
     return cfg, result, info
 
 
-__all__ = ["as_log", "calibrated_tip", "check_rerun", "log_of_run", "rerun_with_effects", "setup_of_run"]
+__all__ = ["Window", "as_log", "calibrated_tip", "check_rerun", "cut", "log_of_run", "monitor_window",
+           "rerun_with_effects", "setup_of_run"]

@@ -79,6 +79,24 @@ def _estimate_text(est: dict) -> str:
     return text + (f", … (+{hidden} more)" if hidden else "")
 
 
+def _window_text(w: dict) -> str:
+    """What part of a monitored run was judged, and what its baseline (the log before the onset) showed."""
+    out = (f"From {w['from_s']:.2f} s (the monitor's event, '{w['event']}'; the log before its onset is the "
+           "baseline, every effect below is judged on the log after it):")
+    b = w.get("before") or {}
+    if "not_diagnosed" in b:
+        out += f" the baseline was not diagnosed ({b['not_diagnosed']})."
+    elif b.get("present"):
+        out += (f" before {b['to_s']:.2f} s the diagnosis names {', '.join(b['present'])} already (there before the "
+                "change).")
+    else:
+        out += f" before {b['to_s']:.2f} s no library effect is present."
+    if w.get("later_onsets_s"):
+        out += " The monitor's later events from " + ", ".join(f"{v:.2f} s" for v in w["later_onsets_s"]) + \
+            " fall inside the judged log."
+    return out
+
+
 def summary_text(rep: dict) -> str:
     """A paragraph a person reads first: the verdict on the model, then the effects."""
     chk = rep["sign_check"]
@@ -89,6 +107,8 @@ def summary_text(rep: dict) -> str:
         return ("WARNING: " + rep["blocked"] + ". Every effect is 'cannot_decide' until the set-up is right "
                 "(no effect can be judged against a model the data contradict at first sight).")
     parts = [completeness_text(rep)]  # the verdict on the model leads, whatever else is estimated
+    if rep.get("window"):  # a monitored run: the log from the monitor's event on (``ownrun.monitor_window``)
+        parts.insert(0, _window_text(rep["window"]))
     sm = rep.get("sensor_mount")
     if sm and not sm.get("mount_known", True):
         parts.append(_mount_text(rep, sm))
