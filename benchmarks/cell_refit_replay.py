@@ -108,12 +108,16 @@ def _accept(rf, data, _r):
 
 def _trust(rf, data, r, expected_change=False):
     """Step towards each new refit by at most r in the new posterior's metric (``expected_change``:
-    in that of (P_prev - P_new)^+, the change's covariance between nested refits)."""
-    cur = P_prev = None
+    in that of (P_prev - P_new)^+, the change's covariance between nested refits). A refit whose
+    prior choice (the evidence prior) differs from the one before is taken as it is, as the shipped
+    refit does (``Refit.after_insertion``)."""
+    cur = P_prev = alt_prev = None
     out = []
     for k in range(1, len(data) + 1):
         _, P, act = rf.solve(data[:k])
-        if cur is None:
+        switched = rf.alt is not None and alt_prev is not None and rf.chose_alt != alt_prev
+        alt_prev = rf.chose_alt
+        if cur is None or switched:
             cur = act
         else:
             d = act - cur

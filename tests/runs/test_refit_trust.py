@@ -91,3 +91,42 @@ def test_the_cell_config_hands_the_trust_region_to_the_refit():
     for over, want in (([], 0.5), (["cell.refit_step_sd=0"], 0.0), (["cell.refit_step_sd=2"], 2.0)):
         cfg = load_config(None, [BORES, "cell.heldout_per_bore=1", "cell.between=refit", *over])
         assert _Cell(cfg, make_controller(cfg)).refit.step_sd == want
+
+
+def test_a_change_of_prior_is_acted_on_as_it_is(ctrl):
+    """The evidence prior (``alt_prior_cov``): a refit whose prior choice differs from the refit
+    before acts on its own estimate unbounded (the step between two models' estimates is not a step
+    of one pooled estimate); the next refit under the same prior is bounded again. Checked against
+    the same refit without the trust region and against the step's length in the posterior metric."""
+    rng = np.random.default_rng(5)
+    from kinadapt_nn.controller.controller import prior_cov_of
+
+    L0 = np.linalg.cholesky(np.asarray(prior_cov_of(ctrl.features), dtype=float))
+    alt = L0 @ np.diag([1.0, 1e-6, 1e-6]) @ L0.T  # the simpler prior: direction 1 only
+    th_true = ctrl.theta0 + L0 @ np.array([0.5, 1.5, -1.5])  # needs the directions the simpler one holds
+    weak = _insertion(rng, th_true, rows=3)
+    weak = (weak[0] * 1e-3, np.einsum("kmp,p->km", weak[0] * 1e-3, th_true) + rng.normal(size=(3, 2)) * 0.05)
+    ins = [weak, _insertion(rng, th_true), _insertion(rng, th_true + L0 @ np.array([0.0, 0.3, 0.3]))]
+    kw = dict(channels=(1, 2), alt_prior_cov=alt, alt_evidence_per_insertion=5.0)
+    free, rf = _refit(ctrl, 0.0, **kw), _refit(ctrl, 0.5, **kw)
+    law = ctrl._law_state
+    prev, notes = None, []
+    for k, d in enumerate(ins):
+        for r in (free, rf):
+            r.add = lambda trace, r=r, d=d: (r.data.append(d), len(d[1]))[1]  # the logged rows, synthetic
+        free.after_insertion(None)
+        want = ctrl.state.theta[0].copy()
+        want_kf = law.blocks["theta_kf"][0].copy()
+        notes.append(rf.after_insertion(None))
+        got = ctrl.state.theta[0].copy()
+        _, P, _ = rf.solve(ins[:k + 1])
+        if k == 1:  # the weak first insertion chose the simpler prior, the second the features' own
+            assert notes[0]["simpler_prior"] and not notes[1]["simpler_prior"] and notes[1]["prior_switched"]
+            assert _mahalanobis(want - prev, P) > 5.0  # the region would have held it
+            assert np.array_equal(got, want) and np.array_equal(law.blocks["theta_kf"][0], want_kf)
+        elif k == 2:  # the same prior again: bounded
+            assert not notes[2]["simpler_prior"] and not notes[2]["prior_switched"]
+            full = _mahalanobis(want - prev, P)
+            assert full > 0.5
+            assert np.allclose(got, prev + (0.5 / full) * (want - prev), rtol=0, atol=1e-12)
+        prev = got
