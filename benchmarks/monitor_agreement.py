@@ -41,24 +41,29 @@ def onset_of(seed: int) -> float:
     return float(np.random.default_rng(seed).uniform(1.0, 4.0))
 
 
-def run_and_diagnose(name: str, seed: int, work: Path, extra: list[str] = (), whole_log: bool = False) -> dict:
+def run_and_diagnose(name: str, seed: int, work: Path, extra: list[str] = (), whole_log: bool = False,
+                     reuse: bool = False) -> dict:
     """One seed of scenario ``name``: the run with ``--monitor``, its diagnosis (``kinadapt diagnose RUN``:
-    from the monitor's event on where it raised one); ``whole_log``: also ``--whole-log``'s. -> the run's
-    monitor summary, the diagnosis's report (and the whole log's, or None) and the run folder."""
+    from the monitor's event on where it raised one); ``whole_log``: also ``--whole-log``'s; ``reuse``: a
+    run and diagnosis already in ``work`` (``--keep``) are read, not made again. -> the run's monitor
+    summary, the diagnosis's report (and the whole log's, or None) and the run folder."""
     effect, _shape = SCENARIOS[name]
     run = work / f"{effect}-{seed}"
     sets = [f"run.seed={seed}", f"effects.{effect}.enabled=true", f"effects.{effect}.onset_s={onset_of(seed)}",
             "run.tensorboard=false", "run.figure=false", *extra]
-    rc = cli(["online", "--config", str(REPO / "online" / "monitor.toml"), "--monitor", "--quiet", "--out", str(run),
-              *[a for s in sets for a in ("--set", s)]])
-    if rc not in (0, 1):
-        raise SystemExit(f"kinadapt online failed ({rc}) on {name} seed {seed}")
+    fresh = not (reuse and (run / "summary.json").is_file())
+    if fresh:
+        rc = cli(["online", "--config", str(REPO / "online" / "monitor.toml"), "--monitor", "--quiet", "--overwrite",
+                  "--out", str(run), *[a for s in sets for a in ("--set", s)]])
+        if rc not in (0, 1):
+            raise SystemExit(f"kinadapt online failed ({rc}) on {name} seed {seed}")
     reports = {}
     for key, flags in (("report", []), ("whole", ["--whole-log"]))[: 2 if whole_log else 1]:
         dia = work / f"{effect}-{seed}-diagnosis-{key}"
-        rc = cli(["diagnose", str(run), "--quiet", "--out", str(dia), *flags])
-        if rc != 0:
-            raise SystemExit(f"kinadapt diagnose {' '.join(flags)} failed ({rc}) on {name} seed {seed}")
+        if fresh or not (dia / "diagnosis.json").is_file():
+            rc = cli(["diagnose", str(run), "--quiet", "--overwrite", "--out", str(dia), *flags])
+            if rc != 0:
+                raise SystemExit(f"kinadapt diagnose {' '.join(flags)} failed ({rc}) on {name} seed {seed}")
         reports[key] = json.loads((dia / "diagnosis.json").read_text())
     summary = json.loads((run / "summary.json").read_text())
     return dict(monitor=summary["monitor"], report=reports["report"], whole=reports.get("whole"), run=run)
@@ -79,13 +84,13 @@ def _said(names: list[str]) -> str:
     return ", ".join(names) if names else "nothing"
 
 
-def scenario(name: str, seeds: list[int], work: Path, whole_log: bool, say) -> dict:
+def scenario(name: str, seeds: list[int], work: Path, whole_log: bool, say, reuse: bool = False) -> dict:
     """Every seed of scenario ``name``: agreement of the diagnosis (and of the whole log's); prints each
     seed's names, and for a disagreement what the diagnosis could not rule out."""
     agree, compatible, whole = 0, 0, 0
     for seed in seeds:
         t0 = time.perf_counter()
-        r = run_and_diagnose(name, seed, work, whole_log=whole_log)
+        r = run_and_diagnose(name, seed, work, whole_log=whole_log, reuse=reuse)
         a = agreement(r["monitor"], r["report"])
         agree += a.agree
         compatible += a.compatible
@@ -95,6 +100,7 @@ def scenario(name: str, seeds: list[int], work: Path, whole_log: bool, say) -> d
                 + (": agrees" if a.agree else f": {_said(a.diagnosis)}"))
         if not a.agree:
             line += f" (cannot rule out: {_said([n for n in diagnosis_candidates(r['report']) if n in a.monitor_as_offline])})"
+            line += "; the monitor said: " + " / ".join(e["text"] for e in r["monitor"]["events"] if e["open"])
         if win and (win.get("before") or {}).get("present"):
             line += f"; before the onset: {', '.join(win['before']['present'])}"
         if whole_log:
@@ -114,6 +120,10 @@ def main() -> None:
                     help=f"scenarios ({', '.join(SCENARIOS)}; default: all)")
     ap.add_argument("--whole-log", action="store_true", help="also the diagnosis of the whole log as one (kinadapt "
                     "diagnose --whole-log)")
+    ap.add_argument("--keep", type=Path, default=None, help="keep the run folders and diagnoses in this folder "
+                    "(default: a temporary one)")
+    ap.add_argument("--reuse", action="store_true", help="with --keep: read the runs and diagnoses already there "
+                    "instead of making them again (the output says so)")
     ap.add_argument("--save", type=Path, default=None, help="also write the output to this file")
     args = ap.parse_args()
     lines: list[str] = []
@@ -126,13 +136,15 @@ def main() -> None:
     say(f"monitor_agreement: seeds {seeds[0]}-{seeds[-1]} per scenario, online/monitor.toml, onset uniform in [1, 4] s; "
         "agree = the monitor's open events (and what they imply) and kinadapt diagnose of the run name the same set, "
         "compatible = neither names what the other does not name or leave undecided (kinadapt_nn/monitor/agreement.py)")
-    say(f"code: {_code_state()}")
+    say(f"code: {_code_state()}" + (f"; runs and diagnoses read from {args.keep} (made earlier)" if args.reuse else ""))
     rows = []
     t_all = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="monitor_agreement-") as tmp:
+        work = Path(tmp) if args.keep is None else args.keep
+        work.mkdir(parents=True, exist_ok=True)
         for name in args.scenarios:
             say(f"{name}:")
-            rows.append(scenario(name, seeds, Path(tmp), args.whole_log, say))
+            rows.append(scenario(name, seeds, work, args.whole_log, say, args.reuse and args.keep is not None))
     say("")
     say("| scenario | agree | compatible |" + (" agree, the whole log |" if args.whole_log else ""))
     say("|---|---|---|" + ("---|" if args.whole_log else ""))
