@@ -1,6 +1,6 @@
 """How far apart the two model sides of each effect are (issue 52, "the model side of an effect
 written once"): the controller's online columns (``features.effect_library``, in its level
-channels) against the diagnosis's columns (``diagnostics.builtin``, the wrench on the sensor),
+channels) against the diagnosis's columns (``effects.builtin``, the wrench on the sensor),
 both on one package run of the excitation program.
 
 The diagnosis's columns ``C_s`` (n, 6, k) are mapped into the online level domain the way the

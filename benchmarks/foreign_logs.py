@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-from kinadapt_nn.diagnostics.builtin import BUILTINS  # noqa: E402  (the one registry of effect names)
+from kinadapt_nn.effects.builtin import BUILTINS  # noqa: E402  (the one registry of effect names)
 
 EFFECTS = tuple(BUILTINS)
 SHORT = {"present": "P", "absent": ".", "cannot_decide": "?", None: "-"}

@@ -293,7 +293,7 @@ def oracle_inertia(setup, truth: Truth) -> list[float]:
 def with_inertia(truth: Truth, setup) -> Truth:
     """The truth of ``tool_inertia``: the true tool's inertia about the sensor origin minus the declared one
     (``physical.nominal_inertials``), where some entry is at least a tenth of its relevant size."""
-    from kinadapt_nn.diagnostics.builtin.tool_inertia import ENTRIES, RELEVANT_INERTIA_KG_M2
+    from kinadapt_nn.effects.builtin.tool_inertia import ENTRIES, RELEVANT_INERTIA_KG_M2
     from kinadapt_nn.diagnostics.physical import nominal_inertials
 
     dI = truth.inertia_o - nominal_inertials(setup)[2]

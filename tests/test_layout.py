@@ -7,17 +7,20 @@ Every import is read from the source (``ast``), including imports inside functio
        and compiled/ (compile management of the numba kernels, used from sim/ up)
     1  sim/          the simulated world and its truth
     2  learning/     the network, its checkpoints, pretraining
-    3  features/     J_hat = Y(q) theta (controller side)
-    4  controller/   sensing -> value force -> admittance -> law (controller side)
-    5  runs/         episodes, batches, sweeps, comparisons
-    6  diagnostics/  model vs measurement
-    7  monitor/      the live monitor
-    8  paper/        the preprint's claims
-    9  app/          the command line, views
+    3  effects/      the physical effects' model side: the @effect contract, the built-ins, the
+                     declared socket (used by the diagnosis and the controller's online columns)
+    4  features/     J_hat = Y(q) theta (controller side)
+    5  controller/   sensing -> value force -> admittance -> law (controller side)
+    6  runs/         episodes, batches, sweeps, comparisons
+    7  diagnostics/  model vs measurement
+    8  monitor/      the live monitor
+    9  paper/        the preprint's claims
+   10  app/          the command line, views
 
 An import may go to the same layer or a lower one, never up, and no two modules import each
 other through any chain. From the controller side (controller/, features/) no chain of imports
-may reach the simulator, the runs, the diagnosis or pretraining.
+may reach the simulator, the runs, the diagnosis or pretraining; nor from effects/, which features/
+reads.
 """
 
 from __future__ import annotations
@@ -30,9 +33,9 @@ import pytest
 import kinadapt_nn
 
 PKG = Path(kinadapt_nn.__file__).parent
-LAYERS = {"compiled": 0, "sim": 1, "learning": 2, "features": 3, "controller": 4, "runs": 5, "diagnostics": 6,
-          "monitor": 7, "paper": 8, "app": 9}
-CONTROLLER_SIDE = ("kinadapt_nn.controller", "kinadapt_nn.features")
+LAYERS = {"compiled": 0, "sim": 1, "learning": 2, "effects": 3, "features": 4, "controller": 5, "runs": 6,
+          "diagnostics": 7, "monitor": 8, "paper": 9, "app": 10}
+CONTROLLER_SIDE = ("kinadapt_nn.controller", "kinadapt_nn.features", "kinadapt_nn.effects")  # (effects: read by features)
 FORBIDDEN_FROM_CONTROLLER = ("kinadapt_nn.sim", "kinadapt_nn.runs", "kinadapt_nn.diagnostics", "kinadapt_nn.paper",
                              "kinadapt_nn.app", "kinadapt_nn.learning.pretrain", "kinadapt_nn.learning.prior")
 

@@ -289,7 +289,7 @@ def cmd_setup_template(args: argparse.Namespace) -> int:
 
 
 def _builtin_names() -> list[str]:
-    from kinadapt_nn.diagnostics.builtin import BUILTINS
+    from kinadapt_nn.effects.builtin import BUILTINS
 
     return list(BUILTINS)
 

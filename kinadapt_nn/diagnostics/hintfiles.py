@@ -1,5 +1,5 @@
 """A hint as a ready effect file: the shape the diagnosis found, written in the public contract
-(``kinadapt_nn.diagnostics.contract``) with the fitted numbers, for the user to edit and pass back
+(``kinadapt_nn.effects.contract``) with the fitted numbers, for the user to edit and pass back
 with ``--effects``. ``effect_file(hint, ...) -> (file name, Python source)``."""
 
 from __future__ import annotations

@@ -27,7 +27,7 @@ those whose force departs from the tool model by more than ``contact.detect_forc
 information, never biases.
 
 Effects: the built-in effects are columns over ``LogSignals`` in the public form a user writes
-(``kinadapt_nn.diagnostics.contract``), one module each in ``kinadapt_nn/diagnostics/builtin/``.
+(``kinadapt_nn.effects.contract``), one module each in ``kinadapt_nn/effects/builtin/``.
 """
 
 from __future__ import annotations
@@ -248,13 +248,9 @@ def tool_wrench(kin: KinSeries, mass: float, mc_s: np.ndarray, I_O: np.ndarray) 
 
 
 def nominal_inertials(setup: SetupCfg) -> tuple[float, np.ndarray, np.ndarray]:
-    """(m [kg], m c (3,) [kg m], I_O (3, 3) [kg m^2] about the sensor origin) of the declared tool."""
-    from kinadapt_nn.diagnostics.setup import inertia_matrix
-
-    m = float(setup.tool.mass_kg)
-    c = np.asarray(setup.tool.com_sensor_m, dtype=float)
-    I_O = inertia_matrix(setup.tool.inertia_com_kg_m2) + m * (float(c @ c) * np.eye(3) - np.outer(c, c))
-    return m, m * c, I_O
+    """(m [kg], m c (3,) [kg m], I_O (3, 3) [kg m^2] about the sensor origin) of the declared tool
+    (``setup.ToolDeclCfg.inertials``)."""
+    return setup.tool.inertials()
 
 
 def tip_moment_map(tip_s: np.ndarray) -> np.ndarray:

@@ -225,6 +225,13 @@ class ToolDeclCfg(_Cfg):
         """(3, 3) inertia about the COM in s axes [kg m^2]."""
         return inertia_matrix(self.inertia_com_kg_m2)
 
+    def inertials(self) -> tuple[float, np.ndarray, np.ndarray]:
+        """(m [kg], m c (3,) [kg m], I_O (3, 3) [kg m^2] about the sensor origin, s axes): the ten
+        inertial parameters of the declared tool (parallel axes: ``I_O = I_c + m (|c|^2 1 - c c^T)``)."""
+        m = float(self.mass_kg)
+        c = np.asarray(self.com_sensor_m, dtype=float)
+        return m, m * c, self.inertia() + m * (float(c @ c) * np.eye(3) - np.outer(c, c))
+
 
 class DHCfg(_Cfg):
     """An arm from Denavit-Hartenberg parameters, one entry per joint (all revolute).

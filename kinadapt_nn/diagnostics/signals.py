@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from kinadapt_nn.diagnostics import contact_model
+from kinadapt_nn.effects import contact_model
 from kinadapt_nn.diagnostics import physical as ph
 
 

@@ -207,7 +207,7 @@ def bounds(s, chunk: int, halo: int) -> list[tuple[int, int]]:
     out = chunks(s.n, chunk)
     if len(out) == 1 or s.setup.contact.geometry == "none":
         return out
-    from kinadapt_nn.diagnostics.contact_model import socket_terms
+    from kinadapt_nn.effects.contact_model import socket_terms
 
     gate = socket_terms(s.setup.contact, s.R_ws, s.p_ws, s.setup.tool.tip_sensor_m).gate
     busy = np.convolve(gate.astype(float), np.ones(2 * halo + 1), "same") > 0  # engaged within the halo

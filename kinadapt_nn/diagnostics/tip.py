@@ -9,7 +9,7 @@ import dataclasses
 
 import numpy as np
 
-from kinadapt_nn.diagnostics import contact_model
+from kinadapt_nn.effects import contact_model
 from kinadapt_nn.diagnostics import selection as sel
 from kinadapt_nn.diagnostics import signals as sg
 from kinadapt_nn.diagnostics.accounts import ContactAccounts, _windows

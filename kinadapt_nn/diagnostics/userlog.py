@@ -35,11 +35,12 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from kinadapt_nn.diagnostics import contact_model, contact_point, nonlinear, segmentation, steps, stream
+from kinadapt_nn.diagnostics import contact_point, nonlinear, segmentation, steps, stream
 from kinadapt_nn.diagnostics import selection as sel
 from kinadapt_nn.diagnostics import signals as sg
-from kinadapt_nn.diagnostics.builtin import BUILTINS, CONTACT_MODEL_EFFECTS
-from kinadapt_nn.diagnostics.contract import Effect, load_effect_files
+from kinadapt_nn.effects import contact_model
+from kinadapt_nn.effects.builtin import BUILTINS, CONTACT_MODEL_EFFECTS
+from kinadapt_nn.effects.contract import Effect, load_effect_files
 from kinadapt_nn.diagnostics.report import Report
 from kinadapt_nn.diagnostics.setup import SetupCfg
 from kinadapt_nn.errors import KinadaptError, did_you_mean

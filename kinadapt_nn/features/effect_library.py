@@ -1,7 +1,7 @@
 """The online model's effects (``model.effects``, adapted by ``kinadapt_nn.features.effects``):
 each named physical effect as regressor columns linear in physical parameters, per control step
 (the simulator side is ``kinadapt_nn.sim.effects``; the diagnosis judges the same names with its
-own registry, ``kinadapt_nn.diagnostics.builtin``, on every log alike).
+own registry, ``kinadapt_nn.effects.builtin``, on every log alike).
 
 Everything here is computed from what a real robot logs (encoders, the raw F/T reading, time)
 and the known model (nominal tool offset ``l_nom``, the nominal map ``S``, the bore pose, the
@@ -43,9 +43,9 @@ One definition, both sides. An effect written in the diagnosis's contract
 ``model.effects`` as ``PATH.py:NAME``): ``from_wrench`` evaluates its function on what the controller
 has (``WrenchView``) and maps the change of the tool's wrench on the sensor into the level channels,
 tared at the controller's tare. ``online=fn`` gives the controller's own ``Terms`` in the same module.
-The built-ins above are still written here as well as in ``diagnostics/builtin/``: this module is on
+The built-ins above are still written here as well as in ``effects/builtin/``: this module is on
 the controller side, which may not import the diagnosis (``tests/test_layout.py``), and four of their
-diagnosis functions need the declared socket's model (``diagnostics/contact_model``). For three
+diagnosis functions need the declared socket's model (``effects/contact_model``). For three
 (gravity, sensor rotation, drift) ``from_wrench`` of the diagnosis function equals the columns here to
 rounding (``tests/features/test_effect_one_file.py``).
 """
@@ -346,7 +346,7 @@ def _from_file(path: str, name: str):
 
 
 # ------------------------------------------------- the built-ins' online columns (LIBRARY)
-# (their diagnosis side is diagnostics/builtin/<name>.py; the controller side may not import it)
+# (their diagnosis side is effects/builtin/<name>.py; the controller side may not import it)
 def _cols_tool_gravity(sig: Signals) -> Terms:
     """Payload (m, m c_f) on the tool: the flange holds ``m (a_com - g)`` with
     ``a_com = a_O + alpha x (R c) + w x (w x (R c))`` (encoder accelerations), tared at the still

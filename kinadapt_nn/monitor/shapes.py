@@ -206,11 +206,11 @@ def _fit1(shape: str, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset:
 
 def relevant_sizes(shape: str, relevant_force_N: float) -> np.ndarray:
     """Each parameter's relevant size in SI, the smallest worth reporting (the offline diagnosis's: its
-    effect library's ``relevant``, ``diagnostics.builtin``): ``tool_gravity`` 30 g and 1.5 g m,
+    effect library's ``relevant``, ``effects.builtin``): ``tool_gravity`` 30 g and 1.5 g m,
     ``tool_tilt`` and ``ft_frame_rotation`` 1 deg a component, ``ft_bias_drift`` 0.03 N/s and 0.003 N m/s
     (its constants and ``sensor_constant``: ``ft_offset``'s 0.2 N, 0.02 N m); ``world_force``: the set-up's
     ``[analysis] relevant_force_N`` per component of the force (its point: none, inf). -> (k,)"""
-    from kinadapt_nn.diagnostics.builtin import BUILTINS
+    from kinadapt_nn.effects.builtin import BUILTINS
 
     if shape == "world_force":
         return np.array([relevant_force_N] * 3 + [np.inf] * 3)

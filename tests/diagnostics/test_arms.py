@@ -14,7 +14,7 @@ import pytest
 
 from kinadapt_nn.diagnostics import physical as ph
 from kinadapt_nn.diagnostics.arms import dh_mjcf, load_arm
-from kinadapt_nn.diagnostics.contract import effect
+from kinadapt_nn.diagnostics import effect  # the public decorator (the diagnosis's default set-up)
 from kinadapt_nn.diagnostics.setup import SetupCfg, load_setup, rpy_matrix
 from kinadapt_nn.errors import ConfigError, KinadaptError, ModelFileError
 from kinadapt_nn.robot import JOINT_LIMITS_RAD
@@ -326,6 +326,13 @@ def test_params_for_errors_are_one_line():
         def nothing(s):
             return np.zeros((s.n, 6, 1))
     assert "params" in _one_line(exc)
+    from kinadapt_nn.effects.contract import effect as layer_effect  # below the diagnosis: no set-up type
+
+    with pytest.raises(KinadaptError) as exc:
+        @layer_effect(params_for=lambda setup: ({"a": "N"}, [0.1]), doc="no default set-up")
+        def no_default(s):
+            return np.zeros((s.n, 6, 1))
+    assert "besides params_for" in _one_line(exc) and "kinadapt_nn.diagnostics.effect" in str(exc.value)
 
 
 def test_batched_kinematics_equal_mujocos_per_sample_site_jacobian(tmp_path):

@@ -1,4 +1,4 @@
-"""The declared socket's wrench (``diagnostics.contact_model``) against closed forms, and the
+"""The declared socket's wrench (``effects.contact_model``) against closed forms, and the
 declared damper against the simulator's socket kernel's own coefficients."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from kinadapt_nn.diagnostics import contact_model
+from kinadapt_nn.effects import contact_model
 from kinadapt_nn.diagnostics.setup import ContactDeclCfg, SetupCfg, ToolDeclCfg
 
 TIP_S = (0.0, 0.0, 0.1)

@@ -1,5 +1,5 @@
 """The two model sides of each effect, the controller's online columns (``features.effect_library``,
-level channels) and the diagnosis's (``diagnostics.builtin``, the wrench on the sensor), on one
+level channels) and the diagnosis's (``effects.builtin``, the wrench on the sensor), on one
 package run of the excitation program (issue 52: "the model side of an effect written once").
 
 Until they are one source, this pins which are one formula written twice: the diagnosis's columns,
@@ -30,7 +30,7 @@ def sides(duration_s: float):
 def compare(sig, s) -> list[tuple[str, str, float, float, float, float]]:
     """-> (effect, parameter, scale a, relative misfit, RMS of the online column, RMS of the mapped
     diagnosis column) for every effect both sides have."""
-    from kinadapt_nn.diagnostics.builtin import BUILTINS
+    from kinadapt_nn.effects.builtin import BUILTINS
     from kinadapt_nn.features.effect_library import LIBRARY, to_level
 
     n = min(len(sig.t_s), s.n)

@@ -7,8 +7,8 @@ import mujoco
 import numpy as np
 
 from kinadapt_nn.diagnostics import signals, stream
-from kinadapt_nn.diagnostics.builtin import encoder_offset as eo
-from kinadapt_nn.diagnostics.builtin.ft_frame_rotation import ft_frame_rotation
+from kinadapt_nn.effects.builtin import encoder_offset as eo
+from kinadapt_nn.effects.builtin.ft_frame_rotation import ft_frame_rotation
 from kinadapt_nn.diagnostics.readers import UserLog
 from kinadapt_nn.diagnostics.setup import SetupCfg
 

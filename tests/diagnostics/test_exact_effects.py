@@ -11,8 +11,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from kinadapt_nn.diagnostics.builtin import BUILTINS
-from kinadapt_nn.diagnostics.builtin.tool_inertia import ENTRIES, inertia_columns
+from kinadapt_nn.effects.builtin import BUILTINS
+from kinadapt_nn.effects.builtin.tool_inertia import ENTRIES, inertia_columns
 
 
 def _motion(n: int, rng: np.random.Generator) -> SimpleNamespace:

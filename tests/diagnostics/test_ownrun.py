@@ -11,8 +11,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from kinadapt_nn.config import load_config
-from kinadapt_nn.diagnostics import contact_model, userlog
-from kinadapt_nn.diagnostics.builtin import BUILTINS, CONTACT_MODEL_EFFECTS
+from kinadapt_nn.diagnostics import userlog
+from kinadapt_nn.effects import contact_model
+from kinadapt_nn.effects.builtin import BUILTINS, CONTACT_MODEL_EFFECTS
 from kinadapt_nn.diagnostics.ownrun import as_log as ownrun_as_log
 from kinadapt_nn.diagnostics.ownrun import setup_of_run
 from kinadapt_nn.diagnostics.setup import ContactDeclCfg, SetupCfg, ToolDeclCfg, load_setup
@@ -122,7 +123,7 @@ def test_friction_couple_and_grasp_compliance_columns_closed_form():
     friction column is -|f| w/(|w| + eps) in the moments. A contact moment of 1 N m about x_s turns
     the grasp by c per unit compliance: the tip moves by (c e_x) x tip, the lateral spring pushes
     back, the angular spring resists: M_x = -k_rot - k_lat |tip|^2 per unit c."""
-    from kinadapt_nn.diagnostics.builtin.contact_friction_couple import OMEGA_EPS_RAD_S
+    from kinadapt_nn.effects.builtin.contact_friction_couple import OMEGA_EPS_RAD_S
 
     n = 5
     R = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()

@@ -139,7 +139,7 @@ def test_nominal_model_agrees_with_mujoco_inverse_dynamics(rig, cases):
 def test_encoder_columns_identities(cases):
     """Joint 1 is invisible to a gravity/inertia model (rotation about the vertical); every other
     column is the central difference of the whole model (checked against a one-sided one)."""
-    from kinadapt_nn.diagnostics.builtin import BUILTINS
+    from kinadapt_nn.effects.builtin import BUILTINS
     from kinadapt_nn.diagnostics.signals import from_log
 
     d, _, _ = cases["none"]

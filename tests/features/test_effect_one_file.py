@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinadapt_nn.diagnostics.builtin import BUILTINS
-from kinadapt_nn.diagnostics.contract import effect, load_effect_file
+from kinadapt_nn.effects.builtin import BUILTINS
+from kinadapt_nn.effects.contract import effect, load_effect_file
 from kinadapt_nn.errors import ConfigError, KinadaptError
 from kinadapt_nn.features.effect_library import LIBRARY, Signals, Terms, contact_rate, from_wrench, online_of, to_level
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinadapt_nn.diagnostics.builtin import BUILTINS
+from kinadapt_nn.effects.builtin import BUILTINS
 from kinadapt_nn.diagnostics.completeness import SHAPES as HINT_SHAPES
 from kinadapt_nn.monitor.agreement import OFFLINE_NAME, agreement, diagnosis_names, monitor_names
 from kinadapt_nn.monitor.shapes import SHAPES

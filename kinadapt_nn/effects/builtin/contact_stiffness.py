@@ -8,8 +8,8 @@ spring carries it; the lateral force, acting at the tip, shows only outside the 
 
 from __future__ import annotations
 
-from kinadapt_nn.diagnostics import contact_model
-from kinadapt_nn.diagnostics.contract import effect
+from kinadapt_nn.effects import contact_model
+from kinadapt_nn.effects.contract import effect
 
 
 def _report(p, sd, setup) -> dict:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from kinadapt_nn.diagnostics.contract import effect
+from kinadapt_nn.effects.contract import effect
 
 
 def _report(p, sd, setup) -> dict:  # in the log's own wrench convention

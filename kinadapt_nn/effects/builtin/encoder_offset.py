@@ -21,8 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from kinadapt_nn.diagnostics.builtin.ft_frame_rotation import plausible_small_angle, report_deg
-from kinadapt_nn.diagnostics.contract import effect
+from kinadapt_nn.effects.builtin.ft_frame_rotation import plausible_small_angle, report_deg
+from kinadapt_nn.effects.contract import effect
+from kinadapt_nn.robot import N_JOINTS
 
 RELEVANT_RAD = np.deg2rad(0.5)  #: the smallest offset worth reporting
 
@@ -33,7 +34,11 @@ def _names(dof: int) -> tuple[str, ...]:
 
 def params_per_joint(setup) -> tuple[dict[str, str], list[float]]:
     """One offset per joint of the set-up's arm (its ``[log] q`` columns)."""
-    names = _names(len(setup.log.q))
+    return _per_joint(len(setup.log.q))
+
+
+def _per_joint(dof: int) -> tuple[dict[str, str], list[float]]:
+    names = _names(dof)
     return {n: "rad" for n in names}, [RELEVANT_RAD] * len(names)
 
 
@@ -42,7 +47,8 @@ def report(p, sd, setup) -> dict:
     return report_deg(_names(len(p)))(p, sd, setup)
 
 
-@effect(params_for=params_per_joint, doc="a joint encoder zero offset (one of the joints)",
+@effect(*_per_joint(N_JOINTS), params_for=params_per_joint,  # until for_setup: this package's arm's joints
+        doc="a joint encoder zero offset (one of the joints)",
         excite="move every joint in free space so that gravity turns in the sensor frame (an offset of a joint "
                "whose axis stays vertical is invisible to gravity: it needs a world-fixed load direction, e.g. a "
                "horizontal push against a fixture)",

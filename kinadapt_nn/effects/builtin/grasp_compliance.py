@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from kinadapt_nn.diagnostics import contact_model
-from kinadapt_nn.diagnostics.builtin.contact_stiffness import has_geometry
-from kinadapt_nn.diagnostics.contract import effect
+from kinadapt_nn.effects import contact_model
+from kinadapt_nn.effects.builtin.contact_stiffness import has_geometry
+from kinadapt_nn.effects.contract import effect
 
 
 def _report(p, sd, setup) -> dict:

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from kinadapt_nn.diagnostics.contract import effect
+from kinadapt_nn.effects.contract import effect
 
 #: [kg m^2] smallest change worth reporting: 0.2 kg, 50 mm from the axis (0.2 * 0.05^2)
 RELEVANT_INERTIA_KG_M2 = 5e-4
@@ -49,9 +49,7 @@ def inertia_columns(omega_s: np.ndarray, alpha_s: np.ndarray) -> np.ndarray:
 def _plausible(p, setup) -> str | None:
     """The total tensor about the sensor origin must stay positive semi-definite (within 10 % of the
     relevant size)."""
-    from kinadapt_nn.diagnostics.physical import nominal_inertials
-
-    _, _, I_O = nominal_inertials(setup)
+    _, _, I_O = setup.tool.inertials()  # the declared tool
     total = I_O + np.tensordot(np.asarray(p, float), inertia_basis(), axes=1)
     lo = float(np.linalg.eigvalsh(total)[0])
     if lo < -0.1 * RELEVANT_INERTIA_KG_M2:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from kinadapt_nn.diagnostics.contract import effect
+from kinadapt_nn.effects.contract import effect
 
 RELEVANT_MASS_KG = 0.03  #: 30 g
 RELEVANT_FIRST_MOMENT_KG_M = 0.0015  #: 30 g at 50 mm
@@ -29,7 +29,6 @@ def first_moment_columns(s) -> np.ndarray:
 
 def _report(p, sd, setup) -> dict:
     """Added mass [kg] and its COM [m] (first-order sd); the total mass and COM of the tool."""
-    from kinadapt_nn.diagnostics.physical import nominal_inertials
 
     def q(v, s_, unit):
         return {"value": float(v), "sd": float(s_), "unit": unit}
@@ -44,7 +43,7 @@ def _report(p, sd, setup) -> dict:
         c = mc / dm
         sc = abs(c) * np.hypot(smc / max(abs(mc), 1e-12), sdm / max(abs(dm), 1e-12))
         out[f"com_{a}"] = q(c, sc, "m")
-    m0, mc0, _ = nominal_inertials(setup)
+    m0, mc0, _ = setup.tool.inertials()  # the declared tool
     tot = m0 + dm
     out["total_mass"] = q(tot, sdm, "kg")
     for a, mc, smc in zip("xyz", p[1:], sd[1:]):

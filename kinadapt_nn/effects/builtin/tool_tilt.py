@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from kinadapt_nn.diagnostics import contact_model
-from kinadapt_nn.diagnostics.builtin.ft_frame_rotation import plausible_small_angle, report_deg
-from kinadapt_nn.diagnostics.builtin.tool_gravity import first_moment_columns
-from kinadapt_nn.diagnostics.contract import effect
+from kinadapt_nn.effects import contact_model
+from kinadapt_nn.effects.builtin.ft_frame_rotation import plausible_small_angle, report_deg
+from kinadapt_nn.effects.builtin.tool_gravity import first_moment_columns
+from kinadapt_nn.effects.contract import effect
 
 
 @effect(params={"tilt_x": "rad", "tilt_y": "rad"}, relevant=[np.deg2rad(1.0)] * 2,

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from kinadapt_nn.diagnostics import contact_model
-from kinadapt_nn.diagnostics.builtin.contact_stiffness import has_geometry
-from kinadapt_nn.diagnostics.contract import effect
+from kinadapt_nn.effects import contact_model
+from kinadapt_nn.effects.builtin.contact_stiffness import has_geometry
+from kinadapt_nn.effects.contract import effect
 
 OMEGA_EPS_RAD_S = 0.005  #: [rad/s] smoothing of sign(w) (a model constant)
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from kinadapt_nn.diagnostics.contract import effect
+from kinadapt_nn.effects.contract import effect
 
 MAX_FIRST_ORDER_DEG = 15.0  #: beyond this a first-order rotation model is not a finding
 

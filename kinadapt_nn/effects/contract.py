@@ -1,6 +1,6 @@
 """The public effect contract: one physical effect = one function over a log's signals.
 
-A user's effect and a built-in one are written the same way (``kinadapt_nn/diagnostics/builtin/``
+A user's effect and a built-in one are written the same way (``kinadapt_nn/effects/builtin/``
 holds the built-ins, one module each)::
 
     import numpy as np
@@ -34,7 +34,8 @@ holds the built-ins, one module each)::
 * Parameters that depend on the set-up (one per arm joint, say): give
   ``params_for=lambda setup: (params, relevant)`` instead of (or besides) ``params``/``relevant``.
   The diagnosis calls ``Effect.for_setup(setup)``, which fixes the parameters for that set-up;
-  without ``params`` the decorator takes those of the default set-up (``SetupCfg()``)::
+  without ``params`` the public decorator (``kinadapt_nn.diagnostics.effect``) takes those of the
+  diagnosis's default set-up (``SetupCfg()``)::
 
       @effect(params_for=lambda setup: ({f"drag_joint{j + 1}": "N m s/rad" for j in range(len(setup.log.q))},
                                         [0.1] * len(setup.log.q)),
@@ -156,12 +157,15 @@ def effect(params: dict[str, str] | None = None, relevant=None, doc: str = "", e
            one_of: bool = False, *, report: Callable | None = None, plausible: Callable | None = None,
            applies: Callable | None = None, uses_contact: bool = True,
            params_for: Callable | None = None, exact: Callable | None = None,
-           online: bool | Callable = False) -> Callable[[Callable], Effect]:
+           online: bool | Callable = False, default_setup: Callable | None = None) -> Callable[[Callable], Effect]:
     """Decorator: a function ``f(s) -> (n, 6, k)`` becomes an ``Effect`` named ``f.__name__``
     (module docstring). ``params_for(setup) -> (params, relevant)``: parameters that depend on the
     set-up (``Effect.for_setup``). ``exact(s, p) -> (n, 6)``: the exact change where the columns are a
     first-order model (``diagnostics.nonlinear``). ``online``: the controller's columns of the same effect
-    (``Effect.online``; ``model.effects``). Bad arguments raise a one-line ``KinadaptError``."""
+    (``Effect.online``; ``model.effects``). ``default_setup() -> setup``: the set-up whose parameters an
+    effect with ``params_for`` and no ``params`` takes until ``for_setup`` (the public
+    ``kinadapt_nn.diagnostics.effect`` gives the diagnosis's default set-up; this layer knows no set-up
+    type). Bad arguments raise a one-line ``KinadaptError``."""
     def wrap(fn: Callable) -> Effect:
         name = getattr(fn, "__name__", "")
         src = _source_of(fn)
@@ -174,11 +178,13 @@ def effect(params: dict[str, str] | None = None, relevant=None, doc: str = "", e
             raise KinadaptError(f"{where}: online must be True (derived from the columns), a function "
                                 "Signals -> Terms, or False")
         proto = Effect(name, (), (), (), "", fn, source=src, params_for=params_for)
-        if params is None and relevant is None and params_for is not None:
-            from kinadapt_nn.diagnostics.setup import SetupCfg
-
-            default = proto.for_setup(SetupCfg())
+        if params is None and relevant is None and params_for is not None and default_setup is not None:
+            default = proto.for_setup(default_setup())
             names, units, rel = default.params, default.units, default.relevant
+        elif params is None and params_for is not None:
+            raise KinadaptError(f"{where}: give params={{name: unit, ...}} and relevant=[...] besides params_for "
+                                "(the parameters until a set-up fixes them), or decorate with "
+                                "kinadapt_nn.diagnostics.effect (the diagnosis's default set-up)")
         elif params is None:
             raise KinadaptError(f"{where}: give params={{name: unit, ...}} and relevant=[...] "
                                 "(or params_for=setup -> (params, relevant))")
