@@ -28,7 +28,10 @@ C_DT, C_M, C_MC, C_IO, C_GW, C_PFS, C_RFS, C_SIGN = 0, 1, 2, 5, 14, 17, 20, 29
 C_K, C_H, C_CALIB, C_ZONE, C_ENTRY, C_UP, C_ZONE_M, C_TIP, C_DETECT, C_FLOOR_N, C_FLOOR_M, C_WINDOW = (
     30, 31, 32, 33, 34, 37, 40, 41, 44, 45, 46, 47)
 C_HROT = 48
-NC = 49
+#: [s] from this time on every sample is contact, at any depth (a fixture that holds the tip from a known time:
+#: a socket engaged at the drive start, ``scene.socket_engage = "drive"``); inf: none
+C_ENGAGE = 49
+NC = 50
 #: contact handling (c[C_ZONE]): 0 none declared (every sample judged); 1 a declared fixture: the nominal
 #: tip within zone_m of its entrance plane or past it is contact; 2 contact by force: the force
 #: beyond the model by more than detect_force_N
@@ -316,8 +319,10 @@ def _sensor_kinematics(kin, dt, c, st, R, om, al, ga) -> None:
 
 
 @nb.njit(cache=True)
-def _in_contact(c, st, R, e) -> bool:
-    """The phase of this sample: contact is not judged (its force is unknown)."""
+def _in_contact(t, c, st, R, e) -> bool:
+    """The phase of the sample at ``t`` [s]: contact is not judged (its force is unknown)."""
+    if t >= c[C_ENGAGE]:  # a fixture holding the tip from a known time (``C_ENGAGE``)
+        return True
     zmode = int(c[C_ZONE])
     if zmode == ZONE_GEOMETRY:
         h_tip = 0.0
@@ -429,7 +434,7 @@ def sample(t, kin, raw, c, st, ring):
     e = st[S_E:S_E + 6]
     for i in range(6):
         e[i] = sgn * prev[i] - pred[i]
-    zone = _in_contact(c, st, R, e)
+    zone = _in_contact(t, c, st, R, e)
     st[S_ZONE] = 1.0 if zone else 0.0
     _keep(t_now, kin, raw, st)
     raw = prev

@@ -121,6 +121,7 @@ def consts(setup: SetupCfg, mcfg: MonitorCfg, dt_s: float) -> np.ndarray:
         c[K.C_ZONE] = K.ZONE_FORCE
     c[K.C_ZONE_M], c[K.C_TIP:K.C_TIP + 3] = mcfg.contact_zone_m, setup.tool.tip_sensor_m
     c[K.C_DETECT], c[K.C_FLOOR_N], c[K.C_FLOOR_M] = ct.detect_force_N, mcfg.floor_N, mcfg.floor_Nm
+    c[K.C_ENGAGE] = np.inf  # (``monitor_of_run``: a socket engaged at the drive start)
     return c
 
 
@@ -267,7 +268,7 @@ class Monitor:
             return None
         sd = self.noise_sd
         fmask = np.isin(np.arange(6), fired)
-        f, fits = shapes.best(rows, self._naming_sd(t_on), self.mc, t_on, fmask)
+        f, fits = shapes.best(rows, self._naming_sd(t_on), self.mc, t_on, fmask, slow_sd=self._model_sd(t_on))
         margin = float(fits[1].bic - f.bic) if len(fits) > 1 else np.inf
         unturned = f.shape in POSE_FREE and _turned_deg(rows) < TURN_DEG
         if (margin < DECISIVE or unturned) and al["windows"] < MAX_WINDOWS and not final:
@@ -457,7 +458,10 @@ def monitor_of_run(cfg, on_event=None) -> Monitor:
         from tqdm import tqdm
 
         on_event = lambda ev: tqdm.write(f"monitor {ev.line}" + (" (updated)" if ev.updates else ""))  # noqa: E731
-    return Monitor(setup_of_run(cfg), cfg.monitor, cfg.run.dt_s, on_event)
+    mon = Monitor(setup_of_run(cfg), cfg.monitor, cfg.run.dt_s, on_event)
+    if cfg.scene.contact_model == "socket" and cfg.scene.socket_engage == "drive":  # the fixture holds the tip
+        mon.c[K.C_ENGAGE] = cfg.start.settle_s  # from the drive start (``sim.socket``), at any depth: contact
+    return mon
 
 
 def _register() -> None:

@@ -252,10 +252,70 @@ def chi2_of(f: Fit, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: f
     return float(np.sum(r * r))
 
 
+def design(shape: str, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: float, f: Fit,
+           fired: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The shape's design at its fit, rows divided by the channel sd: (A (6n, k) the columns -- for the
+    world force the Jacobian at the estimate --, e (6n,) the residual the fit leaves)."""
+    n = len(rows)
+    if shape == "world_force":
+        R = rows[:, K.G_R:K.G_R + 9].reshape(n, 3, 3)
+        Rt = R.transpose(0, 2, 1)
+        fw, p = f.p[:3], f.p[3:]
+        f_s = Rt @ fw
+        J = np.zeros((n, 6, 6))
+        J[:, :3, :3] = Rt
+        J[:, 3:, :3] = _skew(np.broadcast_to(p, (n, 3))) @ Rt
+        J[:, 3:, 3:] = -_skew(f_s)
+        A = (J / sd[None, :, None]).reshape(-1, 6)
+    else:
+        C = columns(shape, rows, mc, t_onset)
+        if shape == "ft_bias_drift":
+            C = C[:, :, np.concatenate([np.ones(6, bool), fired if fired is not None else np.ones(6, bool)])]
+        A = (C / sd[None, :, None]).reshape(-1, C.shape[2])
+    e = ((rows[:, K.G_E:K.G_E + 6] - evaluate(f, rows, mc, t_onset)) / sd[None, :]).reshape(-1)
+    return A, e
+
+
+def slow_bic(f: Fit, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: float, slow_sd: np.ndarray,
+             fired: np.ndarray | None = None) -> float:
+    """The fit's BIC where each channel also carries an unknown constant error of the model, ``b_c ~ N(0,
+    slow_sd_c^2)`` [N, N m] (the model's slow error before the change: what a constant shape would otherwise
+    be named for fitting): ``-2 ln`` of the likelihood with ``b`` integrated out (Laplace, exact for a
+    linear shape) and the shape's parameters by BIC's ``k ln m``: the least ``|e - A dp - B b|^2 + b^T
+    P_b b`` plus ``ln det(S_b P_b^-1)``, ``S_b`` b's precision with the shape's parameters free (where the
+    shape has a constant of its own on a channel, b there is not seen: no cost). -> the BIC."""
+    keep = slow_sd > 0.0
+    if not keep.any():
+        return f.bic
+    A, e = design(f.shape, rows, sd, mc, t_onset, f, fired)
+    n = len(rows)
+    B = np.zeros((n, 6, 6))
+    B[:, np.arange(6), np.arange(6)] = 1.0 / sd
+    B = B.reshape(-1, 6)[:, keep]
+    Pb = np.diag(1.0 / slow_sd[keep] ** 2)
+    pr = prior_sd(f.shape, mc)
+    if f.shape == "ft_bias_drift":
+        pr = pr[np.concatenate([np.ones(6, bool), fired if fired is not None else np.ones(6, bool)])]
+    Pp = np.diag(1.0 / pr ** 2)
+    Hpp, Hpb, Hbb = A.T @ A + Pp, A.T @ B, B.T @ B + Pb
+    H = np.block([[Hpp, Hpb], [Hpb.T, Hbb]])
+    x = np.linalg.solve(H, np.concatenate([A.T @ e, B.T @ e]))
+    k = A.shape[1]
+    r = e - A @ x[:k] - B @ x[k:]
+    chi2 = float(r @ r + x[k:] @ Pb @ x[k:])
+    S = Hbb - Hpb.T @ np.linalg.solve(Hpp, Hpb)
+    occam = float(np.linalg.slogdet(S)[1] - np.linalg.slogdet(Pb)[1])
+    return chi2 + k * np.log(f.rows) + occam
+
+
 def best(rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: float,
-         fired: np.ndarray | None = None) -> tuple[Fit, list[Fit]]:
-    """The best-fitting shape (least BIC) and every fit, best first."""
-    fits = sorted((fit(s, rows, sd, mc, t_onset, fired) for s in SHAPES), key=lambda f: f.bic)
+         fired: np.ndarray | None = None, slow_sd: np.ndarray | None = None) -> tuple[Fit, list[Fit]]:
+    """The best-fitting shape (least BIC) and every fit, best first; with ``slow_sd`` (6,) [N, N m] the BIC
+    with the model's slow error integrated out (``slow_bic``)."""
+    fits = [fit(s, rows, sd, mc, t_onset, fired) for s in SHAPES]
+    if slow_sd is not None:
+        fits = [f._replace(bic=slow_bic(f, rows, sd, mc, t_onset, slow_sd, fired)) for f in fits]
+    fits = sorted(fits, key=lambda f: f.bic)
     return fits[0], fits
 
 
