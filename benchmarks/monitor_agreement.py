@@ -100,7 +100,13 @@ def scenario(name: str, seeds: list[int], work: Path, whole_log: bool, say, reus
                 + (": agrees" if a.agree else f": {_said(a.diagnosis)}"))
         if not a.agree:
             line += f" (cannot rule out: {_said([n for n in diagnosis_candidates(r['report']) if n in a.monitor_as_offline])})"
-            line += "; the monitor said: " + " / ".join(e["text"] for e in r["monitor"]["events"] if e["open"])
+            line += "".join(f"; its {e['effect']}: {e['verdict']}, {e.get('reason') or ''}"
+                            + (f" ({', '.join(e['indistinguishable_from'])})" if e.get("indistinguishable_from") else "")
+                            for e in r["report"]["ranking"] if f"effect:{e['effect']}" in a.monitor_as_offline
+                            and e["verdict"] != "present")
+            line += "; the monitor said: " + " / ".join(
+                f"{e['text']} (runner-up {e.get('runner_up')}, delta BIC {e.get('delta_bic', float('nan')):.1f})"
+                for e in r["monitor"]["events"] if e["open"])
         if win and (win.get("before") or {}).get("present"):
             line += f"; before the onset: {', '.join(win['before']['present'])}"
         if whole_log:
