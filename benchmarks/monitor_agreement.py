@@ -142,7 +142,15 @@ def main() -> None:
     say(f"monitor_agreement: seeds {seeds[0]}-{seeds[-1]} per scenario, online/monitor.toml, onset uniform in [1, 4] s; "
         "agree = the monitor's open events (and what they imply) and kinadapt diagnose of the run name the same set, "
         "compatible = neither names what the other does not name or leave undecided (kinadapt_nn/monitor/agreement.py)")
-    say(f"code: {_code_state()}" + (f"; runs and diagnoses read from {args.keep} (made earlier)" if args.reuse else ""))
+    made = args.keep / "code.txt" if args.keep is not None else None
+    if args.reuse and made is not None and made.is_file():  # the code the kept runs and diagnoses were made with
+        say(f"code: {made.read_text().strip()} (runs and diagnoses made then, read again from {args.keep}; "
+            f"agreement evaluated at {_code_state()})")
+    else:
+        say(f"code: {_code_state()}")
+        if made is not None:
+            made.parent.mkdir(parents=True, exist_ok=True)
+            made.write_text(_code_state() + "\n")
     rows = []
     t_all = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="monitor_agreement-") as tmp:
