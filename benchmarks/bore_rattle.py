@@ -34,8 +34,8 @@ import json
 import os
 import platform
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
-from functools import partial
 
 import numpy as np
 
@@ -87,28 +87,79 @@ ROWS: list[tuple[str, str, list[str], Probe]] = [
 ]
 
 
-def _probe_sim(cfg, probe: Probe, record: dict):
-    """The scene's simulator with the probe's servo and substeps, recording at the physics rate the
-    normal contact force (truth) and, per control period, the servo set-point."""
-    from kinadapt_nn.sim.adapter import PegInHoleSim
+def _probe_world(probe: Probe, record: dict | None = None, stop=None):
+    """A scene class for the episode loop (``runs.loop.setup`` builds an episode's scenes with
+    ``runs.loop.SceneBatch``; :func:`_plant` puts this one there): one episode (a batch of one, its
+    own MjData), its plant changed as ``probe`` says (servo gains, physics steps per control period,
+    impratio), recording into ``record`` per control period the servo set-point (``u``) and at the
+    physics rate the truth's normal contact force (``t``, ``f``); ``stop(sim)``, if given, is asked
+    before each control period's physics and raises :class:`_Reached` when true."""
+    from types import SimpleNamespace
 
-    class ProbeSim(PegInHoleSim):
-        def __init__(self, c):
-            super().__init__(c)
-            m = self.model
+    from kinadapt_nn.sim.ft_sensor import SOURCE_FIELDS, RealisedSensor
+    from kinadapt_nn.sim.scenes import SceneBatch
+
+    class ProbeWorld(SceneBatch):
+        def __init__(self, cfgs, nthread=1, persistent=None):
+            super().__init__(cfgs, nthread, persistent)
+            if self.physics is not None:
+                raise RuntimeError("the plant probe steps one episode on one thread (its own MjData)")
+            s = self.sims[0]
+            m, d = s.model, s.data
             m.actuator_gainprm[:, 0] *= probe.servo_scale
             m.actuator_biasprm[:, 1:3] *= probe.servo_scale  # -kp, -kv: kv/kp unchanged
-            m.opt.timestep = c.run.dt_s / probe.substeps
+            m.opt.timestep = cfgs[0].run.dt_s / probe.substeps
             m.opt.impratio = probe.impratio
+            # the F/T reading's realised acceleration over the physics step (not the control period)
+            self.ft = s.ft = RealisedSensor(SimpleNamespace(**{f: getattr(d, f)[None] for f in SOURCE_FIELDS}),
+                                            s.ft_chain, m.opt.timestep)
+            self._contact = np.zeros((1, 3))
 
-        def step(self):
-            record["u"].append(self.data.ctrl.copy())
-            for _ in range(probe.substeps):
-                super().step()
-                record["t"].append(self.time_s)
-                record["f"].append(self.contacts_of(self._sens_v, self._own_data)[2])
+        def step(self, t, active, every_one):
+            s = self.sims[0]
+            if stop is not None and stop(s):
+                raise _Reached
+            if record is not None:
+                record["u"].append(self.ctrl[0].copy())
+            h = s.model.opt.timestep
+            for i in range(probe.substeps):
+                super().step(t + i * h, active, every_one)
+                if record is not None:
+                    self._contact[:] = 0.0
+                    self.contacts_into(slice(None), self._contact)
+                    record["t"].append(s.time_s)
+                    record["f"].append(float(self._contact[0, 2]))
 
-    return ProbeSim(cfg)
+    return ProbeWorld
+
+
+@contextmanager
+def _plant(world):
+    """The episode loop builds its scenes with ``world`` meanwhile (benchmark only; the loop's
+    kernels compiled first, outside it, by the caller's :func:`_episode`)."""
+    from kinadapt_nn.runs import loop
+
+    before = loop.SceneBatch
+    loop.SceneBatch = world
+    try:
+        yield
+    finally:
+        loop.SceneBatch = before
+
+
+def _episode(cfg, probe: Probe, record: dict | None = None, stop=None):
+    """``run_episode(cfg)`` on the probed plant (:func:`_probe_world`); a record that stays empty
+    means the probe missed the loop's plant: an error, not a row."""
+    from kinadapt_nn.runs.batch import compile_loop
+    from kinadapt_nn.runs.episode import run_episode
+
+    compile_loop(cfg)  # a cold cache's two-step warm-up episode runs on the plain plant
+    with _plant(_probe_world(probe, record, stop)):
+        r = run_episode(cfg)
+    if record is not None and not record["t"]:
+        raise RuntimeError("the plant probe recorded nothing: the episode loop no longer builds its scenes with "
+                           "runs.loop.SceneBatch")
+    return r
 
 
 def _spectrum_peak(t: np.ndarray, x: np.ndarray) -> tuple[float, float]:
@@ -142,13 +193,11 @@ def _metrics(t, f, seat, fx=None, t_fx=None) -> dict:
 def run_row(row) -> dict:
     """One row of the table (in a worker process)."""
     from kinadapt_nn.config import load_config
-    from kinadapt_nn.runs import episode
 
     group, label, over, probe = row
     cfg = load_config(None, ["run.progress=false", "run.figure=false", "run.tensorboard=false", *PAPER, *over])
     rec = {"t": [], "f": [], "u": []}
-    episode.PegInHoleSim = partial(_probe_sim, probe=probe, record=rec)  # benchmark-only probe of the plant
-    r = episode.run_episode(cfg)
+    r = _episode(cfg, probe, rec)  # benchmark-only probe of the plant
     s = r.summary
     out = {"group": group, "label": label, "seat_time_s": s["seat_time_s"], "max_force_N": s["max_force_N"],
            "max_moment_Nm": s["max_moment_Nm"]}
@@ -191,29 +240,23 @@ def print_table(rows: list[dict]) -> None:
 def _contact_state(t_s: float):
     """The paper setting's simulator at its first contact at or after ``t_s``: (sim, its config)."""
     from kinadapt_nn.config import load_config
-    from kinadapt_nn.runs import episode
 
     cfg = load_config(None, ["run.progress=false", "run.figure=false", "run.tensorboard=false", *PAPER,
                              f"run.duration_s={t_s + 0.05}"])
     keep: dict = {}
 
-    def factory(c):
-        from kinadapt_nn.sim.adapter import PegInHoleSim
+    def reached(sim) -> bool:
+        if sim.time_s >= t_s and sim.data.ncon:
+            keep["sim"] = sim
+            return True
+        return False
 
-        class Stop(PegInHoleSim):
-            def step(self):
-                if self.time_s >= t_s and self.data.ncon and "sim" not in keep:
-                    keep["sim"] = self
-                    raise _Reached
-                super().step()
-
-        return Stop(c)
-
-    episode.PegInHoleSim = factory
     try:
-        episode.run_episode(cfg)
+        _episode(cfg, Probe(), stop=reached)
     except _Reached:
         pass
+    if "sim" not in keep:
+        raise RuntimeError(f"the paper setting's episode had no contact at or after {t_s} s")
     return keep["sim"], cfg
 
 
@@ -322,13 +365,11 @@ def jam_row(case: tuple[str, list[str], float]) -> dict:
     """The wedge of tests/runs/test_episode.py (a 3-deg start tilt, 6 s: the paper's contact jams) with
     a friction reference and impratio: failure class, true tip depth at the end, max |F|."""
     from kinadapt_nn.config import load_config
-    from kinadapt_nn.runs import episode
 
     name, over, impratio = case
     cfg = load_config(None, ["run.progress=false", "run.figure=false", "run.tensorboard=false", "run.duration_s=6.0",
                              "start.tilt_deg=[0.0, 3.0]", *over])
-    episode.PegInHoleSim = partial(_probe_sim, probe=Probe(impratio=impratio), record={"t": [], "f": [], "u": []})
-    r = episode.run_episode(cfg)
+    r = _episode(cfg, Probe(impratio=impratio), {"t": [], "f": [], "u": []})
     return {"case": name, "failure": r.summary["failure"], "true_final_depth_m": r.summary["true_final_depth_m"],
             "max_force_N": r.summary["max_force_N"], "contact_transitions_per_s": r.summary["contact_transitions_per_s"]}
 
