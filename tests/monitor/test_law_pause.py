@@ -12,17 +12,17 @@ import pytest
 import kinadapt_nn.monitor.monitor  # noqa: F401  (registers the live monitor with the episode loop)
 from kinadapt_nn.config import load_config
 from kinadapt_nn.errors import ConfigError
-from kinadapt_nn.runs.batch import run_batch
+from kinadapt_nn.runs.batch import run_batch, run_episodes
 from kinadapt_nn.runs.episode import run_episode
 
 ONSET_S = 1.5
 DT = 0.001
 
 
-def _cfg(pause: bool):
+def _cfg(pause: bool, onset_s: float = ONSET_S):
     return load_config("online/monitor.toml", [
         "run.progress=false", "run.duration_s=2.5", "effects.world_force.enabled=true",
-        f"effects.world_force.onset_s={ONSET_S}", "adaptation.mode=kalman", "adaptation.initial_error_m=0.005",
+        f"effects.world_force.onset_s={onset_s}", "adaptation.mode=kalman", "adaptation.initial_error_m=0.005",
         "adaptation.contact_force_N=0", "adaptation.contact_moment_Nm=0", f"monitor.pause_law={str(pause).lower()}"])
 
 
@@ -73,6 +73,22 @@ def test_the_batch_path_pauses_too(runs):
     assert b.summaries[0]["monitor"]["law_paused_s"] == mon["law_paused_s"]
     t = runs[True].trace["t_s"]
     np.testing.assert_array_equal(b.theta_final[0], runs[True].trace["theta"][t >= mon["law_paused_s"][0][0] - DT / 2][0])
+
+
+def test_a_traced_batch_pauses_each_episode_on_its_own_monitor(runs):
+    """Two snags with different onsets stepped together (``run_episodes``: compare, cells): each episode's law
+    pauses at its own event, as it does alone."""
+    late = 1.9
+    res = run_episodes([_cfg(True), _cfg(True, late)])
+    for r, onset in zip(res, (ONSET_S, late)):
+        (start, _end), = r.summary["monitor"]["law_paused_s"]
+        assert onset < start < onset + 0.01
+        t, theta = r.trace["t_s"], r.trace["theta"]
+        held = t >= start - DT / 2
+        assert np.array_equal(theta[held], np.broadcast_to(theta[held][0], theta[held].shape))
+        assert np.ptp(theta[(t > onset - 0.3) & (t < onset)][:, 2]) > 0.0  # the other's pause does not stop it
+    assert res[0].summary["monitor"]["law_paused_s"] == runs[True].summary["monitor"]["law_paused_s"]
+    np.testing.assert_allclose(res[0].trace["theta"], runs[True].trace["theta"], rtol=0, atol=1e-12)
 
 
 def test_the_switch_needs_the_monitor():
