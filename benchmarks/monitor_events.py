@@ -103,10 +103,10 @@ def covered(cfg, ev: dict) -> bool:
     return False
 
 
-def scenario(name: str, seeds: int) -> dict:
+def scenario(name: str, seeds: int, first_seed: int = 0) -> dict:
     effect, shape = SCENARIOS[name]
     rows = []
-    for seed in range(seeds):
+    for seed in range(first_seed, first_seed + seeds):
         onset = float(np.random.default_rng(seed).uniform(1.0, 4.0))
         cfg = _cfg("online/monitor.toml", [f"run.seed={seed}", f"effects.{effect}.enabled=true",
                                            f"effects.{effect}.onset_s={onset}"])
@@ -133,11 +133,11 @@ def scenario(name: str, seeds: int) -> dict:
     return dict(name=name, rows=rows)
 
 
-def bias_step(seeds: int, size_N: float = 0.03) -> dict:
+def bias_step(seeds: int, size_N: float = 0.03, first_seed: int = 0) -> dict:
     """A sensor bias step of ``size_N`` in F_y at a random time (``faults.ft_bias_N``, ``bias_onset_s``; a
     control, not a target): the first event after it -> {shape: runs}."""
     out: dict = {}
-    for seed in range(seeds):
+    for seed in range(first_seed, first_seed + seeds):
         onset = float(np.random.default_rng(seed).uniform(1.0, 4.0))
         cfg = _cfg("online/monitor.toml", [f"run.seed={seed}", f"faults.ft_bias_N=[0,{size_N},0]",
                                            f"faults.bias_onset_s={onset}"])
@@ -263,6 +263,8 @@ def costs(say) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20, help="seeds per scenario")
+    ap.add_argument("--first-seed", type=int, default=0, metavar="N",
+                    help="the scenarios' and the control's seeds are N, N+1, ... (default 0; the clean runs keep 0, 1, ...)")
     ap.add_argument("--clean", type=int, default=20, help="clean runs of each configuration")
     ap.add_argument("--save", type=Path, default=None, help="also write the table to this file")
     ap.add_argument("--lines", action="store_true", help="print each run's event line")
@@ -282,12 +284,14 @@ def main() -> None:
             a.save.parent.mkdir(parents=True, exist_ok=True)
             a.save.write_text("\n".join(out) + "\n")
         return
-    say(f"monitor_events: {a.seeds} seeds per scenario, onset uniform in [1, 4] s, online/monitor.toml"
+    say(f"monitor_events: {a.seeds} seeds per scenario"
+        + (f" ({a.first_seed}-{a.first_seed + a.seeds - 1})" if a.first_seed else "")
+        + ", onset uniform in [1, 4] s, online/monitor.toml"
         + (f" (--set {' '.join(a.set)})" if a.set else ""))
     say(f"{'scenario':<16}{'detected':>10}{'delay med [s]':>15}{'delay max [s]':>15}{'named':>8}{'covered':>9}"
         f"{'early':>7}{'named after med [s]':>21}")
     for name in a.only or SCENARIOS:
-        r = scenario(name, a.seeds)["rows"]
+        r = scenario(name, a.seeds, a.first_seed)["rows"]
         d = np.array([x["delay"] for x in r])
         det = int(sum(x["detected"] for x in r))
         say(f"{name:<16}{det:>7}/{len(r):<2}{np.nanmedian(d) if det else np.nan:>15.3f}"
@@ -311,7 +315,7 @@ def main() -> None:
             for x in r:
                 say(f"    onset {x['onset']:.2f} s: {x['line']}")
     if a.bias_step:
-        shp = bias_step(a.bias_step)
+        shp = bias_step(a.bias_step, first_seed=a.first_seed)
         say(f"control, a sensor bias step of 0.03 N in F_y ({a.bias_step} runs): first event named "
             + ", ".join(f"{k} {v}" for k, v in sorted(shp.items())))
     if a.no_clean:
