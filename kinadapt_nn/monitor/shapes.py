@@ -3,8 +3,10 @@
 After an alarm the monitor fits each candidate shape to the residual from the change's onset (the
 CUSUM's last restart) to ``window_s`` past the alarm, free-space samples only, every row divided by
 its channel's noise sd. Each shape is linear in its parameters (columns per sample, (n, 6, k)); the
-best is the one with the least Bayesian information criterion ``chi^2 + k ln(rows)``. Its estimate's
-covariance is ``(A^T A)^-1`` scaled by ``chi^2 / (rows - k)`` where the fit leaves more than noise.
+best is the one with the least Bayesian information criterion ``chi^2 + k ln(rows)``, with the model's
+own slow error (an unknown constant per channel) integrated out when its size is given (``slow_bic``).
+Its estimate's covariance is ``(A^T A)^-1`` scaled by ``chi^2 / (rows - k)`` where the fit leaves more
+than noise.
 
 =====================  =========================================================  ==========================
 shape                  columns (s: sensor frame; the tool's wrench on the sensor)  what it reads as
