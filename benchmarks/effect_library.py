@@ -73,17 +73,12 @@ def diagnose(job: tuple) -> dict:
 
 
 def truth(name: str) -> np.ndarray:
-    """The injected default magnitude in the one pipeline's parameters (tool on sensor: a drift of
-    the raw reading, flange on tool, enters negated; one offset per joint)."""
+    """The injected default magnitude in the effect's parameters (``effect_library.DEFAULTS``: the
+    diagnosis's and the online model's since issue 52; one offset per joint)."""
     from kinadapt_nn.config import EffectsCfg
     from kinadapt_nn.features.effect_library import LIBRARY
 
-    p = LIBRARY[name].default(EffectsCfg())
-    if name == "ft_bias_drift":
-        return -p
-    if name == "encoder_offset":
-        return np.r_[p, 0.0]  # joints 1..7
-    return p
+    return LIBRARY[name].default(EffectsCfg())
 
 
 def param_errors(name: str, p_hat: np.ndarray, p_true: np.ndarray) -> dict[str, float]:

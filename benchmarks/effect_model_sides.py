@@ -14,9 +14,10 @@ the diagnosis differentiates the declared socket's springs).
 
 Then the one-file form (``tests/features/test_effect_one_file.py``): ``examples/effects/hose_weight.py``
 (``online=True``) against the simulator's ``world_force`` (its weight) at its clamp, both sides, as the largest
-error over the largest prediction per group (forces, moments); and the generic map
-``effect_library.from_wrench`` applied to the built-ins' diagnosis functions of the payload, the sensor
-rotation and the drift against the online library's hand-written columns.
+error over the largest prediction per group (forces, moments); and every built-in's online columns
+(``features.effect_library.LIBRARY``, taken from the built-in's one module since issue 52) against those
+the controller used before, written out by hand, recorded in
+``tests/data/online_columns_before_52.npz`` (``tests/features/test_builtin_online_columns.py``).
 
 Usage: python benchmarks/effect_model_sides.py [--duration 20]
 """
@@ -44,7 +45,7 @@ def main() -> None:
     for name, par, scale, mis, r_on, r_dg in compare(sig, s):
         print(f"{name:24s} {par[:40]:40s} {scale:9.4g} {mis:7.3f} {r_on:10.3g} {r_dg:9.3g}")
 
-    from tests.features.test_effect_one_file import example_errors, generic_map_gaps, pull_runs
+    from tests.features.test_effect_one_file import example_errors, pull_runs
 
     pair = pull_runs(8.0)
     print("\none file, both sides: examples/effects/hose_weight.py (online=True) vs the simulated weight, 8 s")
@@ -52,9 +53,29 @@ def main() -> None:
         print(f"  {side:10s} forces: max error {err[:3].max():.2g} N of {scale[:3].max():.3g} N "
               f"({100 * err[:3].max() / scale[:3].max():.2f} %); moments: {err[3:].max():.2g} N m of "
               f"{scale[3:].max():.3g} N m ({100 * err[3:].max() / scale[3:].max():.2f} %)")
-    print("generic map (from_wrench) on the built-ins' diagnosis functions vs the hand-written online columns")
-    for name, (same, opposite, scale) in generic_map_gaps(pair["pull"][0]).items():
-        print(f"  {name:20s} max |derived - hand| {same:.3g}, max |derived + hand| {opposite:.3g} (columns up to {scale:.3g})")
+    print_before_after()
+
+
+def print_before_after() -> None:
+    """Each built-in's online columns now against the hand-written ones recorded before (two windows)."""
+    import numpy as np
+
+    from tests.features import test_builtin_online_columns as t
+
+    z = np.load(t.REF)
+    sigs = t.windows()
+    print("\nonline columns now vs before (hand-written, tests/data/online_columns_before_52.npz): max |now - sign before|")
+    for name in t.LIBRARY:
+        sign = t.DERIVED_SIGN.get(name, 1.0)
+        gaps = []
+        for w in t.WINDOWS:
+            old, old_steps = t._reference(z, w, name)
+            new, new_steps = t._new(sigs[w], z[f"{w}/steps"], name)
+            new, new_steps = t._as_before(name, new, 0), t._as_before(name, new_steps, 0)
+            gaps.append(f"{w} {max(np.abs(new - sign * old).max(), np.abs(new_steps - sign * old_steps).max()):.2g} "
+                        f"of {np.abs(old).max():.3g}")
+        side = "from_wrench" if t.BUILTINS[name].online is True else "online=fn"
+        print(f"  {name:24s} {side:11s} sign {sign:+.0f}: " + "; ".join(gaps))
 
 
 if __name__ == "__main__":

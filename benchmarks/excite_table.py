@@ -97,8 +97,8 @@ def tool_inertia_error(cfg) -> np.ndarray:
 
 
 def _truth(name: str, cfg) -> np.ndarray:
-    """The injected value in the diagnosis's parameters (the raw reading's drift enters negated:
-    the diagnosis models the tool on the sensor; one offset per joint)."""
+    """The injected value in the effect's parameters (``effect_library.DEFAULTS``: one convention on both
+    model sides since issue 52 -- the drift of the tool's wrench on the sensor, one offset per joint)."""
     from kinadapt_nn.features.effect_library import LIBRARY
 
     effects = cfg.effects
@@ -106,10 +106,6 @@ def _truth(name: str, cfg) -> np.ndarray:
     if name == "tool_gravity":  # against the declared tool: the peg's own first moment is off by its offset too
         p = p.copy()
         p[1:] += tool_first_moment_error(cfg)
-    if name == "ft_bias_drift":
-        return -p
-    if name == "encoder_offset":
-        return np.r_[p, 0.0]
     return p
 
 

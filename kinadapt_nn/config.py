@@ -387,7 +387,7 @@ class GraspSlipCfg(_Cfg):
 
 
 class EffectsCfg(_Cfg):
-    """Hidden physical effects (truth side; ``kinadapt_nn.features.effect_library`` has the model side).
+    """Hidden physical effects (truth side; ``kinadapt_nn.effects.builtin`` has the model side).
 
     Enable one with ``--set effects.NAME.enabled=true``; the controller and the model do not know it."""
 

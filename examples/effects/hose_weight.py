@@ -5,7 +5,7 @@ A hose clamped on the tool at ``CLAMP_S_M`` (sensor frame) hangs part of its wei
 mass). The columns read only ``s.g_s`` (gravity in the sensor frame), which the controller has from
 its encoders, so ``online=True`` makes this one file both model sides: ``kinadapt diagnose LOG
 --effects examples/effects/hose_weight.py`` judges it in a log, and the controller adapts ``m``
-online (``model.effects``, ``PATH.py:NAME``; ``kinadapt_nn.features.effect_library.from_wrench``).
+online (``model.effects``, ``PATH.py:NAME``; ``kinadapt_nn.effects.online.from_wrench``).
 tests/features/test_effect_one_file.py checks both against the simulator's ``effects.world_force``.
 """
 import numpy as np

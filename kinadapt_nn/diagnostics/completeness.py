@@ -37,7 +37,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from kinadapt_nn.diagnostics import selection as sel
-from kinadapt_nn.features.effect_library import moving_average
+from kinadapt_nn.effects.online import moving_average
 
 FORCE_UNIT, MOMENT_UNIT = "N", "N m"
 WRENCH = ("fx", "fy", "fz", "tx", "ty", "tz")

@@ -28,7 +28,7 @@ holds the built-ins, one module each)::
   columns, evaluated on what the controller has (``s.t``, ``s.wrench``, ``s.R_ws``, ``s.omega_s``, ``s.g_s``,
   ``s.a_s``, ``s.alpha_s``),
   are mapped into the controller's level channels by one generic map
-  (``kinadapt_nn.features.effect_library.from_wrench``). An effect that needs more (the contact
+  (``kinadapt_nn.effects.online.from_wrench``). An effect that needs more (the contact
   kinematics, a declared set-up) gives ``online=fn`` instead, ``fn(sig) -> Terms`` in the same
   parameters, in the same module (``docs/effect_library.md``).
 * Parameters that depend on the set-up (one per arm joint, say): give
@@ -83,8 +83,8 @@ class Effect:
     params_for: Callable | None = None  #: setup -> (params {name: unit}, relevant (k,)); ``for_setup``
     exact: Callable | None = None  #: (s, p (k,)) -> (n, 6) the exact change where the columns are first order
     #: the controller's online columns (``model.effects``): True derives them from ``columns`` (which then
-    #: reads only what ``features.effect_library.WrenchView`` has: ``from_wrench``); a function
-    #: ``effect_library.Signals -> Terms`` gives them in the controller's level domain; False: none
+    #: reads only what ``effects.online.WrenchView`` has: ``from_wrench``); a function
+    #: ``effects.online.Signals -> Terms`` gives them in the controller's level domain; False: none
     online: bool | Callable = False
 
     @property

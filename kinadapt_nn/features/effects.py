@@ -20,7 +20,8 @@ import numpy as np
 
 from typing import Sequence
 
-from kinadapt_nn.features.effect_library import OnlineEffect, Signals, online_of, projector, tip_twist_map
+from kinadapt_nn.effects.online import Signals, projector, tip_twist_map
+from kinadapt_nn.features.effect_library import OnlineEffect, online_of
 from kinadapt_nn.features.base import Features, KinState, Regressor
 from kinadapt_nn.known import KnownCfg
 from kinadapt_nn.robot import ArmKinematics

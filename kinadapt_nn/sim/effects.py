@@ -2,7 +2,7 @@
 
 Each effect changes the simulated world or the simulated sensor and nothing else: the
 controller and the diagnosis model never read ``cfg.effects`` (the model side of each effect,
-its regressor columns, is ``kinadapt_nn.features.effect_library``). Where an effect maps onto an
+its regressor columns, is ``kinadapt_nn.effects.builtin``). Where an effect maps onto an
 existing truth-side knob it is folded in here (``truth_config``); the others are built by the
 scene (payload, grasp hinges, torsional friction) or applied by the adapter (socket contact,
 sensor drift and rotation).

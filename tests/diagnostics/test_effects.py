@@ -14,7 +14,8 @@ from kinadapt_nn.app.cli import main
 from kinadapt_nn.config import arm_mjcf_path, load_config
 from kinadapt_nn.diagnostics import ownrun, userlog
 from kinadapt_nn.diagnostics.importers import RawLog
-from kinadapt_nn.features.effect_library import LIBRARY, Signals, tip_twist_map, to_level
+from kinadapt_nn.effects.online import Signals, tip_twist_map, to_level
+from kinadapt_nn.features.effect_library import LIBRARY
 from kinadapt_nn.runs.episode import run_episode
 from kinadapt_nn.errors import ConfigError
 
@@ -184,7 +185,7 @@ def test_effect_terms_batch_equals_a_loop_of_single_samples():
     """The online model evaluates each effect on a one-sample Signals per control step
     (kinadapt_nn.features.effects); the diagnosis on the whole log at once. Same numbers (gravity's
     acceleration terms need a history, so samples are taken where the arm is still)."""
-    from kinadapt_nn.features.effect_library import Signals
+    from kinadapt_nn.effects.online import Signals
 
     _, sig, _, _ = _run(["effects.tool_gravity.enabled=true"], duration=11.5)  # free space, then contact
     moving = np.linalg.norm(sig.twist_tip_w[:, 3:], axis=1) > 1e-3

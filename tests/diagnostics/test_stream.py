@@ -216,9 +216,9 @@ def _row_map(res):
 
 def test_mean_at_equals_the_moving_average_at_its_samples():
     """``stream.mean_at`` (segment sums between window edges, in chunks) against
-    ``effect_library.moving_average`` over the whole array, at every sample, at a stride and at
+    ``effects.online.moving_average`` over the whole array, at every sample, at a stride and at
     random samples, for even and odd windows and odd chunks."""
-    from kinadapt_nn.features.effect_library import moving_average
+    from kinadapt_nn.effects.online import moving_average
 
     rng = np.random.default_rng(1)
     x = rng.normal(size=(5000, 3)).cumsum(axis=0)

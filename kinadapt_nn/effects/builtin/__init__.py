@@ -1,6 +1,7 @@
 """The built-in effects, one module each, written in the public form a user writes
-(``kinadapt_nn.effects.contract``). ``BUILTINS`` is the one registry both diagnosis paths
-read their names from; add a module here and list it in ``_MODULES``."""
+(``kinadapt_nn.effects.contract``). ``BUILTINS`` is the one registry the diagnosis reads and the
+controller's online library is derived from (``features.effect_library.LIBRARY``: those with an
+``online`` side); add a module here and list it in ``_MODULES``."""
 
 from __future__ import annotations
 

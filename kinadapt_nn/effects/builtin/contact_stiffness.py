@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from kinadapt_nn.effects import contact_model
 from kinadapt_nn.effects.contract import effect
+from kinadapt_nn.effects.online import Signals, Terms, contact_rate
 
 
 def _report(p, sd, setup) -> dict:
@@ -22,6 +23,12 @@ def _plausible(p, setup) -> str | None:
     return None
 
 
+def online_columns(sig: Signals) -> Terms:
+    """The controller's columns (level domain, ``effects.online``): the nominal map's contact rate
+    ``S [v_tip; omega]`` (gated), scaled by ``factor - 1``."""
+    return Terms(None, contact_rate(sig, sig.twist_tip_w)[:, :, None])
+
+
 def has_geometry(setup) -> bool:
     """A contact geometry is declared ([contact] geometry): the contact-model effects are judged."""
     return setup.contact.declared_geometry and setup.contact.mode == "tip"
@@ -30,7 +37,7 @@ def has_geometry(setup) -> bool:
 @effect(params={"stiffness_factor_minus_1": "-"}, relevant=[0.1],
         doc="the contact stiffness differs from the declared socket's",
         excite="push laterally into the contact and rotate about the tip in contact",
-        report=_report, plausible=_plausible, applies=has_geometry, uses_contact=False)
+        report=_report, plausible=_plausible, applies=has_geometry, uses_contact=False, online=online_columns)
 def contact_stiffness(s):
     return contact_model.nominal_wrench(s.setup, s.R_ws, s.p_ws)[:, :, None]
 

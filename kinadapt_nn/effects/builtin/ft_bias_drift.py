@@ -28,7 +28,8 @@ def _has_time(setup) -> bool:
                 "rate_tz": "N m/s"},
         relevant=[0.03, 0.03, 0.03, 0.003, 0.003, 0.003], doc="the F/T offset drifts linearly in time",
         excite="a longer log, returning to the same free-space poses at its start and end",
-        report=_report, plausible=_plausible, uses_contact=False, applies=_has_time)
+        report=_report, plausible=_plausible, uses_contact=False, applies=_has_time,
+        online=True)  # online: these columns, tared at the controller's tare (effects.online.from_wrench)
 def ft_bias_drift(s):
     C = np.zeros((s.n, 6, 6))
     for j in range(6):

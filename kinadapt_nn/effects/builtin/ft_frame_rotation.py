@@ -44,7 +44,8 @@ def exact_rotation(s, p) -> np.ndarray:
         excite="reorient in free space (gravity along several sensor axes) and push in contact in two directions",
         report=report_deg(("rot_x", "rot_y", "rot_z")), plausible=plausible_small_angle, uses_contact=False,
         applies=lambda setup: setup.sensor.mount_known,  # an unknown mount is estimated whole (diagnostics.mount)
-        exact=exact_rotation)  # re-estimated exactly once selected (diagnostics.nonlinear)
+        exact=exact_rotation,  # re-estimated exactly once selected (diagnostics.nonlinear)
+        online=True)  # online: these columns on the tared reading (effects.online.from_wrench)
 def ft_frame_rotation(s):
     C = np.zeros((s.n, 6, 3))
     for j in range(3):

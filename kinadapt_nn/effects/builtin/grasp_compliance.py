@@ -13,6 +13,19 @@ import numpy as np
 from kinadapt_nn.effects import contact_model
 from kinadapt_nn.effects.builtin.contact_stiffness import has_geometry
 from kinadapt_nn.effects.contract import effect
+from kinadapt_nn.effects.online import Signals, Terms, contact_rate, lever_w
+
+
+def online_columns(sig: Signals) -> Terms:
+    """The controller's columns (level domain, ``effects.online``): the grasp turns by ``compliance *
+    M_perp`` (the contact moment across the flange axis z_f, from the sensor vector ``s``), which moves
+    the nominal tip by ``M_perp x R l_nom``; the contact answers that displacement and rotation through
+    S's contact rows (linear: a closed-form level)."""
+    M = sig.s[:, 3:]  # contact moment on the tool about O (world)
+    z = sig.R_wf[:, :, 2]
+    M_perp = M - np.sum(M * z, axis=1)[:, None] * z  # the hinges yield about f x, f y only
+    disp = np.concatenate([np.cross(M_perp, lever_w(sig)), M_perp], axis=1)  # tip displacement + rotation per unit compliance
+    return Terms(contact_rate(sig, disp)[:, :, None], None)  # the map is linear: displacement -> level change
 
 
 def _report(p, sd, setup) -> dict:
@@ -30,7 +43,7 @@ def _plausible(p, setup) -> str | None:
 @effect(params={"compliance": "rad/(N m)"}, relevant=[1e-3],
         doc="the tool yields in the grasp under moment",
         excite="load the tool with a moment in contact (lateral pushes at the tip)",
-        report=_report, plausible=_plausible, applies=has_geometry, uses_contact=False)
+        report=_report, plausible=_plausible, applies=has_geometry, uses_contact=False, online=online_columns)
 def grasp_compliance(s):
     c = s.setup.contact
     tip = np.asarray(s.setup.tool.tip_sensor_m, dtype=float)

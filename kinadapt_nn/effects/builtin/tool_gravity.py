@@ -70,7 +70,8 @@ def _plausible(p, setup) -> str | None:
         relevant=[RELEVANT_MASS_KG] + [RELEVANT_FIRST_MOMENT_KG_M] * 3,
         doc="a mass on the tool that the setup does not declare (or a wrong declared mass/COM)",
         excite="reorient the tool in free space through several poses (tilts of 20-40 deg about two horizontal axes)",
-        report=_report, plausible=_plausible, uses_contact=False)
+        report=_report, plausible=_plausible, uses_contact=False,
+        online=True)  # online: these columns, tared at the controller's tare (effects.online.from_wrench)
 def tool_gravity(s):
     C = np.zeros((s.n, 6, 4))
     C[:, :3, 0] = s.g_s - s.a_s

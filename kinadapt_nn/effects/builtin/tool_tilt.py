@@ -15,13 +15,33 @@ from kinadapt_nn.effects import contact_model
 from kinadapt_nn.effects.builtin.ft_frame_rotation import plausible_small_angle, report_deg
 from kinadapt_nn.effects.builtin.tool_gravity import first_moment_columns
 from kinadapt_nn.effects.contract import effect
+from kinadapt_nn.effects.online import Signals, Terms, contact_rate, rot
+
+
+def online_columns(sig: Signals) -> Terms:
+    """The controller's columns (level domain, ``effects.online``): the true tip sits at ``R (l_nom +
+    delta x l_nom)``, so in contact it moves with ``omega x (R delta x l_nom)`` (the contact's rate) and
+    the contact force acts on a lever longer by ``R (delta x l_nom)`` (a closed-form moment)."""
+    n = len(sig.t_s)
+    lev = np.zeros((n, 6, 2))
+    integ = np.zeros((n, 6, 2))  # rates
+    f_tool = -sig.w_env_w[:, :3]
+    for j in range(2):
+        e = np.zeros(3)
+        e[j] = 1.0
+        dl_w = rot(sig.R_wf, np.broadcast_to(np.cross(e, sig.l_nom_f), (n, 3)))
+        tw = np.zeros((n, 6))
+        tw[:, :3] = np.cross(sig.twist_tip_w[:, 3:], dl_w)  # the true tip's extra velocity
+        integ[:, :, j] = contact_rate(sig, tw)
+        lev[:, 3:, j] = sig.gate[:, None] * np.cross(dl_w, f_tool)  # moment of the contact force about O
+    return Terms(lev, integ)
 
 
 @effect(params={"tilt_x": "rad", "tilt_y": "rad"}, relevant=[np.deg2rad(1.0)] * 2,
         doc="the tool sits rotated in the grasp (its COM and tip move)",
         excite="push the tip in contact in two lateral directions (the tip lever shows in the moment)",
         report=report_deg(("tilt_x", "tilt_y")), plausible=plausible_small_angle,
-        applies=lambda setup: setup.contact.mode == "tip")
+        applies=lambda setup: setup.contact.mode == "tip", online=online_columns)
 def tool_tilt(s):
     m = float(s.setup.tool.mass_kg)
     mc = m * np.asarray(s.setup.tool.com_sensor_m, dtype=float)
