@@ -8,7 +8,9 @@
 with each seed (the same overrides, the tools of one family and features type stepped together, as
 compare does), with the shipped refit between insertions, and stores per tool every insertion's
 refit data (the law's regression rows on the contact samples: measured data only) and the cell
-error curve the closed loop gave. ``replay`` rebuilds each tool's controller and its held-out truth
+error curve the closed loop gave; it prints per tool that curve and what the refit chose after
+each insertion (the neural evidence prior: which prior it acted on and the log-evidence gain; the
+trust region: the refit's full step in posterior sd, before the region). ``replay`` rebuilds each tool's controller and its held-out truth
 (evaluation only), applies each refit variant to the stored data insertion by insertion (the variant
 sees only measured data: the rows of the insertions so far), scores every estimate on the truth, and
 prints per draw the median over tools after each insertion, the largest rise between insertions and
@@ -67,6 +69,17 @@ def collect(seed: int, family: str, features: str, store: Path, extra: list[str]
             cell.after(i, r, [n], True)
     rec = [{"overrides": o, "data": cell.refit.data, "curve": cell.cell_err,
             "seated": all(r["success"] for r in cell.rows)} for o, cell in zip(overs, cells)]
+    for t, cell in enumerate(cells):  # what the refit chose after each insertion (its summary rows)
+        notes = [r.get("refit") or {} for r in cell.rows]
+        line = f"  {seed} {family} {features} tool {t}: cell error " + " ".join(f"{100 * e:.3f}" for e in cell.cell_err) + " %"
+        if any("simpler_prior" in n for n in notes):
+            line += ("; prior acted on " + "".join("c" if n.get("simpler_prior") else "A" for n in notes)
+                     + " (A: the features' own, all arms; c: the calibrated arm); log-evidence gain "
+                     + " ".join(f"{n['log_evidence_gain']:.1f}" for n in notes))
+        if any("step_posterior_sd" in n for n in notes):
+            line += "; full step [posterior sd] " + " ".join(f"{n['step_posterior_sd']:.3g}" for n in notes
+                                                            if "step_posterior_sd" in n)
+        print(line, flush=True)
     store.mkdir(parents=True, exist_ok=True)
     with open(store / f"{seed}_{family}_{features}.pkl", "wb") as fh:
         pickle.dump(rec, fh)
