@@ -6,6 +6,7 @@ whether the contact acts through the tip (``tip_consistency``)."""
 from __future__ import annotations
 
 import dataclasses
+from typing import Callable
 
 import numpy as np
 
@@ -57,7 +58,7 @@ def _effective_tip(log, cal, declared: SetupCfg):
     it. A declared contact geometry's wrench is computed again at the point (its lever and anchor
     move with the tip). A known declared tip is kept (and tested): the point is estimated before any
     effect, so it would absorb an effect that acts in contact (crosstalk)."""
-    s, setup, point = cal.signals, cal.setup, cal.contact_point
+    setup, point = cal.setup, cal.contact_point
     if point is None or point.undetermined_along_s is not None or setup.contact.mode != "tip":
         return cal
     if any(declared.tool.tip_sensor_m) and declared.tool.tip_known:
@@ -65,9 +66,16 @@ def _effective_tip(log, cal, declared: SetupCfg):
     far = float(np.linalg.norm(np.asarray(point.point_s_m) - np.asarray(declared.tool.tip_sensor_m)))
     if not declared.tool.tip_known and far > declared.tool.tip_within_m:  # not the tip: the guess stands
         return cal
+    return at_tip(log, cal, point.point_s_m)
+
+
+def at_tip(log, cal, tip_s_m):
+    """``cal`` (a ``userlog.Calibration``) with the contact rows' tip at ``tip_s_m`` (3,) [m, sensor
+    frame]: the set-up's tool tip, a declared geometry's account and signals computed again there."""
     from kinadapt_nn.diagnostics.physical import tip_moment_map
 
-    tip = tuple(float(v) for v in point.point_s_m)
+    s, setup = cal.signals, cal.setup
+    tip = tuple(float(v) for v in tip_s_m)
     setup = setup.model_copy(update={"tool": setup.tool.model_copy(update={"tip_sensor_m": tip})})
     acc, contact = cal.accounts, s.contact
     if acc is not None and "declared_windows_s" in acc.report:  # the declared geometry's account at the point
@@ -78,6 +86,48 @@ def _effective_tip(log, cal, declared: SetupCfg):
     else:
         s = dataclasses.replace(s, setup=setup, tip_map=tip_moment_map(np.asarray(tip)))
     return dataclasses.replace(cal, signals=s.with_contact(contact, _free_offset(s, contact)), setup=setup, accounts=acc)
+
+
+#: [m] a Gauss-Newton step of the tip shorter than this ends the iteration (``judged_at_tip``)
+TIP_STEP_M = 5e-4
+#: the most Gauss-Newton steps of the tip after the first ranking
+TIP_STEPS = 2
+
+
+def judged_at_tip(log, cal0, declared: SetupCfg, judged: Callable, progress: Callable[[str], None]) -> tuple:
+    """``cal0`` (a ``userlog.Calibration`` at the declared tip): the checks and the ranking at the tip
+    the contact rows use. A known tip, or none declared: ``_effective_tip`` (the estimated contact
+    point where it pins one). A first guess (``[tool] tip_known = false``): the tip is a nonlinear
+    nuisance (the socket's anchor and lever move with it) fitted by first-order columns about the
+    point it starts from, so the ranking starts at the declared guess and moves there to the tip it
+    fitted (Gauss-Newton steps, at most ``TIP_STEPS``, until a step is shorter than ``TIP_STEP_M``).
+    It does not start at the contact point estimated before any effect: an effect that acts in contact
+    moves that point (a grasp that yields under moment lengthens the apparent lever through the
+    fixture's angular spring: 109 mm for a 100 mm tool in the excitation run, docs/diagnose.md), and
+    about it the tip's columns traded the tip for the effect. ``judged(calibration)`` -> (calibration,
+    checks, ``_RankCtx``, ``Ranked``). -> those and the iteration's account (or None)."""
+    guess = np.asarray(declared.tool.tip_sensor_m, dtype=float)
+    if declared.tool.tip_known or not guess.any() or not tip_nuisance(cal0.signals):
+        return (*judged(_without_disputed(_effective_tip(log, cal0, declared))), None)
+    cur = judged(_without_disputed(cal0))
+    if cur[2].block is not None:
+        return (*cur, None)
+    path = []
+    for k in range(TIP_STEPS + 1):
+        at = np.asarray(cur[0].setup.tool.tip_sensor_m, dtype=float)
+        fitted = at + np.asarray(cur[3].result.nuisance[-3:], dtype=float)
+        path.append({"about_sensor_m": [float(v) for v in at], "fitted_sensor_m": [float(v) for v in fitted],
+                     "step_m": float(np.linalg.norm(fitted - at))})
+        if k == TIP_STEPS or path[-1]["step_m"] < TIP_STEP_M or np.linalg.norm(fitted - guess) > declared.tool.tip_within_m:
+            break
+        progress(f"the tip: ranking again about the tip fitted ({path[-1]['step_m'] * 1e3:.2f} mm away: a Gauss-Newton step)")
+        cur = judged(_without_disputed(at_tip(log, cal0, fitted)))
+    lin = {"steps": path, "converged": path[-1]["step_m"] < TIP_STEP_M,
+           "why": "the tip is fitted by first-order columns about a point: from the declared first guess, the ranking "
+                  "is repeated about the tip it fitted until the step is below "
+                  f"{TIP_STEP_M * 1e3:g} mm (at most {TIP_STEPS} steps); the contact point estimated before the "
+                  "effects is not a start (an effect acting in contact moves it)"}
+    return (*cur, lin)
 
 
 def _without_disputed(cal):

@@ -50,7 +50,7 @@ from kinadapt_nn.diagnostics.summary import (  # noqa: F401 (re-exported)
     SUMMARY_PARAMETERS, _nuisance_text, _payload_text, completeness_text, summary_text)
 from kinadapt_nn.diagnostics.tip import (  # noqa: F401 (re-exported)
     _effective_tip, _free_offset, _tip_columns, _tip_consistent, _without_disputed, effective_setup,
-    tip_consistency, tip_nuisance)
+    judged_at_tip, tip_consistency, tip_nuisance)
 
 FREE_CHANNELS = ("F_x", "F_y", "F_z", "M_x", "M_y", "M_z")  # sensor frame
 TIP_CHANNELS = ("Mtip_x", "Mtip_y", "Mtip_z")  # moment about the declared tip, sensor frame
@@ -471,12 +471,20 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
         cal = calibrate(log, sg.from_log(log, setup, progress), setup, None, rc, progress)
     excite = {n: lib[n].excite for n in names}
     excite["_params"] = {n: lib[n].params for n in names}
-    cal, chk, rk, ranked, lin = _judged_at_tip(log, cal, declared, names, lib, excite, rc, sc, progress)
+
+    def judged(c: Calibration) -> tuple:  # the checks and the ranking with the contact rows' tip of ``c``
+        chk = _checks(c, declared, log)
+        rk = _RankCtx(lib, c.sigma, rc, sc, excite, chk.block, {}, progress)
+        return c, chk, rk, _ranked(rk, c.signals, names)
+
+    cal, chk, rk, ranked, lin = judged_at_tip(log, cal, declared, judged, progress)
     setup = cal.setup
     ranked = cp.robust(ranked, cal.sigma, rc.stride_s, sc)  # structure left: estimates from the rows it spares
     sections = _base_report(log, declared, cal, chk, ranked, rk)
-    if lin is not None:
+    if lin is not None:  # the tip the contact rows use: the guess, or where its Gauss-Newton steps went
         sections["effective_setup"]["tip_linearised_at"] = lin
+        if len(lin["steps"]) > 1:
+            sections["effective_setup"]["tip_used"] = "the tip fitted about the declared first guess (tip_linearised_at)"
     progress("completeness of the final model" + (" and hints" if hints else ""))
     comp = cp.assess(ranked, sc, cal.sigma, rc.stride_s, with_hints=hints and chk.block is None,
                      source=str(getattr(log, "source", "the log")))
@@ -489,46 +497,6 @@ def diagnose(log, setup: SetupCfg, add: list[str] | None = None, rc: RowCfg = Ro
     report = Report.of(sections, summary_text)
     return Result(report, ranked.des, None if added is None else added.before, None if added is None else added.after,
                   ranked.s, ranked.s.contact, ranked.result.heldout, lib, comp.files)
-
-
-def _judged_at_tip(log, cal0: "Calibration", declared: SetupCfg, names, lib, excite, rc: RowCfg, sc: sel.SelCfg,
-                   progress) -> tuple:
-    """The checks and the ranking at the tip the contact rows use (``_effective_tip``). Where that is
-    the estimated contact point in place of a declared first guess (``[tool] tip_known = false``),
-    the ranking runs at both points and keeps the one whose final model leaves the smaller held-out
-    residual per row: the tip is a nonlinear nuisance (the socket's anchor and lever move with it)
-    fitted by its first-order columns about the point it starts from, and the contact point is
-    estimated before any effect, so an effect that acts in contact moves it (a grasp that yields under
-    moment lengthens the apparent lever through the fixture's angular spring: 109 mm for a 100 mm
-    tool in the excitation run, docs/diagnose.md). -> (calibration, checks, ``_RankCtx``, ``Ranked``,
-    the choice's account or None)."""
-
-    def judged(cal):
-        chk = _checks(cal, declared, log)
-        rk = _RankCtx(lib, cal.sigma, rc, sc, excite, chk.block, {}, progress)
-        return cal, chk, rk, _ranked(rk, cal.signals, names)
-
-    first = judged(_without_disputed(_effective_tip(log, cal0, declared)))
-    guess = tuple(declared.tool.tip_sensor_m)
-    if declared.tool.tip_known or not any(guess) or tuple(first[0].setup.tool.tip_sensor_m) == guess \
-            or not tip_nuisance(first[0].signals) or first[2].block is not None:
-        return (*first, None)
-    progress("the tip: ranking again about the declared first guess (a nonlinear nuisance: the better fit is kept)")
-    second = judged(_without_disputed(cal0))
-
-    def per_row(j) -> float:
-        h = j[3].result.heldout
-        return float(np.mean(np.square(h))) if h is not None and len(h) else float("inf")
-
-    a, b = per_row(first), per_row(second)
-    best = first if a <= b else second
-    lin = {"point_sensor_m": [float(v) for v in best[0].setup.tool.tip_sensor_m],
-           "which": "the estimated contact point" if best is first else "the declared first guess",
-           "heldout_per_row": {"contact_point": a, "first_guess": b},
-           "why": "the tip is fitted by first-order columns about a starting point; of the estimated contact point "
-                  "and the declared first guess, the one whose final model leaves the smaller held-out residual per "
-                  "row is kept"}
-    return (*best, lin)
 
 
 def check_request(setup: SetupCfg, add: list[str] | None, effects_files=()) -> tuple[dict, list[str], list[str], dict]:

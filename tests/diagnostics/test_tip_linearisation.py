@@ -1,6 +1,6 @@
-"""The tool's tip as a nonlinear nuisance (``userlog._judged_at_tip``): with ``[tool] tip_known =
-false`` the ranking runs about the estimated contact point and about the declared first guess and
-keeps the better held-out fit.
+"""The tool's tip as a nonlinear nuisance (``tip.judged_at_tip``): with ``[tool] tip_known = false``
+the ranking starts about the declared first guess and moves to the tip it fitted (Gauss-Newton
+steps), not about the contact point estimated before any effect.
 
 A compliant grasp lengthens the apparent lever: the fixture's angular spring answers the tool's turn
 in the grasp, so the contact point estimated from ``M = r x F`` before any effect lies ~9 mm beyond
@@ -40,8 +40,9 @@ def test_a_compliant_grasp_is_found_with_the_tip_unknown():
     truth = 1.0 / cfg.effects.grasp_compliance.stiffness_Nm_per_rad
     assert abs(ep["value"][0] - truth) <= 1.96 * ep["sd"][0], (ep, truth)
     lin = rep["effective_setup"]["tip_linearised_at"]
-    assert lin["which"] == "the declared first guess", lin
-    assert lin["heldout_per_row"]["first_guess"] < lin["heldout_per_row"]["contact_point"]
+    assert lin["steps"][0]["about_sensor_m"] == list(setup.tool.tip_sensor_m), lin  # from the guess
+    tip = np.asarray(rep["effective_setup"]["tool_tip"]["tip_sensor_m"])
+    assert np.allclose(tip, lin["steps"][-1]["fitted_sensor_m"], atol=1e-12)
     # the point estimated before the effects is the biased one: beyond the true tip along the tool
     point = np.asarray(rep["effective_setup"]["contact_point"]["point_sensor_m"])
     assert point[2] - cfg.tool.offset_f_m[2] > 5e-3, point
