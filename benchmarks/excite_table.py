@@ -1,6 +1,7 @@
 """The excitation experiment's table on package runs, as a new user diagnoses them (issue 49).
 
     python benchmarks/excite_table.py [--seeds 5] [--jobs 2] [--json FILE] [--only TEXT] [--shift-wrench K] [--set KEY=VALUE]
+    python benchmarks/excite_table.py --reprint FILE   (the rows of an earlier --json FILE, judged again)
 
 Every run is ``kinadapt online --config online/excite.toml`` with a seed and hidden effects, then
 ``kinadapt diagnose RUN`` with **no** ``--baseline`` (the set-up generated from the run's config:
@@ -216,10 +217,15 @@ def main() -> None:
                     help="pair each encoder sample with the wrench read K samples later (module docstring)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a config override added to every row (after the row's own), e.g. scene.socket_damping_ratio=0")
+    ap.add_argument("--reprint", default="", metavar="JSON",
+                    help="judge and print the rows a --json FILE of an earlier run holds (no runs)")
     a = ap.parse_args()
-    todo = [(name, [*ov, *a.set], inj, a.shift_wrench) for name, ov, inj in jobs(a.seeds) if a.only in name]
-    with ProcessPoolExecutor(max_workers=a.jobs) as ex:
-        results = list(ex.map(run_one, todo))
+    if a.reprint:
+        results = [r for r in json.loads(Path(a.reprint).read_text()) if a.only in r["row"]]
+    else:
+        todo = [(name, [*ov, *a.set], inj, a.shift_wrench) for name, ov, inj in jobs(a.seeds) if a.only in name]
+        with ProcessPoolExecutor(max_workers=a.jobs) as ex:
+            results = list(ex.map(run_one, todo))
     n_ok = 0
     for r in results:
         ok, why = judge(r)
@@ -227,6 +233,10 @@ def main() -> None:
         worst = max((abs(z) for c in r["coverage"].values() for z in c["z"]), default=0.0)
         print(f"{'right' if ok else 'WRONG'}  {r['row']:<44} present: {', '.join(r['present']) or '-':<40} "
               f"complete: {r['model_complete']}  worst |z| {worst:.1f}" + (f"\n       why: {why}" if why else ""))
+        if not r["injected"] and r.get("tool_tip"):  # the tool's own finding: its tip, fitted beside the effects
+            tt = r["tool_tip"]
+            print("       tool tip [" + ", ".join(f"{1e3 * v:.2f}" for v in tt["tip_sensor_m"]) + "] +- ["
+                  + ", ".join(f"{1e3 * v:.2g}" for v in tt["sd_m"]) + "] mm (the true tool's: 3, -2, 100)")
         if why:
             for n, c in r["coverage"].items():
                 names = c.get("names") or [f"p{i}" for i in range(len(c["z"]))]
