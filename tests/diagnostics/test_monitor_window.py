@@ -76,3 +76,12 @@ def test_the_summary_leads_with_the_window():
                                                                                                 "present": ["ft_offset"]}})
     assert "not diagnosed (too short)" in sm._window_text({"from_s": 1.0, "event": "e",
                                                           "before": {"to_s": 0.98, "not_diagnosed": "too short"}})
+
+
+def test_whole_log_is_for_package_runs(capsys):
+    """``--whole-log`` with ``--setup`` (a user's log): one line saying it is for package runs, exit 2."""
+    from kinadapt_nn.app.cli import main
+
+    assert main(["diagnose", "log.csv", "--setup", "setup.toml", "--whole-log"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--whole-log is for this package's own runs" in err[0]
