@@ -15,6 +15,17 @@ def skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
+def skews(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrices of a batch: ``skews(a)[i] @ b == np.cross(a[i], b)``, and column j of
+    ``skews(a)[i]`` is ``np.cross(a[i], e_j)`` to the bit. (N, 3) -> (N, 3, 3)."""
+    v = np.asarray(v, dtype=float)
+    out = np.zeros((len(v), 3, 3))
+    out[:, 0, 1], out[:, 0, 2] = -v[:, 2], v[:, 1]
+    out[:, 1, 0], out[:, 1, 2] = v[:, 2], -v[:, 0]
+    out[:, 2, 0], out[:, 2, 1] = -v[:, 1], v[:, 0]
+    return out
+
+
 def rot_x(angle_rad: float) -> np.ndarray:
     """Rotation about x by ``angle_rad``. -> (3, 3)."""
     c, s = np.cos(angle_rad), np.sin(angle_rad)

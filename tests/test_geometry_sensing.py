@@ -433,3 +433,17 @@ def test_wrench_convention_static_external_load(cfg, force_w, torque_w):
     assert np.linalg.norm(s[1:3] - P @ f) < tol_f
     assert np.linalg.norm(s[3:] - M_O) < tol_m
     print(f"wrench err force {np.linalg.norm(w_env[:3] + f):.1e} N, moment {np.linalg.norm(w_env[3:] + M_O):.1e} N m")
+
+
+def test_skews_are_the_cross_product_of_each_row():
+    """``skews``: column j of each matrix is ``np.cross(a_i, e_j)`` to the bit (the effect columns built
+    from it are the cross products they replace), and the matrix times b is ``a_i x b``."""
+    from kinadapt_nn.geometry import skews
+
+    rng = np.random.default_rng(7)
+    a, b = 10.0 * rng.normal(size=(200, 3)), rng.normal(size=(200, 3))
+    S = skews(a)
+    for j, e in enumerate(np.eye(3)):
+        np.testing.assert_array_equal(S[:, :, j], np.cross(a, e))
+    np.testing.assert_allclose(np.einsum("nij,nj->ni", S, b), np.cross(a, b), rtol=0, atol=1e-13)
+    np.testing.assert_array_equal(S, -np.swapaxes(S, 1, 2))

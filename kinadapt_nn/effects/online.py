@@ -218,15 +218,22 @@ def from_wrench(columns: Callable, name: str = "effect") -> Callable[[Signals], 
             raise KinadaptError(f"effect '{name}' online returned shape {C.shape}; expected (n, 6, k) with n = {s.n}")
         return C
 
+    at_tare: dict[tuple, np.ndarray] = {}  # the columns at the tare (t_tare, R_tare): one per episode, not per step
+
     def terms(sig: Signals) -> Terms:
         now, tare = wrench_view(sig)
-        C, C0 = evaluate(now), evaluate(tare)
+        key = (sig.t_tare_s, sig.R_tare.tobytes())
+        if key not in at_tare:
+            at_tare.clear()
+            at_tare[key] = evaluate(tare)
+        C, C0 = evaluate(now), at_tare[key]
         if C.ndim == 2:
             C, C0 = C[:, :, None], C0[:, :, None]
         dC = C - C0  # (N, 6, k): the tared reading's change (tool on sensor)
-        level = np.empty_like(dC)
-        for j in range(dC.shape[2]):
-            w_env_w = -np.concatenate([rot(sig.R_wf, dC[:, :3, j]), rot(sig.R_wf, dC[:, 3:, j])], axis=1)
-            level[:, :, j] = to_level(sig, w_env_w)
-        return Terms(level, None)
+        n, _, k = dC.shape
+        # the k columns as n k samples (row i k + j: sample i, column j), mapped in one call
+        rep = sig._replace(t_s=np.repeat(sig.t_s, k), R_wf=np.repeat(sig.R_wf, k, axis=0), gate=np.repeat(sig.gate, k))
+        d = dC.transpose(0, 2, 1).reshape(n * k, 6)
+        w_env_w = -np.concatenate([rot(rep.R_wf, d[:, :3]), rot(rep.R_wf, d[:, 3:])], axis=1)
+        return Terms(to_level(rep, w_env_w).reshape(n, k, 6).transpose(0, 2, 1), None)
     return terms

@@ -144,3 +144,19 @@ def test_each_online_side_is_its_modules():
             assert name in DERIVED_SIGN and on.terms.__qualname__.startswith("from_wrench")
         else:
             assert on.terms is eff.online and eff.online.__module__ == f"kinadapt_nn.effects.builtin.{name}"
+
+
+def test_the_columns_at_the_tare_follow_the_tare(ref):
+    """``from_wrench`` keeps the columns at the tare between steps (one tare per episode): another tare
+    gives what a fresh derivation gives, not the kept columns."""
+    from kinadapt_nn.effects.online import from_wrench
+
+    _, sigs = ref
+    sig = sigs["free"]
+    other = sig._replace(R_tare=sig.R_wf[80].copy(), t_tare_s=sig.t_tare_s + 1.0)
+    kept, _ = LIBRARY["tool_gravity"].terms(sig)
+    moved, _ = LIBRARY["tool_gravity"].terms(other)
+    fresh, _ = from_wrench(BUILTINS["tool_gravity"].columns, "tool_gravity")(other)
+    np.testing.assert_array_equal(moved, fresh)
+    assert np.abs(moved - kept).max() > 0.1  # the tare pose matters (gravity turns in the sensor frame)
+    np.testing.assert_array_equal(LIBRARY["tool_gravity"].terms(sig)[0], kept)  # and back

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from kinadapt_nn.effects.contract import effect
+from kinadapt_nn.geometry import skews
 
 MAX_FIRST_ORDER_DEG = 15.0  #: beyond this a first-order rotation model is not a finding
 
@@ -47,10 +48,5 @@ def exact_rotation(s, p) -> np.ndarray:
         exact=exact_rotation,  # re-estimated exactly once selected (diagnostics.nonlinear)
         online=True)  # online: these columns on the tared reading (effects.online.from_wrench)
 def ft_frame_rotation(s):
-    C = np.zeros((s.n, 6, 3))
-    for j in range(3):
-        e = np.zeros(3)
-        e[j] = 1.0
-        C[:, :3, j] = np.cross(s.wrench[:, :3], e)
-        C[:, 3:, j] = np.cross(s.wrench[:, 3:], e)
-    return C
+    w = np.asarray(s.wrench, dtype=float)
+    return np.concatenate([skews(w[:, :3]), skews(w[:, 3:])], axis=1)  # column j: r x e_j
