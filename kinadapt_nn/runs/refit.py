@@ -25,9 +25,10 @@ stays. Nothing here reads the truth: the trace's ``truth_*`` channels are never 
 timing offset delta [s] between the F/T reading and the encoders, entering as one more column
 ``W d/dt(s_dot_pred)`` (the controller's own filtered prediction, differentiated): the measured rate
 is modelled as the prediction delta seconds later, ``y ~ H theta + delta W d(s_dot_pred)/dt``, with
-the prior delta ~ N(0, timing_sd_s^2). On the simulated cell the measured F/T rate leads the
-encoders' prediction by about 0.75 ms (docs/cell.md): a bias proportional to the tip acceleration
-that the 12 neural directions otherwise absorb.
+the prior delta ~ N(0, timing_sd_s^2): delta > 0 is a lead of the measured rate. On the simulated
+cell the estimate is +1.20 ms (adjoint, nominal arm; -0.79 ms before the one-instant sensor of
+4b95480, whose two 1-ms lags it removed: docs/cell.md): a bias proportional to the tip
+acceleration that the 12 neural directions otherwise absorb.
 
 Two options for the neural features (off by default; docs/cell.md "Five draws"):
 ``max_directions > 0`` (``cell.refit_max_directions_neural``) acts on at most that many of the
