@@ -104,6 +104,11 @@ def scenario(name: str, seeds: list[int], work: Path, whole_log: bool, say, reus
                             + (f" ({', '.join(e['indistinguishable_from'])})" if e.get("indistinguishable_from") else "")
                             for e in r["report"]["ranking"] if f"effect:{e['effect']}" in a.monitor_as_offline
                             and e["verdict"] != "present")
+            chosen = [e for e in r["report"]["ranking"] if e.get("selected_round") is not None]
+            line += "; its selection took " + (", ".join(
+                f"{e['effect']} (round {e['selected_round']}, {e['verdict']}"
+                + (f": {e['reason']}" if e["verdict"] != "present" and e.get("reason") else "") + ")"
+                for e in sorted(chosen, key=lambda e: e["selected_round"])) or "nothing")
             line += "; the monitor said: " + " / ".join(
                 f"{e['text']} (runner-up {e.get('runner_up')}, delta BIC {e.get('delta_bic', float('nan')):.1f})"
                 for e in r["monitor"]["events"] if e["open"])
