@@ -42,6 +42,9 @@ import numpy as np
 from kinadapt_nn.diagnostics import intervals
 
 
+IMPOSSIBLE = "physically impossible estimate"  #: the reason's start for a selected effect found impossible
+
+
 class SelCfg(NamedTuple):
     alpha: float = 0.01  #: false-discovery level of each round's tests
     min_explained: float = 0.05  #: [-] smallest held-out share of the remaining residual called an effect
@@ -311,11 +314,18 @@ def select(des: Design, rc: SelCfg = SelCfg(), plausible: Callable[[str, np.ndar
     sse0, _, _ = st.cv(base, rc.ridge)
     sse_total = float(sse0.sum()) or 1e-300
     alone = {n: _test(st, des, n, base, sse0, rc) for n in st.names}
-    fw = _forward(st, des, rc, base, sse0, alone, hints)
-    small = _below_relevant(st, des, st.names, fw.selected, fw.sse_sel, base, rc)
-    jt = _joint(st, des, rc, base, fw)
-    ctx = _EntryCtx(st, des, rc, base, fw, jt, small, sse_total, alone, plausible, hints, block_all)
-    entries = [_entry(ctx, n) for n in st.names]
+    left_out: dict[str, dict] = {}  # selected, then physically impossible: no explanation, selected again without
+    while True:
+        fw = _forward(st, des, rc, base, sse0, alone, hints, exclude=set(left_out))
+        small = _below_relevant(st, des, st.names, fw.selected, fw.sse_sel, base, rc)
+        jt = _joint(st, des, rc, base, fw)
+        ctx = _EntryCtx(st, des, rc, base, fw, jt, small, sse_total, alone, plausible, hints, block_all)
+        entries = [_entry(ctx, n) for n in st.names]
+        bad = [e for e in entries if e["selected_round"] is not None and (e["reason"] or "").startswith(IMPOSSIBLE)]
+        if not bad or block_all:
+            break
+        left_out.update({e["effect"]: e for e in bad})
+    entries = [_left_out_entry(left_out[e["effect"]]) if e["effect"] in left_out else e for e in entries]
     jt = _with_model_sd(st, des, rc, jt, fw, entries)
     for e in entries:  # the final sd (the undecided effects' change counted) may swallow a selection
         if e["verdict"] == "present" and not _distinct_from_zero(jt.joint[e["effect"]], rc.ci_level):
@@ -331,6 +341,13 @@ def select(des: Design, rc: SelCfg = SelCfg(), plausible: Callable[[str, np.ndar
                      heldout_residual(st, des, small_idx, rc), jt.idx, list(small))
 
 
+def _left_out_entry(e: dict) -> dict:
+    """The entry of an effect selected and then found physically impossible: ``cannot_decide``, its
+    estimate as selected, and out of the final model (the selection ran again without it)."""
+    return {**e, "selected_round": None, "left_out": True,
+            "reason": f"{e['reason']}; left out of the model (the selection ran again without it)"}
+
+
 class _Forward(NamedTuple):
     """What the forward rounds found."""
 
@@ -342,9 +359,10 @@ class _Forward(NamedTuple):
 
 
 def _forward(st: Stats, des: Design, rc: SelCfg, base: np.ndarray, sse0: np.ndarray, alone: dict,
-             hints: dict) -> _Forward:
+             hints: dict, exclude: set = frozenset()) -> _Forward:
     """Forward selection (module docstring): each round tests the remaining candidates given the
-    selected ones (BH across the round) and selects the best eligible one, noting near-ties."""
+    selected ones (BH across the round) and selects the best eligible one, noting near-ties.
+    ``exclude``: effects never candidates (a physically impossible estimate, ``select``)."""
     from scipy.stats import false_discovery_control
 
     names = st.names
@@ -353,8 +371,8 @@ def _forward(st: Stats, des: Design, rc: SelCfg, base: np.ndarray, sse0: np.ndar
     ties: dict[str, set[str]] = {}
     tie_labels: dict[str, list[str]] = {}
     sse_sel = sse0
-    while len(selected) < len(names):
-        cand = [n for n in names if n not in {s for s, _ in selected}]
+    while len(selected) < len(names) - len(exclude):
+        cand = [n for n in names if n not in {s for s, _ in selected} and n not in exclude]
         cur = np.concatenate([base, *[st.idx[s][c] for s, c in selected]]) if selected else base
         tests = alone if not selected else {n: _test(st, des, n, cur, sse_sel, rc) for n in cand}
         tests = {n: tests[n] for n in cand}
@@ -465,7 +483,8 @@ def _with_model_sd(st: Stats, des: Design, rc: SelCfg, jt: _Joint, fw: _Forward,
     turn, and the largest change it makes to each selected parameter and nuisance joins that
     parameter's sd in quadrature (``model_sd`` in the entry). An estimate conditional on a model the
     data did not choose is reported with the spread of that choice, not only the noise's."""
-    cands = [e["effect"] for e in entries if e["verdict"] == "cannot_decide" and e["effect"] not in jt.joint]
+    cands = [e["effect"] for e in entries if e["verdict"] == "cannot_decide" and e["effect"] not in jt.joint
+             and not e.get("left_out")]  # an impossible estimate is no alternative model
     if not cands:
         return jt
     p0 = st.fit(jt.idx, rc.ridge)
@@ -585,7 +604,7 @@ def _verdict(cx: _EntryCtx, n: str, p_full: np.ndarray, sel: bool, undecided: li
     elif sel:
         why = cx.plausible(n, p_full) if cx.plausible else None
         if why:
-            verdict, reason = "cannot_decide", f"physically impossible estimate: {why}"
+            verdict, reason = "cannot_decide", f"{IMPOSSIBLE}: {why}"
         elif n in cx.fw.ties or n in cx.fw.tie_labels:
             verdict, reason = "cannot_decide", tie
         else:

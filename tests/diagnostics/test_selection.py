@@ -135,3 +135,22 @@ def test_a_column_that_grows_with_the_log_does_not_shrink_the_nuisance():
     ls = np.linalg.lstsq(np.column_stack([Z, X["a"]]), y, rcond=None)[0]
     np.testing.assert_allclose(res.present["a"][1], ls[1:], rtol=1e-6)
     np.testing.assert_allclose(res.nuisance, ls[:1], rtol=1e-6)
+
+
+def test_an_impossible_selection_leaves_the_model_and_the_next_explanation_is_found():
+    """An effect selected first whose estimate is physically impossible is no explanation: it is
+    reported ``cannot_decide`` with that reason and left out of the final model, and the selection
+    runs again without it, so the effect that is there is found (before, the impossible one stayed in
+    the model beside it and the residual read as explained)."""
+    rng = np.random.default_rng(7)
+    R = 4000
+    xb = _smooth_cols(rng, R, 1)
+    xa = 0.9 * xb + 0.2 * _smooth_cols(rng, R, 1)  # a fits what b does nearly as well, and a bit more
+    y = -3.0 * xa[:, 0] + 0.2 * xb[:, 0] + rng.normal(0, 0.05, R)  # a's fit is negative: impossible
+    res = sel.select(_design(y, {"a": xa, "b": xb}), plausible=lambda n, p: "negative" if n == "a" and p[0] < 0 else None)
+    v = {e["effect"]: e for e in res.entries}
+    assert v["a"]["verdict"] == "cannot_decide" and v["a"]["left_out"], v["a"]
+    assert v["a"]["reason"].startswith(sel.IMPOSSIBLE) and "left out of the model" in v["a"]["reason"]
+    assert v["a"]["selected_round"] is None and "a" not in res.present
+    assert v["b"]["verdict"] == "present", v["b"]
+    assert v["b"]["selected_round"] == 0
