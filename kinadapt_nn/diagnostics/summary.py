@@ -14,6 +14,12 @@ def completeness_text(rep: dict) -> str:
     """The verdict on the model itself, in words (the summary's first sentence)."""
     un = rep.get("unexplained", {})
     if rep.get("model_complete", True):
+        # the final model holds every selected effect; one the verdict then leaves undecided explains too
+        held = [e["effect"] for e in rep.get("ranking", []) if e.get("selected_round") is not None
+                and e.get("verdict") != "present"]
+        if held:
+            return (f"The model explains the log only with effects it cannot decide ({', '.join(held)}): no systematic "
+                    "residual of a relevant size is left once they are fitted, and none of them is a finding.")
         return "The model explains the log: no systematic residual of a relevant size is left."
     ch = un.get("channels", {})
     parts = [f"{c} ({ch[c]['structured_rms']:.3g} {ch[c]['unit']}, {ch[c]['ratio_to_noise']:.1f}x the noise floor)"

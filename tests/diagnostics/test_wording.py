@@ -64,3 +64,19 @@ def test_the_user_log_summary_names_the_two_joints():
     assert "Cannot decide: encoder_offset (a near-tie: another explanation fits the data as well; offset_joint3 " \
            "indistinguishable from offset_joint4, tool_tilt)." in txt
     assert "encoder_offset:" not in txt  # never an effect indistinguishable from itself
+
+
+def test_explained_only_by_undecided_effects_is_said():
+    """A complete model whose final fit holds an effect the verdict leaves undecided does not read as
+    an explained log: the summary names the undecided effects it needs (a snag window's ft_offset)."""
+    from kinadapt_nn.diagnostics.summary import completeness_text
+
+    rank = [{"effect": "ft_offset", "selected_round": 0, "verdict": "cannot_decide"},
+            {"effect": "tool_tilt", "selected_round": None, "verdict": "cannot_decide"},
+            {"effect": "tool_gravity", "selected_round": 1, "verdict": "present"}]
+    txt = completeness_text({"model_complete": True, "ranking": rank})
+    assert txt.startswith("The model explains the log only with effects it cannot decide (ft_offset)"), txt
+    assert "tool_tilt" not in txt and "tool_gravity" not in txt
+    rank[0]["verdict"] = "present"
+    assert completeness_text({"model_complete": True, "ranking": rank}) == (
+        "The model explains the log: no systematic residual of a relevant size is left.")
