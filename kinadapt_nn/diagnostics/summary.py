@@ -10,13 +10,18 @@ from kinadapt_nn.diagnostics import signals as sg
 from kinadapt_nn.diagnostics.tip import tip_nuisance
 
 
+def undecided_in_model(rep: dict) -> list[str]:
+    """The effects the final model holds (selected) that the verdict leaves undecided: the model's
+    fit needs them, and none is a finding (``rep``: the report's sections)."""
+    return [e["effect"] for e in rep.get("ranking", []) if e.get("selected_round") is not None
+            and e.get("verdict") != "present"]
+
+
 def completeness_text(rep: dict) -> str:
     """The verdict on the model itself, in words (the summary's first sentence)."""
     un = rep.get("unexplained", {})
     if rep.get("model_complete", True):
-        # the final model holds every selected effect; one the verdict then leaves undecided explains too
-        held = [e["effect"] for e in rep.get("ranking", []) if e.get("selected_round") is not None
-                and e.get("verdict") != "present"]
+        held = undecided_in_model(rep)
         if held:
             return (f"The model explains the log only with effects it cannot decide ({', '.join(held)}): no systematic "
                     "residual of a relevant size is left once they are fitted, and none of them is a finding.")

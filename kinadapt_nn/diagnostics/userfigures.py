@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from kinadapt_nn.diagnostics.summary import undecided_in_model
+
 VERDICT_COLORS = {"present": "C3", "cannot_decide": "C1", "absent": "0.6"}
 #: at most about this many points per plotted series (a long log's series are decimated): a panel is
 #: ~500 px wide, so 2000 min/max bins (4 a pixel) draw what every sample would; 20 000 took 7.4 s (cProfile) of
@@ -124,8 +126,10 @@ def _mvm_fig(res, setup):
         if clipped:  # the panel's own note: what lies beyond its axis
             a.legend(*zip(*clipped), fontsize=7, loc="upper left")
     fig.legend(list(shared.values()), list(shared), loc="outside lower center", ncol=len(shared), fontsize=9)
-    verdict = "the model explains the log" if res.report.get("model_complete", True) else \
-        "something the model does not contain is left (red spans)"
+    held = undecided_in_model(res.report)
+    verdict = ("something the model does not contain is left (red spans)" if not res.report.get("model_complete", True)
+               else f"the model explains the log only with undecided effects ({', '.join(held)})" if held
+               else "the model explains the log")
     if left_out:  # then only free space was judged: "explains the log" would claim the contact too
         verdict = verdict.replace("the log", "free space") + f"; contact rows left out ({left_out})"
     fig.suptitle(f"wrench the tool exerts on the sensor (sensor frame) vs the declared tool "
