@@ -406,10 +406,6 @@ class EffectsCfg(_Cfg):
         return [k for k in type(self).model_fields if getattr(self, k).enabled]
 
 
-EffectName = Literal["tool_gravity", "ft_bias_drift", "ft_frame_rotation", "tool_tilt", "contact_stiffness",
-                     "contact_friction_couple", "grasp_compliance", "encoder_offset"]
-
-
 class MonitorCfg(_Cfg):
     """The live monitor (``kinadapt online --monitor``, ``kinadapt_nn.monitor``): a sequential test of the
     measured wrench against the nominal model's prediction (declared tool, its gravity and inertia), on
@@ -437,7 +433,7 @@ class MonitorCfg(_Cfg):
 class ModelCfg(_Cfg):
     """The controller's model beyond the features: library effects adapted online."""
 
-    effects: tuple[EffectName, ...] = ()  # e.g. ["contact_stiffness"]: columns adapted by the prediction law
+    effects: tuple[str, ...] = ()  # columns adapted by the prediction law, e.g. ["contact_stiffness"]: built-ins with an online side (kinadapt_nn.features.effect_library.LIBRARY, checked there) or "PATH.py:NAME" of an effects file
 
 
 class ExciteCfg(_Cfg):

@@ -80,11 +80,15 @@ def _split_unit(comment: str) -> tuple[str, str]:
 
 def _registered(key: str) -> list[str] | None:
     """The names a key takes from a registry, read from it (``run.features``: the features
-    types), else None."""
+    types; ``model.effects``: the online effects), else None."""
     if key == "run.features":
         from kinadapt_nn.features import FEATURES
 
         return list(FEATURES)
+    if key == "model.effects":
+        from kinadapt_nn.features.effect_library import LIBRARY
+
+        return [*LIBRARY, "PATH.py:NAME"]
     return None
 
 

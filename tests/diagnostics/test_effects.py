@@ -17,6 +17,7 @@ from kinadapt_nn.diagnostics.importers import RawLog
 from kinadapt_nn.effects.online import Signals, tip_twist_map, to_level
 from kinadapt_nn.features.effect_library import LIBRARY
 from kinadapt_nn.runs.episode import run_episode
+from kinadapt_nn.runs.build import make_features
 from kinadapt_nn.errors import ConfigError
 
 REPO = Path(__file__).resolve().parents[2]
@@ -173,8 +174,8 @@ def test_diagnose_cli_add_baseline_rerun_and_errors(tmp_path, capsys):
 
 
 def test_effects_config_errors_are_one_line():
-    with pytest.raises(ConfigError, match="model.effects"):
-        load_config(None, ['model.effects=["gravity"]'])
+    with pytest.raises(ConfigError, match="model.effects"):  # looked up in the registry where the model is built
+        make_features(load_config(None, ['model.effects=["gravity"]']))
     with pytest.raises(ConfigError, match="effects.contact_stiffness.factor"):
         load_config(None, ["effects.contact_stiffness.factor=-1"])
     with pytest.raises(ConfigError, match="excite.segments"):

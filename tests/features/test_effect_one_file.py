@@ -118,12 +118,32 @@ def test_the_controller_builds_the_example_from_its_path(pull_pair):
     from kinadapt_nn.config import load_config
     from kinadapt_nn.runs.build import make_features
 
-    cfg = load_config(REPO / "online" / "excite.toml", ["run.tensorboard=false", "run.figure=false"])
-    # config.ModelCfg.effects still lists the built-in names only: set the field as its str form will allow
-    cfg = cfg.model_copy(update={"model": cfg.model.model_copy(update={"effects": (f"{EXAMPLE}:hose_weight",)})})
+    cfg = load_config(REPO / "online" / "excite.toml", ["run.tensorboard=false", "run.figure=false",
+                                                        f'model.effects=["{EXAMPLE}:hose_weight"]'])
     feats, theta0 = make_features(cfg)
     assert feats.name.endswith("+hose_weight") and feats.k == 1 and len(theta0) == feats.p0 + 1
     assert not feats.track_rows[feats.p0:].any()
+
+
+def test_model_effects_names_come_from_the_registry():
+    """``model.effects`` keeps no list of its own: every online built-in of the registry (and only
+    those) builds, a misspelt one is one line with the closest, and ``kinadapt config`` lists the
+    registry's names."""
+    from kinadapt_nn.app.config_doc import describe
+    from kinadapt_nn.config import load_config
+    from kinadapt_nn.effects.builtin import BUILTINS
+    from kinadapt_nn.runs.build import make_features
+
+    online = [n for n, e in BUILTINS.items() if e.online is not False]
+    assert list(LIBRARY) == online
+    feats, theta0 = make_features(load_config(None, [f"model.effects={online}"]))
+    assert feats.name.endswith("+" + "+".join(online)) and len(theta0) == feats.p0 + feats.k
+    for bad, closest in (("gravity", "tool_gravity"), ("tool_inertia", None)):  # tool_inertia: no online side
+        with pytest.raises(ConfigError, match="model.effects") as exc:
+            make_features(load_config(None, [f'model.effects=["{bad}"]']))
+        assert "\n" not in str(exc.value) and (closest is None or f"did you mean '{closest}'" in str(exc.value))
+    row = next(r for r in describe(load_config(None)) if r.key == "model.effects")
+    assert all(n in row.meaning for n in online)
 
 
 def test_contract_form_expresses_a_built_in_online_function(pull_pair):
