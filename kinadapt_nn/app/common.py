@@ -33,34 +33,30 @@ class Parser(argparse.ArgumentParser):
                                                  f"{', '.join(map(repr, action.choices))})") from None
 
 
-def int_in(lo: int, hi: int):
-    """argparse type: an integer in [lo, hi]."""
+def _number_in(convert: type, noun: str, lo: float, hi: float, lo_open: bool):
+    """argparse type: ``convert(text)`` (``int`` or ``float``, called ``noun`` in the message), finite,
+    in [lo, hi], or (lo, hi] with ``lo_open``."""
 
-    def parse(text: str) -> int:
+    def parse(text: str):
         try:
-            value = int(text)
+            value = convert(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-        if not lo <= value <= hi:
-            raise argparse.ArgumentTypeError(f"{value} is outside [{lo}, {hi}]")
+            raise argparse.ArgumentTypeError(f"{text!r} is not {noun}") from None
+        if not (math.isfinite(value) and (lo < value if lo_open else lo <= value) and value <= hi):
+            raise argparse.ArgumentTypeError(f"{text.strip()} is outside {'(' if lo_open else '['}{lo:g}, {hi:g}]")
         return value
 
     return parse
+
+
+def int_in(lo: int, hi: int):
+    """argparse type: an integer in [lo, hi]."""
+    return _number_in(int, "an integer", lo, hi, lo_open=False)
 
 
 def float_in(lo: float, hi: float):
     """argparse type: a finite number in (lo, hi] (lo excluded: every such option is a positive quantity)."""
-
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-        if not (math.isfinite(value) and lo < value <= hi):
-            raise argparse.ArgumentTypeError(f"{text} is outside ({lo:g}, {hi:g}]")
-        return value
-
-    return parse
+    return _number_in(float, "a number", lo, hi, lo_open=True)
 
 
 class Once(argparse.Action):
