@@ -35,6 +35,17 @@ BLOCK_BODY = "bore_block"
 TRUTH_CONTACT_SENSOR = "truth_peg_block_contacts"
 TRUTH_CONTACT_SLOTS = 24  #: contacts it reports (more are rare: the scan of the contact array then)
 BLOCK_TOP_GEOMS_PREFIX = "block_"
+#: [kg m^2] the grasp hinges' armature (effect grasp_compliance). Numerical, not a rotor of the grasp:
+#: the socket fixture's damper acts on the tool's turn explicitly (``sim.socket``: its wrench is computed
+#: on the step's start state), c = c_lat |tip|^2 + c_rot = 1.74 N m s/rad at the excitation's fixture, and
+#: one 1 ms step would take dt c / I = 5.07 of the turn rate with the tool's own 3.4e-4 kg m^2 (unstable
+#: above 2: with no armature the excitation run blows up); 0.52 with this added. MuJoCo's armature has
+#: no body, so the reading (the tool's Newton-Euler force) carries its torque ``a d2(turn)/dt2`` as if the
+#: hinge's spring bore it: -0.02 % of the turn / moment slope on the excitation run. Before, the hinges
+#: inherited the Panda's joint class's 0.1 kg m^2: -0.63 % there (the realised compliance 1.006 / k seen
+#: from the reading) and a damping ratio of 0.04 where 0.7 was meant (benchmarks/grasp_compliance_check.py
+#: [--before]; tests/sim/test_grasp_hinge.py)
+GRASP_ARMATURE_KG_M2 = 3e-3
 
 
 class SceneIds(NamedTuple):
@@ -70,10 +81,12 @@ def _add_tool(spec: mujoco.MjSpec, tool: ToolCfg, effects: EffectsCfg | None = N
         plate.add_site(name=FT_SITE, pos=[0, 0, 0], size=[0.006, 0, 0], rgba=[0.8, 0.3, 0.3, 1])
         body = plate.add_body(name=TOOL_BODY, pos=[0, 0, 0])
         inertia_O = tool.mass_kg * tool.length_m**2 / 3.0 + 1e-5  # [kg m^2] about a hinge at O
-        damping = 2.0 * 0.7 * np.sqrt(gc.stiffness_Nm_per_rad * inertia_O)
+        # the hinges' own inertia (armature) set here, not inherited from the arm's joint class
+        # (the Panda's 0.1 kg m^2, 300x the tool's: the sensor does not see an armature's torque)
+        damping = 2.0 * 0.7 * np.sqrt(gc.stiffness_Nm_per_rad * (inertia_O + GRASP_ARMATURE_KG_M2))
         for name, axis in (("grasp_x", [1, 0, 0]), ("grasp_y", [0, 1, 0])):
             body.add_joint(name=name, type=mujoco.mjtJoint.mjJNT_HINGE, axis=axis, pos=[0, 0, 0],
-                           stiffness=gc.stiffness_Nm_per_rad, damping=damping)
+                           stiffness=gc.stiffness_Nm_per_rad, damping=damping, armature=GRASP_ARMATURE_KG_M2)
     else:
         body = link7.add_body(name=TOOL_BODY, pos=list(flange_site.pos))
     R_f_t = tilt_rotation(tool.tilt_deg)  # tool axes in f (grasp tilt)
