@@ -115,14 +115,15 @@ def test_chunks_never_cut_a_socket_engagement():
 
 def _signals(setup, R, p_ws, wrench, w_nom, omega_s):
     return SimpleNamespace(setup=setup, R_ws=R, p_ws=p_ws, wrench=wrench, w_nom=w_nom, omega_s=omega_s, n=len(R),
-                           t=np.arange(len(R)) * 0.001)
+                           t=np.arange(len(R)) * 0.001, g_s=np.tile([0.0, 0.0, -9.81], (len(R), 1)), a_s=np.zeros((len(R), 3)))
 
 
 def test_friction_couple_and_grasp_compliance_columns_closed_form():
     """Engaged, sensor axes = world, 12 N of contact force, turning about z at 0.2 rad/s: the
     friction column is -|f| w/(|w| + eps) in the moments. A contact moment of 1 N m about x_s turns
     the grasp by c per unit compliance: the tip moves by (c e_x) x tip, the lateral spring pushes
-    back, the angular spring resists: M_x = -k_rot - k_lat |tip|^2 per unit c."""
+    back, the angular spring resists, and the 12 N contact force now acts at the moved tip (the tool
+    is massless: no weight moves): M_x = -k_rot - k_lat |tip|^2 + |tip| 12 N per unit c."""
     from kinadapt_nn.effects.builtin.contact_friction_couple import OMEGA_EPS_RAD_S
 
     n = 5
@@ -140,8 +141,9 @@ def test_friction_couple_and_grasp_compliance_columns_closed_form():
     G = BUILTINS["grasp_compliance"].evaluate(s)[0, :, 0]
     tip = np.array([0.0, 0.0, -0.1])
     f = -K_LAT * np.cross([1.0, 0.0, 0.0], tip)  # across the axis (already: along y)
-    np.testing.assert_allclose(G, np.r_[f, np.array([-K_ROT, 0.0, 0.0]) + np.cross(tip, f)], atol=1e-9)
-    assert G[3] == pytest.approx(-K_ROT - K_LAT * 0.01)
+    turned = np.cross(np.cross([1.0, 0.0, 0.0], tip), [0.0, 0.0, 12.0])  # the contact force at the moved tip
+    np.testing.assert_allclose(G, np.r_[f, np.array([-K_ROT, 0.0, 0.0]) + np.cross(tip, f) + turned], atol=1e-9)
+    assert G[3] == pytest.approx(-K_ROT - K_LAT * 0.01 + 0.1 * 12.0)
 
 
 def test_contact_model_effects_are_judged_only_with_a_declared_geometry():
