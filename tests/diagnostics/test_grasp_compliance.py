@@ -76,7 +76,7 @@ def _world(k_grasp: float, R_ws, p_ws):
     for i in range(len(R_ws)):
         def balance(x):
             return k_grasp * x - loads(i, np.array([x[0], x[1], 0.0]))[1][:2]
-        x = fsolve(balance, np.zeros(2), xtol=1e-12)
+        x = fsolve(balance, np.zeros(2))
         turns[i, :2] = x
         wrench[i] = np.concatenate(loads(i, turns[i]))
     return wrench, turns
