@@ -84,17 +84,24 @@ class Event:
     t_first_named_s: float = float("nan")  #: [s] when it was first named (reported with its shape)
     open: bool = True  #: still open at the end (its shape stays in the model)
     updates: int = 0  #: times a later look refitted its estimate (the same effect seen better)
+    #: the shapes its window cannot tell from ``shape`` (``shapes.ties``: a near-tie); empty: it is decided
+    ties: list[str] = field(default_factory=list)
+    #: the end-of-run look at an open event (``Monitor.finish``): every shape fitted again on all the free
+    #: samples since its onset -- {"shape", "ties", "delta_bic", "rows", "from_s", "to_s"} -- or None
+    at_end: dict | None = None
 
     @property
     def line(self) -> str:
-        return f"{self.t_s:.2f} s: {self.text} -- looks like {self.shape}"
+        alt = f" (or {' or '.join(self.ties)}: the window cannot tell them apart)" if self.ties else ""
+        return f"{self.t_s:.2f} s: {self.text} -- looks like {self.shape}{alt}"
 
     def as_dict(self) -> dict:
         return {"t_s": self.t_s, "onset_s": self.onset_s, "t_named_s": self.t_named_s,
                 "t_first_named_s": self.t_first_named_s, "channels": self.channels,
                 "phase": self.phase, "shape": self.shape, "text": self.text, "line": self.line,
                 "estimate": self.estimate, "runner_up": self.runner_up, "delta_bic": self.delta_bic,
-                "rows": self.rows, "open": self.open, "updates": self.updates}
+                "rows": self.rows, "open": self.open, "updates": self.updates, "ties": list(self.ties),
+                "at_end": self.at_end}
 
 
 def consts(setup: SetupCfg, mcfg: MonitorCfg, dt_s: float) -> np.ndarray:
@@ -149,6 +156,8 @@ class Monitor:
         self.dismissed = 0  #: alarms whose best shape was not significant (``CONFIRM_P``): no event
         self._fits: list = []  #: (fit, onset, event) of each event, as its correction stands in the model
         self._history: dict = {}  #: id(event) -> [(time from which, fit)]: its correction's versions in the model
+        #: id(event) -> (naming sd, the model's slow error, fired channels, baseline) it was named with
+        self._named: dict = {}
         self.res_log = self.z_log = None  #: (rows, 6) residual and residual / sd at logged rows (``record``)
         self.pauses: list[list] = []  #: [from_s, to_s or None: still paused] of the law (``law_paused``)
 
@@ -255,9 +264,10 @@ class Monitor:
         rows = K.ring_rows(st, self.ring, t_on)
         # t_on: the last sample before the change; the first SETTLE_S after it left out (the arm's transient)
         rows = rows[(rows[:, K.G_FREE] > 0.5) & (rows[:, K.G_T] > t_on + SETTLE_S)]
+        base = self._baseline(t_on) if BASELINE_S > 0.0 else np.zeros(6)
         if BASELINE_S > 0.0 and len(rows):  # the change, not what the model already missed before it
             rows = rows.copy()
-            rows[:, K.G_E:K.G_E + 6] -= self._baseline(t_on)
+            rows[:, K.G_E:K.G_E + 6] -= base
         if len(rows) < 20 and not final:
             st[K.S_TALARM] = st[K.S_TLAST]  # wait for another window of free-space samples
             return None
@@ -268,7 +278,8 @@ class Monitor:
             return None
         sd = self.noise_sd
         fmask = np.isin(np.arange(6), fired)
-        f, fits = shapes.best(rows, self._naming_sd(t_on), self.mc, t_on, fmask, slow_sd=self._model_sd(t_on))
+        naming_sd = self._naming_sd(t_on)
+        f, fits = shapes.best(rows, naming_sd, self.mc, t_on, fmask, slow_sd=self._model_sd(t_on))
         margin = float(fits[1].bic - f.bic) if len(fits) > 1 else np.inf
         unturned = f.shape in POSE_FREE and _turned_deg(rows) < TURN_DEG
         if (margin < DECISIVE or unturned) and al["windows"] < MAX_WINDOWS and not final:
@@ -281,7 +292,7 @@ class Monitor:
             self._restart()
             return None
         f = shapes.fit(f.shape, rows, sd, self.mc, t_on, fmask, jackknife=True,
-                       model_sd=np.maximum(self._model_sd(t_on), self._left_sd(f, rows, t_on)))
+                       model_sd=np.maximum(self._model_sd(t_on, beyond_noise=True), self._left_sd(f, rows, t_on)))
         change = np.max(np.abs(shapes.evaluate(f, rows, self.mc, t_on)), axis=0)  # (6,) [N, N m] within the window
         rel = shapes.relevance(f, self.setup.analysis.relevant_force_N)
         self.alarms[-1]["size_sd"], self.alarms[-1]["size_relevant"] = float(np.max(change / sd)), rel
@@ -292,10 +303,12 @@ class Monitor:
             self._restart()
             return None
         text, est = shapes.describe(f, self.mc, self.frame, float(self.c[K.C_SIGN]))
+        named = next(g for g in fits if g.shape == f.shape)  # its fit on the naming sd, as the others'
         ev = Event(al["t"], t_on, [CHANNELS[i] for i in fired], "free space", f.shape, text, est,
                    fits[1].shape if len(fits) > 1 else "", margin, f.rows, float(rows[-1, K.G_T]),
-                   float(rows[-1, K.G_T]))
+                   float(rows[-1, K.G_T]), ties=shapes.ties(named, fits, rows, naming_sd, self.mc, t_on, fmask))
         self.alarms[-1]["outcome"] = "event"
+        self._named[id(ev)] = (naming_sd, self._model_sd(t_on), fmask, base)  # for its end-of-run look
         self._apply(f, t_on, +1.0)
         self._fits.append((f, t_on, ev))
         self._history[id(ev)] = [(ev.t_named_s, f)]
@@ -318,7 +331,7 @@ class Monitor:
         if nb < 3:
             return np.zeros(6)
         r = rows[:nb * k, K.G_E:K.G_E + 6] - shapes.evaluate(f, rows[:nb * k], self.mc, t_on)
-        return np.sqrt(np.mean(r.reshape(nb, k, 6).mean(axis=1) ** 2, axis=0))
+        return self._beyond_noise(r.reshape(nb, k, 6).mean(axis=1), k)
 
     def _naming_sd(self, t_on: float) -> np.ndarray:
         """(6,) [N, N m] the sd each channel's rows are divided by to name a change: the noise sd, widened
@@ -349,7 +362,7 @@ class Monitor:
         rows = rows[(rows[:, K.G_FREE] > 0.5) & (rows[:, K.G_T] <= t_on)]
         return rows[:, K.G_E:K.G_E + 6].mean(axis=0) if len(rows) >= 50 else np.zeros(6)
 
-    def _model_sd(self, t_on: float) -> np.ndarray:
+    def _model_sd(self, t_on: float, beyond_noise: bool = False) -> np.ndarray:
         """(6,) [N, N m] the model's slow error before a change: the RMS of the residual's
         ``MODEL_BLOCK_S`` means over the free samples of the ``MODEL_LOOK_S`` before ``t_on`` (noise / 10
         when there are too few)."""
@@ -360,7 +373,14 @@ class Monitor:
         if nb < 3:
             return self.noise_sd / 10.0
         means = rows[:nb * k, K.G_E:K.G_E + 6].reshape(nb, k, 6).mean(axis=1)
-        return np.sqrt(np.mean(means ** 2, axis=0))
+        return self._beyond_noise(means, k) if beyond_noise else np.sqrt(np.mean(means ** 2, axis=0))
+
+    def _beyond_noise(self, means: np.ndarray, k: int) -> np.ndarray:
+        """(6,) [N, N m] the RMS of block means (nb, 6) of ``k`` samples each less what the noise alone puts
+        there: ``sqrt(max(mean(means^2) - sd^2 / k, 0))`` per channel (the white noise's own share of a block
+        mean, ``sd^2 / k``, is already in the estimate's white-noise covariance; counted again as a constant
+        error of the model it would widen the interval by the noise twice)."""
+        return np.sqrt(np.maximum(np.mean(means ** 2, axis=0) - self.noise_sd ** 2 / k, 0.0))
 
     def _apply(self, f, t_on: float, sign: float) -> None:
         """Add (sign +1) or take out (-1) a fitted shape's correction of the model."""
@@ -395,12 +415,7 @@ class Monitor:
         if len(rows) == 0 or rows[0, K.G_T] > t0 + SETTLE_S + 2.0 * self.dt_s + 1e-9 or f_old.shape == "ft_bias_drift" \
                 and f_new.shape != "ft_bias_drift":
             return False  # its onset has left the ring
-        y = rows.copy()  # the residual without the old event's correction
-        hist = self._history[id(ev)]  # (from when, the fit then in the model) of this event's correction
-        for i, (t_a, f_a) in enumerate(hist):
-            t_b = hist[i + 1][0] if i + 1 < len(hist) else np.inf
-            seg = (rows[:, K.G_T] > t_a) & (rows[:, K.G_T] <= t_b)
-            y[seg, K.G_E:K.G_E + 6] += shapes.evaluate(f_a, rows[seg], self.mc, t0)
+        y = self._without(ev, rows, t0)
         sd = self.noise_sd
         fmask = np.isin(np.arange(6), [CHANNELS.index(c) for c in ev.channels])
         one = shapes.fit(f_old.shape, y, sd, self.mc, t0, fmask, jackknife=True, model_sd=self._model_sd(t0))
@@ -423,11 +438,46 @@ class Monitor:
             self.on_event(ev)
         return True
 
+    def _without(self, ev: Event, rows: np.ndarray, t0: float) -> np.ndarray:
+        """Ring rows with the residual as it would be without event ``ev``'s correction (each version of it
+        added back over the rows it was in the model)."""
+        y = rows.copy()
+        hist = self._history[id(ev)]  # (from when, the fit then in the model) of this event's correction
+        for i, (t_a, f_a) in enumerate(hist):
+            t_b = hist[i + 1][0] if i + 1 < len(hist) else np.inf
+            seg = (rows[:, K.G_T] > t_a) & (rows[:, K.G_T] <= t_b)
+            y[seg, K.G_E:K.G_E + 6] += shapes.evaluate(f_a, rows[seg], self.mc, t0)
+        return y
+
     def finish(self) -> list[Event]:
-        """At the end of the stream: an alarm whose window is still open is named on what there is."""
+        """At the end of the stream: an alarm whose window is still open is named on what there is; then each
+        open event gets its end-of-run look (``Event.at_end``)."""
         if self.st[K.S_MODE] == K.MODE_WINDOW:
             self.name_event(final=True)
+        for f, t0, ev in self._fits:
+            if ev.open and ev.at_end is None:
+                ev.at_end = self._end_look(ev, t0)
         return self.events
+
+    def _end_look(self, ev: Event, t0: float) -> dict | None:
+        """Every shape fitted again on the free samples from the event's onset (after ``SETTLE_S``; the ring's
+        oldest where the onset has left it) to the next event's onset or the end, the residual without the
+        event's own correction less its baseline, rows divided by the sd it was named with: the best shape and
+        its near-ties (``shapes.ties``) on everything the run saw of it -- the window the offline diagnosis of
+        the run judges (``diagnostics.ownrun.monitor_window``). -> ``Event.at_end``, or None (too few rows)."""
+        naming_sd, slow_sd, fmask, base = self._named[id(ev)]
+        later = [e.onset_s for e in self.events if e.onset_s > t0]
+        t_to = min(later) if later else np.inf
+        rows = K.ring_rows(self.st, self.ring, t0)
+        rows = rows[(rows[:, K.G_FREE] > 0.5) & (rows[:, K.G_T] > t0 + SETTLE_S) & (rows[:, K.G_T] <= t_to)]
+        if len(rows) < 20:
+            return None
+        y = self._without(ev, rows, t0)
+        y[:, K.G_E:K.G_E + 6] -= base
+        f, fits = shapes.best(y, naming_sd, self.mc, t0, fmask, slow_sd=slow_sd)
+        return {"shape": f.shape, "ties": shapes.ties(f, fits, y, naming_sd, self.mc, t0, fmask),
+                "delta_bic": float(fits[1].bic - f.bic) if len(fits) > 1 else float("inf"), "rows": int(len(y)),
+                "from_s": float(y[0, K.G_T]), "to_s": float(y[-1, K.G_T])}
 
     def summary(self) -> dict:
         """What summary.json keeps of the monitor."""

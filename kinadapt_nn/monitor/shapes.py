@@ -321,6 +321,62 @@ def best(rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: float,
     return fits[0], fits
 
 
+#: near-ties (``ties``): a shape ties the best when it explains at least TIE_RATIO of what the best explains
+#: (``diagnostics.selection``'s ``tie_ratio``) and neither is worth its parameters once the other is fitted
+#: (the monitor's own criterion, BIC)
+TIE_RATIO = 0.8
+
+
+def _target(f: Fit, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: float,
+            fired: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The fit's linear form on the window: (A (6n, k) its columns -- the world force's Jacobian at its
+    estimate --, b (6n,) the data it is fitted to -- for the world force linearised at its estimate,
+    ``e + J p`` --, the prior precision's diagonal (k,))."""
+    A, e = design(f.shape, rows, sd, mc, t_onset, f, fired)
+    pr = prior_sd(f.shape, mc)
+    p = f.p
+    if f.shape == "ft_bias_drift":
+        keep = np.concatenate([np.ones(6, bool), fired if fired is not None else np.ones(6, bool)])
+        pr, p = pr[keep], p[keep]
+    return A, e + A @ p, 1.0 / pr ** 2
+
+
+def _misfit(A: np.ndarray, b: np.ndarray, prec: np.ndarray) -> float:
+    """chi^2 of ``b`` after the least squares on ``A`` with the prior precision ``prec`` (the data's part)."""
+    p = np.linalg.solve(A.T @ A + np.diag(prec), A.T @ b)
+    r = b - A @ p
+    return float(r @ r)
+
+
+def ties(best: Fit, fits: list[Fit], rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: float,
+         fired: np.ndarray | None = None) -> list[str]:
+    """The shapes the window cannot tell from ``best`` (``fits``: every shape's fit on ``rows``, rows divided
+    by ``sd``): each explains at least ``TIE_RATIO`` of the chi^2 ``best`` explains, and with both fitted
+    together neither lowers the chi^2 by more than its parameters cost in BIC (``k ln(rows)``, the criterion
+    that named the best): the data hold no part one explains and the other does not. A shape that contains
+    the best (``tool_gravity`` holds every ``tool_tilt``: a first moment turned about O) adds nothing worth
+    its parameters when the best is enough, so it ties: the best is then named for having fewer parameters
+    only. -> shape names, in ``fits``' order."""
+    A1, b, P1 = _target(best, rows, sd, mc, t_onset, fired)
+    log_m = np.log(len(b))
+    none = float(np.sum((rows[:, K.G_E:K.G_E + 6] / sd[None, :]) ** 2))  # chi^2 of the window with no shape
+    out = []
+    for f in fits:
+        if f.shape == best.shape:
+            continue
+        A2, b2, P2 = _target(f, rows, sd, mc, t_onset, fired)
+        c1, c2 = _misfit(A1, b, P1), _misfit(A2, b2, P2)
+        # together: on the world force's linearised data where one is the world force (its fit's residual at
+        # its estimate, the other's columns free), else on the data
+        both = _misfit(np.hstack([A1, A2]), b2 if f.shape == "world_force" else b, np.concatenate([P1, P2]))
+        if none - c2 < TIE_RATIO * (none - c1):
+            continue
+        if c2 - both > A1.shape[1] * log_m or c1 - both > A2.shape[1] * log_m:
+            continue  # one explains a part of what the other leaves, worth its parameters: the data tell them apart
+        out.append(f.shape)
+    return out
+
+
 AXES = ("x", "y", "z")
 CHANNELS = ("F_x", "F_y", "F_z", "M_x", "M_y", "M_z")
 
