@@ -10,6 +10,8 @@ recorded with the library at commit e1e59c4. Here the same ``Signals`` go throug
 
 * the effects whose online side is written in their module (``online=fn``: tool tilt, contact
   stiffness, friction couple, grasp compliance, encoder offset) are the same arithmetic, so bit-equal;
+  the grasp compliance has since (issue 49) the contact force's moment at the turned tip added to its
+  level: without it, it equals the recorded one to rounding (1e-12 of the larger of its largest entry and 1);
 * those derived from their diagnosis columns (``online=True`` through ``effects.online.from_wrench``:
   the payload, the sensor rotation, the drift) equal the hand-written ones to 1e-12 of the larger of the
   window's largest entry and g = 9.81 (rounding: a different order of the same products; the tared
@@ -98,6 +100,20 @@ def _as_before(name: str, new: np.ndarray, k_level: int) -> np.ndarray:
     return np.concatenate([new[..., :k - 1], new[..., k:2 * k - 1]], axis=-1)
 
 
+def _turned_contact_force(sig: Signals) -> np.ndarray:
+    """(N, 6, 1) the grasp's level from the contact force at the turned tip, per unit compliance: the
+    contact moment across the flange axis turns the tool, the nominal tip ``R l_nom`` moves by
+    ``M_perp x R l_nom`` and the contact force on the tool (``-w_env``) acts there: ``(M_perp x R l_nom) x f``
+    in the moment channels, where S's contact rows apply (``gate``)."""
+    M = sig.s[:, 3:]
+    z = sig.R_wf[:, :, 2]
+    M_perp = M - (M * z).sum(axis=1, keepdims=True) * z
+    lever = np.einsum("nij,j->ni", sig.R_wf, sig.l_nom_f)
+    out = np.zeros((len(M), 6, 1))
+    out[:, 3:, 0] = sig.gate[:, None] * np.cross(np.cross(M_perp, lever), -sig.w_env_w[:, :3])
+    return out
+
+
 def test_every_recorded_effect_is_still_online():
     z = np.load(REF)
     recorded = {k.split("/")[1] for k in z.files if k.startswith("free/") and not k.startswith("free/sig")} - {"steps"}
@@ -113,6 +129,16 @@ def test_online_columns_equal_the_hand_written_ones(ref, window, name):
     new, new_steps = _new(sigs[window], z[f"{window}/steps"], name)
     new, new_steps = _as_before(name, new, 0), _as_before(name, new_steps, 0)
     assert new.shape == old.shape and new_steps.shape == old_steps.shape
+    if name == "grasp_compliance":  # since issue 49 the contact force acts at the moved tip: that level added
+        sig = sigs[window]
+        steps = z[f"{window}/steps"].astype(int)
+        extra = _turned_contact_force(sig)
+        scale = max(np.abs(old).max(), 1.0)
+        np.testing.assert_allclose(new - extra, old, rtol=0, atol=1e-12 * scale)
+        np.testing.assert_allclose(new_steps - extra[steps], old_steps, rtol=0, atol=1e-12 * scale)
+        if window == "contact":
+            assert np.abs(extra[:, 3:]).max() > 0.02 * np.abs(old[:, 3:]).max()  # control: the added level is there (moments)
+        return
     if name in DERIVED_SIGN:
         scale = max(np.abs(old).max(), np.abs(old_steps).max())
         assert scale > 0.02  # the window exercises the effect (N, N m per unit parameter)

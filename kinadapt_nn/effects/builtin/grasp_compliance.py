@@ -26,12 +26,17 @@ def online_columns(sig: Signals) -> Terms:
     """The controller's columns (level domain, ``effects.online``): the grasp turns by ``compliance *
     M_perp`` (the contact moment across the flange axis z_f, from the sensor vector ``s``), which moves
     the nominal tip by ``M_perp x R l_nom``; the contact answers that displacement and rotation through
-    S's contact rows (linear: a closed-form level)."""
+    S's contact rows (linear: a closed-form level), and the contact force on the tool now acts at the
+    moved tip, its moment about O changed by ``(M_perp x R l_nom) x f_tool`` (a closed-form level, as
+    ``tool_tilt``'s lever)."""
     M = sig.s[:, 3:]  # contact moment on the tool about O (world)
     z = sig.R_wf[:, :, 2]
     M_perp = M - np.sum(M * z, axis=1)[:, None] * z  # the hinges yield about f x, f y only
-    disp = np.concatenate([np.cross(M_perp, lever_w(sig)), M_perp], axis=1)  # tip displacement + rotation per unit compliance
-    return Terms(contact_rate(sig, disp)[:, :, None], None)  # the map is linear: displacement -> level change
+    d_tip = np.cross(M_perp, lever_w(sig))  # tip displacement per unit compliance
+    disp = np.concatenate([d_tip, M_perp], axis=1)  # ... and rotation
+    level = contact_rate(sig, disp)  # the map is linear: displacement -> level change
+    level[:, 3:] += sig.gate[:, None] * np.cross(d_tip, -sig.w_env_w[:, :3])  # the contact force at the moved tip
+    return Terms(level[:, :, None], None)
 
 
 def _report(p, sd, setup) -> dict:
