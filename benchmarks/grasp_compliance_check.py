@@ -21,7 +21,7 @@ One ``online/excite.toml`` run with the hidden effect ``grasp_compliance`` (stif
 ``--armature A``: the grasp hinges' armature [kg m^2] for this run (``sim.scene.GRASP_ARMATURE_KG_M2``);
 ``--before``: the hinges as they were before (the Panda's joint class's 0.1 kg m^2, the damper for the
 tool's own inertia; the diagnosis's column is today's). Times on the shared 2-core VM:
-about 1 min with the diagnoses.
+about 30 s with the two diagnoses (one run: 28 s measured).
 """
 
 from __future__ import annotations
