@@ -147,9 +147,21 @@ def _diagnosis_said(report: dict, names: list[str]) -> str:
                                    "not judged (no library effect; no hint: " + ("the model explains the log"
                                    if report.get("model_complete") else "incomplete") + ")"))
             continue
-        out.append(f"{n}: {e['verdict']}" + (f" ({e['reason']})" if e.get("reason") else "")
+        est = (" (" + ", ".join(f"{k} {v['value']:.4g} ± {v['sd']:.2g} {v['unit']}" for k, v in e["estimate"].items())
+               + ")") if e["effect"].startswith("monitor_") and e.get("estimate") else ""
+        out.append(f"{n}: {e['verdict']}{est}" + (f" ({e['reason']})" if e.get("reason") else "")
                    + (f", tied with {', '.join(e['indistinguishable_from'])}" if e.get("indistinguishable_from") else ""))
     return "; ".join(out)
+
+
+def _verdict_words(summary: str) -> str:
+    """The summary's verdict on the model and its present effects (its first sentences after the window's)."""
+    import re
+
+    at = min((summary.find(k) for k in ("The model", "Something the model") if k in summary), default=0)
+    said = [x for x in re.split(r"(?<=\.) ", summary[at:]) if x.startswith(("The model", "Something", "No library",
+                                                                                 "Present", "It looks like"))]
+    return " ".join(said)
 
 
 def scenario(name: str, seeds: list[int], work: Path, whole_log: bool, say, reuse: bool = False) -> dict:
@@ -177,7 +189,7 @@ def scenario(name: str, seeds: list[int], work: Path, whole_log: bool, say, reus
         if files:
             line += (f"\n    the plain diagnosis (no effect file): names {_said(plain.diagnosis)}; "
                      + _diagnosis_said(r["report"], plain.monitor_as_offline) + "; its summary: "
-                     + r["report"]["summary"].split(": before")[-1].split(". Undetermined")[0].strip())
+                     + _verdict_words(r["report"]["summary"]))
         if win and (win.get("before") or {}).get("present"):
             line += f"\n    before the onset: {', '.join(win['before']['present'])}"
         if whole_log:
