@@ -7,8 +7,11 @@ For the first ``calib_s`` (the robot at rest at the start) it measures the senso
 noise sd per channel (at least the floor); then a two-sided CUSUM per channel on residual / sd
 fires when the residual leaves the noise (threshold from ``false_alarms_per_h``:
 ``kernel.threshold``). After an alarm it collects ``window_s`` more of free-space samples, names the
-best-fitting shape (``shapes.best``) and reports an :class:`Event`; the fitted shape then joins the
-model (the test restarts on what is left, so a second change is a second event).
+best-fitting shape (``shapes.best``) and reports an :class:`Event` with the shapes its window cannot
+tell from it (``shapes.ties``); the fitted shape then joins the model (the test restarts on what is
+left, so a second change is a second event). At the end of the stream (``finish``) each open event
+gets a last look: every shape fitted again on all the free samples since its onset (``Event.at_end``),
+what ``monitor.agreement`` compares with the offline diagnosis of the same log.
 
 Contact is not judged: its force is unknown to the model. Where the set-up declares a fixture
 (its entrance plane), the samples with the nominal tip within ``contact_zone_m`` of the plane or

@@ -6,7 +6,7 @@ its channel's noise sd. Each shape is linear in its parameters (columns per samp
 best is the one with the least Bayesian information criterion ``chi^2 + k ln(rows)``, with the model's
 own slow error (an unknown constant per channel) integrated out when its size is given (``slow_bic``).
 Its estimate's covariance is ``(A^T A)^-1`` scaled by ``chi^2 / (rows - k)`` where the fit leaves more
-than noise.
+than noise. ``ties``: the other shapes the window cannot tell from the best (a near-tie).
 
 =====================  =========================================================  ==========================
 shape                  columns (s: sensor frame; the tool's wrench on the sensor)  what it reads as
