@@ -4,11 +4,17 @@ gate; and the kernels that run it (``step_adjoint``, ``step_neural``, ``step_rbf
 per period; ``sense_kernel`` / ``act_kernel`` around features computed in Python; ``law_kernel``
 for ``StandaloneLaw``). ``controller/core.py`` describes the sequence; the constants and state
 they index are declared in ``controller/layout.py``.
+
+The sequence is written once (``_step``); what a features kind changes in it is four small parts
+(front, rows, drive, rank gate), and each kernel is ``_step``'s code compiled with its kind's parts
+(``_kernel``): the code numba emits is what the sequence written out per kind gave (one level, the
+parts called directly), so speed and compile time are unchanged and each kind compiles only its own.
 """
 
 from __future__ import annotations
 
 import math
+import types
 
 import numba as nb
 import numpy as np
@@ -324,14 +330,6 @@ def law_kernel(reg, x, k, lay, c, pv, lc, law_fn, out):
 
 
 @nb.njit(cache=True)
-def _rank_margin_adjoint(b, R, J, x, lay, c, mats, out):
-    """The rank gate of the next step's J_hat = S Ad(R theta) J."""
-    theta = x[b, lay[X_TH]:lay[X_TH] + 3]
-    _rank_margin(b, mm(_adjoint_twist_jacobian(b, R, theta, c, mats), J[b]), c, out, lay)
-
-
-
-@nb.njit(cache=True)
 def _rank_margin(b, Jh, c, out, lay):
     """lambda_min(W J_hat J_hat^T W) (the rank gate); with RANK_ON = 2 only the gate (Cholesky)."""
     WJ = np.empty(Jh.shape)
@@ -359,27 +357,6 @@ def sense_kernel(t, inp, p_O, R, x, k, lay, c, mats, out):
 
 
 @nb.njit(cache=True)
-def act_kernel(t, inp, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, lc, law_fn, seg, out):
-    """The rest of the step after ``sense_kernel`` for features computed in Python: the regressor
-    rows ``reg`` (B, 1+p, m) = [known; Phi^T] and ``ext_J`` (J_hat_xi: FEAT_TWIST, or J_hat:
-    FEAT_JHAT) (``lc``, ``law_fn``: the law's constants and its step's address)."""
-    for b in range(inp.shape[0]):
-        if k[b, K_ERROR] != 0 or k[b, K_DONE] != 0:  # diverged, or a batch episode that has stopped
-            continue
-        _filter_regressor(b, reg, x, lay, c)
-        rho = out[b, lay[O_RHO]]
-        Lc = _act_head(b, J, x, k, lay, c, out)
-        drive = np.empty(6)
-        if c[EXCITE] > 0.0:  # the scripted program replaces V's drive (control.program = "excite")
-            _excite_drive(t - c[T_SETTLE], b, R, c, seg, drive)
-        else:
-            _ext_drive(b, J, Lc, ext_J, lay, c, out, drive)
-        _act_tail(t, b, rho, drive, Lc, inp, J, x, lay, c, out)
-        _law(b, reg, x, k, lay, c, pv, lc, law_fn, out)
-        out[b, lay[O_UNC]] = x[b, lay[X_UNC]]  # theta's remaining uncertainty (the law's; NaN: none)
-
-
-@nb.njit(cache=True)
 def _front(t, b, inp, chain, p_O, R, J, x, k, lay, c, mats, out):
     """Intake (dropout hold), forward kinematics of the bare arm and sense of episode b; False
     when it has diverged (nothing more this step)."""
@@ -393,91 +370,110 @@ def _front(t, b, inp, chain, p_O, R, J, x, k, lay, c, mats, out):
     return True
 
 
-@nb.njit(cache=True)
-def step_adjoint(t, inp, chain, p_O, R, J, reg, x, k, lay, c, mats, pv, lc, law_fn, seg, fx, out):
-    """One whole period for B episodes with the adjoint features (one dispatch): intake,
-    forward kinematics of the bare arm, sense, regressor, act, law, rank gate (``fx``: unused,
-    the fused kernels share one signature)."""
+def _step(t, inp, chain, p_O, R, J, reg, x, k, lay, c, mats, pv, lc, law_fn, seg, fx, out):
+    """The step sequence for B episodes, written once. Not compiled itself: :func:`_kernel` compiles
+    it once per features kind with that kind's four parts bound to ``front_fn`` (intake, kinematics,
+    sense; False: nothing more this step), ``rows_fn`` (the regressor rows [known; Phi^T] into
+    ``reg[b]`` -> what its drive and rank gate reuse), ``drive_fn`` (J_hat_xi^T F, with theta before
+    this step's law update) and ``rank_fn`` (the rank gate on the next step's J_hat)."""
     p = lay[L_P]
     for b in range(inp.shape[0]):
-        if k[b, K_DONE] != 0 or not _front(t, b, inp, chain, p_O, R, J, x, k, lay, c, mats, out):
+        if k[b, K_DONE] != 0 or not front_fn(t, b, inp, chain, p_O, R, J, x, k, lay, c, mats, out):  # noqa: F821
             continue
-        _adjoint_regressor(b, inp, R, J, lay, c, mats, reg[b, 0], reg[b, 1:])
+        st = rows_fn(b, inp, R, J, reg, lay, c, mats, fx)  # noqa: F821  (the parts: bound by _kernel)
         _filter_regressor(b, reg, x, lay, c)
         rho = out[b, lay[O_RHO]]
         Lc = _act_head(b, J, x, k, lay, c, out)
         drive = np.empty(6)
-        if c[EXCITE] > 0.0:
+        if c[EXCITE] > 0.0:  # the scripted program replaces V's drive (control.program = "excite")
             _excite_drive(t - c[T_SETTLE], b, R, c, seg, drive)
         else:
-            _adjoint_drive(b, R, x[b, lay[X_TH]:lay[X_TH] + p], out[b, lay[O_F]:lay[O_F] + 6], c, mats, drive)
+            drive_fn(b, R, J, Lc, st, x[b, lay[X_TH]:lay[X_TH] + p], lay, c, mats, fx, out, drive)  # noqa: F821
         _act_tail(t, b, rho, drive, Lc, inp, J, x, lay, c, out)
         _law(b, reg, x, k, lay, c, pv, lc, law_fn, out)
-        out[b, lay[O_UNC]] = x[b, lay[X_UNC]]
+        out[b, lay[O_UNC]] = x[b, lay[X_UNC]]  # theta's remaining uncertainty (the law's; NaN: none)
         if c[RANK_ON] > 0.0 and rho > 0.0:  # the rank gate on the next step's J_hat
-            _rank_margin_adjoint(b, R, J, x, lay, c, mats, out)
+            rank_fn(b, R, J, st, x[b, lay[X_TH]:lay[X_TH] + p], lay, c, mats, out)  # noqa: F821
+
+
+# -- the parts of each features kind -------------------------------------------------------------
+@nb.njit(cache=True)
+def _ready(t, b, inp, chain, p_O, R, J, x, k, lay, c, mats, out):
+    """Features computed in Python: intake and sense ran in ``sense_kernel``; False once diverged."""
+    return k[b, K_ERROR] == 0
 
 
 @nb.njit(cache=True)
-def step_neural(t, inp, chain, p_O, R, J, reg, x, k, lay, c, mats, pv, lc, law_fn, seg, fx, out):
-    """``step_adjoint`` for the neural basis (``fx``: ``neural_consts``): Y(q) once per step for
-    the regressor, J_hat for the drive and the rank gate."""
-    n, p = lay[L_N], lay[L_P]
-    for b in range(inp.shape[0]):
-        if k[b, K_DONE] != 0 or not _front(t, b, inp, chain, p_O, R, J, x, k, lay, c, mats, out):
-            continue
-        Y = _neural_body(fx, inp[b, :n], n)
-        _neural_rows(b, inp, R, J, Y, lay, c, mats, fx, reg[b, 0], reg[b, 1:])
-        Kq = _jhat_prior(b, R, J, c, mats, fx)  # once: the drive's J_hat and the rank gate's share it
-        Jh = _neural_jhat(Kq, Y, x[b, lay[X_TH]:lay[X_TH] + p])
-        _filter_regressor(b, reg, x, lay, c)
-        rho = out[b, lay[O_RHO]]
-        Lc = _act_head(b, J, x, k, lay, c, out)
-        drive = np.empty(6)
-        if c[EXCITE] > 0.0:
-            _excite_drive(t - c[T_SETTLE], b, R, c, seg, drive)
-        else:  # J_hat (m, n): J_hat_xi^T F = (J J^T + damp)^-1 J J_hat^T F
-            _jhat_drive(b, J, Lc, Jh, lay, out, drive)
-        _act_tail(t, b, rho, drive, Lc, inp, J, x, lay, c, out)
-        _law(b, reg, x, k, lay, c, pv, lc, law_fn, out)
-        out[b, lay[O_UNC]] = x[b, lay[X_UNC]]
-        if c[RANK_ON] > 0.0 and rho > 0.0:
-            _rank_margin(b, _neural_jhat(Kq, Y, x[b, lay[X_TH]:lay[X_TH] + p]), c, out, lay)
+def _rows_given(b, inp, R, J, reg, lay, c, mats, fx):
+    """Features computed in Python: their rows are in ``reg`` already."""
+    return 0
 
 
 @nb.njit(cache=True)
-def step_rbf(t, inp, chain, p_O, R, J, reg, x, k, lay, c, mats, pv, lc, law_fn, seg, fx, out):
-    """``step_neural`` for the per-entry Gaussian RBF (``fx``: ``rbf_consts``): psi(q) once per
-    step for the regressor, J_hat for the drive and the rank gate."""
-    n, p = lay[L_N], lay[L_P]
-    for b in range(inp.shape[0]):
-        if k[b, K_DONE] != 0 or not _front(t, b, inp, chain, p_O, R, J, x, k, lay, c, mats, out):
-            continue
-        psi = _rbf_psi(fx, inp[b, :n], n)
-        _rbf_rows(b, inp, R, J, psi, lay, c, mats, fx, reg[b, 0], reg[b, 1:])
-        Kq = _jhat_prior(b, R, J, c, mats, fx)
-        Jh = _rbf_jhat(Kq, psi, x[b, lay[X_TH]:lay[X_TH] + p])
-        _filter_regressor(b, reg, x, lay, c)
-        rho = out[b, lay[O_RHO]]
-        Lc = _act_head(b, J, x, k, lay, c, out)
-        drive = np.empty(6)
-        if c[EXCITE] > 0.0:
-            _excite_drive(t - c[T_SETTLE], b, R, c, seg, drive)
-        else:
-            _jhat_drive(b, J, Lc, Jh, lay, out, drive)
-        _act_tail(t, b, rho, drive, Lc, inp, J, x, lay, c, out)
-        _law(b, reg, x, k, lay, c, pv, lc, law_fn, out)
-        out[b, lay[O_UNC]] = x[b, lay[X_UNC]]
-        if c[RANK_ON] > 0.0 and rho > 0.0:
-            _rank_margin(b, _rbf_jhat(Kq, psi, x[b, lay[X_TH]:lay[X_TH] + p]), c, out, lay)
+def _drive_given(b, R, J, Lc, st, theta, lay, c, mats, fx, out, drive):
+    """Features computed in Python: the drive from their ``ext_J`` (here ``fx``)."""
+    _ext_drive(b, J, Lc, fx, lay, c, out, drive)
 
 
-# step_adjoint, step_neural, step_rbf and act_kernel spell out the same act / law sequence around their own
-# drive on purpose: one more helper level (measured: _begin_act / _end_act) adds ~3 s to a first
-# run's compile, because numba optimises and emits a callee's code again in every caller
-#: the fused step kernel of each in-kernel features kind (FEAT_ADJOINT, FEAT_NEURAL, FEAT_RBF); each compiles
-#: only its own features' code, on first use
-FUSED = {FEAT_ADJOINT: step_adjoint, FEAT_NEURAL: step_neural, FEAT_RBF: step_rbf}
+@nb.njit(cache=True)
+def _no_rank(b, R, J, st, theta, lay, c, mats, out):
+    """Features computed in Python: their rank gate is computed there."""
+    return
+
+
+@nb.njit(cache=True)
+def _adjoint_rows(b, inp, R, J, reg, lay, c, mats, fx):
+    _adjoint_regressor(b, inp, R, J, lay, c, mats, reg[b, 0], reg[b, 1:])
+    return 0
+
+
+@nb.njit(cache=True)
+def _adjoint_drive_part(b, R, J, Lc, st, theta, lay, c, mats, fx, out, drive):
+    _adjoint_drive(b, R, theta, out[b, lay[O_F]:lay[O_F] + 6], c, mats, drive)
+
+
+@nb.njit(cache=True)
+def _adjoint_rank(b, R, J, st, theta, lay, c, mats, out):
+    """The rank gate of the next step's J_hat = S Ad(R theta) J."""
+    _rank_margin(b, mm(_adjoint_twist_jacobian(b, R, theta[:3], c, mats), J[b]), c, out, lay)
+
+
+@nb.njit(cache=True)
+def _neural_rows_part(b, inp, R, J, reg, lay, c, mats, fx):
+    """Y(q) once per step for the regressor; J_hat's prior part K(q), shared by the drive and the rank gate."""
+    n = lay[L_N]
+    Y = _neural_body(fx, inp[b, :n], n)
+    _neural_rows(b, inp, R, J, Y, lay, c, mats, fx, reg[b, 0], reg[b, 1:])
+    return Y, _jhat_prior(b, R, J, c, mats, fx)
+
+
+@nb.njit(cache=True)
+def _neural_drive(b, R, J, Lc, st, theta, lay, c, mats, fx, out, drive):
+    _jhat_drive(b, J, Lc, _neural_jhat(st[1], st[0], theta), lay, out, drive)
+
+
+@nb.njit(cache=True)
+def _neural_rank(b, R, J, st, theta, lay, c, mats, out):
+    _rank_margin(b, _neural_jhat(st[1], st[0], theta), c, out, lay)
+
+
+@nb.njit(cache=True)
+def _rbf_rows_part(b, inp, R, J, reg, lay, c, mats, fx):
+    """psi(q) once per step for the regressor; J_hat's prior part K(q), shared by the drive and the rank gate."""
+    n = lay[L_N]
+    psi = _rbf_psi(fx, inp[b, :n], n)
+    _rbf_rows(b, inp, R, J, psi, lay, c, mats, fx, reg[b, 0], reg[b, 1:])
+    return psi, _jhat_prior(b, R, J, c, mats, fx)
+
+
+@nb.njit(cache=True)
+def _rbf_drive(b, R, J, Lc, st, theta, lay, c, mats, fx, out, drive):
+    _jhat_drive(b, J, Lc, _rbf_jhat(st[1], st[0], theta), lay, out, drive)
+
+
+@nb.njit(cache=True)
+def _rbf_rank(b, R, J, st, theta, lay, c, mats, out):
+    _rank_margin(b, _rbf_jhat(st[1], st[0], theta), c, out, lay)
 
 
 @nb.njit(cache=True)
@@ -496,3 +492,41 @@ def _jhat_drive(b, J, Lc, Jh, lay, out, drive):
         drive[i] = v
     chol_solve(Lc, 6, drive)
 
+
+# -- the kernels: the one sequence with each kind's parts -----------------------------------------
+def _kernel(name: str, doc: str, front_fn, rows_fn, drive_fn, rank_fn):
+    """The numba kernel ``name``: :func:`_step`'s code with these parts as its globals. numba calls a
+    global kernel directly (in line, as if written there) and caches the kernel under its own name,
+    so each kind's kernel is what writing the sequence out for it was, compiled on its first use."""
+    parts = {"front_fn": front_fn, "rows_fn": rows_fn, "drive_fn": drive_fn, "rank_fn": rank_fn}
+    fn = types.FunctionType(_step.__code__, {**globals(), **parts}, name)
+    fn.__qualname__, fn.__doc__ = name, doc
+    return nb.njit(cache=True)(fn)
+
+
+#: one whole period for B episodes with the adjoint features (one dispatch): intake, forward kinematics of
+#: the bare arm, sense, regressor, act, law, rank gate (``fx``: unused; the fused kernels share one signature)
+step_adjoint = _kernel("step_adjoint", "The step sequence (``_step``) with the adjoint features.",
+                       _front, _adjoint_rows, _adjoint_drive_part, _adjoint_rank)
+#: ``step_adjoint`` for the neural basis (``fx``: ``neural_consts``)
+step_neural = _kernel("step_neural", "The step sequence (``_step``) with the neural basis (fx: neural_consts).",
+                      _front, _neural_rows_part, _neural_drive, _neural_rank)
+#: ``step_adjoint`` for the per-entry Gaussian RBF (``fx``: ``rbf_consts``)
+step_rbf = _kernel("step_rbf", "The step sequence (``_step``) with the per-entry Gaussian RBF (fx: rbf_consts).",
+                   _front, _rbf_rows_part, _rbf_drive, _rbf_rank)
+#: the sequence after ``sense_kernel`` for features computed in Python (``fx``: their ``ext_J``)
+_step_given = _kernel("_step_given", "The step sequence (``_step``) after sense_kernel, features from Python.",
+                      _ready, _rows_given, _drive_given, _no_rank)
+
+
+@nb.njit(cache=True)
+def act_kernel(t, inp, p_O, R, J, reg, ext_J, x, k, lay, c, mats, pv, lc, law_fn, seg, out):
+    """The rest of the step after ``sense_kernel`` for features computed in Python: the regressor
+    rows ``reg`` (B, 1+p, m) = [known; Phi^T] and ``ext_J`` (J_hat_xi: FEAT_TWIST, or J_hat:
+    FEAT_JHAT) (``lc``, ``law_fn``: the law's constants and its step's address)."""
+    _step_given(t, inp, J, p_O, R, J, reg, x, k, lay, c, mats, pv, lc, law_fn, seg, ext_J, out)
+
+
+#: the fused step kernel of each in-kernel features kind (FEAT_ADJOINT, FEAT_NEURAL, FEAT_RBF); each compiles
+#: only its own features' code, on first use
+FUSED = {FEAT_ADJOINT: step_adjoint, FEAT_NEURAL: step_neural, FEAT_RBF: step_rbf}

@@ -329,3 +329,51 @@ def test_bound_entry_point_steps_as_the_dispatcher_does():
         want = run([float(t) for t in times], True)
         got = run(times, False)
         assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
+
+
+def test_the_kernels_are_one_step_sequence():
+    """Every step kernel (the three fused ones and the generic path's) is the one ``_step`` code,
+    compiled with its kind's parts, and each is cached under its own name (issue 52)."""
+    from kinadapt_nn.controller import step_kernels as sk
+
+    kernels = [*core.FUSED.values(), sk._step_given]
+    assert all(k.py_func.__code__ is sk._step.__code__ for k in kernels)
+    assert len({k.py_func.__qualname__ for k in kernels}) == len(kernels)
+    parts = [tuple(k.py_func.__globals__[f] for f in ("front_fn", "rows_fn", "drive_fn", "rank_fn"))
+             for k in kernels]
+    assert len(set(parts)) == len(kernels)  # a kind's own parts
+
+
+def test_fused_step_equals_the_generic_path():
+    """The adjoint's fused kernel (its rows, drive and rank gate in the kernel) against the generic
+    path (``sense_kernel``, the rows and J_hat_xi from ``AdjointFeatures`` in numpy, ``act_kernel``),
+    both fed the same samples of an episode driven by the first: the same commands, theta and rank
+    rate prediction at every step, to the rounding of numpy's sums against the kernel's."""
+    import copy
+
+    from kinadapt_nn.sim.adapter import PegInHoleSim
+
+    class NumpyAdjoint(AdjointFeatures):  # the same maths, from Python (no fused kernel serves a subclass)
+        def regressor(self, kin, qdot):
+            return AdjointFeatures.regressor(self, kin, qdot)
+
+    cfg = load_config(None, ["run.progress=false", "adaptation.mode=composite"])  # (the default kalman holds theta here)
+    feats, theta0 = make_features(cfg)
+    generic_feats = copy.copy(feats)
+    generic_feats.__class__ = NumpyAdjoint
+    fused, generic = (Controller(KnownCfg.of(cfg), f, theta0.copy()) for f in (feats, generic_feats))
+    assert fused.consts.c[core.FEAT] == core.FEAT_ADJOINT and generic.consts.c[core.FEAT] != core.FEAT_ADJOINT
+    sim = PegInHoleSim(cfg)
+    sim.reset()
+    n_steps = int(round(4.5 / cfg.run.dt_s))  # [s] through contact (the default episode seats at 4.8 s)
+    for _ in range(n_steps):
+        o = sim.sense()
+        a = fused.step(sim.time_s, o.q_rad, o.qdot_rad_s, o.wrench_raw_f)
+        b = generic.step(sim.time_s, o.q_rad, o.qdot_rad_s, o.wrench_raw_f)
+        np.testing.assert_allclose(b.q_ref_rad, a.q_ref_rad, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(b.qdot_ref_rad_s, a.qdot_ref_rad_s, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(generic.theta, fused.theta, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(generic.last.s_dot_pred, fused.last.s_dot_pred, rtol=0, atol=1e-9)
+        sim.apply(a.q_ref_rad, a.qdot_ref_rad_s)
+        sim.step()
+    assert np.linalg.norm(fused.theta - theta0) > 1e-3 and fused.contact_steps > 1000  # the law moved theta in contact
