@@ -438,42 +438,24 @@ def _adjoint_rank(b, R, J, st, theta, lay, c, mats, out):
     _rank_margin(b, mm(_adjoint_twist_jacobian(b, R, theta[:3], c, mats), J[b]), c, out, lay)
 
 
-@nb.njit(cache=True)
-def _neural_rows_part(b, inp, R, J, reg, lay, c, mats, fx):
-    """Y(q) once per step for the regressor; J_hat's prior part K(q), shared by the drive and the rank gate."""
+def _learned_rows(b, inp, R, J, reg, lay, c, mats, fx):
+    """The learned features' rows (neural, RBF; not compiled itself: :func:`_compiled` binds
+    ``basis_fn``, ``learned_rows_fn``): the basis once per step (Y(q) or psi(q)) for the regressor,
+    and J_hat's prior part K(q), both kept for the drive and the rank gate."""
     n = lay[L_N]
-    Y = _neural_body(fx, inp[b, :n], n)
-    _neural_rows(b, inp, R, J, Y, lay, c, mats, fx, reg[b, 0], reg[b, 1:])
-    return Y, _jhat_prior(b, R, J, c, mats, fx)
+    basis = basis_fn(fx, inp[b, :n], n)  # noqa: F821  (bound by _compiled)
+    learned_rows_fn(b, inp, R, J, basis, lay, c, mats, fx, reg[b, 0], reg[b, 1:])  # noqa: F821
+    return basis, _jhat_prior(b, R, J, c, mats, fx)
 
 
-@nb.njit(cache=True)
-def _neural_drive(b, R, J, Lc, st, theta, lay, c, mats, fx, out, drive):
-    _jhat_drive(b, J, Lc, _neural_jhat(st[1], st[0], theta), lay, out, drive)
+def _learned_drive(b, R, J, Lc, st, theta, lay, c, mats, fx, out, drive):
+    """The drive through J_hat (m, n) = ``jhat_fn``(K(q), basis, theta) (bound by :func:`_compiled`)."""
+    _jhat_drive(b, J, Lc, jhat_fn(st[1], st[0], theta), lay, out, drive)  # noqa: F821
 
 
-@nb.njit(cache=True)
-def _neural_rank(b, R, J, st, theta, lay, c, mats, out):
-    _rank_margin(b, _neural_jhat(st[1], st[0], theta), c, out, lay)
-
-
-@nb.njit(cache=True)
-def _rbf_rows_part(b, inp, R, J, reg, lay, c, mats, fx):
-    """psi(q) once per step for the regressor; J_hat's prior part K(q), shared by the drive and the rank gate."""
-    n = lay[L_N]
-    psi = _rbf_psi(fx, inp[b, :n], n)
-    _rbf_rows(b, inp, R, J, psi, lay, c, mats, fx, reg[b, 0], reg[b, 1:])
-    return psi, _jhat_prior(b, R, J, c, mats, fx)
-
-
-@nb.njit(cache=True)
-def _rbf_drive(b, R, J, Lc, st, theta, lay, c, mats, fx, out, drive):
-    _jhat_drive(b, J, Lc, _rbf_jhat(st[1], st[0], theta), lay, out, drive)
-
-
-@nb.njit(cache=True)
-def _rbf_rank(b, R, J, st, theta, lay, c, mats, out):
-    _rank_margin(b, _rbf_jhat(st[1], st[0], theta), c, out, lay)
+def _learned_rank(b, R, J, st, theta, lay, c, mats, out):
+    """The rank gate on J_hat = ``jhat_fn``(K(q), basis, theta) (bound by :func:`_compiled`)."""
+    _rank_margin(b, jhat_fn(st[1], st[0], theta), c, out, lay)  # noqa: F821
 
 
 @nb.njit(cache=True)
@@ -494,14 +476,30 @@ def _jhat_drive(b, J, Lc, Jh, lay, out, drive):
 
 
 # -- the kernels: the one sequence with each kind's parts -----------------------------------------
-def _kernel(name: str, doc: str, front_fn, rows_fn, drive_fn, rank_fn):
-    """The numba kernel ``name``: :func:`_step`'s code with these parts as its globals. numba calls a
+def _compiled(py_fn, name: str, doc: str, **parts):
+    """The numba kernel ``name``: ``py_fn``'s code with ``parts`` (kernels) as its globals. numba calls a
     global kernel directly (in line, as if written there) and caches the kernel under its own name,
-    so each kind's kernel is what writing the sequence out for it was, compiled on its first use."""
-    parts = {"front_fn": front_fn, "rows_fn": rows_fn, "drive_fn": drive_fn, "rank_fn": rank_fn}
-    fn = types.FunctionType(_step.__code__, {**globals(), **parts}, name)
+    so each is what writing the code out with those parts gave, compiled on its first use."""
+    fn = types.FunctionType(py_fn.__code__, {**globals(), **parts}, name)
     fn.__qualname__, fn.__doc__ = name, doc
     return nb.njit(cache=True)(fn)
+
+
+def _kernel(name: str, doc: str, front_fn, rows_fn, drive_fn, rank_fn):
+    """The step kernel ``name``: :func:`_step` with a features kind's four parts."""
+    return _compiled(_step, name, doc, front_fn=front_fn, rows_fn=rows_fn, drive_fn=drive_fn, rank_fn=rank_fn)
+
+
+#: the learned features' parts, one code for both (the basis, its rows and J_hat are each kind's own)
+_neural_rows_part = _compiled(_learned_rows, "_neural_rows_part", "_learned_rows with the neural basis Y(q).",
+                              basis_fn=_neural_body, learned_rows_fn=_neural_rows)
+_neural_drive = _compiled(_learned_drive, "_neural_drive", "_learned_drive with the neural J_hat.",
+                          jhat_fn=_neural_jhat)
+_neural_rank = _compiled(_learned_rank, "_neural_rank", "_learned_rank with the neural J_hat.", jhat_fn=_neural_jhat)
+_rbf_rows_part = _compiled(_learned_rows, "_rbf_rows_part", "_learned_rows with the RBF psi(q).",
+                           basis_fn=_rbf_psi, learned_rows_fn=_rbf_rows)
+_rbf_drive = _compiled(_learned_drive, "_rbf_drive", "_learned_drive with the RBF J_hat.", jhat_fn=_rbf_jhat)
+_rbf_rank = _compiled(_learned_rank, "_rbf_rank", "_learned_rank with the RBF J_hat.", jhat_fn=_rbf_jhat)
 
 
 #: one whole period for B episodes with the adjoint features (one dispatch): intake, forward kinematics of

@@ -333,7 +333,8 @@ def test_bound_entry_point_steps_as_the_dispatcher_does():
 
 def test_the_kernels_are_one_step_sequence():
     """Every step kernel (the three fused ones and the generic path's) is the one ``_step`` code,
-    compiled with its kind's parts, and each is cached under its own name (issue 52)."""
+    compiled with its kind's parts, and each is cached under its own name (issue 52); the neural and
+    RBF parts are one code each, with their basis, rows and J_hat."""
     from kinadapt_nn.controller import step_kernels as sk
 
     kernels = [*core.FUSED.values(), sk._step_given]
@@ -342,6 +343,10 @@ def test_the_kernels_are_one_step_sequence():
     parts = [tuple(k.py_func.__globals__[f] for f in ("front_fn", "rows_fn", "drive_fn", "rank_fn"))
              for k in kernels]
     assert len(set(parts)) == len(kernels)  # a kind's own parts
+    for generic, kinds in ((sk._learned_rows, (sk._neural_rows_part, sk._rbf_rows_part)),
+                           (sk._learned_drive, (sk._neural_drive, sk._rbf_drive)),
+                           (sk._learned_rank, (sk._neural_rank, sk._rbf_rank))):  # the learned kinds' parts: one code
+        assert all(k.py_func.__code__ is generic.__code__ for k in kinds)
 
 
 def test_fused_step_equals_the_generic_path():
