@@ -397,7 +397,8 @@ def hint_design(s, des: sel.Design, rm, result, sh: list[Shape], rel9: np.ndarra
         nuis = [src for src in bs.sources if src.name == "_offset"]
         nuis += [src._replace(cols=pres[src.name]) for src in bs.sources if src.name in pres]
         srcs = [stream.Source(x.name, x.columns, list(range(len(x.params(s)[0])))) for x in sh]
-        st = stream.block_stats(s, rm, nuis + srcs, des.y, des.block, des.n_blocks, bs.chunk, stream.PassOpts(squares=True))
+        st = stream.block_stats(s, rm, nuis + srcs, des.y, des.block, des.n_blocks, bs.chunk,
+                                stream.PassOpts(squares=True, extra=bs.extra))
         kz = sum(len(src.cols) for src in nuis)
         R, X, scale, k0 = len(des.y), {}, {}, kz
         for src in srcs:
@@ -533,7 +534,7 @@ def explained_rows(s, rm, des: sel.Design, carried: list[int]) -> sel.Design:
 
     bs, nb = des.stats, des.n_blocks
     block = np.where(out, nb, des.block).astype(des.block.dtype)
-    st = stream.block_stats(s, rm, list(bs.sources), des.y, block, nb + 1, bs.chunk)
+    st = stream.block_stats(s, rm, list(bs.sources), des.y, block, nb + 1, bs.chunk, stream.PassOpts(extra=bs.extra))
     combine = st.combine
 
     def combine_kept(P: np.ndarray) -> np.ndarray:

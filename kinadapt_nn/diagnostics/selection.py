@@ -316,7 +316,7 @@ def select(des: Design, rc: SelCfg = SelCfg(), plausible: Callable[[str, np.ndar
     alone = {n: _test(st, des, n, base, sse0, rc) for n in st.names}
     left_out: dict[str, dict] = {}  # selected, then physically impossible: no explanation, selected again without
     while True:
-        fw = _forward(st, des, rc, base, sse0, alone, hints, exclude=set(left_out))
+        fw = _rechosen(st, des, rc, base, _forward(st, des, rc, base, sse0, alone, hints, exclude=set(left_out)), hints)
         small = _below_relevant(st, des, st.names, fw.selected, fw.sse_sel, base, rc)
         jt = _joint(st, des, rc, base, fw)
         ctx = _EntryCtx(st, des, rc, base, fw, jt, small, sse_total, alone, plausible, hints, block_all)
@@ -356,6 +356,40 @@ class _Forward(NamedTuple):
     tie_labels: dict  #: effect -> ["effect:param"] near-tied columns of a one-of effect
     sse_sel: np.ndarray  #: (B,) held-out SSE of the selected model
     last: dict  #: effect -> its last ``Candidate`` test
+
+
+def _rechosen(st: Stats, des: Design, rc: SelCfg, base: np.ndarray, fw: _Forward, hints: dict) -> _Forward:
+    """``fw`` with each selected one-of effect's column chosen again given the final model less itself:
+    the round that selected it chose among its columns given the effects selected before it, and an
+    effect selected later can change which column explains best (a joint's encoder offset against a
+    parallel joint's, told apart only once the tool's tilt is in the model). The column with the
+    largest held-out gain replaces the round's choice when it beats it block by block (``paired_p``
+    below ``tie_p``); the near-tied columns are judged again beside the column kept."""
+    selected, tie_labels = list(fw.selected), dict(fw.tie_labels)
+    for i, (n, cols) in enumerate(fw.selected):
+        if not des.one_of[n]:
+            continue
+        others = np.concatenate([base, *[st.idx[s][c] for s, c in selected if s != n]])
+        sse_o, _, _ = st.cv(others, rc.ridge)
+        t = _test(st, des, n, others, sse_o, rc)
+        kept = _test(st, des, n, others, sse_o, rc, only_cols=list(cols))
+        if t.cols != list(cols) and paired_p(t.sse, kept.sse) < rc.tie_p:
+            selected[i] = (n, list(t.cols))
+            kept = t
+        labels = []
+        for c, g in t.choice_gains.items():
+            if list(c) == kept.cols or g < rc.tie_ratio * kept.gain.sum():
+                continue
+            if paired_p(kept.sse, _test(st, des, n, others, sse_o, rc, only_cols=list(c)).sse) > rc.tie_p:
+                labels.append(f"{n}:{des_param(des, n, c[0], hints)}")
+        if labels:
+            tie_labels[n] = labels
+        else:
+            tie_labels.pop(n, None)
+    if selected == fw.selected and tie_labels == fw.tie_labels:
+        return fw
+    sse_sel, _, _ = st.cv(np.concatenate([base, *[st.idx[s][c] for s, c in selected]]), rc.ridge)
+    return fw._replace(selected=selected, tie_labels=tie_labels, sse_sel=sse_sel)
 
 
 def _forward(st: Stats, des: Design, rc: SelCfg, base: np.ndarray, sse0: np.ndarray, alone: dict,

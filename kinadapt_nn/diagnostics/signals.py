@@ -97,7 +97,7 @@ class LogSignals:
         m, mc, I_O = ph.nominal_inertials(self.setup)
         C = ph.wrench_dq(kin, J_v, J_w, np.asarray(self.qdot, dtype=float), self.clock, (m, mc, I_O))
         if self.setup.contact.geometry != "none":  # a declared socket: its wrench moved with the sensor
-            C += contact_model.nominal_wrench_dq(self.setup, kin.R_ws, kin.p_ws, J_v, J_w)
+            C += contact_model.nominal_wrench_dq(self.setup, kin.R_ws, kin.p_ws, J_v, J_w, t_s=contact_model.log_times(self))
         return C
 
     def with_contact(self, contact: np.ndarray, offset: np.ndarray) -> "LogSignals":

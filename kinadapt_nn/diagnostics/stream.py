@@ -85,11 +85,37 @@ class RowMap(NamedTuple):
 
 
 class Source(NamedTuple):
-    """Columns of a design: ``columns(signals chunk) -> (m, 6, k_all)``, of which ``cols`` are kept."""
+    """Columns of a design: ``columns(signals chunk) -> (m, 6, k_all)``, of which ``cols`` are kept;
+    ``depth(signals, idx (e,)) -> (e, k_all)``: the same parameters' columns in the extra rows
+    (``ExtraRows``; None: zero there)."""
 
     name: str
     columns: Callable
     cols: list[int]
+    depth: Callable | None = None
+
+
+class ExtraRows(NamedTuple):
+    """Rows of a design beside the wrench rows: e measurements of one scalar per row that the
+    parameters move (a declared socket's releases: the tip's depth, ``release``), already weighted
+    (row value = ``w`` * physical residual). They enter every block's normal equations
+    (``block_stats``), not the design's ``y`` (whose rows are the wrench rows)."""
+
+    idx: np.ndarray  #: (e,) the sample of each row
+    y: np.ndarray  #: (e,) weighted residual
+    w: np.ndarray  #: (e,) weight (1 / sd)
+    block: np.ndarray  #: (e,) block of each row
+
+
+def _add_extra(G: np.ndarray, h: np.ndarray, yy: np.ndarray, s, sources: list, extra: ExtraRows) -> None:
+    """The extra rows' share of every block's normal equations (in place)."""
+    A = np.concatenate([np.asarray(src.depth(s, extra.idx), dtype=float)[:, src.cols] if src.depth is not None
+                        else np.zeros((len(extra.idx), len(src.cols))) for src in sources], axis=1)
+    A = A * extra.w[:, None]
+    for i, b in enumerate(extra.block):
+        G[b] += np.outer(A[i], A[i])
+        h[b] += A[i] * extra.y[i]
+        yy[b] += float(extra.y[i]) ** 2
 
 
 class BlockStats(NamedTuple):
@@ -105,6 +131,7 @@ class BlockStats(NamedTuple):
     chunk: int  #: samples per chunk of the passes
     sources: list  #: the ``Source`` of each column group, in column order
     rows: dict | None = None  #: source index -> its rows (R, k), where kept (``PassOpts.keep``, ``combine``)
+    extra: ExtraRows | None = None  #: rows beside the wrench rows, in ``G``, ``h`` and ``yy`` (not in ``combine``)
 
 
 def mean_at(x: np.ndarray, k: int, idx: np.ndarray, chunk: int | None = None) -> np.ndarray:
@@ -246,12 +273,13 @@ def _chunk_rows(s, rm: RowMap, sources: list[Source], a: int, b: int, halo: int,
 
 
 class PassOpts(NamedTuple):
-    """What a ``block_stats`` pass keeps besides the normal equations."""
+    """What a ``block_stats`` pass keeps besides the normal equations, and what it adds to them."""
 
     squares: bool = False  #: ``BlockStats.col_sq`` (else None)
     #: the rows of the sources with the most columns, for ``combine`` (within ``ROW_CACHE_BYTES``): an
     #: effect's later predictions then need no pass (``encoder_offset``'s kinematics, say)
     keep: bool = False
+    extra: ExtraRows | None = None  #: rows beside the wrench rows, added to the normal equations
 
 
 def _channels(rm: RowMap, pos: np.ndarray, vals: np.ndarray) -> np.ndarray:
@@ -283,8 +311,9 @@ def block_stats(s, rm: RowMap, sources: list[Source], y: np.ndarray, block: np.n
                 chunk: int | None = None, opts: "PassOpts" = None) -> BlockStats:
     """One chunked pass: the per-block normal equations of ``sources``' columns (module docstring).
     ``y`` (R,), ``block`` (R,) the design's rows and their blocks; ``chunk`` samples per chunk
-    (default ``CHUNK_SAMPLES``); ``opts``: what else the pass keeps (``PassOpts``)."""
-    squares, keep = opts or PassOpts()
+    (default ``CHUNK_SAMPLES``); ``opts``: what else the pass keeps and the rows beside the wrench rows
+    (``PassOpts``)."""
+    squares, keep, extra = opts or PassOpts()
     K = sum(len(src.cols) for src in sources)
     chunk = chunk_for(chunk, K)
     G, h = np.zeros((n_blocks, K, K)), np.zeros((n_blocks, K))
@@ -304,10 +333,13 @@ def block_stats(s, rm: RowMap, sources: list[Source], y: np.ndarray, block: np.n
         for i, rows in cache.items():
             rows[pos] = vals[:, offs[i]:offs[i + 1]]
 
+    if extra is not None:
+        _add_extra(G, h, yy, s, sources, extra)
+
     def combine(P: np.ndarray) -> np.ndarray:
         return combine_rows(s, rm, sources, P, block, len(y), chunk, cache)
 
-    return BlockStats(G, h, yy, combine, col_sq, s.n, chunk, list(sources), cache)
+    return BlockStats(G, h, yy, combine, col_sq, s.n, chunk, list(sources), cache, extra)
 
 
 def combine_rows(s, rm: RowMap, sources: list[Source], P: np.ndarray, block: np.ndarray, R: int,

@@ -34,7 +34,7 @@ def _tip_columns(s: sg.LogSignals) -> np.ndarray:
         e = np.zeros(3)
         e[j] = 1.0
         C[:, 3:, j] = np.cross(e, s.contact_force_s)
-        C[:, :, j] += contact_model.tip_derivative(s.setup, s.R_ws, s.p_ws, e)
+        C[:, :, j] += contact_model.tip_derivative(s.setup, s.R_ws, s.p_ws, e, contact_model.log_times(s))
     return C
 
 

@@ -35,7 +35,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from kinadapt_nn.diagnostics import contact_point, nonlinear, segmentation, steps, stream
+from kinadapt_nn.diagnostics import contact_point, nonlinear, release, segmentation, steps, stream
 from kinadapt_nn.diagnostics import selection as sel
 from kinadapt_nn.diagnostics import signals as sg
 from kinadapt_nn.effects import contact_model
@@ -207,11 +207,13 @@ def build_design(s: sg.LogSignals, lib: dict[str, Effect], names: list[str], sig
     block, nb = _row_blocks(s, rm, tr, rc)
     block = block.astype(np.int32)  # (R,): an hour's 2e6 rows
     for name in names:
-        cols_cache[name] = stream.Source(name, lib[name].evaluate, list(range(lib[name].k)))
+        cols_cache[name] = stream.Source(name, lib[name].evaluate, list(range(lib[name].k)), lib[name].depth)
     nuis = [stream.Source("_offset", _offset_columns, list(range(6)))] if s.setup.log.tared else []
     if tip_nuisance(s):
-        nuis.append(stream.Source("_tip", _tip_columns, [0, 1, 2]))
-    bs = stream.block_stats(s, rm, nuis + [cols_cache[n] for n in names], y, block, nb, chunk, stream.PassOpts(keep=True))
+        nuis.append(stream.Source("_tip", _tip_columns, [0, 1, 2], release.tip_depth))
+    extra = release.extra_rows(s, release.find(s, float(np.linalg.norm(sigma[:3]))), tr, block)  # the socket's releases
+    bs = stream.block_stats(s, rm, nuis + [cols_cache[n] for n in names], y, block, nb, chunk,
+                            stream.PassOpts(keep=True, extra=extra))
     R = len(y)
     X = {nm: sel.Width((R, lib[nm].k)) for nm in names}
     return sel.Design(y, X, sel.Width((R, sum(len(n.cols) for n in nuis))), block, nb,

@@ -64,11 +64,16 @@ def _anchors(gate: np.ndarray) -> np.ndarray:
     return np.where(gate, anchor, -1)
 
 
+def socket_axis(contact) -> np.ndarray:
+    """(3,) the declared socket's unit axis (world): depth along it is ``(tip - entry) . axis``."""
+    n_ax = np.asarray(contact.axis_w, dtype=float)
+    return n_ax / np.linalg.norm(n_ax)
+
+
 def socket_terms(contact, R_ws: np.ndarray, p_ws: np.ndarray, tip_s) -> SocketTerms:
     """The socket of ``contact`` (``setup.ContactDeclCfg``) along a log. ``tip_s`` (3,) [m] the
     declared tip in the sensor frame. -> ``SocketTerms``."""
-    n_ax = np.asarray(contact.axis_w, dtype=float)
-    n_ax = n_ax / np.linalg.norm(n_ax)
+    n_ax = socket_axis(contact)
     tip_w = p_ws + R_ws @ np.asarray(tip_s, dtype=float)
     gate = _engaged((tip_w - np.asarray(contact.entry_w_m, dtype=float)) @ n_ax)
     anc = _anchors(gate)
@@ -145,12 +150,12 @@ def nominal_wrench(setup, R_ws: np.ndarray, p_ws: np.ndarray, t_s: np.ndarray | 
     return on_tool_to_sensor(R_ws, tip, f_w, tau_w)
 
 
-def tip_derivative(setup, R_ws: np.ndarray, p_ws: np.ndarray, dtip_s) -> np.ndarray:
+def tip_derivative(setup, R_ws: np.ndarray, p_ws: np.ndarray, dtip_s, t_s: np.ndarray | None = None) -> np.ndarray:
     """d ``nominal_wrench`` / d tip along ``dtip_s`` (3,) [m per unit parameter], sensor frame:
     (n, 6). The tip moves the lateral spring's displacement (``P (R - R_0) dtip``: the anchor moves
-    with it) and the spring force's lever (``dtip x f``); the engagement and the anchors stay where
-    the declared tip puts them (their derivative is zero almost everywhere). Zeros when no contact
-    geometry is declared."""
+    with it) and the spring force's lever (``dtip x f``); with the samples' times ``t_s`` (n,) [s] the
+    anchors' samples move too (``anchor_shift``: the moved tip crosses the entrance at another time).
+    The engagement's own flips are not differentiable. Zeros when no contact geometry is declared."""
     c = setup.contact
     if c.geometry == "none":
         return np.zeros((len(R_ws), 6))
@@ -162,14 +167,18 @@ def tip_derivative(setup, R_ws: np.ndarray, p_ws: np.ndarray, dtip_s) -> np.ndar
     d_w = np.where(st.gate[:, None], d_w - np.outer(d_w @ st.axis_w, st.axis_w), 0.0)
     f_s = np.einsum("nji,nj->ni", R_ws, -c.stiffness_lat_N_per_m * st.disp_lat_w)
     df_s = np.einsum("nji,nj->ni", R_ws, -c.stiffness_lat_N_per_m * d_w)
-    return np.concatenate([df_s, np.cross(tip, df_s) + np.cross(dtip, f_s)], axis=1)
+    out = np.concatenate([df_s, np.cross(tip, df_s) + np.cross(dtip, f_s)], axis=1)
+    if t_s is not None:
+        out += anchor_shift(setup, R_ws, p_ws, t_s, (R_ws @ dtip)[:, :, None])[:, :, 0]
+    return out
 
-def nominal_wrench_dq(setup, R_ws: np.ndarray, p_ws: np.ndarray, J_v: np.ndarray, J_w: np.ndarray,
-                      eps: float = 1e-6) -> np.ndarray:
+def nominal_wrench_dq(setup, R_ws: np.ndarray, p_ws: np.ndarray, J_v: np.ndarray, J_w: np.ndarray,  # noqa: PLR0913
+                      eps: float = 1e-6, t_s: np.ndarray | None = None) -> np.ndarray:
     """(n, 6, dof) ``d nominal_wrench / d q_j``: joint j turns the sensor by ``J_w[:, :, j]`` and
     moves its origin by ``J_v[:, :, j]`` (world, per unit ``q_j``); central differences of the
-    socket's wrench along that motion (the anchors are where the gate opens: not differentiable in
-    closed form)."""
+    socket's wrench along that motion, the engagement and the anchors' samples held, plus the
+    anchors' own move (``anchor_shift``: the tip crosses the entrance plane at another time; needs
+    the samples' times ``t_s`` (n,) [s], none for a static log)."""
     n, _, dof = J_v.shape
     C = np.zeros((n, 6, dof))
     if setup.contact.geometry == "none":
@@ -180,7 +189,48 @@ def nominal_wrench_dq(setup, R_ws: np.ndarray, p_ws: np.ndarray, J_v: np.ndarray
             Rj = Rotation.from_rotvec(sgn * eps * J_w[:, :, j]).as_matrix() @ R_ws
             w.append(nominal_wrench(setup, Rj, p_ws + sgn * eps * J_v[:, :, j]))
         C[:, :, j] = (w[0] - w[1]) / (2.0 * eps)
+    if t_s is not None:
+        tip = np.asarray(setup.tool.tip_sensor_m, dtype=float)
+        lever = R_ws @ tip  # (n, 3)
+        C += anchor_shift(setup, R_ws, p_ws, t_s, J_v + np.cross(J_w, lever[:, :, None], axis=1))
     return C
 
-__all__ = ["SocketTerms", "socket_terms", "on_tool_to_sensor", "nominal_wrench", "pose_rates", "log_times", "nominal_wrench_dq", "tip_derivative",
+
+#: [m/s] an entry slower than this along the axis has no defined crossing time: no anchor move
+MIN_ENTRY_SPEED_M_S = 1e-4
+
+
+def anchor_shift(setup, R_ws: np.ndarray, p_ws: np.ndarray, t_s: np.ndarray, dtip_w: np.ndarray) -> np.ndarray:
+    """(n, 6, k) the socket's wrench change through its anchors when the declared tip moves by
+    ``dtip_w`` (n, 3, k) [m per unit parameter, world] at every sample. The anchor is the tip's pose
+    where it crosses the entrance plane (``socket_terms``); a tip moved by ``dtip`` along the axis
+    crosses ``dt_a = -(n . dtip(a)) / (n . v_tip(a))`` later, so the anchored pose moves by
+    ``v_tip(a) dt_a`` and ``w(a) dt_a``: the lateral spring's force changes by ``+k_lat P v_tip(a) dt_a``
+    and the angular spring's moment by ``+k_rot w(a) dt_a`` (small rotations since the anchor), on
+    every engaged sample of that run. The gate's own flips are not differentiable (the release:
+    ``diagnostics.release``)."""
+    c = setup.contact
+    n, _, k = dtip_w.shape
+    out = np.zeros((n, 6, k))
+    if c.geometry != "socket" or len(t_s) < 3:
+        return out
+    tip = np.asarray(setup.tool.tip_sensor_m, dtype=float)
+    st = socket_terms(c, R_ws, p_ws, tip)
+    if not st.gate.any():
+        return out
+    anc = _anchors(st.gate)
+    w_w, v_w = pose_rates(R_ws, st.tip_w, t_s)
+    speed = v_w @ st.axis_w  # (n,) along the axis
+    on = st.gate
+    a = anc[on]
+    ok = np.abs(speed[a]) > MIN_ENTRY_SPEED_M_S
+    dt_a = np.where(ok[:, None], -np.einsum("i,mik->mk", st.axis_w, dtip_w[a]) / np.where(ok, speed[a], 1.0)[:, None], 0.0)
+    v_lat = v_w[a] - np.outer(v_w[a] @ st.axis_w, st.axis_w)  # (m, 3)
+    f_w = c.stiffness_lat_N_per_m * v_lat[:, :, None] * dt_a[:, None, :]  # (m, 3, k)
+    tau_w = c.stiffness_rot_Nm_per_rad * w_w[a][:, :, None] * dt_a[:, None, :]
+    for j in range(k):
+        out[on, :, j] = on_tool_to_sensor(R_ws[on], tip, f_w[:, :, j], tau_w[:, :, j])
+    return out
+
+__all__ = ["SocketTerms", "socket_axis", "socket_terms", "on_tool_to_sensor", "nominal_wrench", "pose_rates", "log_times", "nominal_wrench_dq", "anchor_shift", "tip_derivative",
            "RELEASE_M"]

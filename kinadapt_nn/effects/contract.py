@@ -31,6 +31,10 @@ holds the built-ins, one module each)::
   (``kinadapt_nn.effects.online.from_wrench``). An effect that needs more (the contact
   kinematics, a declared set-up) gives ``online=fn`` instead, ``fn(sig) -> Terms`` in the same
   parameters, in the same module (``docs/effect_library.md``).
+* ``depth=fn``, ``fn(s, idx) -> (e, k)`` [m per unit parameter]: an effect that moves the tool's tip
+  says how it moves the tip's depth along a declared socket's axis at the samples ``idx``; the
+  socket's releases that the data show are rows of the fit (``kinadapt_nn.diagnostics.release``).
+  Built-ins that give it: ``encoder_offset``, ``tool_tilt``.
 * Parameters that depend on the set-up (one per arm joint, say): give
   ``params_for=lambda setup: (params, relevant)`` instead of (or besides) ``params``/``relevant``.
   The diagnosis calls ``Effect.for_setup(setup)``, which fixes the parameters for that set-up;
@@ -86,6 +90,10 @@ class Effect:
     #: reads only what ``effects.online.WrenchView`` has: ``from_wrench``); a function
     #: ``effects.online.Signals -> Terms`` gives them in the controller's level domain; False: none
     online: bool | Callable = False
+    #: (s, idx (e,)) -> (e, k) [m per unit parameter]: how the parameters move the declared tip's depth along
+    #: a declared socket's axis at the samples idx (``diagnostics.release``: the socket's releases are rows
+    #: of the fit); None: the effect does not move the tip
+    depth: Callable | None = None
 
     @property
     def k(self) -> int:
@@ -157,12 +165,14 @@ def effect(params: dict[str, str] | None = None, relevant=None, doc: str = "", e
            one_of: bool = False, *, report: Callable | None = None, plausible: Callable | None = None,
            applies: Callable | None = None, uses_contact: bool = True,
            params_for: Callable | None = None, exact: Callable | None = None,
-           online: bool | Callable = False, default_setup: Callable | None = None) -> Callable[[Callable], Effect]:
+           online: bool | Callable = False, default_setup: Callable | None = None,
+           depth: Callable | None = None) -> Callable[[Callable], Effect]:
     """Decorator: a function ``f(s) -> (n, 6, k)`` becomes an ``Effect`` named ``f.__name__``
     (module docstring). ``params_for(setup) -> (params, relevant)``: parameters that depend on the
     set-up (``Effect.for_setup``). ``exact(s, p) -> (n, 6)``: the exact change where the columns are a
     first-order model (``diagnostics.nonlinear``). ``online``: the controller's columns of the same effect
-    (``Effect.online``; ``model.effects``). ``default_setup() -> setup``: the set-up whose parameters an
+    (``Effect.online``; ``model.effects``). ``depth(s, idx) -> (e, k)``: how the parameters move the
+    declared tip's depth along a declared socket's axis (``Effect.depth``). ``default_setup() -> setup``: the set-up whose parameters an
     effect with ``params_for`` and no ``params`` takes until ``for_setup`` (the public
     ``kinadapt_nn.diagnostics.effect`` gives the diagnosis's default set-up; this layer knows no set-up
     type). Bad arguments raise a one-line ``KinadaptError``."""
@@ -174,6 +184,8 @@ def effect(params: dict[str, str] | None = None, relevant=None, doc: str = "", e
             raise KinadaptError(f"@effect must decorate a named function ({src})")
         if params_for is not None and not callable(params_for):
             raise KinadaptError(f"{where}: params_for must be a function setup -> (params, relevant)")
+        if depth is not None and not callable(depth):
+            raise KinadaptError(f"{where}: depth must be a function (s, idx) -> (e, k) or None")
         if not (isinstance(online, bool) or callable(online)):
             raise KinadaptError(f"{where}: online must be True (derived from the columns), a function "
                                 "Signals -> Terms, or False")
@@ -193,7 +205,7 @@ def effect(params: dict[str, str] | None = None, relevant=None, doc: str = "", e
         if not isinstance(doc, str) or not doc.strip():
             raise KinadaptError(f"{where}: doc must be a one-line description")
         return Effect(name, names, units, rel, doc.strip().splitlines()[0], fn, str(excite), bool(one_of), src,
-                      report, plausible, applies, bool(uses_contact), params_for, exact, online)
+                      report, plausible, applies, bool(uses_contact), params_for, exact, online, depth)
     return wrap
 
 

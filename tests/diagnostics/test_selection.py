@@ -154,3 +154,30 @@ def test_an_impossible_selection_leaves_the_model_and_the_next_explanation_is_fo
     assert v["a"]["selected_round"] is None and "a" not in res.present
     assert v["b"]["verdict"] == "present", v["b"]
     assert v["b"]["selected_round"] == 0
+
+
+def test_a_one_of_column_is_chosen_again_given_the_final_model():
+    """A one-of effect's column is chosen when the effect is selected, given the effects selected before
+    it; an effect selected later can make another column the better one (a joint's encoder offset
+    against a parallel joint's, told apart once the tool's tilt is in the model). Constructed so that,
+    alone, column 0 explains more (it shares a part with the later effect ``t``), while given ``t``
+    column 1 explains everything and column 0 leaves its own third direction: the final model holds
+    column 1 at its true value, and column 0 is no near-tie."""
+    rng = np.random.default_rng(11)
+    R = 4000
+    x = np.linspace(0, 1, R)
+    c1, t, u = (np.sin(2 * np.pi * f * x + ph) for f, ph in ((3, 0.2), (5, 0.9), (7, 1.7)))  # nearly orthogonal
+    c0 = c1 + 0.5 * t + 0.3 * u
+    y = 1.0 * c1 + 1.0 * t + rng.normal(0, 0.02, R)
+    des = _design(y, {"enc": np.stack([c0, c1], axis=1), "t": t[:, None]}, one_of={"enc": True, "t": False},
+                  scale={"enc": np.array([0.3, 0.3]), "t": np.array([0.3])})  # relevant sizes below the truth
+    st = sel.Stats(des)
+    alone = sel._test(st, des, "enc", st.z_idx, st.cv(st.z_idx, 1e-9)[0], sel.SelCfg())
+    assert alone.cols == [0]  # what the forward round picks before t is in the model
+    res = sel.select(des)
+    v = {e["effect"]: e for e in res.entries}
+    assert v["enc"]["verdict"] == "present" and v["t"]["verdict"] == "present", (v["enc"], v["t"])
+    assert v["enc"]["columns_used"] == [1]
+    np.testing.assert_allclose(res.present["enc"][1], [1.0], atol=0.02)
+    np.testing.assert_allclose(res.present["t"][1], [1.0], atol=0.02)
+    assert "indistinguishable_from" not in v["enc"]

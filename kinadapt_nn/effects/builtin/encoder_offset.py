@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from kinadapt_nn.effects import contact_model
 from kinadapt_nn.effects.builtin.ft_frame_rotation import plausible_small_angle, report_deg
 from kinadapt_nn.effects.contract import effect
 from kinadapt_nn.effects.online import Signals, Terms, contact_rate, rot, tip_twist_map, to_level
@@ -106,12 +107,29 @@ def online_columns(sig: Signals, eps: float = 1e-6, grid_s: float = 0.005,
     return Terms(lev, integ)
 
 
+def depth(s, idx: np.ndarray) -> np.ndarray:
+    """(e, dof) [m/rad] the declared tip's depth along a declared socket's axis per unit offset of each
+    joint at the samples ``idx`` (``contract.Effect.depth``): the tip moves by ``J_v + J_w x R_ws p``
+    (world, per unit q_j). The joint whose column ``encoder_offset`` leaves zero is zero here too."""
+    idx = np.asarray(idx, dtype=int)
+    q = np.asarray(s.q, dtype=float)[idx]
+    J_v, J_w = s.arm.sensor_jacobian(q)  # (e, 3, dof) world
+    lever = np.asarray(s.R_ws, dtype=float)[idx] @ np.asarray(s.setup.tool.tip_sensor_m, dtype=float)  # (e, 3)
+    dtip = J_v + np.cross(J_w, lever[:, :, None], axis=1)
+    out = np.einsum("i,mij->mj", contact_model.socket_axis(s.setup.contact), dtip)
+    j = sensor_z_joint(s) if s.setup.sensor.mount_known else None
+    if j is not None:
+        out[:, j] = 0.0
+    return out
+
+
 @effect(*_per_joint(N_JOINTS), params_for=params_per_joint,  # until for_setup: this package's arm's joints
         doc="a joint encoder zero offset (one of the joints)",
         excite="move every joint in free space so that gravity turns in the sensor frame (an offset of a joint "
                "whose axis stays vertical is invisible to gravity: it needs a world-fixed load direction, e.g. a "
                "horizontal push against a fixture)",
-        one_of=True, report=report, plausible=plausible_small_angle, uses_contact=False, online=online_columns)
+        one_of=True, report=report, plausible=plausible_small_angle, uses_contact=False, online=online_columns,
+        depth=depth)
 def encoder_offset(s):
     C = s.nominal_wrench_dq()
     j = sensor_z_joint(s) if s.setup.sensor.mount_known else None

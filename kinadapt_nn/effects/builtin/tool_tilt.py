@@ -37,11 +37,20 @@ def online_columns(sig: Signals) -> Terms:
     return Terms(lev, integ)
 
 
+def depth(s, idx: np.ndarray) -> np.ndarray:
+    """(e, 2) [m/rad] the tip's depth along a declared socket's axis per unit tilt at the samples ``idx``:
+    the tip moves by ``R_ws (delta x p)`` (``contract.Effect.depth``)."""
+    tip = np.asarray(s.setup.tool.tip_sensor_m, dtype=float)
+    dtip_s = np.stack([np.cross(e, tip) for e in np.eye(3)[:2]], axis=1)  # (3, 2)
+    return np.einsum("i,mij,jk->mk", contact_model.socket_axis(s.setup.contact), np.asarray(s.R_ws, dtype=float)[idx],
+                     dtip_s)
+
+
 @effect(params={"tilt_x": "rad", "tilt_y": "rad"}, relevant=[np.deg2rad(1.0)] * 2,
         doc="the tool sits rotated in the grasp (its COM and tip move)",
         excite="push the tip in contact in two lateral directions (the tip lever shows in the moment)",
         report=report_deg(("tilt_x", "tilt_y")), plausible=plausible_small_angle,
-        applies=lambda setup: setup.contact.mode == "tip", online=online_columns)
+        applies=lambda setup: setup.contact.mode == "tip", online=online_columns, depth=depth)
 def tool_tilt(s):
     m = float(s.setup.tool.mass_kg)
     mc = m * np.asarray(s.setup.tool.com_sensor_m, dtype=float)
@@ -53,5 +62,5 @@ def tool_tilt(s):
         e[j] = 1.0
         C[:, :, j] = grav @ np.cross(e, mc)
         C[:, 3:, j] += np.cross(np.cross(e, tip), s.contact_force_s)
-        C[:, :, j] += contact_model.tip_derivative(s.setup, s.R_ws, s.p_ws, np.cross(e, tip))
+        C[:, :, j] += contact_model.tip_derivative(s.setup, s.R_ws, s.p_ws, np.cross(e, tip), contact_model.log_times(s))
     return C
