@@ -247,6 +247,13 @@ def _accounts_text(rep: dict) -> list[str]:
     acc = (rep.get("contact") or {}).get("accounts")
     if acc and acc.get("disputed_windows_s") and ";" in acc.get("used", ""):
         out.append("Free space and contact: " + acc["used"] + ".")
+    rel = (rep.get("contact") or {}).get("releases")
+    if rel and rel.get("t_s"):
+        late = [d - t for t, d in zip(rel["t_s"], rel["declared_release_t_s"])]
+        out.append(f"The declared socket's releases the data show ({len(rel['t_s'])}, at "
+                   + ", ".join(f"{t:.2f}" for t in rel["t_s"]) + " s) are rows of the fit: the declared tip's depth "
+                   "there (the declared socket, from the encoders, releases at " + ", ".join(f"{d:+.2f}" for d in late)
+                   + " s from them).")
     return out
 
 

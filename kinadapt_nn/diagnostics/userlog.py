@@ -650,7 +650,8 @@ def _base_report(log, declared: SetupCfg, cal: Calibration, chk: Checks, rd: Ran
         "library": {n: {"source": lib[n].source, "doc": lib[n].doc,
                         "params": dict(zip(lib[n].params, lib[n].units)), "judged": n in rd.names} for n in lib},
         "contact": {"fraction": float(s.contact.mean()), "windows_s": _windows(s.contact, s.t),
-                    "rows": rd.contact_rows, "accounts": None if cal.accounts is None else cal.accounts.report},
+                    "rows": rd.contact_rows, "accounts": None if cal.accounts is None else cal.accounts.report,
+                    "releases": _releases(s, cal.sigma)},
         "segmentation": cal.segmentation.to_json(),
         "effective_setup": effective_setup(declared, setup, cal.fit, cal.contact_point,
                                            (result.nuisance[-3:], result.nuisance_sd[-3:]) if tip_nuisance(s) else None),
@@ -671,6 +672,13 @@ def _base_report(log, declared: SetupCfg, cal: Calibration, chk: Checks, rd: Ran
                    "selection": rk.sc._asdict(), "blocks": des.n_blocks,
                    "nuisance": _nuisance_text(s)},
     }
+
+
+def _releases(s: sg.LogSignals, sigma: np.ndarray) -> dict | None:
+    """The report's ``contact.releases``: a declared socket's releases the data show, rows of the fit
+    (``release``)."""
+    rel = release.find(s, float(np.linalg.norm(sigma[:3])))
+    return None if rel is None else rel.to_json()
 
 
 @dataclasses.dataclass(frozen=True)

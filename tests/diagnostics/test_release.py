@@ -171,3 +171,17 @@ def test_the_anchors_move_with_the_tip_as_the_socket_wrench_does():
     assert inner.sum() > 300
     np.testing.assert_allclose(A[inner], F[inner], atol=0.02 * np.abs(F[inner]).max())
     assert np.abs(A[inner]).max() > 1.0  # N per m of tip: the check checks something
+
+
+def test_the_summary_names_the_releases_it_fitted():
+    """The summary says which releases became rows and how far the declared socket's own release is
+    from them (``summary._accounts_text`` over the report's ``contact.releases``); nothing without."""
+    from kinadapt_nn.diagnostics import summary
+
+    s, _, _ = _socket_log(0.002)
+    rel = release.find(s, 0.01)
+    text = " ".join(summary._accounts_text({"contact": {"releases": rel.to_json()}}))
+    assert "releases the data show (1, at " in text and "rows of the fit" in text
+    late = rel.t_declared_s[0] - rel.t_s[0]
+    assert late < 0 and f"{late:+.2f} s from them" in text  # the true tip 2 mm deeper leaves later
+    assert summary._accounts_text({"contact": {"releases": None}}) == []
