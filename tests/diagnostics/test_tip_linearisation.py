@@ -40,7 +40,7 @@ def test_a_compliant_grasp_is_found_with_the_tip_unknown():
     truth = 1.0 / cfg.effects.grasp_compliance.stiffness_Nm_per_rad
     assert abs(ep["value"][0] - truth) <= 1.96 * ep["sd"][0], (ep, truth)
     lin = rep["effective_setup"]["tip_linearised_at"]
-    assert lin["steps"][0]["about_sensor_m"] == list(setup.tool.tip_sensor_m), lin  # from the guess
+    assert list(lin["steps"][0]["about_sensor_m"]) == list(setup.tool.tip_sensor_m), lin  # from the guess
     tip = np.asarray(rep["effective_setup"]["tool_tip"]["tip_sensor_m"])
     assert np.allclose(tip, lin["steps"][-1]["fitted_sensor_m"], atol=1e-12)
     # the point estimated before the effects is the biased one: beyond the true tip along the tool
