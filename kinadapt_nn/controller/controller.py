@@ -27,12 +27,13 @@ reference follows ``qdot_ref = J_arm^+ xi + N (k_ns (q_0 - q))``.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
 
 from kinadapt_nn.controller import core
-from kinadapt_nn.controller.laws import AdaptStep, LawSpec, law_params, law_spec
+from kinadapt_nn.controller.laws import AdaptStep, LawSpec, law_of
 from kinadapt_nn.controller.laws.base import LawState, law_state
 from kinadapt_nn.errors import SensorError
 from kinadapt_nn.features.base import Features, KinState
@@ -121,22 +122,24 @@ def rank_margin(W: np.ndarray, J_hat: np.ndarray) -> float:
 
 
 
+#: the features computed in the kernel (``Features.kernel``) -> their kind (``CoreConsts.c[FEAT]``)
+KINDS: dict[str, int] = {"adjoint": core.FEAT_ADJOINT, "neural": core.FEAT_NEURAL, "rbf": core.FEAT_RBF}
+#: a kind -> its constants for the kernel (the neural body, the RBF centres; the adjoint needs none)
+PACKS: dict[int, Callable[[Features], np.ndarray]] = {core.FEAT_NEURAL: core.neural_consts,
+                                                      core.FEAT_RBF: core.rbf_consts}
+
+
 def feature_kind(features: Features) -> int:
-    """The adjoint, the neural basis and the RBF are computed in the kernel (``features.kernel``); others
-    supply their rows from Python (``FEAT_JHAT``, switched to ``FEAT_TWIST`` where the features
-    factor through the twist)."""
-    return {"adjoint": core.FEAT_ADJOINT, "neural": core.FEAT_NEURAL, "rbf": core.FEAT_RBF}.get(features.kernel,
-                                                                                                  core.FEAT_JHAT)
+    """The features' kind in the kernel (:data:`KINDS`): the adjoint, the neural basis and the RBF
+    are computed in it (``features.kernel``); others supply their rows from Python (``FEAT_JHAT``,
+    switched to ``FEAT_TWIST`` where the features factor through the twist)."""
+    return KINDS.get(features.kernel, core.FEAT_JHAT)
 
 
 def feature_consts(features: Features) -> np.ndarray:
-    """The in-kernel features' constants (the neural body, the RBF centres), else a placeholder."""
-    kind = feature_kind(features)
-    if kind == core.FEAT_NEURAL:
-        return core.neural_consts(features)
-    if kind == core.FEAT_RBF:
-        return core.rbf_consts(features)
-    return np.zeros(1)
+    """The in-kernel features' constants (:data:`PACKS`), else a placeholder."""
+    pack = PACKS.get(feature_kind(features))
+    return np.zeros(1) if pack is None else pack(features)
 
 
 def run_law(known: KnownCfg, features: Features) -> str:
@@ -145,12 +148,19 @@ def run_law(known: KnownCfg, features: Features) -> str:
     return features.fixed_law or known.law
 
 
-def core_consts(known: KnownCfg, features: Features, law_address: bool = True) -> tuple[core.CoreConsts, LawSpec]:
+def core_consts(known: KnownCfg, features: Features,
+                law_address: bool = True) -> tuple[core.CoreConsts, LawSpec, np.ndarray]:
     """The kernels' constants from the known config and the features, for the law :func:`run_law`
     (a registered law, ``controller.laws.LAWS``). ``law_address``: False leaves ``law_fn`` at 0
     for the caller to set (``spec.address()``) before the first kernel call. -> (CoreConsts, the
-    law's LawSpec)."""
+    law's LawSpec, the in-kernel features' constants ``fx``)."""
     c, sc, ad, dt = known.control, known.sensing, known.adaptation, known.dt_s
+    # what the features give, asked once each: the law they run, theta's prior covariance (theirs, else
+    # Omega/3), Omega (their own box: the adjoint's about l_nom), their kind and constants in the kernel
+    name, P0 = run_law(known, features), prior_cov_of(features)
+    theta_nominal, half = features.omega()
+    fx, kind = feature_consts(features), feature_kind(features)
+    spec, params = law_of(ad, name, dt, P0)
     n_axis = known.n_axis
     S = nominal_sensor_map(sc, n_axis)
     P = lateral_projector(S, sc.stiffness_lat_N_per_m)
@@ -161,11 +171,8 @@ def core_consts(known: KnownCfg, features: Features, law_address: bool = True) -
     beta = np.array([c.beta_trans] * 3 + [c.beta_ang] * 3)
     M_virt = tau / gain  # [kg | kg m^2] virtual inertia per twist channel
     D_virt = (1.0 + beta) / gain  # [N s/m | N m s/rad] damping (I + beta) / g
-    theta_nominal, half = features.omega()  # Omega: the features' own box (the adjoint's about l_nom)
-    spec = law_spec(run_law(known, features))
     p = features.n_params
-    # the law's constants; theta's prior covariance: the features' (make_features), else Omega/3
-    lc = spec.constants(law_params(ad, spec.name, dt, prior_cov_of(features)), S.shape[0], p)
+    lc = spec.constants(params, S.shape[0], p)  # the law's constants
     alpha, inv_tau = dt / (sc.filter_tau_s + dt), 1.0 / (sc.filter_tau_s + dt)
     dither = np.asarray(c.dither_rad_s, dtype=float)
     v = core.pack_c({  # by the names declared in controller/layout.py (C_FIELDS): every one, at its size
@@ -177,7 +184,7 @@ def core_consts(known: KnownCfg, features: Features, law_address: bool = True) -
         "DITHER_ON": float(np.any(dither)), "TWO_PI_F": 2.0 * math.pi * c.dither_hz,
         "EXCITE": float(c.program == "excite"), "BLEND": known.excite.blend_s, "F_GATE": ad.contact_force_N,
         "M_GATE": ad.contact_moment_Nm, "MAX_HOLD": max(0, int(round(sc.max_dropout_s / dt))),
-        "FEAT": feature_kind(features),
+        "FEAT": kind,
         "RANK_ON": 1.0, "RANK_GATE_V": core.RANK_GATE,  # 1: lambda_min every step; 2: the gate only
         "V_N": n_axis, "V_LNOM": l_nom, "V_M": M_virt, "V_INVDEN": 1.0 / (M_virt + dt * D_virt),
         "V_GRIGID": gain / (1.0 + beta),  # rigid: the admittance's DC gain
@@ -197,7 +204,7 @@ def core_consts(known: KnownCfg, features: Features, law_address: bool = True) -
         lc=np.ascontiguousarray(lc, dtype=float),
         law_fn=np.array([spec.address() if law_address else 0], dtype=np.int64),
         seg=np.ascontiguousarray(seg),
-    ), spec
+    ), spec, fx
 
 
 class KernelParts(NamedTuple):
@@ -218,8 +225,7 @@ def kernel_parts(known: KnownCfg, features: Features, arm_model, site: int, B: i
     """The kernels' parts for B episodes of ``features`` on the bare arm ``arm_model`` (a
     ``mujoco.MjModel``) whose flange is site ``site``: the one construction that the single
     controller (B = 1) and the batched loop share."""
-    consts, spec = core_consts(known, features, law_address)
-    fx = feature_consts(features)
+    consts, spec, fx = core_consts(known, features, law_address)
     m, p = consts.mats.shape[1], features.n_params
     layout = core.Layout(arm_model.nq, m, p, spec.sizes(m, p))
     state = core.ControllerState(layout, B)

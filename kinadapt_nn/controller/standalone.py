@@ -58,7 +58,7 @@ class StandaloneLaw:
         """The law a ``Controller(known, features, ...)`` runs (or the registered law ``name`` with
         the same constants): W, Omega, the filter, the gate and the law's constants as the
         controller builds them."""
-        consts, spec = core_consts(known if name is None else replace(known, law=name), features)
+        consts, spec, _fx = core_consts(known if name is None else replace(known, law=name), features)
         law = cls.__new__(cls)
         law._bind(spec, consts, consts.mats.shape[1], features.n_params)  # m: the rows of S (m, 6)
         return law

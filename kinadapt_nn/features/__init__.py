@@ -9,7 +9,8 @@ and a ``FeaturesSpec``). The run side builds the type a config names (``run.feat
 from kinadapt_nn.features import adjoint, neural, oracle, rbf
 from kinadapt_nn.features.adjoint import AdjointFeatures
 from kinadapt_nn.features.base import Features, KinState
-from kinadapt_nn.features.registry import Built, FeaturesContext, FeaturesSpec, Workspace, lookup, registry
+from kinadapt_nn.errors import ConfigError, did_you_mean
+from kinadapt_nn.features.registry import Built, FeaturesContext, FeaturesSpec, Workspace, registry
 
 #: every features type by name, the default first (the config's ``run.features``)
 FEATURES: dict[str, FeaturesSpec] = registry(
@@ -22,8 +23,13 @@ FEATURES: dict[str, FeaturesSpec] = registry(
 
 def features_spec(name: str, key: str = "run.features") -> FeaturesSpec:
     """The registered features type ``name`` (a one-line ConfigError on config key ``key``
-    listing the choices otherwise)."""
-    return lookup(FEATURES, name, key)
+    listing the choices and the closest otherwise)."""
+    spec = FEATURES.get(name)
+    if spec is None:
+        hint = did_you_mean(name, FEATURES)
+        raise ConfigError(f"config key '{key}': {name!r} is not a registered features type (choose from "
+                          f"{', '.join(FEATURES)}){'; ' + hint if hint else ''}")
+    return spec
 
 
 def compared_types() -> list[str]:

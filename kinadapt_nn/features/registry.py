@@ -22,7 +22,6 @@ from typing import NamedTuple, Protocol
 
 import numpy as np
 
-from kinadapt_nn.errors import ConfigError, did_you_mean
 from kinadapt_nn.features.base import Features
 from kinadapt_nn.known import KnownCfg
 
@@ -90,14 +89,3 @@ def registry(*specs: FeaturesSpec) -> dict[str, FeaturesSpec]:
             raise ValueError(f"two features types named {s.name!r}")
         out[s.name] = s
     return out
-
-
-def lookup(types: dict[str, FeaturesSpec], name: str, key: str = "run.features") -> FeaturesSpec:
-    """The features type named ``name``; otherwise a one-line ConfigError naming the config
-    ``key`` that gave it, the registered types and the closest one."""
-    try:
-        return types[name]
-    except KeyError:
-        hint = did_you_mean(name, types)
-        raise ConfigError(f"config key '{key}': {name!r} is not a registered features type (choose from "
-                          f"{', '.join(types)}){'; ' + hint if hint else ''}") from None

@@ -13,8 +13,8 @@ import numpy as np
 
 from kinadapt_nn.config import AdaptationCfg
 from kinadapt_nn.controller.laws import composite, frozen, kalman, prediction, tracking
-from kinadapt_nn.controller.laws.base import AdaptStep, LawParams, LawSpec, LawState, LawView, lookup, registry
-from kinadapt_nn.errors import ConfigError
+from kinadapt_nn.controller.laws.base import AdaptStep, LawParams, LawSpec, LawState, LawView, registry
+from kinadapt_nn.errors import ConfigError, did_you_mean
 
 #: every law by name, the default first (the config's ``adaptation.mode``)
 LAWS: dict[str, LawSpec] = registry(
@@ -27,12 +27,17 @@ LAWS: dict[str, LawSpec] = registry(
 
 
 def law_spec(name: str) -> LawSpec:
-    """The registered law ``name`` (a ConfigError listing the choices otherwise)."""
-    return lookup(LAWS, name)
+    """The registered law ``name`` (a one-line ConfigError listing the choices and the closest otherwise)."""
+    spec = LAWS.get(name)
+    if spec is None:
+        hint = did_you_mean(name, LAWS)
+        raise ConfigError(f"adaptation mode {name!r} is not a registered law (choose from {', '.join(LAWS)})"
+                          f"{'; ' + hint if hint else ''}")
+    return spec
 
 
-def law_params(adaptation: AdaptationCfg, name: str, dt_s: float, prior_cov: np.ndarray) -> LawParams:
-    """The parameters of the registered law ``name`` (its ``Params``, ``LawSpec.params_of``), after
+def law_of(adaptation: AdaptationCfg, name: str, dt_s: float, prior_cov: np.ndarray) -> tuple[LawSpec, LawParams]:
+    """The registered law ``name`` and its parameters (its ``Params``, ``LawSpec.params_of``), after
     checking every table ``[adaptation.params.<law>]`` of the config: each names a registered law
     and holds valid values for it (a one-line ConfigError otherwise)."""
     for other in adaptation.params:
@@ -41,7 +46,8 @@ def law_params(adaptation: AdaptationCfg, name: str, dt_s: float, prior_cov: np.
                               f"(choose from {', '.join(LAWS)})")
         if other != name:
             LAWS[other].params_of(adaptation, dt_s, prior_cov)
-    return law_spec(name).params_of(adaptation, dt_s, prior_cov)
+    spec = law_spec(name)
+    return spec, spec.params_of(adaptation, dt_s, prior_cov)
 
 
-__all__ = ["LAWS", "AdaptStep", "LawParams", "LawSpec", "LawState", "LawView", "law_params", "law_spec"]
+__all__ = ["LAWS", "AdaptStep", "LawParams", "LawSpec", "LawState", "LawView", "law_of", "law_spec"]

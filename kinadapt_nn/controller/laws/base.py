@@ -327,11 +327,3 @@ def registry(*specs: LawSpec) -> dict[str, LawSpec]:
             raise ValueError(f"two laws named {s.name!r}")
         laws[s.name] = s
     return laws
-
-
-def lookup(laws: dict[str, LawSpec], name: str) -> LawSpec:
-    """The law named ``name``; a ConfigError listing the registered laws otherwise."""
-    try:
-        return laws[name]
-    except KeyError:
-        raise ConfigError(f"adaptation mode {name!r} is not a registered law (choose from {', '.join(laws)})") from None
