@@ -91,7 +91,8 @@ def t_widen(dof: int) -> float:
     return float((t.ppf(0.975, dof) / norm.ppf(0.975)) ** 2) if dof < 1000 else 1.0
 
 
-__all__ = ["block_scores", "given_significant", "honest_sd", "sandwich_cov", "t_widen", "white_cov"]
+__all__ = ["block_scores", "given_significant", "honest_sd", "jackknife_cov", "paired_p", "sandwich_cov", "t_widen",
+           "wald_pvalue", "white_cov"]
 
 
 def given_significant(cv, sel_idx: np.ndarray, extra_idx: list[np.ndarray]
@@ -109,3 +110,43 @@ def given_significant(cv, sel_idx: np.ndarray, extra_idx: list[np.ndarray]
     B = len(reps)
     dev = reps - reps.mean(axis=0)
     return p[:k], (B - 1) / max(B, 1) * dev.T @ dev, idx, p
+
+
+# The block statistics of the selection (``selection`` uses and re-exports them).
+
+
+def wald_pvalue(p: np.ndarray, cov: np.ndarray, B: int) -> float:
+    """Hotelling-type test of ``p = 0`` with a block-jackknife covariance from B blocks:
+    ``F = (B - r) / (r (B - 1)) p^T cov^+ p ~ F(r, B - r)``, r the numerical rank of cov."""
+    from scipy.stats import f as f_dist
+
+    if len(p) == 0:
+        return 1.0
+    lam, V = np.linalg.eigh(cov)
+    keep = lam > 1e-10 * max(lam.max(), 1e-300)
+    r = int(keep.sum())
+    if r == 0 or B - r < 1:
+        return 1.0
+    z = V[:, keep].T @ p
+    t2 = float(np.sum(z**2 / lam[keep]))
+    return float(f_dist.sf((B - r) / (r * (B - 1)) * t2, r, B - r))
+
+
+def jackknife_cov(reps: np.ndarray) -> np.ndarray:
+    B = len(reps)
+    dev = reps - reps.mean(axis=0)
+    return (B - 1) / B * dev.T @ dev
+
+
+def paired_p(a: np.ndarray, b: np.ndarray) -> float:
+    """One-sided p that ``a`` (per-block SSE) is smaller than ``b`` on average (t over blocks)."""
+    from scipy.stats import t as t_dist
+
+    d = b - a
+    n = len(d)
+    if n < 3:
+        return 1.0
+    sd = float(np.std(d, ddof=1))
+    if sd == 0.0:
+        return 0.0 if d.mean() > 0 else 1.0
+    return float(t_dist.sf(d.mean() / (sd / np.sqrt(n)), n - 1))

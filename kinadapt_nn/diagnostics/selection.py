@@ -40,6 +40,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from kinadapt_nn.diagnostics import intervals
+from kinadapt_nn.diagnostics.intervals import jackknife_cov, paired_p, wald_pvalue  # noqa: F401 (the block statistics; re-exported)
 
 
 IMPOSSIBLE = "physically impossible estimate"  #: the reason's start for a selected effect found impossible
@@ -213,29 +214,6 @@ class Stats:
         return Gcc - Gbc.T @ np.linalg.solve(Gbb + np.diag(lam), Gbc)
 
 
-def wald_pvalue(p: np.ndarray, cov: np.ndarray, B: int) -> float:
-    """Hotelling-type test of ``p = 0`` with a block-jackknife covariance from B blocks:
-    ``F = (B - r) / (r (B - 1)) p^T cov^+ p ~ F(r, B - r)``, r the numerical rank of cov."""
-    from scipy.stats import f as f_dist
-
-    if len(p) == 0:
-        return 1.0
-    lam, V = np.linalg.eigh(cov)
-    keep = lam > 1e-10 * max(lam.max(), 1e-300)
-    r = int(keep.sum())
-    if r == 0 or B - r < 1:
-        return 1.0
-    z = V[:, keep].T @ p
-    t2 = float(np.sum(z**2 / lam[keep]))
-    return float(f_dist.sf((B - r) / (r * (B - 1)) * t2, r, B - r))
-
-
-def jackknife_cov(reps: np.ndarray) -> np.ndarray:
-    B = len(reps)
-    dev = reps - reps.mean(axis=0)
-    return (B - 1) / B * dev.T @ dev
-
-
 @dataclass
 class Candidate:
     """One candidate tested given the selected set."""
@@ -270,20 +248,6 @@ def _test(st: Stats, des: Design, name: str, base: np.ndarray, sse_base: np.ndar
     cov = jackknife_cov(reps)
     pval = min(1.0, wald_pvalue(p, cov, len(reps)) * (len(choices) if only_cols is None else 1))
     return Candidate(name, list(cols), gain, sse, p, cov, pval, choice_gains=gains)
-
-
-def paired_p(a: np.ndarray, b: np.ndarray) -> float:
-    """One-sided p that ``a`` (per-block SSE) is smaller than ``b`` on average (t over blocks)."""
-    from scipy.stats import t as t_dist
-
-    d = b - a
-    n = len(d)
-    if n < 3:
-        return 1.0
-    sd = float(np.std(d, ddof=1))
-    if sd == 0.0:
-        return 0.0 if d.mean() > 0 else 1.0
-    return float(t_dist.sf(d.mean() / (sd / np.sqrt(n)), n - 1))
 
 
 class Selection(NamedTuple):
