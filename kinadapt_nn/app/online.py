@@ -114,6 +114,10 @@ def cmd_online(args: argparse.Namespace) -> int:
     cfg = load_config(Path(args.config) if args.config else None,
                       [*(args.set or []), *(["monitor.enabled=true"] if args.monitor else []),
                        *(["run.progress=false"] if args.quiet else [])])  # (--quiet: no live lines either)
+    from kinadapt_nn.features.effect_library import online_of
+
+    for eff in cfg.model.effects:  # the names from the one registry, checked before anything compiles or prints
+        online_of(eff)
     out = args.run_dir = Path(args.out) if args.out else default_out("online")
     check_output_dir(out, args.overwrite)
     if cfg.monitor.enabled:
