@@ -29,3 +29,13 @@ def did_you_mean(word: str, choices: Iterable[str]) -> str:
     (``difflib.get_close_matches``), or ``""`` when none is close enough."""
     close = difflib.get_close_matches(str(word), [str(c) for c in choices], n=1)
     return f"did you mean '{close[0]}'?" if close else ""
+
+
+def registered(table: dict, name: str, where: str, kind: str):
+    """``table[name]`` of a registry, or a one-line ``ConfigError``: ``{where}{name!r} is not a
+    registered {kind} (choose from ...)`` with the closest name."""
+    if name in table:
+        return table[name]
+    hint = did_you_mean(name, table)
+    raise ConfigError(f"{where}{name!r} is not a registered {kind} (choose from {', '.join(table)})"
+                      f"{'; ' + hint if hint else ''}")

@@ -97,8 +97,7 @@ def declared_contact(setup, R_ws: np.ndarray, p_ws: np.ndarray) -> np.ndarray | 
     tip = np.asarray(setup.tool.tip_sensor_m, dtype=float)
     out = socket_terms(c, R_ws, p_ws, tip).gate if c.geometry == "socket" else None
     if c.zone == "entrance":
-        n_ax = np.asarray(c.axis_w, dtype=float)
-        n_ax = n_ax / np.linalg.norm(n_ax)
+        n_ax = socket_axis(c)
         depth = (p_ws + R_ws @ tip - np.asarray(c.entry_w_m, dtype=float)) @ n_ax
         near = depth >= -c.zone_m
         out = near if out is None else out | near

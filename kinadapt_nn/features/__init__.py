@@ -9,7 +9,7 @@ and a ``FeaturesSpec``). The run side builds the type a config names (``run.feat
 from kinadapt_nn.features import adjoint, neural, oracle, rbf
 from kinadapt_nn.features.adjoint import AdjointFeatures
 from kinadapt_nn.features.base import Features, KinState
-from kinadapt_nn.errors import ConfigError, did_you_mean
+from kinadapt_nn.errors import registered
 from kinadapt_nn.features.registry import Built, FeaturesContext, FeaturesSpec, Workspace, registry
 
 #: every features type by name, the default first (the config's ``run.features``)
@@ -24,12 +24,7 @@ FEATURES: dict[str, FeaturesSpec] = registry(
 def features_spec(name: str, key: str = "run.features") -> FeaturesSpec:
     """The registered features type ``name`` (a one-line ConfigError on config key ``key``
     listing the choices and the closest otherwise)."""
-    spec = FEATURES.get(name)
-    if spec is None:
-        hint = did_you_mean(name, FEATURES)
-        raise ConfigError(f"config key '{key}': {name!r} is not a registered features type (choose from "
-                          f"{', '.join(FEATURES)}){'; ' + hint if hint else ''}")
-    return spec
+    return registered(FEATURES, name, f"config key '{key}': ", "features type")
 
 
 def compared_types() -> list[str]:

@@ -14,7 +14,7 @@ import numpy as np
 from kinadapt_nn.config import AdaptationCfg
 from kinadapt_nn.controller.laws import composite, frozen, kalman, prediction, tracking
 from kinadapt_nn.controller.laws.base import AdaptStep, LawParams, LawSpec, LawState, LawView, registry
-from kinadapt_nn.errors import ConfigError, did_you_mean
+from kinadapt_nn.errors import registered
 
 #: every law by name, the default first (the config's ``adaptation.mode``)
 LAWS: dict[str, LawSpec] = registry(
@@ -28,12 +28,7 @@ LAWS: dict[str, LawSpec] = registry(
 
 def law_spec(name: str) -> LawSpec:
     """The registered law ``name`` (a one-line ConfigError listing the choices and the closest otherwise)."""
-    spec = LAWS.get(name)
-    if spec is None:
-        hint = did_you_mean(name, LAWS)
-        raise ConfigError(f"adaptation mode {name!r} is not a registered law (choose from {', '.join(LAWS)})"
-                          f"{'; ' + hint if hint else ''}")
-    return spec
+    return registered(LAWS, name, "adaptation mode ", "law")
 
 
 def law_of(adaptation: AdaptationCfg, name: str, dt_s: float, prior_cov: np.ndarray) -> tuple[LawSpec, LawParams]:
@@ -41,11 +36,9 @@ def law_of(adaptation: AdaptationCfg, name: str, dt_s: float, prior_cov: np.ndar
     checking every table ``[adaptation.params.<law>]`` of the config: each names a registered law
     and holds valid values for it (a one-line ConfigError otherwise)."""
     for other in adaptation.params:
-        if other not in LAWS:
-            raise ConfigError(f"config key 'adaptation.params.{other}': {other!r} is not a registered law "
-                              f"(choose from {', '.join(LAWS)})")
+        spec = registered(LAWS, other, f"config key 'adaptation.params.{other}': ", "law")
         if other != name:
-            LAWS[other].params_of(adaptation, dt_s, prior_cov)
+            spec.params_of(adaptation, dt_s, prior_cov)
     spec = law_spec(name)
     return spec, spec.params_of(adaptation, dt_s, prior_cov)
 
