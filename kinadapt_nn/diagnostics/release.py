@@ -111,7 +111,8 @@ def _drops(f: np.ndarray, min_force: float) -> tuple[np.ndarray, np.ndarray]:
 
 def find(s, sigma_f: float) -> Releases | None:
     """The releases of a log's declared socket that the data show (module docstring), or None: no socket
-    declared, contacts not through the tip, a static log, or no release seen. ``s``: the log's
+    declared, contacts not through the tip, a static log, or no release seen outside the set-up's
+    ``[analysis] exclude_s`` windows (a release there is left out with the rest of the window). ``s``: the log's
     ``LogSignals`` (its ``contact`` the accounts' union); ``sigma_f`` [N] the force channels' noise."""
     setup = s.setup
     c = setup.contact
@@ -126,11 +127,14 @@ def find(s, sigma_f: float) -> Releases | None:
     t = np.asarray(s.t, dtype=float)
     edges = np.flatnonzero(np.diff(np.r_[0, st.gate.astype(int), 0]))
     starts, ends = edges[::2], edges[1::2]  # engaged on [start, end)
+    left_out = np.zeros(s.n, bool)  # [analysis] exclude_s: a release there is no row either
+    for lo, hi in setup.analysis.exclude_s:
+        left_out |= (t - t[0] >= lo) & (t - t[0] <= hi)
     out = []
     for i, (a, b) in enumerate(zip(starts, ends)):
         stop = min(starts[i + 1] if i + 1 < len(starts) else s.n, np.searchsorted(t, t[b - 1] + SEARCH_S))
         d = np.flatnonzero((drops >= a) & (drops + 1 < stop))
-        if len(d):
+        if len(d) and not left_out[drops[d[-1]]]:
             k = int(drops[d[-1]])
             out.append((k, t[k], t[b - 1], 0.5 * (depth[k] + depth[k + 1]),
                         max(SD_SAMPLES * abs(depth[k + 1] - depth[k]), MIN_SD_M), size[d[-1]]))

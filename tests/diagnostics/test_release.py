@@ -73,6 +73,18 @@ def test_a_release_measures_the_declared_tips_depth():
         assert 0.02e-3 * release.SD_SAMPLES * 0.9 < rel.sd_m[0] < 0.02e-3 * release.SD_SAMPLES * 1.1
 
 
+def test_a_release_inside_an_excluded_window_is_no_row():
+    """``[analysis] exclude_s`` leaves a release out with the rest of its window: the same log with a
+    window over the release (times from the first sample) finds none; a window elsewhere keeps it."""
+    s, _, gate = _socket_log(0.001)
+    t_rel = s.t[np.flatnonzero(gate)[-1]] - s.t[0]
+    for window, kept in (((t_rel - 0.01, t_rel + 0.01), False), ((0.0, 0.1), True)):
+        an = s.setup.analysis.model_copy(update={"exclude_s": (window,)})
+        sx = SimpleNamespace(**{**vars(s), "setup": s.setup.model_copy(update={"analysis": an})})
+        rel = release.find(sx, 0.01)
+        assert (rel is not None) == kept, window
+
+
 def test_no_release_without_a_declared_socket_or_a_step():
     s, _, _ = _socket_log(0.001)
     assert release.find(SimpleNamespace(**{**vars(s), "wrench": np.zeros_like(s.wrench)}), 0.01) is None
