@@ -109,14 +109,18 @@ def write_online(stage: Path, cfg, result) -> None:
 
 def cmd_online(args: argparse.Namespace) -> int:
     from kinadapt_nn.config import load_config
+    from kinadapt_nn.controller.laws import law_spec
+    from kinadapt_nn.features import features_spec
+    from kinadapt_nn.features.effect_library import online_of
     from kinadapt_nn.runio import check_output_dir, staged_output
 
     cfg = load_config(Path(args.config) if args.config else None,
                       [*(args.set or []), *(["monitor.enabled=true"] if args.monitor else []),
                        *(["run.progress=false"] if args.quiet else [])])  # (--quiet: no live lines either)
-    from kinadapt_nn.features.effect_library import online_of
-
-    for eff in cfg.model.effects:  # the names from the one registry, checked before anything compiles or prints
+    # the registered names (features type, law, effects), checked before anything compiles or prints
+    features_spec(cfg.run.features)
+    law_spec(cfg.adaptation.mode)
+    for eff in cfg.model.effects:
         online_of(eff)
     out = args.run_dir = Path(args.out) if args.out else default_out("online")
     check_output_dir(out, args.overwrite)

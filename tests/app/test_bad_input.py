@@ -212,6 +212,8 @@ def test_bad_options_exit_2_with_one_line(cwd, capsys, argv):
     [(["online", "--set", "run.sede=3"], "unknown config key 'run.sede'; did you mean 'run.seed'?"),
      (["online", "--set", "effects.tool_gravity.enabeld=true"], "did you mean 'effects.tool_gravity.enabled'?"),
      (["online", "--set", "model.effects=['contact_stifness']"], "did you mean 'contact_stiffness'?"),
+     (["online", "--set", "run.features=adjiont"], "did you mean 'adjoint'?"),
+     (["online", "--set", "mode=kalmn"], "did you mean 'kalman'?"),
      (["compare", "--set", "n_tool=2"], "unknown config key 'n_tool'; did you mean 'n_tools'?"),
      (["pretrain", "--set", "train.setps=2"], "did you mean 'train.steps'?"),
      (["onlin"], "invalid choice: 'onlin'; did you mean 'online'?"),

@@ -1,4 +1,4 @@
-"""The first run's compile on two cores (``controller.twocore``): the callees it compiles ahead are
+"""The first run's compile on two cores (``controller.core``: ``compile_two_cores``): the callees it compiles ahead are
 the ones the kernels use, with the types the kernels give them, and what it compiles computes the
 same numbers as a kernel compiled in one piece."""
 
@@ -14,7 +14,7 @@ import pytest
 
 from kinadapt_nn import compiled
 from kinadapt_nn.config import load_config
-from kinadapt_nn.controller.twocore import callee_plan
+from kinadapt_nn.controller.core import callee_plan
 from kinadapt_nn.runs.build import make_controller
 from kinadapt_nn.runs.episode import run_episode
 
@@ -53,7 +53,7 @@ import json, numpy as np
 from kinadapt_nn import compiled
 from kinadapt_nn.config import load_config
 from kinadapt_nn.controller import core
-from kinadapt_nn.controller.twocore import callee_plan
+from kinadapt_nn.controller.core import callee_plan
 from kinadapt_nn.runs.build import make_controller
 from kinadapt_nn.runs.episode import run_episode
 from kinadapt_nn.controller.laws.base import STEP_SIG
@@ -82,7 +82,7 @@ def test_kernel_opt_level_sets_level_one_for_the_compile_only(monkeypatch):
     (also after an error) both are back; a ``NUMBA_OPT`` the user set is not touched."""
     from numba.core import config
 
-    from kinadapt_nn.controller.twocore import KERNEL_OPT, kernel_opt_level
+    from kinadapt_nn.controller.core import KERNEL_OPT, kernel_opt_level
 
     monkeypatch.delenv("NUMBA_OPT", raising=False)
     before = config.OPT

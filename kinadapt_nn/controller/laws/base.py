@@ -275,37 +275,6 @@ class LawSpec:
             self._address.append(compiled.jit_address(self.step, STEP_SIG))
         return self._address[0]
 
-    def aside_target(self) -> tuple[str, str] | None:
-        """(module, qualified name) of ``step`` when a second process can compile it into numba's
-        on-disk cache for this one to load; None when there is nothing to gain (compiled in this
-        process already, cached) or it cannot (a law defined in ``__main__`` or in a function)."""
-        fn = getattr(self.step, "py_func", None)
-        if self._address or fn is None or "<" in fn.__qualname__ or fn.__module__ == "__main__":
-            return None
-        if compiled.cached_any(self.step) is not False:  # cached, or cannot be told: compile here
-            return None
-        return fn.__module__, fn.__qualname__
-
-    def compile_aside(self):
-        """Start compiling ``step`` into numba's on-disk cache in a second process, so that a first
-        run compiles the law and the step kernel at once on two cores; :meth:`address` then loads
-        it. -> the ``subprocess.Popen`` to wait for, or None when there is nothing to gain (compiled
-        in this process already, cached, or a law the second process cannot import: it is then
-        compiled here, as before)."""
-        import subprocess
-        import sys
-
-        target = self.aside_target()
-        if target is None:
-            return None
-        code = (f"import importlib; from kinadapt_nn.controller.laws.base import STEP_SIG; "
-                f"importlib.import_module({target[0]!r}).{target[1]}.compile(STEP_SIG)")
-        try:
-            return subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.DEVNULL,
-                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        except OSError:
-            return None
-
 
 def law_state(spec: LawSpec, x: np.ndarray, k: np.ndarray, unc: np.ndarray, m: int, p: int) -> LawState:
     """Named views of a law's blocks in ``x`` (B, nx) and counters in ``k`` (B, nk)."""
