@@ -18,8 +18,6 @@ from kinadapt_nn.features.base import Features
 from kinadapt_nn.known import BORE_AXIS_W, KnownCfg
 from kinadapt_nn.sensing import nominal_sensor_map
 
-FAILURES = ("none", "timeout", "jam", "block_face", "divergence")
-
 
 def one_blas_thread():
     """Context manager: the BLAS libraries loaded in this process (numpy's, and scipy's that the

@@ -14,7 +14,8 @@ from kinadapt_nn.controller import core
 from kinadapt_nn.controller.controller import Controller
 from kinadapt_nn.runs.batch import compile_loop, run_episodes
 from kinadapt_nn.runs.build import make_controller
-from kinadapt_nn.runs.outcome import FAILURES, EpisodeResult
+from kinadapt_nn.runs.monitor import FAILURES
+from kinadapt_nn.runs.outcome import EpisodeResult
 
 __all__ = ["FAILURES", "EpisodeResult", "precompile", "run_episode"]
 

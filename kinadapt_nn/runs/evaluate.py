@@ -17,8 +17,6 @@ from kinadapt_nn.sensing import CHANNEL_NAMES, CHANNEL_UNITS
 from kinadapt_nn.trace import Trace
 from kinadapt_nn.runs.monitor import SeatMonitor, classify_failure
 
-FAILURES = ("none", "timeout", "jam", "block_face", "divergence")
-
 
 def implied_offset(ctrl: Controller, q: np.ndarray, theta: np.ndarray) -> np.ndarray:
     """The adjoint offset whose Jacobian best fits ``J_hat(q; theta)`` (W-scaled rows 1..5, LS;

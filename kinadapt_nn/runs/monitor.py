@@ -11,6 +11,7 @@ import numpy as np
 
 from kinadapt_nn.config import ExperimentCfg
 
+#: the failure classes of an unseated run (:func:`classify_failure`; "none": seated)
 FAILURES = ("none", "timeout", "jam", "block_face", "divergence")
 
 

@@ -24,8 +24,6 @@ from kinadapt_nn.sim.adapter import PegInHoleSim
 from kinadapt_nn.sim.truth import TrueSensorJacobian
 from kinadapt_nn.trace import Trace, TraceRecorder
 
-FAILURES = ("none", "timeout", "jam", "block_face", "divergence")
-
 
 class EpisodeResult(NamedTuple):
     trace: Trace  #: every logged channel
