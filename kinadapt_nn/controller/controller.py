@@ -34,7 +34,7 @@ import numpy as np
 
 from kinadapt_nn.controller import core
 from kinadapt_nn.controller.laws import AdaptStep, LawSpec, law_of
-from kinadapt_nn.controller.laws.base import LawState, law_state
+from kinadapt_nn.controller.laws.base import LawState, law_state, state_sizes
 from kinadapt_nn.errors import SensorError
 from kinadapt_nn.features.base import Features, KinState
 from kinadapt_nn.known import KnownCfg
@@ -227,10 +227,11 @@ def kernel_parts(known: KnownCfg, features: Features, arm_model, site: int, B: i
     controller (B = 1) and the batched loop share."""
     consts, spec, fx = core_consts(known, features, law_address)
     m, p = consts.mats.shape[1], features.n_params
-    layout = core.Layout(arm_model.nq, m, p, spec.sizes(m, p))
+    blocks = spec.blocks(m, p)  # the law's state, declared for m and p (asked once)
+    layout = core.Layout(arm_model.nq, m, p, state_sizes(blocks, spec.counters))
     state = core.ControllerState(layout, B)
     return KernelParts(core.arm_chain(arm_model, site), consts, spec, layout, state, fx,
-                       law_state(spec, state.law_x, state.law_k, state.unc, m, p))
+                       law_state(blocks, spec.counters, state.law_x, state.law_k, state.unc))
 
 
 def sensor_error_message(t: float, bad_run: int) -> str:

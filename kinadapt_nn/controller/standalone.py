@@ -15,7 +15,7 @@ import numpy as np
 from kinadapt_nn.controller import core
 from kinadapt_nn.controller.controller import core_consts
 from kinadapt_nn.controller.laws import AdaptStep, LawParams, LawSpec, LawView, law_spec
-from kinadapt_nn.controller.laws.base import law_state
+from kinadapt_nn.controller.laws.base import law_state, state_sizes
 from kinadapt_nn.features.base import Features
 from kinadapt_nn.known import KnownCfg
 
@@ -66,10 +66,11 @@ class StandaloneLaw:
     def _bind(self, spec: LawSpec, consts: core.CoreConsts, m: int, p: int) -> None:
         """A B = 1 state with the law's blocks, for ``spec`` with kernel constants ``consts``."""
         self.spec, self.name, self.consts, self.m, self.p = spec, spec.name, consts, m, p
-        self.layout = core.Layout(0, m, p, self.spec.sizes(m, p))
+        blocks = spec.blocks(m, p)
+        self.layout = core.Layout(0, m, p, state_sizes(blocks, spec.counters))
         self.state = core.ControllerState(self.layout, 1)
         st = self.state
-        self._law_state = law_state(self.spec, st.law_x, st.law_k, st.unc, m, p)
+        self._law_state = law_state(blocks, spec.counters, st.law_x, st.law_k, st.unc)
         self.view: LawView = self.spec.view(self.spec, self.consts.lc, self._law_state, 0)
         self._reg = np.zeros((1, 1 + p, m))
         self.out = np.zeros((1, self.layout.nout))

@@ -14,7 +14,7 @@ from kinadapt_nn.config import load_config
 from kinadapt_nn.controller import core
 from kinadapt_nn.controller.controller import Controller
 from kinadapt_nn.controller.laws import LAWS, law_spec
-from kinadapt_nn.controller.laws.base import STEP_SIG
+from kinadapt_nn.controller.laws.base import STEP_SIG, state_sizes
 from kinadapt_nn.controller.standalone import StandaloneLaw
 from kinadapt_nn.errors import ConfigError
 from kinadapt_nn.known import KnownCfg
@@ -138,7 +138,7 @@ def test_the_registry_names_every_law_and_refuses_others():
     for name, spec in LAWS.items():
         assert spec.name == name and spec.doc
         assert spec.address() > 0 and STEP_SIG.args in [s for s in spec.step.signatures]
-        nx, nk = spec.sizes(6, 3)
+        nx, nk = state_sizes(spec.blocks(6, 3), spec.counters)
         assert nx == sum(int(np.prod(s)) for _, s in spec.blocks(6, 3)) and nk == len(spec.counters)
 
 

@@ -264,10 +264,6 @@ class LawSpec:
         """The law's parameters from the known adaptation config (:meth:`LawParams.of`)."""
         return self.params.of(adaptation, dt_s, prior_cov, law=self.name, **override)
 
-    def sizes(self, m: int, p: int) -> tuple[int, int]:
-        """(nx, nk): the law's float state and counter sizes."""
-        return sum(int(np.prod(s)) for _, s in self.blocks(m, p)), len(self.counters)
-
     def address(self) -> int:
         """The native address of ``step`` compiled for :data:`STEP_SIG` in this process (compiled,
         or loaded from numba's cache, on first use)."""
@@ -276,16 +272,23 @@ class LawSpec:
         return self._address[0]
 
 
-def law_state(spec: LawSpec, x: np.ndarray, k: np.ndarray, unc: np.ndarray, m: int, p: int) -> LawState:
-    """Named views of a law's blocks in ``x`` (B, nx) and counters in ``k`` (B, nk)."""
+def state_sizes(blocks: tuple[tuple[str, tuple[int, ...]], ...], counters: tuple[str, ...]) -> tuple[int, int]:
+    """(nx, nk): the float state and counter sizes of a law's ``blocks`` (``LawSpec.blocks(m, p)``,
+    asked once by the caller) and ``counters``."""
+    return sum(int(np.prod(s)) for _, s in blocks), len(counters)
+
+
+def law_state(blocks: tuple[tuple[str, tuple[int, ...]], ...], counters: tuple[str, ...], x: np.ndarray,
+              k: np.ndarray, unc: np.ndarray) -> LawState:
+    """Named views of a law's ``blocks`` (``LawSpec.blocks(m, p)``) in ``x`` (B, nx) and of its
+    ``counters`` in ``k`` (B, nk)."""
     B = x.shape[0]
-    blocks, o = {}, 0
-    for name, shape in spec.blocks(m, p):
+    views, o = {}, 0
+    for name, shape in blocks:
         size = int(np.prod(shape))
-        blocks[name] = x[:, o:o + size].reshape((B, *shape))
+        views[name] = x[:, o:o + size].reshape((B, *shape))
         o += size
-    counters = {name: k[:, i] for i, name in enumerate(spec.counters)}
-    return LawState(x, k, unc, blocks, counters)
+    return LawState(x, k, unc, views, {name: k[:, i] for i, name in enumerate(counters)})
 
 
 def registry(*specs: LawSpec) -> dict[str, LawSpec]:
