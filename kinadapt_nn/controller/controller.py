@@ -264,13 +264,13 @@ class Controller:
         self.n_axis = known.n_axis
         self.entry_w = np.asarray(known.bore_entry_w_m, dtype=float)  # known bore pose
         self.l_nom_f = np.asarray(sc.nominal_offset_f_m, dtype=float)
-        self.S = nominal_sensor_map(sc, self.n_axis)
-        self.P = lateral_projector(self.S, sc.stiffness_lat_N_per_m)  # (2, 3)
-        self.W = channel_metric(sc)
         self.value_fn = ValueFunction(known)
         parts = kernel_parts(known, features, self.kin.model, self.kin.site, 1, law_address=False)  # (compile_kernels)
         self.consts, self.law_spec, self.chain = parts.consts, parts.law, parts.chain
         self.layout, self.state, self._law_state = parts.layout, parts.state, parts.law_state
+        # the known constants as the kernels hold them (core_consts: computed there once)
+        self.S = self.consts.mats[0].copy()  #: (m, 6) the nominal sensor map S
+        self.W = self.consts.c[core.V_W:core.V_W + self.S.shape[0]].copy()  #: (m,) the channel metric W
         self.M_virt = self.consts.c[core.V_M:core.V_M + 6].copy()
         self.D_virt = self.consts.c[core.V_D:core.V_D + 6].copy()
         self.theta0 = np.asarray(theta0, dtype=float).copy()
