@@ -160,7 +160,8 @@ def _verdict_words(summary: str) -> str:
 
     at = min((summary.find(k) for k in ("The model", "Something the model") if k in summary), default=0)
     said = [x for x in re.split(r"(?<=\.) ", summary[at:]) if x.startswith(("The model", "Something", "No library",
-                                                                                 "Present", "It looks like"))]
+                                                                                 "Present", "It looks like",
+                                                                                 "Fitted beside them"))]
     return " ".join(said)
 
 

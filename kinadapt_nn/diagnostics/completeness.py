@@ -16,7 +16,16 @@ block cross-validation given the final model, a Hotelling-type test with the blo
 covariance, Benjamini-Hochberg over the shapes, ``min_explained`` of what the final model leaves
 held-out, and a relevant size (a parameter is scaled so that 1 changes some channel's RMS, over
 that channel's rows, by its relevant size). A shape is listed only where it passes, ranked by its held-out gain; each comes
-with a ready effect file (``hint_files``) in the public contract.
+with a ready effect file (``hint_files``) in the public contract. A shape with more parameters than
+``max_dense``, or than the blocks minus two (a block jackknife's covariance has rank B - 1 at most: a
+short log's few blocks hold no Hotelling test of a 12-parameter shape), has its entries selected
+sparsely (``_sparse_test``). A complete model that is complete only through effects the verdict
+leaves undecided (``held_undecided``: selected, none a finding; without them, ``without_held``, some
+channel carries a relevant structured residual -- a snag's pull taken by ``ft_offset``, which the
+undecided effects beside it then swallow) is tested too, those effects beside the present ones as
+nuisance: a shape is listed only for what it explains beyond them (docs/monitor.md, "Agreement"). Where
+what they explain is below the relevant size (an effect-free log's undecided ``tool_tilt``), no hint
+is sought: they stand in for nothing relevant.
 
 Estimates when structure is left (``robust``). A residual the model cannot describe biases the
 estimates of the effects whose columns reach the rows that carry it (a face contact's moment about
@@ -319,20 +328,26 @@ def _relevant_of_sq(col_sq: np.ndarray, n_rows: np.ndarray, rel9: np.ndarray) ->
     return np.where(worst > 0, 1.0 / np.maximum(worst, 1e-300), 1.0)
 
 
-def hints(s, des: sel.Design, rm, result, sc: sel.SelCfg, cc: CompCfg = CompCfg()) -> list[dict]:
-    """Test every shape against the held-out residual given the final model (module docstring)."""
+def hints(s, des: sel.Design, rm, result, sc: sel.SelCfg, cc: CompCfg = CompCfg(),
+          beside: dict | None = None) -> list[dict]:
+    """Test every shape against the held-out residual given the final model (module docstring);
+    ``beside`` {effect: its columns}: effects fitted beside the present ones as nuisance (the
+    undecided effects a complete model holds, ``held_undecided``)."""
     from scipy.stats import false_discovery_control
 
     rel9 = np.array([s.setup.analysis.relevant_force_N] * 3 + [s.setup.analysis.relevant_moment_Nm] * 6)
     sh = [x for x in shapes(s, cc) if not (x.name == "sensor_constant" and s.setup.log.tared)]
-    hd = hint_design(s, des, rm, result, sh, rel9, cc)
+    hd = hint_design(s, des, rm, result, sh, rel9, cc, beside)
     info = {x.name: (x, None) for x in sh}
     scale, X = hd.scale, hd.X
     st = sel.Stats(hd)
     b = st.z_idx
     sse0, _, _ = st.cv(b, sc.ridge)
     rest = float(sse0.sum()) or 1e-300
-    tests = {n: (sel._test(st, hd, n, b, sse0, sc) if hd.X[n].shape[1] <= cc.max_dense
+    # a block jackknife's covariance has rank B - 1 at most: a shape with more parameters than B - 2 (a short log's
+    # few blocks) has no Hotelling test of its whole; it is tested as a large shape is, entries selected sparsely
+    dense = min(cc.max_dense, hd.n_blocks - 2)
+    tests = {n: (sel._test(st, hd, n, b, sse0, sc) if hd.X[n].shape[1] <= dense
                  else _sparse_test(st, hd, n, b, sse0, sc, cc)) for n in X}
     padj = false_discovery_control([tests[n].p_value for n in X], method="bh")
     out = []
@@ -378,8 +393,8 @@ def hint_rows(s, rm, cc: CompCfg) -> tuple[object, np.ndarray | None]:
     return sub, pos.astype(np.int64)
 
 
-def hint_design(s, des: sel.Design, rm, result, sh: list[Shape], rel9: np.ndarray, cc: CompCfg = CompCfg()
-                ) -> sel.Design:
+def hint_design(s, des: sel.Design, rm, result, sh: list[Shape], rel9: np.ndarray, cc: CompCfg = CompCfg(),
+                beside: dict | None = None) -> sel.Design:
     """The design of the hint test: the shapes ``sh`` as candidates, the final model's columns
     (nuisance and present effects) as nuisance; each shape's parameters scaled by ``_relevant_of_sq``
     (``rel9`` (9,): the relevant size of the six free-space channels and the three tip moments).
@@ -394,6 +409,7 @@ def hint_design(s, des: sel.Design, rm, result, sh: list[Shape], rel9: np.ndarra
                                t_s=des.t_s[pos])
         bs = des.stats
         pres = {n: list(c) for n, (c, _, _) in result.present.items()}
+        pres.update({n: list(c) for n, c in (beside or {}).items()})
         nuis = [src for src in bs.sources if src.name == "_offset"]
         nuis += [src._replace(cols=pres[src.name]) for src in bs.sources if src.name in pres]
         srcs = [stream.Source(x.name, x.columns, list(range(len(x.params(s)[0])))) for x in sh]
@@ -411,6 +427,8 @@ def hint_design(s, des: sel.Design, rm, result, sh: list[Shape], rel9: np.ndarra
     base = [des.Z] if des.Z.shape[1] else []
     for n, (c, _, _) in result.present.items():
         base.append(des.X[n][:, c])
+    for n, c in (beside or {}).items():
+        base.append(des.X[n][:, list(c)])
     Z = np.concatenate(base, axis=1) if base else np.zeros((len(des.y), 0))
     X, scale = {}, {}
     for x in sh:
@@ -479,6 +497,20 @@ def _fitted(shape: str, names, units, p, sd, rel, cols, cc: CompCfg) -> dict:
     return {names[i]: q(i) for i in order}
 
 
+def held_undecided(result) -> dict:
+    """{effect: its columns} of the effects the final model holds (selected) that the verdict leaves
+    undecided (``summary.undecided_in_model``): the model's fit needs them, none is a finding."""
+    return {e["effect"]: list(e["columns_used"]) for e in result.entries
+            if e.get("selected_round") is not None and e.get("verdict") != "present" and e.get("columns_used")}
+
+
+def without_held(des: sel.Design, result, held: dict, sc: sel.SelCfg) -> np.ndarray:
+    """(R,) the held-out residual rows of the final model less the effects ``held`` ({effect: columns})."""
+    st = sel.Stats(des)
+    out = np.concatenate([st.idx[n][list(c)] for n, c in held.items()])
+    return sel.heldout_residual(st, des, np.asarray([j for j in result.final_idx if j not in set(out)], dtype=int), sc)
+
+
 @dataclass(frozen=True)
 class Completeness:
     """The completeness stage's outcome: is the final model complete, what it leaves, the hints."""
@@ -507,8 +539,12 @@ def assess(ranked, sc: sel.SelCfg, sigma: np.ndarray, stride_s: float, with_hint
     complete = un.pop("complete")
     un["hints"] = []
     files: dict[str, str] = {}
-    if not complete and with_hints:
-        for h in hints(s, des, rm, result, sc, cc):
+    held = held_undecided(result) if complete and with_hints else {}
+    if held and unexplained(des, without_held(des, result, held, sc), rm, sigma, s.setup, (dt, stride_s), cc,
+                            static)["complete"]:
+        held = {}  # what they explain is below the relevant size: no stand-in for anything relevant
+    if with_hints and (not complete or held):
+        for h in hints(s, des, rm, result, sc, cc, held if complete else None):
             name, text = effect_file(h, source)
             files[name] = text
             un["hints"].append({**public(h), "effect_file": name})

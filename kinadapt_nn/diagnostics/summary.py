@@ -23,8 +23,13 @@ def completeness_text(rep: dict) -> str:
     if rep.get("model_complete", True):
         held = undecided_in_model(rep)
         if held:
-            return (f"The model explains the log only with effects it cannot decide ({', '.join(held)}): no systematic "
-                    "residual of a relevant size is left once they are fitted, and none of them is a finding.")
+            txt = (f"The model explains the log only with effects it cannot decide ({', '.join(held)}): no systematic "
+                   "residual of a relevant size is left once they are fitted, and none of them is a finding.")
+            hs = un.get("hints", [])
+            if hs:  # sought beside them (completeness.held_undecided): a shape the library lacks fits what they leave
+                txt += (" Fitted beside them, a shape outside the library still explains what they leave: it looks like "
+                        + _hints_words(hs, "of what they leave held-out") + ".")
+            return txt
         return "The model explains the log: no systematic residual of a relevant size is left."
     ch = un.get("channels", {})
     parts = [f"{c} ({ch[c]['structured_rms']:.3g} {ch[c]['unit']}, {ch[c]['ratio_to_noise']:.1f}x the noise floor)"
@@ -33,11 +38,16 @@ def completeness_text(rep: dict) -> str:
            + f" ({', '.join(un.get('phases', []))}).")
     hs = un.get("hints", [])
     if hs:
-        txt += " It looks like " + "; ".join(f"{h['shape']} ({h['words'].split(':')[0]}; explains "
-                                             f"{100 * h['explains']:.0f}% of it held-out, see {h['effect_file']})" for h in hs[:3]) + "."
+        txt += " It looks like " + _hints_words(hs, "of it held-out") + "."
     else:
         txt += " No shape of the hint dictionary explains it."
     return txt
+
+
+def _hints_words(hs: list[dict], of: str) -> str:
+    """The leading hints (at most three) in words: shape, its first reading, the share it explains ``of``."""
+    return "; ".join(f"{h['shape']} ({h['words'].split(':')[0]}; explains {100 * h['explains']:.0f}% {of}, see "
+                     f"{h['effect_file']})" for h in hs[:3])
 
 
 def _why_undetermined(u: dict) -> str:

@@ -80,3 +80,20 @@ def test_explained_only_by_undecided_effects_is_said():
     rank[0]["verdict"] = "present"
     assert completeness_text({"model_complete": True, "ranking": rank}) == (
         "The model explains the log: no systematic residual of a relevant size is left.")
+
+
+def test_a_hint_beside_undecided_effects_is_said():
+    """A complete model that holds an undecided effect seeks hints beside it (``completeness.held_undecided``):
+    a shape found there follows the sentence that names the undecided effects; none found, nothing more."""
+    from kinadapt_nn.diagnostics.summary import completeness_text
+
+    rank = [{"effect": "ft_offset", "selected_round": 0, "verdict": "cannot_decide"}]
+    hint = {"shape": "world_force", "words": "a constant force in the world frame at a fixed point: a cable",
+            "explains": 0.997, "effect_file": "hint_world_force.py"}
+    txt = completeness_text({"model_complete": True, "ranking": rank, "unexplained": {"hints": [hint]}})
+    assert txt.startswith("The model explains the log only with effects it cannot decide (ft_offset)"), txt
+    assert txt.endswith(" Fitted beside them, a shape outside the library still explains what they leave: it looks "
+                        "like world_force (a constant force in the world frame at a fixed point; explains 100% of "
+                        "what they leave held-out, see hint_world_force.py)."), txt
+    assert completeness_text({"model_complete": True, "ranking": rank, "unexplained": {"hints": []}}).endswith(
+        "none of them is a finding.")

@@ -135,7 +135,8 @@ def test_compatible_is_no_contradiction():
 
 
 #: (scenario, seed, what holds) where benchmarks/results/monitor_agreement_*.txt measured it for ``kinadapt
-#: diagnose`` of the run folder (from the monitor's event on; the snag's with the monitor's effect file):
+#: diagnose`` of the run folder (from the monitor's event on; the snag's with the monitor's effect file, and
+#: its plain diagnosis too: the world force its leading hint, ``completeness.held_undecided``):
 #: "agree" (the module docstring's rule), "same" (agree, with the same near-ties)
 CASES = [("payload", 1, "agree"), ("drift", 2, "agree"), ("frame rotation", 1, "agree"), ("slip", 1, "same"),
          ("snag", 2, "agree")]
@@ -159,5 +160,11 @@ def test_monitor_and_diagnosis_where_measured(tmp_path, name, seed, holds):
     assert log["duration_s"] < 6.0 - onset and win["before"]["present"] == []  # the window; an effect-free baseline
     a = agreement(r["monitor"], r["files"])
     assert a.same_ties if holds == "same" else a.agree, a
-    if name == "snag":  # the plain diagnosis does not name the world force: no library effect, no hint
-        assert r["files"] is not r["report"] and not agreement(r["monitor"], r["report"]).agree
+    if name == "snag":  # the plain diagnosis names it too: the leading hint beside the undecided ft_offset it holds
+        assert r["files"] is not r["report"] and agreement(r["monitor"], r["report"]).agree
+        from kinadapt_nn.config import load_config
+
+        truth = load_config(r["run"] / "config.toml").effects.world_force  # the pull and its point (flange = sensor)
+        fit = r["report"]["unexplained"]["hints"][0]["fitted"]
+        np.testing.assert_allclose(fit["force_w"]["value"], truth.force_w_N, atol=0.05)
+        np.testing.assert_allclose(fit["point_s"]["value"], truth.point_f_m, atol=0.005)
