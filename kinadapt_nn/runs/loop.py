@@ -38,7 +38,7 @@ from kinadapt_nn.features.base import KinState
 from kinadapt_nn.known import KnownCfg
 from kinadapt_nn.robot import FLANGE_SITE
 from kinadapt_nn.runs.build import batch_features, make_controller
-from kinadapt_nn.runs.monitor import seat_step
+from kinadapt_nn.runs.monitor import seat_limits, seat_step
 from kinadapt_nn.runs.outcome import sensor_reason, warning_reason
 from kinadapt_nn.sensing import channel_metric
 from kinadapt_nn.sim import scenes
@@ -354,8 +354,7 @@ class Loop:
         self.watch[["stop_at", "lam_since", "lam_min"]] = (np.inf, np.inf, np.inf)
         self.watch["breach_t"] = np.nan
         self.clock = np.full((B, 2), np.nan)  # per episode [since, seat_time] (runs.monitor.seat_step)
-        self.lim = np.array([su.depth_m - su.depth_tol_m, su.max_lateral_force_N, su.max_moment_Nm, su.hold_s,
-                             run.stop_after_seat_s])
+        self.lim = np.r_[seat_limits(su), run.stop_after_seat_s]  # the seat check's, and the stop after a seat
         fused = self.kn.fused is not None
         self.idx = np.array([lay.out_blocks["s"][0], lay.out_blocks["w_env"][0], lay.out_blocks["rho"][0],
                              lay.out_blocks["lam_min"][0] if fused else -1])

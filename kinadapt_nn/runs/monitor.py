@@ -9,7 +9,7 @@ import math
 import numba as nb
 import numpy as np
 
-from kinadapt_nn.config import ExperimentCfg
+from kinadapt_nn.config import ExperimentCfg, SuccessCfg
 
 #: the failure classes of an unseated run (:func:`classify_failure`; "none": seated)
 FAILURES = ("none", "timeout", "jam", "block_face", "divergence")
@@ -33,15 +33,19 @@ def seat_step(t, s, lim, clock) -> bool:
     return ok
 
 
+def seat_limits(success: SuccessCfg) -> np.ndarray:
+    """The seat check's limits (``seat_step``'s ``lim``): [d_seat = depth_m - depth_tol_m [m],
+    max |F_lat| [N], max |M| [N m], hold_s [s]]. -> (4,)."""
+    return np.array([success.depth_m - success.depth_tol_m, success.max_lateral_force_N, success.max_moment_Nm,
+                     success.hold_s])
+
+
 class SeatMonitor:
     """Sensor-side success of one episode (``seat_step``): ``update(t, s)`` each step with the drive on."""
 
     def __init__(self, cfg: ExperimentCfg) -> None:
-        sc = cfg.success
-        self.d_seat = sc.depth_m - sc.depth_tol_m
-        self.f_max = sc.max_lateral_force_N
-        self.m_max = sc.max_moment_Nm
-        self.lim = np.array([self.d_seat, self.f_max, self.m_max, sc.hold_s])
+        self.lim = seat_limits(cfg.success)
+        self.d_seat, self.f_max, self.m_max = (float(v) for v in self.lim[:3])
         self.clock = np.full(2, np.nan)  # [since, seat_time]
 
     @property
