@@ -234,11 +234,74 @@ def kernel_parts(known: KnownCfg, features: Features, arm_model, site: int, B: i
                        law_state(blocks, spec.counters, state.law_x, state.law_k, state.unc))
 
 
+class StepBuffers(NamedTuple):
+    """The kernels' per-step buffers of B episodes, allocated once (:meth:`zeros`): the one set a
+    ``Controller`` (B = 1) and the batched loop (``runs.loop.Kernels``) each hold."""
+
+    inp: np.ndarray  #: (B, 2n+6) the samples [q; qdot; raw F/T] (after the intake: as the controller used them)
+    p_O: np.ndarray  #: (B, 3) [m] the flange O, world (the controller's own kinematics)
+    R: np.ndarray  #: (B, 3, 3) R_wf, the flange's orientation
+    J: np.ndarray  #: (B, 6, n) the bare arm's geometric Jacobian at O
+    reg: np.ndarray  #: (B, 1+p, m) the regressor rows [known; Phi^T]
+    ext_J: np.ndarray  #: (B, m, max(n, 6)) J_hat_xi (m, 6) or J_hat (m, n) of features computed in Python
+    out: np.ndarray  #: (B, nout) this step's out rows (``core.Layout.out_blocks``)
+
+    @classmethod
+    def zeros(cls, layout: core.Layout, B: int) -> StepBuffers:
+        n, m, p = layout.n, layout.m, layout.p
+        return cls(np.zeros((B, 2 * n + 6)), np.zeros((B, 3)), np.zeros((B, 3, 3)), np.zeros((B, 6, n)),
+                   np.zeros((B, 1 + p, m)), np.zeros((B, m, max(n, 6))), np.zeros((B, layout.nout)))
+
+    def kin(self, b: int, copy_q: bool = False) -> KinState:
+        """Episode ``b``'s kinematic state (views; ``copy_q``: q copied)."""
+        q = self.inp[b, :self.J.shape[2]]
+        return KinState(q.copy() if copy_q else q, self.p_O[b], self.R[b], self.J[b])
+
+    def rank_margin(self, b: int, W: np.ndarray, features: Features, theta: np.ndarray) -> float:
+        """:func:`rank_margin` of episode ``b``'s J_hat from ``features`` in Python (features not fused)."""
+        return rank_margin(W, features.jacobian(self.kin(b, copy_q=True), theta))
+
+
+def generic_step(t: float, chain: np.ndarray, cs: core.CoreConsts, layout: core.Layout, st: core.ControllerState,
+                 bufs: StepBuffers, feats_b: list[Features], active: np.ndarray) -> None:
+    """One step of features that are not fused, after the intake (``core.intake_kernel``), for B
+    episodes: kinematics and sense in the kernels; for each ``active`` (B,) episode without a
+    sensor error its features' (``feats_b`` (B,)) sensor-side context (effect columns'
+    ``observe``), regressor rows and J_hat (or J_hat_xi) from Python; then the rest of the step in
+    the kernel (``core.act_kernel``). ``chain``, ``cs``, ``layout``, ``st``: the kernels' (``KernelParts``)."""
+    lay, n, inp, out = layout.arr, layout.n, bufs.inp, bufs.out
+    core.fk_batch(chain, inp, bufs.p_O, bufs.R, bufs.J)
+    core.sense_kernel(t, inp, bufs.p_O, bufs.R, st.x, st.k, lay, cs.c, cs.mats, out)
+    (i_s, n_s), (i_w, n_w), (i_rho, _) = (layout.out_blocks[k] for k in ("s", "w_env", "rho"))
+    for b in np.flatnonzero(active & (st.k[:, core.K_ERROR] == 0)):
+        fb = feats_b[b]
+        kin = bufs.kin(b)
+        observe = getattr(fb, "observe", None)
+        if observe is not None:  # effect columns: the sensor-side context of this step
+            observe(t, out[b, i_s:i_s + n_s], out[b, i_w:i_w + n_w], out[b, i_rho] > 0.0)
+        rg = fb.regressor(kin, inp[b, n:2 * n])
+        bufs.reg[b, 0], bufs.reg[b, 1:] = rg.known, rg.Phi.T
+        if cs.c[core.EXCITE]:
+            continue
+        J_xi = fb.twist_jacobian(kin, st.theta[b])  # (m, 6) or None
+        if J_xi is not None:
+            cs.c[core.FEAT] = core.FEAT_TWIST
+            bufs.ext_J[b, :, :6] = J_xi
+        else:
+            cs.c[core.FEAT] = core.FEAT_JHAT
+            bufs.ext_J[b, :, :n] = fb.jacobian(kin, st.theta[b])
+    core.act_kernel(t, inp, bufs.p_O, bufs.R, bufs.J, bufs.reg, bufs.ext_J, st.x, st.k, lay, cs.c, cs.mats, cs.pv,
+                    cs.lc, cs.law_fn, cs.seg, out)
+
+
 def sensor_error_message(t: float, bad_run: int) -> str:
     """What a controller says of a dropout longer than ``sensing.max_dropout_s`` at ``t`` [s]:
     ``bad_run`` non-finite samples in a row (``SensorError``; the batched runs report the same)."""
     return (f"non-finite sensor sample at t={t:.3f} s ({bad_run} in a row; check the encoders and the F/T sensor "
             "for NaN/inf)")
+
+
+_ONE = np.ones(1, dtype=bool)  #: the one episode of a Controller, active
 
 
 class Controller:
@@ -274,7 +337,6 @@ class Controller:
         self.M_virt = self.consts.c[core.V_M:core.V_M + 6].copy()
         self.D_virt = self.consts.c[core.V_D:core.V_D + 6].copy()
         self.theta0 = np.asarray(theta0, dtype=float).copy()
-        p, m = features.n_params, self.S.shape[0]
         #: what the law learned, read from its own state (the summary's view; LawView)
         self.law = self.law_spec.view(self.law_spec, self.consts.lc, self._law_state, 0)
         #: the fused step kernel (features computed in the kernel: one call per step), else None
@@ -282,14 +344,11 @@ class Controller:
         self._kernels_ready = False  # compile_kernels done
         self._fused_call, self._fused_args = self._fused, ()  # (compile_kernels binds them)
         self._fx = parts.fx
-        self._observe = getattr(features, "observe", None)
+        self._feats_b = [features]  # (generic_step: the features of each of the B = 1 episodes)
         # -- kernel buffers (B = 1), allocated once
-        self._inp = np.zeros((1, 2 * n + 6))
+        self._bufs = StepBuffers.zeros(self.layout, 1)
+        self._inp, self._p_O, self._R, self._J, self._reg, self._ext_J, self.out = self._bufs
         self._q, self._qdot, self._wrench = self._inp[0, :n], self._inp[0, n:2 * n], self._inp[0, 2 * n:]
-        self._p_O, self._R, self._J = np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 6, n))
-        self._reg = np.zeros((1, 1 + p, m))
-        self._ext_J = np.zeros((1, m, max(n, 6)))
-        self.out = np.zeros((1, self.layout.nout))
         ob = {k: self.out[0, o:o + size] for k, (o, size) in self.layout.out_blocks.items()}
         self._o = ob
         self._i_rho, self._i_gate = self.layout.out_blocks["rho"][0], self.layout.out_blocks["gate"][0]
@@ -379,8 +438,7 @@ class Controller:
         computed in the kernel; other features evaluate ``features.jacobian`` here."""
         if self._fused is not None:
             return float(self.out[0, self._i_lam])
-        kin = KinState(self._q.copy(), self._p_O[0], self._R[0], self._J[0])
-        return rank_margin(self.W, self.features.jacobian(kin, self.theta))
+        return self._bufs.rank_margin(0, self.W, self.features, self.theta)
 
     def sensor_vector(self, kin: KinState, w_env_w: np.ndarray) -> np.ndarray:
         """s = [d, F_lat, M] (see kinadapt_nn.sensing). -> (6,)."""
@@ -477,34 +535,11 @@ class Controller:
         else:
             core.intake_kernel(self._inp, st.x, st.k, self.layout.arr, cs.c)
             if not st.k[0, core.K_ERROR]:
-                self._generic_step(t)
+                generic_step(t, self.chain, cs, self.layout, st, self._bufs, self._feats_b, _ONE)
         if st.k[0, core.K_ERROR]:
             st.k[0, core.K_ERROR] = 0
             raise SensorError(sensor_error_message(t, int(st.k[0, core.K_BAD_RUN])))
         self._stepped = True
-
-    def _generic_step(self, t: float) -> None:
-        """Features that are not fused: kinematics and sense in the kernel, the regressor rows and
-        J_hat (or J_hat_xi) from Python, then the rest of the step in the kernel."""
-        st, cs, lay = self.state, self.consts, self.layout.arr
-        core.fk_batch(self.chain, self._inp, self._p_O, self._R, self._J)
-        core.sense_kernel(t, self._inp, self._p_O, self._R, st.x, st.k, lay, cs.c, cs.mats, self.out)
-        kin = KinState(self._q, self._p_O[0], self._R[0], self._J[0])
-        if self._observe is not None:  # effect columns need the sensor-side context
-            self._observe(t, self._o["s"], self._o["w_env"], self.out[0, self._i_rho] > 0.0)
-        reg = self.features.regressor(kin, self._qdot)
-        self._reg[0, 0] = reg.known
-        self._reg[0, 1:] = reg.Phi.T
-        if not cs.c[core.EXCITE]:
-            J_xi = self.features.twist_jacobian(kin, self.theta)  # (m, 6) or None
-            if J_xi is not None:
-                cs.c[core.FEAT] = core.FEAT_TWIST
-                self._ext_J[0, :, :6] = J_xi
-            else:
-                cs.c[core.FEAT] = core.FEAT_JHAT
-                self._ext_J[0, :, :self.kin_n] = self.features.jacobian(kin, self.theta)
-        core.act_kernel(t, self._inp, self._p_O, self._R, self._J, self._reg, self._ext_J, st.x, st.k, lay, cs.c,
-                        cs.mats, cs.pv, cs.lc, cs.law_fn, cs.seg, self.out)
 
     def set_bore(self, bore_entry_w_m) -> None:
         """Aim at another KNOWN bore entrance (world, (3,) [m]): the next insertion of a work cell.

@@ -31,10 +31,10 @@ import numpy as np
 
 from kinadapt_nn.config import ExperimentCfg
 from kinadapt_nn.controller import core
-from kinadapt_nn.controller.controller import Controller, feature_consts, kernel_parts, rank_margin, sensor_error_message
+from kinadapt_nn.controller.controller import (Controller, StepBuffers, feature_consts, generic_step, kernel_parts,
+                                               sensor_error_message)
 from kinadapt_nn.controller.core import K_ERROR, RANK_GATE
 from kinadapt_nn.errors import ConfigError
-from kinadapt_nn.features.base import KinState
 from kinadapt_nn.known import KnownCfg
 from kinadapt_nn.robot import FLANGE_SITE
 from kinadapt_nn.runs.build import batch_features, make_controller
@@ -208,13 +208,10 @@ class Kernels:
     fx: np.ndarray  #: the in-kernel features' constants
 
     def __post_init__(self) -> None:
-        B, n, m, p = self.st.x.shape[0], self.lay.n, self.lay.m, self.lay.p
-        self.inp = np.zeros((B, 2 * n + 6))  # the samples [q; qdot; raw F/T]
-        self.p_O, self.R, self.J = np.zeros((B, 3)), np.zeros((B, 3, 3)), np.zeros((B, 6, n))
-        self.reg, self.ext_J = np.zeros((B, 1 + p, m)), np.zeros((B, m, max(n, 6)))
-        self.out = np.zeros((B, self.lay.nout))
+        B = self.st.x.shape[0]
+        self.bufs = StepBuffers.zeros(self.lay, B)  # the kernels' buffers (inp: the samples [q; qdot; raw F/T])
+        self.inp, self.p_O, self.R, self.J, self.reg, self.ext_J, self.out = self.bufs
         self.ob = {k: self.out[:, o:o + size] for k, (o, size) in self.lay.out_blocks.items()}
-        self.observe = [getattr(f, "observe", None) for f in self.feats_b]
         self.lam_ext = np.full(B, np.inf)  # lambda_min from Python (features not fused)
         self.compile_s = 0.0  # [s] the one-time compile of new controllers' kernels (a cold cache), else 0
         self.W = self.ctrls[0].W if self.ctrls else None  # the channel metric (the rank gate from Python)
@@ -233,33 +230,14 @@ class Kernels:
             self._generic_step(t, active)
 
     def _generic_step(self, t: float, active: np.ndarray) -> None:
-        """Features not fused: the kernels around the rows from Python (``Controller._generic_step``)."""
-        st, cs, lay, n, inp = self.st, self.cs, self.lay.arr, self.lay.n, self.inp
-        core.intake_kernel(inp, st.x, st.k, lay, cs.c)
-        core.fk_batch(self.chain, inp, self.p_O, self.R, self.J)
-        core.sense_kernel(t, inp, self.p_O, self.R, st.x, st.k, lay, cs.c, cs.mats, self.out)
+        """Features not fused: the intake, then ``controller.generic_step`` (as ``Controller`` steps
+        them) and the rank gate of each active episode with the drive on, from Python."""
+        st = self.st
+        core.intake_kernel(self.inp, st.x, st.k, self.lay.arr, self.cs.c)
+        generic_step(t, self.chain, self.cs, self.lay, st, self.bufs, self.feats_b, active)
         i_rho = self.lay.out_blocks["rho"][0]
-        for b in np.flatnonzero(active & (st.k[:, K_ERROR] == 0)):
-            fb = self.feats_b[b]
-            kin = KinState(inp[b, :n], self.p_O[b], self.R[b], self.J[b])
-            if self.observe[b] is not None:  # effect columns: the sensor-side context of this step
-                self.observe[b](t, self.ob["s"][b], self.ob["w_env"][b], self.out[b, i_rho] > 0.0)
-            rg = fb.regressor(kin, inp[b, n:2 * n])
-            self.reg[b, 0], self.reg[b, 1:] = rg.known, rg.Phi.T
-            if cs.c[core.EXCITE]:
-                continue
-            J_xi = fb.twist_jacobian(kin, st.theta[b])
-            if J_xi is not None:
-                cs.c[core.FEAT] = core.FEAT_TWIST
-                self.ext_J[b, :, :6] = J_xi
-            else:
-                cs.c[core.FEAT] = core.FEAT_JHAT
-                self.ext_J[b, :, :n] = fb.jacobian(kin, st.theta[b])
-        core.act_kernel(t, inp, self.p_O, self.R, self.J, self.reg, self.ext_J, st.x, st.k, lay, cs.c, cs.mats,
-                        cs.pv, cs.lc, cs.law_fn, cs.seg, self.out)
         for b in np.flatnonzero(active & (self.out[:, i_rho] > 0.0) & (st.k[:, K_ERROR] == 0)):
-            kin = KinState(inp[b, :n].copy(), self.p_O[b], self.R[b], self.J[b])  # (Controller.rank_margin_now)
-            self.lam_ext[b] = rank_margin(self.W, self.feats_b[b].jacobian(kin, st.theta[b]))
+            self.lam_ext[b] = self.bufs.rank_margin(b, self.W, self.feats_b[b], st.theta[b])
 
 
 _SHARED_RUN = ("duration_s", "log_every", "stop_after_seat_s")  #: run settings a traced batch shares
