@@ -44,6 +44,9 @@ from kinadapt_nn.diagnostics.intervals import jackknife_cov, paired_p, wald_pval
 
 
 IMPOSSIBLE = "physically impossible estimate"  #: the reason's start for a selected effect found impossible
+WITHIN_SD = ("selected, but in the final model (the nuisance and the undecided effects fitted beside it) its estimate "
+             "lies within its uncertainty of zero")  #: the reason of a selection the final sd swallows
+BELOW_RELEVANT = "significant, but its estimate stays below the relevant size"  #: the reason of a small one
 
 
 class SelCfg(NamedTuple):
@@ -294,8 +297,7 @@ def select(des: Design, rc: SelCfg = SelCfg(), plausible: Callable[[str, np.ndar
     for e in entries:  # the final sd (the undecided effects' change counted) may swallow a selection
         if e["verdict"] == "present" and not _distinct_from_zero(jt.joint[e["effect"]], rc.ci_level):
             e["verdict"], e["significant"] = "cannot_decide", False
-            e["reason"] = ("selected, but in the final model (the nuisance and the undecided effects fitted "
-                           "beside it) its estimate lies within its uncertainty of zero")
+            e["reason"] = WITHIN_SD
     present = {e["effect"]: jt.joint[e["effect"]] for e in entries if e["verdict"] == "present"}
     order = {"present": 0, "cannot_decide": 1, "absent": 2}
     entries.sort(key=lambda e: (e["selected_round"] is None, e["selected_round"] or 0, order[e["verdict"]],
@@ -615,7 +617,7 @@ def _verdict(cx: _EntryCtx, n: str, p_full: np.ndarray, sel: bool, undecided: li
     else:
         verdict = "absent"
     if n in cx.small and verdict == "cannot_decide":
-        reason = "significant, but its estimate stays below the relevant size"
+        reason = BELOW_RELEVANT
     return verdict, reason
 
 

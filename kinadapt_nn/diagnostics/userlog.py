@@ -160,6 +160,22 @@ def judged(lib: dict[str, Effect], setup: SetupCfg) -> list[str]:
     return [n for n in names if n not in setup.analysis.exclude_effects]
 
 
+def _straddles(contact: np.ndarray, rows: np.ndarray, k: int) -> np.ndarray:
+    """(r,) bool: the rows whose smoothing window (``stream.mean_at``'s ``[i - k // 2, i + k - k // 2)``)
+    holds samples of both phases. Such a row is neither: as a free-space row it averages in the declared
+    contact's wrench up to the sample where the socket lets go (a step of newtons against a noise of
+    centinewtons: one row outweighed the whole log's rest on the package's excitation runs), as a contact
+    row the moment of a tool that is not touching. ``contact`` (n,) bool, ``rows`` (r,) sample indices."""
+    rows = np.asarray(rows)
+    if k <= 1 or not len(rows):
+        return np.zeros(len(rows), bool)
+    n = len(contact)
+    cs = np.r_[0, np.cumsum(np.asarray(contact, dtype=np.int64))]
+    lo, hi = np.clip(rows - k // 2, 0, n), np.clip(rows + (k - k // 2), 0, n)
+    touching = cs[hi] - cs[lo]
+    return (touching > 0) & (touching < hi - lo)
+
+
 def row_map(s: sg.LogSignals, sigma: np.ndarray, rc: RowCfg) -> RowMap:
     """The rows of a log (module docstring of ``RowMap``); one-line error when too few are left."""
     setup, t = s.setup, s.t
@@ -182,12 +198,13 @@ def row_map(s: sg.LogSignals, sigma: np.ndarray, rc: RowCfg) -> RowMap:
     if not s.static:  # a long log: every m-th span (``RowCfg.max_row_times``)
         keep, every = stream.every_mth_span(s.clock[rows] - s.clock[0], rc.max_row_times, rc.span_s)
         rows = rows if keep is None else rows[keep]
+    k_smooth = 1 if s.static else max(1, int(round(rc.smooth_s / dt)))
+    rows = rows[~_straddles(s.contact, rows, k_smooth)]
     if len(rows) < (12 if s.static else 20):
         raise KinadaptError(f"the log leaves {len(rows)} {'poses' if s.static else 'rows'} after [analysis] exclude_s"
                             f"{', contact' if s.static else ' and the ends'}; give a longer log or exclude less")
     tip = np.asarray(setup.tool.tip_sensor_m, dtype=float)
     sig_tip = np.sqrt(sigma[3:] ** 2 + float(tip @ tip) * np.mean(sigma[:3] ** 2))
-    k_smooth = 1 if s.static else max(1, int(round(rc.smooth_s / dt)))
     return RowMap(rows, s.contact[rows], k_smooth, 1.0 / sigma, 1.0 / sig_tip, s.tip_map, every)
 
 

@@ -197,3 +197,29 @@ def test_the_summary_names_the_releases_it_fitted():
     late = rel.t_declared_s[0] - rel.t_s[0]
     assert late < 0 and f"{late:+.2f} s from them" in text  # the true tip 2 mm deeper leaves later
     assert summary._accounts_text({"contact": {"releases": None}}) == []
+
+
+def test_the_encoder_offsets_exact_change_has_its_columns_as_derivative():
+    """``encoder_offset.exact`` (the declared model at ``q + p`` less at ``q``, for the exact re-estimate
+    and the choice between tied joints, ``diagnostics.nonlinear``): its central differences at p = 0
+    are the effect's first-order columns (1e-6 of their largest entry: the differences' truncation at
+    h = 1e-6 rad), and at 1 deg it differs from the columns' prediction by a second-order amount
+    (between 1e-4 and 3e-2 of the change)."""
+    from kinadapt_nn.effects.builtin import BUILTINS
+
+    s, _ = _arm_log()
+    eff = BUILTINS["encoder_offset"]
+    C = np.asarray(eff.columns(s), dtype=float)  # (n, 6, dof)
+    h = 1e-6
+    for j in range(C.shape[2]):
+        e = np.zeros(C.shape[2])
+        e[j] = h
+        num = (eff.exact(s, e) - eff.exact(s, -e)) / (2 * h)
+        if not np.abs(C[:, :, j]).any():  # the sensor's z joint: no column (module docstring)
+            continue
+        np.testing.assert_allclose(num, C[:, :, j], atol=1e-6 * np.abs(C).max())
+    p = np.zeros(C.shape[2])
+    p[3] = np.deg2rad(1.0)
+    change = eff.exact(s, p)
+    second = np.abs(change - C @ p).max() / np.abs(change).max()
+    assert 1e-4 < second < 3e-2, second

@@ -239,3 +239,24 @@ def test_a_chunks_joint_accelerations_are_its_own_derivative_made_when_read(drif
     assert c._qddot is None
     np.testing.assert_array_equal(c.qddot, derivative(np.asarray(s.qdot[1000:3000], float), s.t[1000:3000]))
     assert c._qddot is not None and c.qddot is c._qddot
+
+
+def test_a_row_whose_window_holds_both_phases_is_no_row():
+    """``userlog._straddles`` against the window written out per row (``stream.mean_at``'s
+    ``[i - k // 2, i + k - k // 2)``, clipped): a row is dropped exactly when its window holds a contact
+    and a free sample, at both edges of each contact and at the log's ends; a log without contact, or
+    k = 1, drops none."""
+    from kinadapt_nn.diagnostics.userlog import _straddles
+
+    rng = np.random.default_rng(11)
+    contact = np.zeros(400, bool)
+    contact[37:120] = True
+    contact[121:122] = True  # a one-sample gap and a one-sample contact
+    contact[390:] = True
+    rows = np.sort(rng.choice(400, 150, replace=False))
+    for k in (1, 2, 7, 20):
+        lo, hi = np.clip(rows - k // 2, 0, 400), np.clip(rows + (k - k // 2), 0, 400)
+        expect = np.array([contact[a:b].any() and not contact[a:b].all() for a, b in zip(lo, hi)])
+        np.testing.assert_array_equal(_straddles(contact, rows, k), expect)
+        assert k == 1 or expect.any()
+        assert not _straddles(np.zeros(400, bool), rows, k).any()

@@ -46,3 +46,29 @@ def test_a_compliant_grasp_is_found_with_the_tip_unknown():
     # the point estimated before the effects is the biased one: beyond the true tip along the tool
     point = np.asarray(rep["effective_setup"]["contact_point"]["point_sensor_m"])
     assert point[2] - cfg.tool.offset_f_m[2] > 5e-3, point
+
+
+@pytest.mark.slow
+def test_a_joint_offset_is_told_from_its_parallel_joint_by_the_exact_models():
+    """A 1 deg joint-4 encoder offset on the excitation run, the tip unknown: joints 2 and 4 move the
+    tip alike along the socket's axis and turn the tool alike, so their first-order columns tie; their
+    exact models (``diagnostics.nonlinear._tie_between_columns``) tell them apart and joint 4 is present,
+    its interval covering 1 deg. The rows whose smoothing window straddles the declared socket's release
+    are left out (``userlog._straddles``): with them, one row outweighed the rest and no choice held."""
+    cfg = load_config(REPO / "online" / "excite.toml", ["run.tensorboard=false", "run.figure=false", "run.progress=false",
+                                                        "effects.encoder_offset.enabled=true",
+                                                        "effects.encoder_offset.offset_deg=1.0"])
+    from kinadapt_nn.runs.episode import run_episode
+
+    tr = run_episode(cfg).trace
+    seen = cfg.model_copy(update={"effects": type(cfg.effects)()})
+    log, setup = as_log(RawLog(tr["t_s"], tr["q_rad"], tr["qdot_rad_s"], tr["wrench_raw_f"], "joint4"), seen)
+    rep = userlog.diagnose(log, setup, hints=False).report
+    ent = {e["effect"]: e for e in rep["ranking"]}["encoder_offset"]
+    assert ent["verdict"] == "present", rep["summary"]
+    assert "tie_resolved" in ent, ent
+    ep = ent["estimate_params"]
+    i = int(np.argmax(np.abs(ep["value"])))
+    assert ep["names"][i] == "offset_joint4", ep
+    assert abs(ep["value"][i] - np.deg2rad(1.0)) <= 1.96 * ep["sd"][i], ep
+    assert [e["effect"] for e in rep["ranking"] if e["verdict"] == "present"] == ["encoder_offset"], rep["summary"]

@@ -123,13 +123,21 @@ def depth(s, idx: np.ndarray) -> np.ndarray:
     return out
 
 
+def exact(s, p: np.ndarray) -> np.ndarray:
+    """(n, 6) the declared model's wrench had the encoders read ``q + p`` (``p`` (dof,) [rad]), less the
+    wrench at ``q``: the tool's gravity and inertia, and a declared socket's with its engagement and
+    anchors where the moved tip puts them (``diagnostics.nonlinear``: the columns are first order)."""
+    q = np.asarray(s.q, dtype=float)
+    return s.nominal_wrench(q + np.asarray(p, dtype=float)[None, :]) - s.nominal_wrench(q)
+
+
 @effect(*_per_joint(N_JOINTS), params_for=params_per_joint,  # until for_setup: this package's arm's joints
         doc="a joint encoder zero offset (one of the joints)",
         excite="move every joint in free space so that gravity turns in the sensor frame (an offset of a joint "
                "whose axis stays vertical is invisible to gravity: it needs a world-fixed load direction, e.g. a "
                "horizontal push against a fixture)",
         one_of=True, report=report, plausible=plausible_small_angle, uses_contact=False, online=online_columns,
-        depth=depth)
+        depth=depth, exact=exact)
 def encoder_offset(s):
     C = s.nominal_wrench_dq()
     j = sensor_z_joint(s) if s.setup.sensor.mount_known else None
