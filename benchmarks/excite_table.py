@@ -197,6 +197,22 @@ def judge(r: dict) -> tuple[bool, str]:
     return not why, "; ".join(why)
 
 
+def intervals(results: list[dict]) -> tuple[int, int]:
+    """(intervals judged, intervals that miss the injected value at 95 %) over the rows: each parameter of
+    a present effect (and of ``tool_tilt``) whose sd is positive, as ``judge`` reads them."""
+    judged = missed = 0
+    for r in results:
+        for n, c in r["coverage"].items():
+            if n not in r["present"] and n != "tool_tilt":
+                continue
+            sds = c.get("sd") or [1.0] * len(c["z"])
+            for z, sd in zip(c["z"], sds):
+                if sd and sd > 0:
+                    judged += 1
+                    missed += abs(z) > Z95
+    return judged, missed
+
+
 def jobs(seeds: int) -> list[tuple]:
     out = [(f"none/seed{s}", [f"run.seed={s}", *JITTER], ()) for s in range(seeds)]
     for n, twice in TWICE.items():
@@ -244,6 +260,10 @@ def main() -> None:
                 print(f"       {n}: " + ", ".join(f"{names[i]} {c['est'][i]:.4g} +- {sds[i]:.2g} (injected {c['truth'][i]:.4g})"
                                             for i in range(len(c["z"]))))
     print(f"{n_ok}/{len(results)} rows right")
+    judged, missed = intervals(results)
+    print(f"{judged} parameter intervals judged (the present effects' and tool_tilt's, sd > 0), {missed} miss at 95 %; "
+          f"a calibrated diagnosis misses {0.05 * judged:.1f} on average and covers all {judged} in "
+          f"{100 * 0.95 ** judged:.1f} % of tables")
     if a.json:
         Path(a.json).write_text(json.dumps(results, indent=1))
 
