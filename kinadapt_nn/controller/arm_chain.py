@@ -66,25 +66,18 @@ def _quat_mat(q, M):
 
 
 @nb.njit(cache=True)
-def fk_scratch(nbody, n):
-    """The workspace of :func:`_fk` for ``nbody`` bodies (the chain's rows) and n joints, allocated
-    once and reused for every call on that chain: (xpos (nbody, 3), xquat (nbody, 4), axes (n, 3),
-    anchors (n, 3), M (3, 3), Ms (3, 3), tmp (4,), ql (4,)). The world body's row (xpos 0, xquat
-    [1, 0, 0, 0]) and a joint column no hinge sets (zero) are never written by ``_fk``: they keep
-    these values; every other entry is written before it is read."""
+def _fk(chain, site, q, p_O, R, J):
+    """Flange pose and geometric Jacobian (6, n) at q: body frames down the chain (body pos/quat,
+    hinge rotation about its anchor), then column j = [a_j x (p_O - anchor_j); a_j]."""
+    nbody = chain.shape[0]
+    xpos = np.zeros((nbody, 3))
     xquat = np.zeros((nbody, 4))
     xquat[0, 0] = 1.0
-    return (np.zeros((nbody, 3)), xquat, np.zeros((n, 3)), np.zeros((n, 3)), np.empty((3, 3)), np.empty((3, 3)),
-            np.empty(4), np.empty(4))
-
-
-@nb.njit(cache=True)
-def _fk(chain, site, q, p_O, R, J, ws):
-    """Flange pose and geometric Jacobian (6, n) at q: body frames down the chain (body pos/quat,
-    hinge rotation about its anchor), then column j = [a_j x (p_O - anchor_j); a_j]. ``ws``: the
-    chain's workspace (:func:`fk_scratch`)."""
-    nbody = chain.shape[0]
-    xpos, xquat, axes, anchors, M, Ms, tmp, ql = ws
+    axes = np.zeros((J.shape[1], 3))
+    anchors = np.zeros((J.shape[1], 3))
+    M = np.empty((3, 3))
+    tmp = np.empty(4)
+    ql = np.empty(4)
     for i in range(1, nbody):
         par = int(chain[i, 0])
         _quat_mat(xquat[par], M)
@@ -112,6 +105,7 @@ def _fk(chain, site, q, p_O, R, J, ws):
     _quat_mat(xquat[sb], M)
     for r in range(3):
         p_O[r] = xpos[sb, r] + M[r, 0] * site[1] + M[r, 1] * site[2] + M[r, 2] * site[3]
+    Ms = np.empty((3, 3))
     _quat_mat(site[4:8], Ms)
     for r in range(3):
         for c_ in range(3):
@@ -127,8 +121,7 @@ def _fk(chain, site, q, p_O, R, J, ws):
 def fk_batch(chain, inp, p_O, R, J):
     """``_fk`` for every episode at the encoder readings in ``inp`` (B, 2n+6)."""
     nbody = chain.shape[0] - 1
-    ws = fk_scratch(nbody, J.shape[2])
     for b in range(inp.shape[0]):
-        _fk(chain[:nbody], chain[nbody], inp[b], p_O[b], R[b], J[b], ws)
+        _fk(chain[:nbody], chain[nbody], inp[b], p_O[b], R[b], J[b])
 
 

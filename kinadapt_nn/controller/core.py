@@ -267,14 +267,11 @@ def drop_stale_kernels() -> bool:
 # start or fails, this process compiles whatever it left, so the result never depends on it.
 
 _F1, _F2, _F3 = (T.Array(T.float64, d, "C") for d in (1, 2, 3))
-_I1, _I2 = (T.Array(T.int64, d, "C") for d in (1, 2))
 #: numba types of the values the step kernels make themselves and pass to callees, by the
-#: callee's parameter name (the kernels' own arguments are typed from the call); the scratch
-#: tuples are ``step_kernels._scratch``'s (``fkw``: ``arm_chain.fk_scratch``; ``lw``: ``law_scratch``)
+#: callee's parameter name (the kernels' own arguments are typed from the call)
 LOCAL_TYPES = {"b": T.int64, "n": T.int64, "rho": T.float64, "t_rel": T.float64, "known": _F1, "Phi_T": _F2,
                "theta": _F1, "F": _F1, "drive": _F1, "Lc": _F2, "Jh": _F2, "Kq": _F2, "Y": _F3, "psi": _F1,
-               "q": _F1, "z": _F1, "y": _F1, "fkw": T.Tuple((_F2,) * 6 + (_F1,) * 2),
-               "lw": T.Tuple((_F2, _F1, T.Tuple((_F2, _I2, _I1, _I1, _F1, _I1)))), "rw": T.UniTuple(_F2, 4)}
+               "q": _F1}
 
 
 #: LLVM's optimisation level for the kernels (numba's default is 3). Measured on the 2-core VM, a

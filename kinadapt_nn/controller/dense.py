@@ -83,37 +83,6 @@ def mm(A, B):
 
 
 @nb.njit(cache=True)
-def mm_into(A, B, out):
-    """:func:`mm` written into ``out`` (A.shape[0], B.shape[1]): the same sums in the same order
-    (the loops; BLAS for the large products, copied in). -> out."""
-    if A.shape[0] * B.shape[1] > 400:
-        P = np.ascontiguousarray(A) @ np.ascontiguousarray(B)
-        for i in range(out.shape[0]):
-            vcopy(out[i], P[i])
-        return out
-    for i in range(A.shape[0]):
-        vfill(out[i], 0.0)
-        for r in range(A.shape[1]):
-            a = A[i, r]
-            for j in range(B.shape[1]):
-                out[i, j] += a * B[r, j]
-    return out
-
-
-@nb.njit(cache=True)
-def mm_nt_into(A, B, out):
-    """A @ B.T written into ``out`` (A.shape[0], B.shape[0]) by :func:`mm_nt`'s loops (small products
-    only: the rank gate's 6 x 6 Gram). -> out."""
-    for i in range(A.shape[0]):
-        for j in range(B.shape[0]):
-            v = 0.0
-            for r in range(A.shape[1]):
-                v += A[i, r] * B[j, r]
-            out[i, j] = v
-    return out
-
-
-@nb.njit(cache=True)
 def mm_nt(A, B):
     """A @ B.T (loops when small, as ``mm``)."""
     if A.shape[0] * B.shape[0] > 400:
@@ -162,45 +131,30 @@ def gram_sparse_log(A, log):
     each parameter in one channel) only each column's block is added -- the Gram is exactly zero
     elsewhere --, else every (i, j) of the rows that have a non-zero. Each column's products go
     through a contiguous copy of its non-zeros, so a contiguous block's row update vectorises.
-    -> the Gram (p, p) (a new array; :func:`gram_sparse_log_into` writes it into a workspace)."""
+    -> the Gram (p, p)."""
     p, m = A.shape
-    return gram_sparse_log_into(A, log, gram_scratch(p, m))
-
-
-@nb.njit(cache=True)
-def gram_scratch(p, m):
-    """The workspace of :func:`gram_sparse_log_into` for A (p, m): (G (p, p), idx (m, p), cnt (m,),
-    owner (p,), col (p,), rows (p,)), allocated once and reused (a per-step kernel's scratch)."""
-    return (np.zeros((p, p)), np.empty((m, p), dtype=np.int64), np.zeros(m, dtype=np.int64),
-            np.full(p, -1, dtype=np.int64), np.empty(p), np.empty(p, dtype=np.int64))
-
-
-@nb.njit(cache=True)
-def gram_sparse_log_into(A, log, ws):
-    """:func:`gram_sparse_log` in the workspace ``ws`` (:func:`gram_scratch`; its G and owner are
-    reset here, the rest is written before it is read). -> the Gram (p, p): ``ws``'s G."""
-    G, idx, cnt, owner, col, rows = ws
-    for i in range(G.shape[0]):
-        vfill(G[i], 0.0)
-    for i in range(owner.shape[0]):
-        owner[i] = -1
-    disjoint = _gram_columns(A, G, idx, cnt, owner, col)
+    G = np.zeros((p, p))
+    idx = np.empty((m, p), dtype=np.int64)  # per column: its non-zero rows, and how many
+    cnt = np.zeros(m, dtype=np.int64)
+    owner = np.full(p, -1, dtype=np.int64)
+    disjoint = _gram_columns(A, G, idx, cnt, owner)
     if log.shape[0] == 0:
         return G
     if disjoint:
         _log_blocks(log, G, idx, cnt)
     else:
-        _log_rows(log, G, owner, rows)
+        _log_rows(log, G, owner)
     return G
 
 
 @nb.njit(cache=True)
-def _gram_columns(A, G, idx, cnt, owner, col):
+def _gram_columns(A, G, idx, cnt, owner):
     """``G += A @ A.T`` column by column from each column's non-zeros (:func:`gram_sparse_log`);
-    fills ``idx[r, :cnt[r]]`` (column r's non-zero rows) and ``owner`` (a row's last column), each
-    column's non-zeros going through ``col`` (p,). -> whether the columns' non-zero rows are disjoint."""
+    fills ``idx[r, :cnt[r]]`` (column r's non-zero rows) and ``owner`` (a row's last column).
+    -> whether the columns' non-zero rows are disjoint."""
     p, m = A.shape
     disjoint = True
+    col = np.empty(p)
     for r in range(m):
         nz = 0
         for i in range(p):
@@ -259,10 +213,10 @@ def _log_blocks(log, G, idx, cnt):
 
 
 @nb.njit(cache=True)
-def _log_rows(log, G, owner, rows):
-    """``log += G`` on every (i, j) of the rows that have a non-zero (``owner >= 0``); ``rows`` (p,):
-    scratch."""
+def _log_rows(log, G, owner):
+    """``log += G`` on every (i, j) of the rows that have a non-zero (``owner >= 0``)."""
     p = owner.shape[0]
+    rows = np.empty(p, dtype=np.int64)
     n_rows = 0
     for i in range(p):
         if owner[i] >= 0:

@@ -81,21 +81,15 @@ def _adjoint_drive(b, R, theta, F, c, mats, drive):
 
 @nb.njit(cache=True)
 def _adjoint_twist_jacobian(b, R, theta, c, mats):
-    """S Ad(R theta) (6, 6) with the depth row on the nominal lever (AdjointFeatures.twist_jacobian):
-    a new array (:func:`_adjoint_twist_jacobian_into` writes it into one)."""
-    return _adjoint_twist_jacobian_into(b, R, theta, c, mats, np.empty((6, 6)))
-
-
-@nb.njit(cache=True)
-def _adjoint_twist_jacobian_into(b, R, theta, c, mats, Jx):
-    """:func:`_adjoint_twist_jacobian` written into ``Jx`` (6, 6). -> Jx."""
+    """S Ad(R theta) (6, 6) with the depth row on the nominal lever (AdjointFeatures.twist_jacobian)."""
     S = mats[0]
     Rb = R[b]
-    a = (Rb[0, 0] * theta[0] + Rb[0, 1] * theta[1] + Rb[0, 2] * theta[2],
-         Rb[1, 0] * theta[0] + Rb[1, 1] * theta[1] + Rb[1, 2] * theta[2],
-         Rb[2, 0] * theta[0] + Rb[2, 1] * theta[1] + Rb[2, 2] * theta[2])  # R theta
+    a = np.empty(3)
+    for i in range(3):
+        a[i] = Rb[i, 0] * theta[0] + Rb[i, 1] * theta[1] + Rb[i, 2] * theta[2]
     l0, l1, l2 = _lever(b, R, c)
-    for i in range(6):  # S Ad(l) = [S_v, S_w - S_v [l]x]
+    Jx = np.empty((6, 6))  # S Ad(l) = [S_v, S_w - S_v [l]x]
+    for i in range(6):
         vcopy(Jx[i], S[i])
     for i in range(6):
         if i == 0:

@@ -19,10 +19,9 @@ import types
 import numba as nb
 import numpy as np
 
-from kinadapt_nn.controller.arm_chain import _fk, fk_scratch
-from kinadapt_nn.controller.dense import (chol, chol_solve, gram_scratch, gram_sparse_log_into, mm_into, mm_nt_into,
-                                         sym_eigmin, vcopy, vfill)
-from kinadapt_nn.controller.features_kernels import (_adjoint_drive, _adjoint_regressor, _adjoint_twist_jacobian_into,
+from kinadapt_nn.controller.arm_chain import _fk
+from kinadapt_nn.controller.dense import chol, chol_solve, gram_sparse_log, mm, mm_nt, sym_eigmin, vcopy, vfill
+from kinadapt_nn.controller.features_kernels import (_adjoint_drive, _adjoint_regressor, _adjoint_twist_jacobian,
                                                      _jhat_prior, _lever, _neural_body, _neural_jhat, _neural_rows,
                                                      _rbf_jhat, _rbf_psi, _rbf_rows)
 from kinadapt_nn.controller.layout import (ALPHA, BLEND, C_F, C_M, DAMP, DITHER_ON, DT, D_STAR, EXCITE, FEAT,
@@ -122,10 +121,8 @@ def _sense(t, b, inp, p_O, R, x, k, lay, c, mats, out):
 
 @nb.njit(cache=True)
 def _excite_drive(t_rel, b, R, c, seg, drive):
-    """D xi_ref of the excitation program (Controller.excite_twist, moved from the tip to O), written
-    to ``drive`` (6,) (the twist first, then scaled in place)."""
-    x = drive
-    vfill(x, 0.0)
+    """D xi_ref of the excitation program (Controller.excite_twist, moved from the tip to O)."""
+    x = np.zeros(6)
     ns = seg.shape[0]
     if t_rel >= 0.0 and ns > 0:
         kk = 0
@@ -144,14 +141,13 @@ def _excite_drive(t_rel, b, R, c, seg, drive):
     x[1] -= x[5] * l0 - x[3] * l2
     x[2] -= x[3] * l1 - x[4] * l0
     for i in range(6):
-        drive[i] = c[V_D + i] * x[i]  # (x is drive: each entry read, then written)
+        drive[i] = c[V_D + i] * x[i]
 
 
 @nb.njit(cache=True)
-def _act_head(b, J, x, k, lay, c, out, Lc):
-    """Rate filter and value force of episode b (after ``_sense``), written to ``out``; the
-    Cholesky factor L of J J^T + damp I for :func:`_act_tail` into ``Lc`` (6, 6) (its lower
-    triangle; the upper one is neither written nor read)."""
+def _act_head(b, J, x, k, lay, c, out):
+    """Rate filter and value force of episode b (after ``_sense``), written to ``out``; returns
+    the Cholesky factor L (6, 6) of J J^T + damp I for :func:`_act_tail`."""
     n, m, p = lay[L_N], lay[L_M], lay[L_P]
     xs, o = x[b], out[b]
     filt = xs[lay[X_FILT]:lay[X_FILT] + (2 + p) * m].reshape((2 + p, m))
@@ -173,6 +169,7 @@ def _act_head(b, J, x, k, lay, c, out, Lc):
     F[3], F[4], F[5] = -c[C_M] * s[3], -c[C_M] * s[4], -c[C_M] * s[5]
     # -- L L^T = J J^T + damp I (J^+ = J^T (J J^T + damp I)^-1)
     Jb = J[b]
+    Lc = np.empty((6, 6))
     for i in range(6):
         for j in range(i + 1):
             v = 0.0
@@ -181,6 +178,7 @@ def _act_head(b, J, x, k, lay, c, out, Lc):
             Lc[i, j] = v
         Lc[i, i] += c[DAMP]
     chol(Lc, 6)
+    return Lc
 
 
 @nb.njit(cache=True)
@@ -200,10 +198,9 @@ def _ext_drive(b, J, Lc, ext_J, lay, c, out, drive):
 
 
 @nb.njit(cache=True)
-def _act_tail(t, b, rho, drive, Lc, inp, J, x, lay, c, out, z, y):
+def _act_tail(t, b, rho, drive, Lc, inp, J, x, lay, c, out):
     """eq. cp_admittance with the drive J_hat_xi^T F (read with theta before this step's law
-    update), the speed limits, the dither and the joint reference of episode b (``z`` (n,), ``y``
-    (6,): scratch, written before read)."""
+    update), the speed limits, the dither and the joint reference of episode b."""
     n = lay[L_N]
     xs, o = x[b], out[b]
     w_env = o[lay[O_WENV]:lay[O_WENV] + 6]
@@ -233,8 +230,10 @@ def _act_tail(t, b, rho, drive, Lc, inp, J, x, lay, c, out, z, y):
     # -- joint reference: qdot_ref = J^T y + z, (J J^T + damp) y = xi - J z, z = k_ns (q_0 - q)
     q = inp[b, :n]
     qpost = xs[lay[X_QPOST]:lay[X_QPOST] + n]
+    z = np.empty(n)
     for j in range(n):
         z[j] = (qpost[j] - q[j]) * c[K_NS]
+    y = np.empty(6)
     for i in range(6):
         v = 0.0
         for j in range(n):
@@ -262,12 +261,12 @@ def _filter_regressor(b, reg, x, lay, c):
 
 
 @nb.njit(cache=True)
-def _law(b, reg, x, k, lay, c, pv, lc, law_fn, out, lw):
+def _law(b, reg, x, k, lay, c, pv, lc, law_fn, out):
     """The law-independent part of a law step on this step's filtered rows -- a held sample adapts
     nothing; eq. ft_pred; a paused law (``K_PAUSED``) adapts nothing; the contact gate; the Gram log;
     Phi_r^T F on the tracking rows -- then,
     in contact, the law's own step (``laws.base``: the step contract) at address ``law_fn[0]``;
-    theta_{k+1} is written to the state (used next step). ``lw``: the scratch of :func:`law_scratch`."""
+    theta_{k+1} is written to the state (used next step)."""
     m, p = lay[L_M], lay[L_P]
     xs, o = x[b], out[b]
     filt = xs[lay[X_FILT]:lay[X_FILT] + (2 + p) * m].reshape((2 + p, m))
@@ -299,15 +298,15 @@ def _law(b, reg, x, k, lay, c, pv, lc, law_fn, out, lw):
     if not (fn >= c[F_GATE] or mn >= c[M_GATE]):  # free space: gate g_k = 0
         return
     o[lay[O_GATE]] = 1.0
-    Phi_wT, PhiF, gw = lw  # (W Phi_f)^T (p, m), Phi_r^T F (p,), the Gram's workspace
+    Phi_wT = np.empty((p, m))  # (W Phi_f)^T
     for j in range(p):
         for i in range(m):
             Phi_wT[j, i] = Phi_fT[j, i] * W[i]
     # G (p, p) = (W Phi_f)^T (W Phi_f), added to the observability log <Phi^T Phi> over the contact phase
-    G = gram_sparse_log_into(Phi_wT, xs[lay[X_GRAM]:lay[X_GRAM] + p * p].reshape((p, p)), gw)
+    G = gram_sparse_log(Phi_wT, xs[lay[X_GRAM]:lay[X_GRAM] + p * p].reshape((p, p)))
     k[b, K_GRAM_N] += 1
     lo, hi, mask = pv[0], pv[1], pv[2]
-    # Phi_r^T F, on the realised (unfiltered) regressor, tracking rows only
+    PhiF = np.zeros(p)  # Phi_r^T F, on the realised (unfiltered) regressor, tracking rows only
     for j in range(p):
         v = 0.0
         for i in range(m):
@@ -320,56 +319,31 @@ def _law(b, reg, x, k, lay, c, pv, lc, law_fn, out, lw):
 
 
 @nb.njit(cache=True)
-def law_scratch(lay):
-    """:func:`_law`'s scratch, allocated once per kernel call and reused by every episode (each entry
-    written before it is read): (W Phi_f)^T (p, m), Phi_r^T F (p,), the Gram's workspace
-    (``dense.gram_scratch``)."""
-    m, p = lay[L_M], lay[L_P]
-    return np.empty((p, m)), np.empty(p), gram_scratch(p, m)
-
-
-@nb.njit(cache=True)
-def _scratch(chain, lay):
-    """The step's scratch, allocated once per kernel call and reused by every episode (each entry
-    written before it is read, ``arm_chain.fk_scratch``'s fixed rows aside): the forward kinematics'
-    workspace (``chain`` (nbody+1, 16); a one-body stub when the kinematics ran outside: ``chain`` is
-    then ``act_kernel``'s J), L (6, 6), the drive
-    (6,), z (n,), y (6,) (:func:`_act_tail`), :func:`law_scratch`, the rank gate's (S Ad (6, 6),
-    J_hat (6, n), W J_hat (6, n), its Gram (6, 6))."""
-    n = lay[L_N]
-    nbody = chain.shape[0] - 1 if chain.ndim == 2 else 1
-    rw = (np.empty((6, 6)), np.empty((6, n)), np.empty((6, n)), np.empty((6, 6)))
-    return fk_scratch(nbody, n), np.empty((6, 6)), np.empty(6), np.empty(n), np.empty(6), law_scratch(lay), rw
-
-
-@nb.njit(cache=True)
 def law_kernel(reg, x, k, lay, c, pv, lc, law_fn, out):
     """The law alone for B episodes (``controller.standalone.StandaloneLaw``): filter the regressor
     rows ``reg`` (B, 1+p, m) and step the law, as ``act_kernel`` does; ``out`` holds this step's
     s_dot_meas, F and w_env."""
-    lw = law_scratch(lay)
     for b in range(reg.shape[0]):
         _filter_regressor(b, reg, x, lay, c)
-        _law(b, reg, x, k, lay, c, pv, lc, law_fn, out, lw)
+        _law(b, reg, x, k, lay, c, pv, lc, law_fn, out)
         out[b, lay[O_UNC]] = x[b, lay[X_UNC]]
 
 
 @nb.njit(cache=True)
-def _rank_margin(b, Jh, c, out, lay, rw):
-    """lambda_min(W J_hat J_hat^T W) (the rank gate); with RANK_ON = 2 only the gate (Cholesky).
-    ``rw``: the rank gate's scratch (:func:`_scratch`; W J_hat (6, n) and the Gram (6, 6) here)."""
-    _Jx, _Jh, WJ, G = rw
+def _rank_margin(b, Jh, c, out, lay):
+    """lambda_min(W J_hat J_hat^T W) (the rank gate); with RANK_ON = 2 only the gate (Cholesky)."""
+    WJ = np.empty(Jh.shape)
     for i in range(6):
         for j in range(Jh.shape[1]):
             WJ[i, j] = Jh[i, j] * c[V_W + i]
-    mm_nt_into(WJ, WJ, G)
+    G = mm_nt(WJ, WJ)
     if c[RANK_ON] == 2.0:  # gate only: lambda_min > gate  <=>  G - gate I is positive definite
         for i in range(6):
             G[i, i] -= c[RANK_GATE_V]
         if chol(G, 6):
             out[b, lay[O_LAM]] = np.inf
             return
-        mm_nt_into(WJ, WJ, G)
+        G = mm_nt(WJ, WJ)
     out[b, lay[O_LAM]] = sym_eigmin(G)
 
 
@@ -383,15 +357,15 @@ def sense_kernel(t, inp, p_O, R, x, k, lay, c, mats, out):
 
 
 @nb.njit(cache=True)
-def _front(t, b, inp, chain, p_O, R, J, x, k, lay, c, mats, out, fkw):
-    """Intake (dropout hold), forward kinematics of the bare arm (``fkw``: its workspace) and sense
-    of episode b; False when it has diverged (nothing more this step)."""
+def _front(t, b, inp, chain, p_O, R, J, x, k, lay, c, mats, out):
+    """Intake (dropout hold), forward kinematics of the bare arm and sense of episode b; False
+    when it has diverged (nothing more this step)."""
     if k[b, K_ERROR] == 0:
         _intake(b, inp, x, k, lay, c)
     if k[b, K_ERROR] != 0:
         return False
     nbody = chain.shape[0] - 1
-    _fk(chain[:nbody], chain[nbody], inp[b], p_O[b], R[b], J[b], fkw)
+    _fk(chain[:nbody], chain[nbody], inp[b], p_O[b], R[b], J[b])
     _sense(t, b, inp, p_O, R, x, k, lay, c, mats, out)
     return True
 
@@ -403,28 +377,28 @@ def _step(t, inp, chain, p_O, R, J, reg, x, k, lay, c, mats, pv, lc, law_fn, seg
     ``reg[b]`` -> what its drive and rank gate reuse), ``drive_fn`` (J_hat_xi^T F, with theta before
     this step's law update) and ``rank_fn`` (the rank gate on the next step's J_hat)."""
     p = lay[L_P]
-    fkw, Lc, drive, z, y, lw, rw = _scratch(chain, lay)  # once per call, for every episode
     for b in range(inp.shape[0]):
-        if k[b, K_DONE] != 0 or not front_fn(t, b, inp, chain, p_O, R, J, x, k, lay, c, mats, out, fkw):  # noqa: F821
+        if k[b, K_DONE] != 0 or not front_fn(t, b, inp, chain, p_O, R, J, x, k, lay, c, mats, out):  # noqa: F821
             continue
         st = rows_fn(b, inp, R, J, reg, lay, c, mats, fx)  # noqa: F821  (the parts: bound by _kernel)
         _filter_regressor(b, reg, x, lay, c)
         rho = out[b, lay[O_RHO]]
-        _act_head(b, J, x, k, lay, c, out, Lc)
+        Lc = _act_head(b, J, x, k, lay, c, out)
+        drive = np.empty(6)
         if c[EXCITE] > 0.0:  # the scripted program replaces V's drive (control.program = "excite")
             _excite_drive(t - c[T_SETTLE], b, R, c, seg, drive)
         else:
             drive_fn(b, R, J, Lc, st, x[b, lay[X_TH]:lay[X_TH] + p], lay, c, mats, fx, out, drive)  # noqa: F821
-        _act_tail(t, b, rho, drive, Lc, inp, J, x, lay, c, out, z, y)
-        _law(b, reg, x, k, lay, c, pv, lc, law_fn, out, lw)
+        _act_tail(t, b, rho, drive, Lc, inp, J, x, lay, c, out)
+        _law(b, reg, x, k, lay, c, pv, lc, law_fn, out)
         out[b, lay[O_UNC]] = x[b, lay[X_UNC]]  # theta's remaining uncertainty (the law's; NaN: none)
         if c[RANK_ON] > 0.0 and rho > 0.0:  # the rank gate on the next step's J_hat
-            rank_fn(b, R, J, st, x[b, lay[X_TH]:lay[X_TH] + p], lay, c, mats, out, rw)  # noqa: F821
+            rank_fn(b, R, J, st, x[b, lay[X_TH]:lay[X_TH] + p], lay, c, mats, out)  # noqa: F821
 
 
 # -- the parts of each features kind -------------------------------------------------------------
 @nb.njit(cache=True)
-def _ready(t, b, inp, chain, p_O, R, J, x, k, lay, c, mats, out, fkw):
+def _ready(t, b, inp, chain, p_O, R, J, x, k, lay, c, mats, out):
     """Features computed in Python: intake and sense ran in ``sense_kernel``; False once diverged."""
     return k[b, K_ERROR] == 0
 
@@ -442,7 +416,7 @@ def _drive_given(b, R, J, Lc, st, theta, lay, c, mats, fx, out, drive):
 
 
 @nb.njit(cache=True)
-def _no_rank(b, R, J, st, theta, lay, c, mats, out, rw):
+def _no_rank(b, R, J, st, theta, lay, c, mats, out):
     """Features computed in Python: their rank gate is computed there."""
     return
 
@@ -459,10 +433,9 @@ def _adjoint_drive_part(b, R, J, Lc, st, theta, lay, c, mats, fx, out, drive):
 
 
 @nb.njit(cache=True)
-def _adjoint_rank(b, R, J, st, theta, lay, c, mats, out, rw):
-    """The rank gate of the next step's J_hat = S Ad(R theta) J (in the scratch ``rw``)."""
-    Jx, Jh = rw[0], rw[1]
-    _rank_margin(b, mm_into(_adjoint_twist_jacobian_into(b, R, theta[:3], c, mats, Jx), J[b], Jh), c, out, lay, rw)
+def _adjoint_rank(b, R, J, st, theta, lay, c, mats, out):
+    """The rank gate of the next step's J_hat = S Ad(R theta) J."""
+    _rank_margin(b, mm(_adjoint_twist_jacobian(b, R, theta[:3], c, mats), J[b]), c, out, lay)
 
 
 def _learned_rows(b, inp, R, J, reg, lay, c, mats, fx):
@@ -480,9 +453,9 @@ def _learned_drive(b, R, J, Lc, st, theta, lay, c, mats, fx, out, drive):
     _jhat_drive(b, J, Lc, jhat_fn(st[1], st[0], theta), lay, out, drive)  # noqa: F821
 
 
-def _learned_rank(b, R, J, st, theta, lay, c, mats, out, rw):
+def _learned_rank(b, R, J, st, theta, lay, c, mats, out):
     """The rank gate on J_hat = ``jhat_fn``(K(q), basis, theta) (bound by :func:`_compiled`)."""
-    _rank_margin(b, jhat_fn(st[1], st[0], theta), c, out, lay, rw)  # noqa: F821
+    _rank_margin(b, jhat_fn(st[1], st[0], theta), c, out, lay)  # noqa: F821
 
 
 @nb.njit(cache=True)
