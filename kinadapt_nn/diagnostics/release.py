@@ -127,9 +127,7 @@ def find(s, sigma_f: float) -> Releases | None:
     t = np.asarray(s.t, dtype=float)
     edges = np.flatnonzero(np.diff(np.r_[0, st.gate.astype(int), 0]))
     starts, ends = edges[::2], edges[1::2]  # engaged on [start, end)
-    left_out = np.zeros(s.n, bool)  # [analysis] exclude_s: a release there is no row either
-    for lo, hi in setup.analysis.exclude_s:
-        left_out |= (t - t[0] >= lo) & (t - t[0] <= hi)
+    left_out = setup.analysis.left_out(t - t[0])  # [analysis] exclude_s: a release there is no row either
     out = []
     for i, (a, b) in enumerate(zip(starts, ends)):
         stop = min(starts[i + 1] if i + 1 < len(starts) else s.n, np.searchsorted(t, t[b - 1] + SEARCH_S))

@@ -384,6 +384,15 @@ class AnalysisCfg(_Cfg):
     relevant_force_N: float = Field(0.2, gt=0.0)  # [N] a systematic force residual worth reporting
     relevant_moment_Nm: float = Field(0.02, gt=0.0)  # [N m] the same for moments
 
+    def left_out(self, t_from_first_s: np.ndarray) -> np.ndarray:
+        """(n,) bool: the samples at ``t_from_first_s`` (n,) [s, from the first sample] that ``exclude_s`` leaves
+        out (each window closed)."""
+        t = np.asarray(t_from_first_s, dtype=float)
+        out = np.zeros(t.shape, bool)
+        for a, b in self.exclude_s:
+            out |= (t >= a) & (t <= b)
+        return out
+
     @field_validator("exclude_s")
     @classmethod
     def _windows(cls, v):

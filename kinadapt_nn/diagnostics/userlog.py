@@ -181,16 +181,11 @@ def row_map(s: sg.LogSignals, sigma: np.ndarray, rc: RowCfg) -> RowMap:
     setup, t = s.setup, s.t
     if s.static:  # every pose is a row; no smoothing, no stride, no ends
         dt, stride = 1.0, 1
-        ok = np.ones(s.n, bool)
-        if s.has_time:
-            for a, b in setup.analysis.exclude_s:
-                ok &= ~((t >= a) & (t <= b))
+        ok = ~setup.analysis.left_out(t - t[0]) if s.has_time else np.ones(s.n, bool)
     else:
         dt = float(np.median(np.diff(t)))
         stride = max(1, int(round(rc.stride_s / dt)))
-        ok = (t >= t[0] + rc.edge_s) & (t <= t[-1] - rc.edge_s)
-        for a, b in setup.analysis.exclude_s:
-            ok &= ~((t - t[0] >= a) & (t - t[0] <= b))
+        ok = (t >= t[0] + rc.edge_s) & (t <= t[-1] - rc.edge_s) & ~setup.analysis.left_out(t - t[0])
     if setup.contact.mode == "exclude":
         ok &= ~s.contact
     rows = np.flatnonzero(ok)[::stride]
@@ -300,13 +295,9 @@ def sample_blocks(s: sg.LogSignals, rc: RowCfg) -> np.ndarray:
 
 def excluded_samples(s: sg.LogSignals, setup: SetupCfg) -> np.ndarray:
     """(n,) bool: the samples ``[analysis] exclude_s`` leaves out (windows from the first sample)."""
-    out = np.zeros(s.n, bool)
     if s.static and not s.has_time:
-        return out
-    t = s.t - s.t[0]
-    for a, b in setup.analysis.exclude_s:
-        out |= (t >= a) & (t <= b)
-    return out
+        return np.zeros(s.n, bool)
+    return setup.analysis.left_out(s.t - s.t[0])
 
 
 def calibrate(log, s: sg.LogSignals, setup: SetupCfg, sigma: np.ndarray | None, rc: RowCfg,

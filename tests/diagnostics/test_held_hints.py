@@ -6,27 +6,14 @@ slow snag case; this is the other side: an effect-free excitation run, whose mod
 
 from __future__ import annotations
 
-from pathlib import Path
-
-import numpy as np
 import pytest
 
-REPO = Path(__file__).resolve().parents[2]
+from tests.diagnostics.excite_runs import diagnosed_excite_run
 
 
 @pytest.mark.slow
 def test_effect_free_run_holding_an_undecided_effect_gets_no_hint():
-    from kinadapt_nn.config import load_config
-    from kinadapt_nn.diagnostics import ownrun, userlog
-    from kinadapt_nn.diagnostics.importers import RawLog
-    from kinadapt_nn.runs.episode import run_episode
-
-    cfg = load_config(REPO / "online" / "excite.toml", ["run.tensorboard=false", "run.figure=false",
-                                                         "run.progress=false", "run.seed=0"])
-    tr = run_episode(cfg).trace
-    raw = RawLog(*(np.asarray(tr[k]) for k in ("t_s", "q_rad", "qdot_rad_s", "wrench_raw_f")), "effect-free")
-    log, setup = ownrun.as_log(raw, cfg)
-    rep = userlog.diagnose(log, setup, hints=True).report
+    _, _, rep = diagnosed_excite_run(["run.seed=0"], hints=True, name="effect-free")
     held = [e["effect"] for e in rep["ranking"] if e.get("selected_round") is not None and e["verdict"] != "present"]
     assert rep["model_complete"] is True and not [e for e in rep["ranking"] if e["verdict"] == "present"]
     if not held:  # nothing held: the rule is not exercised by this run (the excitation or the tool changed)

@@ -10,30 +10,16 @@ compliance (estimate -3.4e-3 +- 1.5e-3 rad/(N m) for an injected +5e-3; benchmar
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-from kinadapt_nn.config import load_config
-from kinadapt_nn.diagnostics import userlog
-from kinadapt_nn.diagnostics.importers import RawLog
-from kinadapt_nn.diagnostics.ownrun import as_log
-
-REPO = Path(__file__).resolve().parents[2]
+from tests.diagnostics.excite_runs import diagnosed_excite_run
 
 
 @pytest.mark.slow
 def test_a_compliant_grasp_is_found_with_the_tip_unknown():
-    cfg = load_config(REPO / "online" / "excite.toml", ["run.tensorboard=false", "run.figure=false",
-                                                        "run.progress=false", "effects.grasp_compliance.enabled=true"])
-    from kinadapt_nn.runs.episode import run_episode
-
-    tr = run_episode(cfg).trace
-    seen = cfg.model_copy(update={"effects": type(cfg.effects)()})  # the diagnosis does not know it
-    log, setup = as_log(RawLog(tr["t_s"], tr["q_rad"], tr["qdot_rad_s"], tr["wrench_raw_f"], "grasp"), seen)
+    cfg, setup, rep = diagnosed_excite_run(["effects.grasp_compliance.enabled=true"], name="grasp")
     assert not setup.tool.tip_known
-    rep = userlog.diagnose(log, setup, hints=False).report
     present = [e for e in rep["ranking"] if e["verdict"] == "present"]
     assert [e["effect"] for e in present] == ["grasp_compliance"], rep["summary"]
     ep = present[0]["estimate_params"]
@@ -55,15 +41,8 @@ def test_a_joint_offset_is_told_from_its_parallel_joint_by_the_exact_models():
     exact models (``diagnostics.nonlinear._tie_between_columns``) tell them apart and joint 4 is present,
     its interval covering 1 deg. The rows whose smoothing window straddles the declared socket's release
     are left out (``userlog._straddles``): with them, one row outweighed the rest and no choice held."""
-    cfg = load_config(REPO / "online" / "excite.toml", ["run.tensorboard=false", "run.figure=false", "run.progress=false",
-                                                        "effects.encoder_offset.enabled=true",
-                                                        "effects.encoder_offset.offset_deg=1.0"])
-    from kinadapt_nn.runs.episode import run_episode
-
-    tr = run_episode(cfg).trace
-    seen = cfg.model_copy(update={"effects": type(cfg.effects)()})
-    log, setup = as_log(RawLog(tr["t_s"], tr["q_rad"], tr["qdot_rad_s"], tr["wrench_raw_f"], "joint4"), seen)
-    rep = userlog.diagnose(log, setup, hints=False).report
+    _, _, rep = diagnosed_excite_run(["effects.encoder_offset.enabled=true", "effects.encoder_offset.offset_deg=1.0"],
+                                     name="joint4")
     ent = {e["effect"]: e for e in rep["ranking"]}["encoder_offset"]
     assert ent["verdict"] == "present", rep["summary"]
     assert "tie_resolved" in ent, ent
