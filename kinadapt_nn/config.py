@@ -117,7 +117,7 @@ class SceneCfg(_Cfg):
 
 
 class ArmCfg(_Cfg):
-    """The TRUE arm's small kinematic errors (hidden; see kinadapt_nn.sim.arm_errors)."""
+    """The TRUE arm's small kinematic errors (hidden; see kinadapt_nn.sim.truth)."""
 
     link_length_error_m: tuple[float, ...] = (0.0,) * 8  # [m] link1..link7 offsets + flange
     joint_offset_rad: tuple[float, ...] = (0.0,) * 7  # [rad] encoder zero offsets, joint1..7
@@ -250,7 +250,7 @@ class AdaptationCfg(_Cfg):
 
 
 class FaultsCfg(_Cfg):
-    """Sensor faults and disturbances (truth side, kinadapt_nn.sim.faults); all off by default."""
+    """Sensor faults and disturbances (truth side, kinadapt_nn.sim.adapter.SensorFaults); all off by default."""
 
     ft_noise_N: float = Field(0.0, ge=0.0)  # [N] std of white force noise per axis
     ft_noise_Nm: float = Field(0.0, ge=0.0)  # [N m] std of white torque noise per axis

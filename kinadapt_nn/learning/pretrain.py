@@ -3,7 +3,7 @@
 Data set (deterministic from ``seed``): instances = (tool, arm) pairs. Tools: lateral offset
 uniform in a disc, length uniform, grasp tilt uniform (recorded; a rigid tool's tilt does not
 change its Jacobian, eq. ft_factor). Arms: with probability ``arm_error_fraction`` small
-kinematic errors (link lengths, joint zero offsets: ``kinadapt_nn.sim.arm_errors``), else
+kinematic errors (link lengths, joint zero offsets: ``kinadapt_nn.sim.truth``), else
 nominal. Configurations: around the insertion workspace (``kinadapt_nn.sim.workspace``). Targets:
 the true sensor Jacobian rows 1..5 (``kinadapt_nn.sim.truth``) minus the nominal model, W-scaled.
 Held-out instances are drawn from the same distribution and never trained on.
@@ -40,8 +40,8 @@ from kinadapt_nn.robot import PANDA_MJCF
 from kinadapt_nn.sensing import channel_metric, nominal_sensor_map
 from kinadapt_nn.known import BORE_AXIS_W
 from kinadapt_nn.learning.torch_kinematics import build_chain_from_model, flange_kinematics_pk, nominal_panda_chain
-from kinadapt_nn.sim.arm_errors import perturbed_arm_model, random_arm_errors
-from kinadapt_nn.sim.truth import TrueSensorJacobian, sensor_jacobian_rows, sensor_jacobian_rows_batch
+from kinadapt_nn.sim.truth import (TrueSensorJacobian, perturbed_arm_model, random_arm_errors, sensor_jacobian_rows,
+                                   sensor_jacobian_rows_batch)
 from kinadapt_nn.sim.workspace import insertion_path, sample_cell
 
 TRAIN_STATE_FORMAT = "kinadapt-train-state"

@@ -25,7 +25,7 @@ is MuJoCo's ``world`` body, so root frame = ``w`` and the Jacobian equals
 ``mj_jacSite(model, data, jacp, jacr, flange)`` stacked ``[jacp; jacr]``.
 
 ``build_chain_from_model`` takes any compiled bare-arm ``MjModel`` -- the shipped arm or a
-perturbed one from ``kinadapt_nn.sim.arm_errors.perturbed_arm_model`` -- so pretraining reads
+perturbed one from ``kinadapt_nn.sim.truth.perturbed_arm_model`` -- so pretraining reads
 every arm from the one definition the simulator uses. ``nominal_panda_chain`` caches the
 shipped arm's chain (it never changes within a process); ``flange_kinematics_pk`` returns pose
 and Jacobian from one forward-kinematics pass.
@@ -118,7 +118,7 @@ def build_chain_from_model(
 
     Args:
         model: a compiled Panda arm (no tool, no block), e.g. from
-            ``kinadapt_nn.sim.arm_errors.perturbed_arm_model``; read, never modified.
+            ``kinadapt_nn.sim.truth.perturbed_arm_model``; read, never modified.
         dtype: dtype of every offset and axis of the chain (float64 recommended).
         device: torch device of the chain.
         source: what the model was read from, for error messages.

@@ -75,7 +75,7 @@ def load_compare_config(path: Path | None, overrides=()) -> CompareCfg:
 
 def draw_tools(cfg: CompareCfg) -> dict[str, list[list[str]]]:
     """Per family, a list of override lists describing each (tool, arm). Deterministic."""
-    from kinadapt_nn.sim.arm_errors import random_arm_errors
+    from kinadapt_nn.sim.truth import random_arm_errors
 
     rng = np.random.default_rng(cfg.seed)
     tools = []

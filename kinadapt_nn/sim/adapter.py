@@ -4,11 +4,13 @@ It owns the true scene, places the arm at the start pose (solved from the *true*
 scenario is set up by the experimenter, not by the controller), steps the physics, and
 hands out exactly what a real Panda would give a user program: joint encoders ``q, qdot``
 and the raw wrist F/T reading. Ground truth (true tip depth, contacts) is read here for
-evaluation only and never reaches the controller.
+evaluation only and never reaches the controller. What a real sensor's imperfections add to
+those readings (noise, bias, dropouts, latency: the ``[faults]`` table) is :class:`SensorFaults`.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable
 from types import SimpleNamespace
 from typing import NamedTuple
@@ -17,7 +19,7 @@ import mujoco
 import numba as nb
 import numpy as np
 
-from kinadapt_nn.config import ExperimentCfg, true_bore_entry
+from kinadapt_nn.config import ExperimentCfg, FaultsCfg, true_bore_entry
 from kinadapt_nn.errors import KinadaptError
 from kinadapt_nn.geometry import rotvec_from_matrix, tilt_rotation
 from kinadapt_nn.known import BORE_AXIS_W
@@ -58,6 +60,54 @@ class SensorSample(NamedTuple):
     q_rad: np.ndarray  #: (n,) joint encoder positions [rad]
     qdot_rad_s: np.ndarray  #: (n,) joint velocities [rad/s]
     wrench_raw_f: np.ndarray  #: (6,) F/T reading [N, N m]: flange on tool, about O, in f
+
+
+class SensorFaults:
+    """Sensor faults and disturbances between the simulator and the controller (truth side).
+
+    Applied to each ``SensorSample`` in this order: encoder quantisation, F/T bias (from
+    ``bias_onset_s`` after the tare), Gaussian F/T noise, saturation, dropouts (the whole
+    sample becomes NaN), latency (the controller receives the sample of ``latency_steps`` earlier).
+    Seeded from ``run.seed`` so a run is reproducible.
+    """
+
+    def __init__(self, cfg: FaultsCfg, seed: int, bias_onset_s: float) -> None:
+        self.cfg = cfg
+        self.rng = np.random.default_rng(np.random.SeedSequence([seed, 0xFA017]))
+        self.onset = bias_onset_s + cfg.bias_onset_s  # after the tare window ends
+        self.bias = np.concatenate([np.asarray(cfg.ft_bias_N, dtype=float), np.zeros(3)])
+        self.noise = np.array([cfg.ft_noise_N] * 3 + [cfg.ft_noise_Nm] * 3)
+        self.queue: deque = deque()
+        self.dropped = 0
+
+    @staticmethod
+    def active(cfg: FaultsCfg) -> bool:
+        return bool(
+            cfg.ft_noise_N or cfg.ft_noise_Nm or any(cfg.ft_bias_N) or cfg.ft_dropout_prob or cfg.ft_saturation_N
+            or cfg.encoder_resolution_rad or cfg.latency_steps
+        )
+
+    def __call__(self, t: float, s: SensorSample) -> SensorSample:
+        c = self.cfg
+        q, qd, w = s.q_rad.copy(), s.qdot_rad_s.copy(), s.wrench_raw_f.copy()
+        if c.encoder_resolution_rad:
+            q = np.round(q / c.encoder_resolution_rad) * c.encoder_resolution_rad
+        if t >= self.onset:
+            w += self.bias
+        if c.ft_noise_N or c.ft_noise_Nm:
+            w += self.noise * self.rng.standard_normal(6)
+        if c.ft_saturation_N:
+            w[:3] = np.clip(w[:3], -c.ft_saturation_N, c.ft_saturation_N)
+        if c.ft_dropout_prob and self.rng.random() < c.ft_dropout_prob:
+            w[:] = np.nan
+            self.dropped += 1
+        out = SensorSample(q, qd, w)
+        if c.latency_steps:
+            self.queue.append(out)
+            if len(self.queue) <= c.latency_steps:
+                return self.queue[0]
+            return self.queue.popleft()
+        return out
 
 
 class TruthSample(NamedTuple):

@@ -21,7 +21,7 @@ from kinadapt_nn.config import ArmCfg, EffectsCfg, SceneCfg, ToolCfg, arm_mjcf_p
 from kinadapt_nn.errors import ModelFileError
 from kinadapt_nn.geometry import quat_from_matrix, tilt_rotation
 from kinadapt_nn.robot import FLANGE_BODY
-from kinadapt_nn.sim.arm_errors import apply_arm_errors
+from kinadapt_nn.sim.truth import apply_arm_errors
 
 FT_SITE = "ft_site"
 TIP_SITE = "tip_site"  # truth only: the true tip (never given to the controller)

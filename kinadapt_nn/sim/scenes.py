@@ -10,7 +10,7 @@ What it offers the loop, and nothing else:
 
 * :meth:`sense_into` -- what a real robot's sensors hand the controller: one instant's encoders and raw
   F/T reading (for the motion each step realised: ``sim.ft_sensor``), with the hidden sensor effects (``sim.effects.SensorEffects``) and simulated
-  faults (``sim.faults.SensorFaults``) applied, (B, 2n+6) rows;
+  faults (``sim.adapter.SensorFaults``) applied, (B, 2n+6) rows;
 * :meth:`apply` and :meth:`step` -- the joint servo set-points, then one physics step (the socket
   contact's wrench first, where that contact model is on);
 * :meth:`truth_into` -- the per-step ground truth the logger needs (true tip, contacts); for
@@ -33,8 +33,7 @@ from kinadapt_nn import compiled
 from kinadapt_nn.config import ExperimentCfg
 from kinadapt_nn.errors import ConfigError
 from kinadapt_nn.robot import SERVO_KP, SERVO_KV
-from kinadapt_nn.sim.adapter import PegInHoleSim, SensorSample, contact_sums
-from kinadapt_nn.sim.faults import SensorFaults
+from kinadapt_nn.sim.adapter import PegInHoleSim, SensorFaults, SensorSample, contact_sums
 from kinadapt_nn.sim import ft_sensor
 from kinadapt_nn.sim.ft_sensor import SOURCE_FIELDS as FT_FIELDS
 from kinadapt_nn.sim.ft_sensor import RealisedSensor

@@ -123,7 +123,7 @@ def test_bad_inputs(chain, tmp_path: Path) -> None:
 def test_chain_of_a_perturbed_model_matches_mujoco(q_samples) -> None:
     """``build_chain_from_model`` reads a compiled, perturbed arm as MuJoCo evaluates it."""
     from kinadapt_nn.learning.torch_kinematics import build_chain_from_model, flange_kinematics_pk
-    from kinadapt_nn.sim.arm_errors import ArmJacobians, perturbed_arm_model
+    from kinadapt_nn.sim.truth import ArmJacobians, perturbed_arm_model
 
     rng = np.random.default_rng(7)
     model = perturbed_arm_model(PANDA_MJCF, rng.normal(0, 0.002, 8), rng.normal(0, 0.01, 7))

@@ -52,7 +52,7 @@ def test_faults_never_let_nan_into_theta_or_the_command():
 def test_fault_latency_delays_the_samples():
     from kinadapt_nn.config import FaultsCfg
     from kinadapt_nn.sim.adapter import SensorSample
-    from kinadapt_nn.sim.faults import SensorFaults
+    from kinadapt_nn.sim.adapter import SensorFaults
 
     f = SensorFaults(FaultsCfg(latency_steps=2), seed=0, bias_onset_s=0.3)
     seen = [f(0.001 * k, SensorSample(np.full(7, k), np.zeros(7), np.zeros(6))).q_rad[0] for k in range(6)]
