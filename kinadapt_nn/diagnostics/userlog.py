@@ -547,20 +547,20 @@ class Checks:
     unit_msg: str | None  #: the wrench units look wrong
     mount_msg: str | None  #: the declared mount is off by more than a first-order rotation
     block: str | None  #: the reason every verdict is ``cannot_decide`` (None: judge)
-    time_msg: str | None = None  #: the time column's unit looks wrong (``timeunit``)
+    time_msg: str | None = None  #: the time column's unit looks wrong (``units.check_time``)
 
 
 def _checks(cal: Calibration, declared: SetupCfg, log=None) -> Checks:
     """Sign, the time and wrench units (``log``: the log as read, for its time) and the mount's
     plausibility (``Checks``)."""
-    from kinadapt_nn.diagnostics import mount, timeunit, units
+    from kinadapt_nn.diagnostics import mount, units
 
     fitm, s, setup = cal.fit, cal.signals, cal.setup
     check = sign_check(fitm, s, setup)
     sensor_mount = dict(fitm.report)
     why_not = mount.plausibility(fitm, setup)
     unit_msg = units.check(fitm, s, setup, cal.sigma).message
-    time_chk = None if log is None else timeunit.check(log, declared)
+    time_chk = None if log is None else units.check_time(log, declared)
     time_msg = None if time_chk is None else time_chk.message
     sensor_mount["plausible"] = not why_not
     heavy = mount.heavier_than_declared(fitm, setup)

@@ -1,4 +1,4 @@
-"""The time-unit check (``diagnostics.timeunit``) on arm motions written here: a time column in ms
+"""The time-unit check (``diagnostics.units.check_time``) on arm motions written here: a time column in ms
 (or us) read as seconds, or seconds read as ms, is named with the ``time_scale_s`` that fits --
 from logged joint velocities where the log has them, else from the sample rate and the arm's
 speed -- and a right one, a slow arm or a static log draw no warning."""
@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinadapt_nn.diagnostics import timeunit
+from kinadapt_nn.diagnostics import units
 from kinadapt_nn.diagnostics.readers import UserLog
 from kinadapt_nn.diagnostics.setup import load_setup
 
@@ -25,7 +25,7 @@ def _log(per_s: float = 1.0, declared: float = 1.0, rate_hz: float = 200.0, amp_
     t_read = t / per_s * declared  # the column's numbers times the declared seconds per unit
     setup = load_setup(None, [f"log.time_scale_s={declared}"])
     log = UserLog(t_read, q, qd if qdot else None, np.zeros((len(t), 6)), "test")
-    return timeunit.check(log, setup)
+    return units.check_time(log, setup)
 
 
 @pytest.mark.parametrize("qdot", [False, True])
@@ -60,10 +60,10 @@ def test_velocities_in_another_angle_unit_are_not_a_time_unit():
     t = np.arange(0.0, 10.0, 0.005)
     q = 0.4 * np.sin(t[:, None] + np.arange(6))
     log = UserLog(t, q, np.rad2deg(0.4 * np.cos(t[:, None] + np.arange(6))), np.zeros((len(t), 6)), "test")
-    assert timeunit.check(log, load_setup(None, [])).message is None
+    assert units.check_time(log, load_setup(None, [])).message is None
 
 
 def test_a_static_log_is_not_checked():
     t = np.arange(30) * 5.0
     log = UserLog(t, np.random.default_rng(0).normal(size=(30, 6)), None, np.zeros((30, 6)), "test", static=True)
-    assert timeunit.check(log, load_setup(None, ["log.static=true"])) is None
+    assert units.check_time(log, load_setup(None, ["log.static=true"])) is None

@@ -7,7 +7,7 @@ but otherwise *as logged* (the log's own sign convention and sensor frame;
 ``setup.log.wrench_acts`` says which it is, and ``kinadapt_nn.diagnostics.physical`` converts).
 The setup's ``[log]`` section names the columns (``kinadapt_nn.diagnostics.setup.LogCfg``).
 
-One module per format, each a ``LogReader`` (the contract: ``registry.py``), chosen by the path
+One module per format, each a ``LogReader`` (the contract and the registry: ``base.py``), chosen by the path
 (``reader_for``: the file's suffix, a folder by the files it holds):
 
 * ``csv_log``: ``*.csv``, ``*.csv.gz``; ``parquet_log``: ``*.parquet``, ``*.pq``;
@@ -35,11 +35,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from kinadapt_nn.diagnostics.readers import csv_log, parquet_log, ros2_bag, run_trace
-from kinadapt_nn.diagnostics.readers.base import GAP_FACTOR, MIN_POSES, MIN_SAMPLES, Layout, UserLog, assemble
-from kinadapt_nn.diagnostics.readers.registry import (ENTRY_POINT_GROUP, LogReader, lookup, reader_for, register,
-                                                      registered, supported, unregister)
+from kinadapt_nn.diagnostics.readers.base import (ENTRY_POINT_GROUP, GAP_FACTOR, MIN_POSES, MIN_SAMPLES, Layout,
+                                                  LogReader, UserLog, assemble, from_table, lookup, reader_for,
+                                                  register, registered, supported, unregister)
 from kinadapt_nn.diagnostics.readers.run_trace import check_trace
-from kinadapt_nn.diagnostics.readers.tables import from_table
 from kinadapt_nn.diagnostics.readers.writer import write_log
 
 if TYPE_CHECKING:

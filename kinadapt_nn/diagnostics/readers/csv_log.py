@@ -12,9 +12,8 @@ import io
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from kinadapt_nn.diagnostics.readers.base import UserLog, first_line
-from kinadapt_nn.diagnostics.readers.registry import LogReader, unreadable
-from kinadapt_nn.diagnostics.readers.tables import from_table, import_pyarrow
+from kinadapt_nn.diagnostics.readers.base import (LogReader, UserLog, first_line, from_table, import_pyarrow,
+                                                  unreadable)
 from kinadapt_nn.errors import KinadaptError
 
 if TYPE_CHECKING:

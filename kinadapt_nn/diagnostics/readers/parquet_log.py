@@ -10,9 +10,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from kinadapt_nn.diagnostics.readers.base import UserLog, first_line, sample_label
-from kinadapt_nn.diagnostics.readers.registry import LogReader, unreadable
-from kinadapt_nn.diagnostics.readers.tables import Columns, from_batches, import_pyarrow
+from kinadapt_nn.diagnostics.readers.base import (Columns, LogReader, UserLog, first_line, from_batches,
+                                                  import_pyarrow, sample_label, unreadable)
 
 if TYPE_CHECKING:
     from kinadapt_nn.diagnostics.setup import LogCfg

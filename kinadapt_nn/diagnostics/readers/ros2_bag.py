@@ -24,9 +24,8 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from kinadapt_nn.diagnostics.readers.base import (GAP_FACTOR, Label, UserLog, assemble_columns, clean, first_line,
-                                                  layout, list_names)
-from kinadapt_nn.diagnostics.readers.registry import LogReader, unreadable
+from kinadapt_nn.diagnostics.readers.base import (GAP_FACTOR, Label, LogReader, UserLog, assemble_columns, clean,
+                                                  first_line, layout, list_names, unreadable)
 from kinadapt_nn.errors import KinadaptError
 
 if TYPE_CHECKING:

@@ -12,8 +12,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from kinadapt_nn.diagnostics.readers.base import Layout, UserLog, assemble_columns, sample_label
-from kinadapt_nn.diagnostics.readers.registry import LogReader, supported
+from kinadapt_nn.diagnostics.readers.base import (Layout, LogReader, UserLog, assemble_columns, sample_label,
+                                                  supported)
 from kinadapt_nn.errors import KinadaptError
 
 if TYPE_CHECKING:

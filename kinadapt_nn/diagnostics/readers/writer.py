@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from kinadapt_nn.diagnostics.readers.tables import import_pyarrow
+from kinadapt_nn.diagnostics.readers.base import import_pyarrow
 from kinadapt_nn.errors import KinadaptError
 
 if TYPE_CHECKING:
