@@ -127,9 +127,12 @@ def _monitor_said(monitor: dict) -> str:
         if not e["open"]:
             continue
         end = e.get("at_end")
+        enc = (end or {}).get("encoder_offset")  # the end look's rival that is not named live
         out.append(e["line"] + ("; at the end, on %d samples %.2f-%.2f s: %s%s (delta BIC %.1f)" % (
             end["rows"], end["from_s"], end["to_s"], end["shape"],
-            f" or {' or '.join(end['ties'])}" if end["ties"] else ", no near-tie", end["delta_bic"]) if end else ""))
+            f" or {' or '.join(end['ties'])}" if end["ties"] else ", no near-tie", end["delta_bic"]) if end else "")
+                   + (f"; encoder_offset: joint {enc['joint']}, {enc['offset_deg']:+.2f} deg, BIC {enc['delta_bic']:+.1f}"
+                      " on the best's" if enc else ""))
     return " / ".join(out) or "no open event"
 
 

@@ -40,8 +40,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-#: the monitor's shape (every one of ``shapes.SHAPES``) -> what the offline diagnosis calls it: ("effect", a built-in effect's name, judged
-#: ``present`` in ``ranking``) or ("hint", a hint shape of ``diagnostics.completeness.SHAPES``)
+#: the monitor's shape (every one of ``shapes.END_SHAPES``) -> what the offline diagnosis calls it: ("effect", a built-in effect's
+#: name, judged ``present`` in ``ranking``) or ("hint", a hint shape of ``diagnostics.completeness.SHAPES``)
 OFFLINE_NAME = {
     "tool_gravity": ("effect", "tool_gravity"),  # a payload picked up
     "tool_tilt": ("effect", "tool_tilt"),  # the tool turned in the grasp
@@ -49,6 +49,7 @@ OFFLINE_NAME = {
     "ft_bias_drift": ("effect", "ft_bias_drift"),  # a drifting sensor
     "sensor_constant": ("effect", "ft_offset"),  # a constant wrench: the library's offset of an untared log
     "world_force": ("hint", "world_force"),  # a snag: a world-frame force is a hint shape, not a library effect
+    "encoder_offset": ("effect", "encoder_offset"),  # a joint's encoder zero (the end-of-run look only)
 }
 #: the effect name of the monitor's effect file of hint shape ``S`` (:func:`effect_file`): ``monitor_S``
 FILE_PREFIX = "monitor_"

@@ -241,7 +241,7 @@ class Follower:
         v_w = np.einsum("nij,nj->ni", Jp, qd) + np.cross(w_w, lever)
         mon = self.monitor
         for k in range(len(t)):
-            mon.sample(float(t[k]), R_ws[k], p_ws[k], v_w[k], w_w[k], w[k])
+            mon.sample(float(t[k]), R_ws[k], p_ws[k], v_w[k], w_w[k], w[k], Jr[k])
         self.n_good += len(t)
 
     def _event(self, ev: Event) -> None:

@@ -13,7 +13,7 @@ twist and reading and the forward difference of the twist (the residual's time i
 one control period behind the latest).
 
 Layouts (float64 vectors, indices below): ``c`` the constants (:func:`consts`), ``st`` the state,
-``ring`` (RING, NCOL) the last samples for the event fit (``monitor.shapes``).
+``ring`` (RING, NCOL + 3 nj) the last samples for the event fit (``monitor.shapes``; nj arm joints' axes).
 """
 
 from __future__ import annotations
@@ -63,13 +63,17 @@ ROT_BLK, ROT_NB, ROT_W = 50, 20, 22
 #: the previous sample's raw reading (6): judged when the next sample arrives
 S_RAWPREV = S_RBLK + ROT_NB * ROT_W
 NS = S_RAWPREV + 6
+#: after NS: the previous sample's joint axes in s (3 per joint, ``new_state(nj)``), pushed with it to the ring
+S_AX = NS
 #: monitor modes (st[S_MODE])
 MODE_CALIB, MODE_WATCH, MODE_WINDOW = 0.0, 1.0, 2.0
 #: what a call reports
 R_NONE, R_ALARM, R_WINDOW, R_SKIP = 0, 1, 2, 3
 
 # -- ring rows: what the event fit needs of each sample --------------------------------------------
-G_T, G_E, G_R, G_OM, G_AL, G_GA, G_RM, G_FREE = 0, 1, 7, 16, 19, 22, 25, 31
+#: time, residual (6), R_ws (9), omega, alpha, g - a (3 each, s), the reading (6, s), free (1 / 0); then from
+#: G_AX the arm's joint axes in s, ``R_ws^T z_j`` (3 per joint; ``new_state(nj)``: NCOL + 3 nj columns in all)
+G_T, G_E, G_R, G_OM, G_AL, G_GA, G_RM, G_FREE, G_AX = 0, 1, 7, 16, 19, 22, 25, 31, 32
 NCOL = 32
 RING = 8192
 
@@ -286,7 +290,8 @@ def _finite(kin, raw) -> bool:
 
 @nb.njit(cache=True)
 def _keep(t, kin, raw, st) -> None:
-    """This sample's pose, twist and reading, the next one's previous."""
+    """This sample's pose, twist and reading, the next one's previous; its joint axes (``kin`` rows 6..: z_j in
+    the world) into s, ``a_j = R_ws^T z_j`` (as many as ``st`` keeps: ``new_state(nj)``)."""
     for i in range(6):
         st[S_RAWPREV + i] = raw[i]
     for i in range(3):
@@ -295,6 +300,9 @@ def _keep(t, kin, raw, st) -> None:
         st[S_PPREV + i] = kin[3, i]
         for j in range(3):
             st[S_RPREV + 3 * i + j] = kin[i, j]
+    for j in range(min(kin.shape[0] - 6, (st.shape[0] - S_AX) // 3)):
+        for i in range(3):
+            st[S_AX + 3 * j + i] = kin[0, i] * kin[6 + j, 0] + kin[1, i] * kin[6 + j, 1] + kin[2, i] * kin[6 + j, 2]
     st[S_TLAST] = t
 
 
@@ -358,9 +366,11 @@ def _calibrate(c, st, e, zone) -> None:
 
 
 @nb.njit(cache=True)
-def _push(t, st, ring, e, raw, sgn, R, om, al, ga, zone) -> None:  # noqa: PLR0913 (a numba kernel: flat arrays)
-    """The sample into the ring (what an event's fit needs)."""
+def _push(t, st, ring, e, raw, sgn, R, om, al, ga, zone, ax) -> None:  # noqa: PLR0913 (a numba kernel: flat arrays)
+    """The sample into the ring (what an event's fit needs); ``ax`` its joint axes in s (3 nj)."""
     row = int(st[S_HEAD])
+    for i in range(min(len(ax), ring.shape[1] - G_AX)):
+        ring[row, G_AX + i] = ax[i]
     ring[row, G_T] = t
     for i in range(6):
         ring[row, G_E + i] = e[i]
@@ -401,8 +411,9 @@ def _cusum(t, c, st) -> bool:
 
 @nb.njit(cache=True)
 def sample(t, kin, raw, c, st, ring):
-    """One sample at time ``t`` [s]: ``kin`` (6, 3) = [R_ws (3 rows): the sensor axes in the world; p_ws:
-    its origin; v_w: its velocity; w_w: its angular velocity] (world), the raw reading ``raw`` (6,) as
+    """One sample at time ``t`` [s]: ``kin`` (6 + nj, 3) = [R_ws (3 rows): the sensor axes in the world; p_ws:
+    its origin; v_w: its velocity; w_w: its angular velocity; the arm's joint axes z_j (nj rows, base to
+    flange; a slide joint's: zero)] (world), the raw reading ``raw`` (6,) as
     logged (``c[C_SIGN]`` turns it into the tool's wrench on the sensor). -> R_NONE, R_ALARM (the test
     fired), R_WINDOW (an alarm's fit window is complete), R_SKIP (a non-finite sample: left out)."""
     if not _finite(kin, raw):
@@ -428,6 +439,7 @@ def sample(t, kin, raw, c, st, ring):
     t_now = t
     t = st[S_TLAST]  # the judged sample: the previous one (module docstring)
     prev = st[S_RAWPREV:S_RAWPREV + 6].copy()
+    ax = st[S_AX:].copy()  # the judged sample's joint axes in s (``_keep`` overwrites them with this one's)
     pred = np.empty(6)
     predict(c, st, t, R, om, al, ga, pred)
     sgn = c[C_SIGN]
@@ -446,7 +458,7 @@ def sample(t, kin, raw, c, st, ring):
     for i in range(6):
         e[i] -= st[S_OFF + i]
         st[S_Z + i] = e[i] / st[S_SD + i]
-    _push(t, st, ring, e, raw, sgn, R, om, al, ga, zone)
+    _push(t, st, ring, e, raw, sgn, R, om, al, ga, zone, ax)
     if zone:
         return R_NONE
     if mode == MODE_WINDOW:
@@ -473,9 +485,10 @@ def loop_sample(t, inp, R_wf, p_O, J, c, st, ring):
     """``sample`` on the controller's own quantities of one control period: its input row ``inp``
     (2n+6,) = [q; qdot; raw F/T in f], the flange pose (``R_wf`` (3, 3), ``p_O`` (3,)) and Jacobian
     ``J`` (6, n) the controller computed from those encoders; the sensor is at O with the flange's
-    axes (a package run: ``diagnostics.ownrun``)."""
+    axes (a package run: ``diagnostics.ownrun``); the joint axes are ``J``'s angular rows."""
     n = J.shape[1]
-    kin = np.zeros((6, 3))
+    nj = min(n, (st.shape[0] - S_AX) // 3)
+    kin = np.zeros((6 + nj, 3))
     for i in range(3):
         kin[3, i] = p_O[i]
         for j in range(3):
@@ -483,15 +496,18 @@ def loop_sample(t, inp, R_wf, p_O, J, c, st, ring):
         for j in range(n):
             kin[4, i] += J[i, j] * inp[n + j]
             kin[5, i] += J[3 + i, j] * inp[n + j]
+        for j in range(nj):
+            kin[6 + j, i] = J[3 + i, j]
     return sample(t, kin, inp[2 * n:2 * n + 6], c, st, ring)
 
 
-def new_state() -> tuple[np.ndarray, np.ndarray]:
-    """(st (NS,), ring (RING, NCOL)): a monitor's state before its first sample."""
-    st = np.zeros(NS)
+def new_state(nj: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(st (NS + 3 nj,), ring (RING, NCOL + 3 nj)): a monitor's state before its first sample, keeping the
+    axes of ``nj`` arm joints (0: none; the ``encoder_offset`` shape then has no column)."""
+    st = np.zeros(NS + 3 * nj)
     st[S_MODE] = MODE_CALIB
     st[S_CORR + K_T0] = np.inf
-    return st, np.zeros((RING, NCOL))
+    return st, np.zeros((RING, NCOL + 3 * nj))
 
 
 def ring_rows(st: np.ndarray, ring: np.ndarray, t_from: float) -> np.ndarray:

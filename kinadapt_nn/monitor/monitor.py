@@ -90,7 +90,8 @@ class Event:
     #: the shapes its window cannot tell from ``shape`` (``shapes.ties``: a near-tie); empty: it is decided
     ties: list[str] = field(default_factory=list)
     #: the end-of-run look at an open event (``Monitor.finish``): every shape fitted again on all the free
-    #: samples since its onset -- {"shape", "ties", "delta_bic", "rows", "from_s", "to_s"} -- or None
+    #: samples since its onset -- {"shape", "ties", "delta_bic", "rows", "from_s", "to_s", "encoder_offset":
+    #: {"joint", "offset_deg", "offset_sd_deg", "delta_bic"}} -- or None
     at_end: dict | None = None
 
     @property
@@ -149,11 +150,13 @@ class Monitor:
 
     def __post_init__(self) -> None:
         self.c = consts(self.setup, self.mcfg, self.dt_s)
-        self.st, self.ring = K.new_state()
-        self.mc = self.c[K.C_MC:K.C_MC + 3].copy()
+        nj = len(self.setup.log.q)  # the arm's joints: their axes ride in the ring (``shapes.encoder_offset``)
+        self.st, self.ring = K.new_state(nj)
+        c = self.c
+        self.tool = shapes.Tool(float(c[K.C_M]), c[K.C_MC:K.C_MC + 3].copy(), c[K.C_IO:K.C_IO + 9].reshape(3, 3).copy())
         self.h = float(self.c[K.C_H])
         self._loop_fn = None
-        self._kin = np.zeros((6, 3))  # [R_ws; p_ws; v_w; w_w] of one sample (``kernel.sample``)
+        self._kin = np.zeros((6 + nj, 3))  # [R_ws; p_ws; v_w; w_w; z_j (nj)] of one sample (``kernel.sample``)
         self._alarm: dict | None = None  #: the alarm whose window is being collected
         self.alarms: list[dict] = []  #: every alarm named: when, which test, its best shape, what came of it
         self.dismissed = 0  #: alarms whose best shape was not significant (``CONFIRM_P``): no event
@@ -195,10 +198,14 @@ class Monitor:
         if r == K.R_WINDOW:
             self.name_event()
 
-    def sample(self, t: float, R_ws, p_ws, v_w, w_w, raw) -> int:
-        """One sample (``kernel.sample``); an event named when its window is complete. -> the kernel's code."""
+    def sample(self, t: float, R_ws, p_ws, v_w, w_w, raw, axes_w=None) -> int:
+        """One sample (``kernel.sample``); ``axes_w`` (3, nj): the arm's joint axes in the world (the angular
+        Jacobian's columns; None: unknown, no ``encoder_offset`` shape). An event named when its window is
+        complete. -> the kernel's code."""
         kin = self._kin
         kin[:3], kin[3], kin[4], kin[5] = R_ws, p_ws, v_w, w_w
+        if axes_w is not None:
+            kin[6:] = np.asarray(axes_w)[:, :len(kin) - 6].T
         r = K.sample(t, kin, raw, self.c, self.st, self.ring)
         if r == K.R_WINDOW:
             self.name_event()
@@ -282,7 +289,7 @@ class Monitor:
         sd = self.noise_sd
         fmask = np.isin(np.arange(6), fired)
         naming_sd = self._naming_sd(t_on)
-        f, fits = shapes.best(rows, naming_sd, self.mc, t_on, fmask, slow_sd=self._model_sd(t_on))
+        f, fits = shapes.best(rows, naming_sd, self.tool, t_on, fmask, slow_sd=self._model_sd(t_on))
         margin = float(fits[1].bic - f.bic) if len(fits) > 1 else np.inf
         unturned = f.shape in POSE_FREE and _turned_deg(rows) < TURN_DEG
         if (margin < DECISIVE or unturned) and al["windows"] < MAX_WINDOWS and not final:
@@ -290,13 +297,13 @@ class Monitor:
             return None
         self._log_alarm("", f.shape)
         self._alarm = None
-        if self._refit_last(rows, shapes.fit(f.shape, rows, sd, self.mc, t_on, fmask)):  # chi^2 in noise sd, as its refit
+        if self._refit_last(rows, shapes.fit(f.shape, rows, sd, self.tool, t_on, fmask)):  # chi^2 in noise sd, as its refit
             self.alarms[-1]["outcome"] = "update"
             self._restart()
             return None
-        f = shapes.fit(f.shape, rows, sd, self.mc, t_on, fmask, jackknife=True,
+        f = shapes.fit(f.shape, rows, sd, self.tool, t_on, fmask, jackknife=True,
                        model_sd=np.maximum(self._model_sd(t_on, beyond_noise=True), self._left_sd(f, rows, t_on)))
-        change = np.max(np.abs(shapes.evaluate(f, rows, self.mc, t_on)), axis=0)  # (6,) [N, N m] within the window
+        change = np.max(np.abs(shapes.evaluate(f, rows, self.tool, t_on)), axis=0)  # (6,) [N, N m] within the window
         rel = shapes.relevance(f, self.setup.analysis.relevant_force_N)
         self.alarms[-1]["size_sd"], self.alarms[-1]["size_relevant"] = float(np.max(change / sd)), rel
         sig = shapes.significant(f, CONFIRM_P)
@@ -305,11 +312,11 @@ class Monitor:
             self.dismissed += 1
             self._restart()
             return None
-        text, est = shapes.describe(f, self.mc, self.frame, float(self.c[K.C_SIGN]))
+        text, est = shapes.describe(f, self.tool, self.frame, float(self.c[K.C_SIGN]))
         named = next(g for g in fits if g.shape == f.shape)  # its fit on the naming sd, as the others'
         ev = Event(al["t"], t_on, [CHANNELS[i] for i in fired], "free space", f.shape, text, est,
                    fits[1].shape if len(fits) > 1 else "", margin, f.rows, float(rows[-1, K.G_T]),
-                   float(rows[-1, K.G_T]), ties=shapes.ties(named, fits, rows, naming_sd, self.mc, t_on, fmask))
+                   float(rows[-1, K.G_T]), ties=shapes.ties(named, fits, rows, naming_sd, self.tool, t_on, fmask))
         self.alarms[-1]["outcome"] = "event"
         self._named[id(ev)] = (naming_sd, self._model_sd(t_on), fmask, base)  # for its end-of-run look
         self._apply(f, t_on, +1.0)
@@ -333,7 +340,7 @@ class Monitor:
         nb = len(rows) // k
         if nb < 3:
             return np.zeros(6)
-        r = rows[:nb * k, K.G_E:K.G_E + 6] - shapes.evaluate(f, rows[:nb * k], self.mc, t_on)
+        r = rows[:nb * k, K.G_E:K.G_E + 6] - shapes.evaluate(f, rows[:nb * k], self.tool, t_on)
         return self._beyond_noise(r.reshape(nb, k, 6).mean(axis=1), k)
 
     def _naming_sd(self, t_on: float) -> np.ndarray:
@@ -387,7 +394,7 @@ class Monitor:
 
     def _apply(self, f, t_on: float, sign: float) -> None:
         """Add (sign +1) or take out (-1) a fitted shape's correction of the model."""
-        corr = shapes.correction(f, self.mc, t_on)
+        corr = shapes.correction(f, self.tool, t_on)
         st = self.st
         if f.shape == "ft_bias_drift":  # one drift slot: a drift already there is re-expressed from t_on
             t0 = st[K.S_CORR + K.K_T0]
@@ -421,18 +428,18 @@ class Monitor:
         y = self._without(ev, rows, t0)
         sd = self.noise_sd
         fmask = np.isin(np.arange(6), [CHANNELS.index(c) for c in ev.channels])
-        one = shapes.fit(f_old.shape, y, sd, self.mc, t0, fmask, jackknife=True, model_sd=self._model_sd(t0))
+        one = shapes.fit(f_old.shape, y, sd, self.tool, t0, fmask, jackknife=True, model_sd=self._model_sd(t0))
         m = one.rows
         before = y[~np.isin(y[:, K.G_T], rows_new[:, K.G_T])]
         if len(before) == 0:
             return False
-        kept = shapes.chi2_of(f_old, before, sd, self.mc, t0) + f_new.chi2
+        kept = shapes.chi2_of(f_old, before, sd, self.tool, t0) + f_new.chi2
         k_old = len(f_old.p) if f_old.shape != "ft_bias_drift" else 6 + int(fmask.sum())
         if one.chi2 + k_old * np.log(m) > kept + (k_old + _nparams(f_new)) * np.log(m):
             return False
         self._apply(f_old, t0, -1.0)
         self._apply(one, t0, +1.0)
-        text, est = shapes.describe(one, self.mc, self.frame, float(self.c[K.C_SIGN]))
+        text, est = shapes.describe(one, self.tool, self.frame, float(self.c[K.C_SIGN]))
         ev.text, ev.estimate, ev.rows, ev.t_named_s = text, est, one.rows, float(rows[-1, K.G_T])
         ev.updates += 1
         self._fits[-1] = (one, t0, ev)
@@ -449,7 +456,7 @@ class Monitor:
         for i, (t_a, f_a) in enumerate(hist):
             t_b = hist[i + 1][0] if i + 1 < len(hist) else np.inf
             seg = (rows[:, K.G_T] > t_a) & (rows[:, K.G_T] <= t_b)
-            y[seg, K.G_E:K.G_E + 6] += shapes.evaluate(f_a, rows[seg], self.mc, t0)
+            y[seg, K.G_E:K.G_E + 6] += shapes.evaluate(f_a, rows[seg], self.tool, t0)
         return y
 
     def finish(self) -> list[Event]:
@@ -463,11 +470,14 @@ class Monitor:
         return self.events
 
     def _end_look(self, ev: Event, t0: float) -> dict | None:
-        """Every shape fitted again on the free samples from the event's onset (after ``SETTLE_S``; the ring's
-        oldest where the onset has left it) to the next event's onset or the end, the residual without the
-        event's own correction less its baseline, rows divided by the sd it was named with: the best shape and
-        its near-ties (``shapes.ties``) on everything the run saw of it -- the window the offline diagnosis of
-        the run judges (``diagnostics.ownrun.monitor_window``). -> ``Event.at_end``, or None (too few rows)."""
+        """Every shape (``shapes.END_SHAPES``: the live ones and ``encoder_offset``) fitted again on the free
+        samples from the event's onset (after ``SETTLE_S``; the ring's oldest where the onset has left it) to the
+        next event's onset or the end, the residual without the event's own correction less its baseline, rows
+        divided by the sd it was named with: the best live shape and its near-ties among every shape
+        (``shapes.end_look``) on everything the run saw of it -- the window the offline diagnosis of the run
+        judges (``diagnostics.ownrun.monitor_window``). ``encoder_offset`` is a rival only (it may tie the best,
+        it is not named best); its fit is kept under its name (joint, offset, its BIC less the best's; its
+        ``delta_bic`` the runner-up live shape's). -> ``Event.at_end``, or None (too few rows)."""
         naming_sd, slow_sd, fmask, base = self._named[id(ev)]
         later = [e.onset_s for e in self.events if e.onset_s > t0]
         t_to = min(later) if later else np.inf
@@ -477,10 +487,16 @@ class Monitor:
             return None
         y = self._without(ev, rows, t0)
         y[:, K.G_E:K.G_E + 6] -= base
-        f, fits = shapes.best(y, naming_sd, self.mc, t0, fmask, slow_sd=slow_sd)
-        return {"shape": f.shape, "ties": shapes.ties(f, fits, y, naming_sd, self.mc, t0, fmask),
-                "delta_bic": float(fits[1].bic - f.bic) if len(fits) > 1 else float("inf"), "rows": int(len(y)),
-                "from_s": float(y[0, K.G_T]), "to_s": float(y[-1, K.G_T])}
+        f, fits, tied = shapes.end_look(y, naming_sd, self.tool, t0, fmask, slow_sd=slow_sd)
+        live = [g for g in fits if g.shape in shapes.SHAPES]
+        out = {"shape": f.shape, "ties": tied,
+               "delta_bic": float(live[1].bic - f.bic) if len(live) > 1 else float("inf"), "rows": int(len(y)),
+               "from_s": float(y[0, K.G_T]), "to_s": float(y[-1, K.G_T])}
+        for g in fits:
+            if g.shape not in shapes.SHAPES:  # a rival only: its fit, for the record
+                text, est = shapes.describe(g, self.tool, self.frame, float(self.c[K.C_SIGN]))
+                out[g.shape] = {**est, "delta_bic": float(g.bic - f.bic)}
+        return out
 
     def summary(self) -> dict:
         """What summary.json keeps of the monitor."""

@@ -21,7 +21,24 @@ ft_frame_rotation      r x delta for force and moment (r: the reading)          
 tool_tilt              the declared tool's first moment turned about O by          the tool slipped in the grasp
                        (dx, dy): dmc = delta x mc
 sensor_constant        a constant per channel                                      a bias step
+encoder_offset         one joint's zero offset (the best joint): the declared      a joint encoder's zero is
+                       tool's wrench with g_s - a_s, omega, alpha turned by delta   off (the end-of-run look
+                       about the joint's axis in s, a = R_ws^T z_j                 only: ``END_SHAPES``)
 =====================  =========================================================  ==========================
+
+``encoder_offset`` (``columns``): joint j's encoder reads q while the link sits at q + delta. The links from
+j on, the sensor with them, are turned by delta about the joint's axis; in s that axis is ``a = R_ws^T z_j``
+(``z_j``: the arm Jacobian's angular column, world; the ring keeps ``a`` per sample, ``kernel.G_AX``). A world
+vector x seen from the turned sensor frame is ``x + delta x x a`` to first order, so the declared tool's
+wrench (``kernel.predict``) changes by ``dF = m dga - dal x mc - dom x (om x mc) - om x (dom x mc)``, ``dM =
+mc x dga - I_O dal - dom x (I_O om) - om x (I_O dom)`` with ``dga = ga x a``, ``dal = al x a``, ``dom = om x
+a``. At rest that is the exact derivative of the model in q_j (``tests/monitor/test_encoder_shape.py`` checks
+it against central differences of ``kernel.predict`` on the arm's kinematics); moving, the joints beyond j
+also turn the twist in the world, a change of order ``delta |qdot|`` left out. One joint at a time, as the
+offline library's ``encoder_offset`` (``one_of``): each joint's column is fitted alone and the best kept
+(``Fit.joint``), one parameter; a joint whose axis is the sensor's z axis at every row is left out (its turn
+is ``ft_frame_rotation``'s about z_s, as the diagnosis leaves it out where the mount is known), and so is a
+joint with no axis (a slide joint, or rows without axes).
 """
 
 from __future__ import annotations
@@ -33,10 +50,23 @@ import numpy as np
 from kinadapt_nn.diagnostics.completeness import world_force_columns
 from kinadapt_nn.monitor import kernel as K
 
-#: shapes in the order they are tried (ties: the earlier, fewer parameters first)
+#: shapes in the order they are tried (ties: the earlier, fewer parameters first): the live naming's
 SHAPES = ("tool_tilt", "ft_frame_rotation", "tool_gravity", "sensor_constant", "world_force", "ft_bias_drift")
+#: the end-of-run look's (``Monitor._end_look``): the live ones and a joint encoder's zero offset, which the
+#: offline diagnosis's library has (docs/monitor.md: why it is not named live)
+END_SHAPES = (*SHAPES, "encoder_offset")
 #: [-] z of the printed +- (a two-sided 95 % interval)
 Z95 = 1.96
+#: [rad] a joint's axis within this of the sensor's z axis at every row is that axis (``encoder_joints``)
+AXIS_TOL_RAD = 1e-5
+
+
+class Tool(NamedTuple):
+    """The declared tool's inertial parameters (sensor frame, about its origin O), as ``kernel.predict`` has them."""
+
+    m: float  #: [kg] mass
+    mc: np.ndarray  #: (3,) [kg m] first moment
+    I_O: np.ndarray  #: (3, 3) [kg m^2] inertia about O
 
 
 class Fit(NamedTuple):
@@ -46,6 +76,7 @@ class Fit(NamedTuple):
     chi2: float
     bic: float
     rows: int
+    joint: int = -1  #: ``encoder_offset``: the joint (0-based, base to flange) whose offset it is; else -1
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -69,8 +100,41 @@ def _gravity_cols(om, al, ga) -> np.ndarray:
     return C
 
 
-def columns(shape: str, rows: np.ndarray, mc: np.ndarray, t_onset: float) -> np.ndarray:
-    """The shape's columns (n, 6, k) on ring rows (n, NCOL) (``kernel``'s layout)."""
+def joint_axes(rows: np.ndarray) -> np.ndarray:
+    """(n, nj, 3) the arm's joint axes in s of ring rows (``kernel.G_AX``; nj = 0 on rows without them)."""
+    return rows[:, K.G_AX:K.G_AX + 3 * ((rows.shape[1] - K.G_AX) // 3)].reshape(len(rows), -1, 3)
+
+
+def encoder_joints(rows: np.ndarray) -> list[int]:
+    """The joints (0-based) an ``encoder_offset`` may be of on ring rows: an axis there (not a slide joint's
+    zero), and not the sensor's z axis at every row (module docstring)."""
+    a = joint_axes(rows)
+    out = []
+    for j in range(a.shape[1]):
+        norm = np.linalg.norm(a[:, j], axis=1)
+        if not np.any(norm > 0.5):
+            continue
+        if np.all(np.abs(a[:, j, 2]) > 0.5) and np.all(np.abs(a[:, j, :2]) < AXIS_TOL_RAD):
+            continue
+        out.append(j)
+    return out
+
+
+def _encoder_cols(tool: Tool, om: np.ndarray, al: np.ndarray, ga: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """(n, 6, 1): the declared tool's wrench per unit turn of the world about ``a`` (n, 3) in s (module
+    docstring: ``kernel.predict``'s model, its vectors turned)."""
+    mc, I = np.asarray(tool.mc, dtype=float), np.asarray(tool.I_O, dtype=float)
+    dga, dal, dom = np.cross(ga, a), np.cross(al, a), np.cross(om, a)
+    C = np.empty((len(ga), 6, 1))
+    C[:, :3, 0] = (tool.m * dga - np.cross(dal, mc) - np.cross(dom, np.cross(om, mc))
+                   - np.cross(om, np.cross(dom, mc)))
+    C[:, 3:, 0] = (np.cross(mc, dga) - dal @ I.T - np.cross(dom, om @ I.T) - np.cross(om, dom @ I.T))
+    return C
+
+
+def columns(shape: str, rows: np.ndarray, tool: Tool, t_onset: float, joint: int = -1) -> np.ndarray:
+    """The shape's columns (n, 6, k) on ring rows (n, NCOL + 3 nj) (``kernel``'s layout); ``joint``: the
+    ``encoder_offset``'s joint (0-based)."""
     n = len(rows)
     R = rows[:, K.G_R:K.G_R + 9].reshape(n, 3, 3)
     om, al, ga = rows[:, K.G_OM:K.G_OM + 3], rows[:, K.G_AL:K.G_AL + 3], rows[:, K.G_GA:K.G_GA + 3]
@@ -78,7 +142,11 @@ def columns(shape: str, rows: np.ndarray, mc: np.ndarray, t_onset: float) -> np.
         return _gravity_cols(om, al, ga)
     if shape == "tool_tilt":  # dmc = delta x mc = -[mc]x delta, delta = (dx, dy, 0)
         G = _gravity_cols(om, al, ga)[:, :, 1:]  # (n, 6, 3) per dmc
-        return (G @ (-_skew(np.broadcast_to(mc, (n, 3)))))[:, :, :2]
+        return (G @ (-_skew(np.broadcast_to(tool.mc, (n, 3)))))[:, :, :2]
+    if shape == "encoder_offset":
+        if not 0 <= joint < joint_axes(rows).shape[1]:
+            raise ValueError(f"encoder_offset needs a joint of the rows' {joint_axes(rows).shape[1]}, not {joint}")
+        return _encoder_cols(tool, om, al, ga, joint_axes(rows)[:, joint])
     if shape == "world_force":
         return world_force_columns(R)
     if shape == "ft_bias_drift":
@@ -96,7 +164,7 @@ def columns(shape: str, rows: np.ndarray, mc: np.ndarray, t_onset: float) -> np.
     raise ValueError(shape)
 
 
-def prior_sd(shape: str, mc: np.ndarray) -> np.ndarray:
+def prior_sd(shape: str) -> np.ndarray:
     """Each parameter's prior sd (a weak, zero-mean prior: what a shape may plausibly reach; it keeps a
     direction the window does not see at its prior, not at an arbitrary value with no variance)."""
     return {"tool_gravity": np.array([5.0, 1.0, 1.0, 1.0]),  # [kg], [kg m]
@@ -104,6 +172,7 @@ def prior_sd(shape: str, mc: np.ndarray) -> np.ndarray:
             "world_force": np.array([100.0, 100.0, 100.0, 0.1, 0.1, 0.1]),  # [N], [m] from the sensor: on the tool
             "ft_bias_drift": np.array([100.0] * 6 + [1000.0] * 6),  # [N/s, N m/s], [N, N m]
             "ft_frame_rotation": np.full(3, np.deg2rad(30.0)),  # [rad]
+            "encoder_offset": np.full(1, np.deg2rad(30.0)),  # [rad]
             "sensor_constant": np.full(6, 1000.0)}[shape]  # [N, N m]
 
 
@@ -113,7 +182,7 @@ def _world_force(rows: np.ndarray, sd: np.ndarray) -> tuple[np.ndarray, np.ndarr
     force is not seen while the tool keeps its orientation: the least-norm step leaves it where it is.
     -> (p = [f_w; p] (6,), its covariance (6, 6), chi^2, rows)."""
     n = len(rows)
-    P0 = np.diag(1.0 / prior_sd("world_force", np.zeros(3)) ** 2)
+    P0 = np.diag(1.0 / prior_sd("world_force") ** 2)
     R = rows[:, K.G_R:K.G_R + 9].reshape(n, 3, 3)
     Rt = R.transpose(0, 2, 1)
     e = rows[:, K.G_E:K.G_E + 6] / sd[None, :]
@@ -145,8 +214,9 @@ def _world_force(rows: np.ndarray, sd: np.ndarray) -> tuple[np.ndarray, np.ndarr
 JACK_BLOCKS = 10
 
 
-def fit(shape: str, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: float,
-        fired: np.ndarray | None = None, jackknife: bool = False, model_sd: np.ndarray | None = None) -> Fit:
+def fit(shape: str, rows: np.ndarray, sd: np.ndarray, tool: Tool, t_onset: float,
+        fired: np.ndarray | None = None, jackknife: bool = False, model_sd: np.ndarray | None = None,
+        joint: int = -1) -> Fit:
     """``_fit1``; with ``jackknife`` the covariance also counts what the noise sd does not: errors of
     the model that persist in time (a residual correlated over many samples). The delete-one-block
     jackknife over ``JACK_BLOCKS`` contiguous blocks estimates the spread such errors give within the
@@ -154,35 +224,44 @@ def fit(shape: str, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: f
     the nominal model already missed), adds the change a constant error of that size in each channel
     makes to the estimate (``sum_c d_c d_c^T``, d_c the estimate's shift when channel c's residual is
     shifted by ``model_sd[c]``: exact for the linear shapes). The covariance is the white-noise one plus
-    both."""
-    f = _fit1(shape, rows, sd, mc, t_onset, fired)
+    both. ``encoder_offset``: the best joint (``_fit1``), kept for the jackknife's and the shifts' refits."""
+    f = _fit1(shape, rows, sd, tool, t_onset, fired, joint)
+    if f is None:
+        raise ValueError("encoder_offset: the rows hold no joint axis it may be of (kernel.new_state(nj), "
+                         "encoder_joints)")
     if model_sd is not None:
         add = np.zeros_like(f.cov)
         for c in range(6):
             if model_sd[c] > 0.0:
                 shifted = rows.copy()
                 shifted[:, K.G_E + c] += model_sd[c]
-                d = _fit1(shape, shifted, sd, mc, t_onset, fired).p - f.p
+                d = _fit1(shape, shifted, sd, tool, t_onset, fired, f.joint).p - f.p
                 add += np.outer(d, d)
         f = f._replace(cov=f.cov + add)
     if not jackknife or len(rows) < 5 * JACK_BLOCKS:
         return f
     edges = np.linspace(0, len(rows), JACK_BLOCKS + 1).astype(int)
-    ps = np.array([_fit1(shape, np.concatenate([rows[:edges[i]], rows[edges[i + 1]:]]), sd, mc, t_onset, fired).p
+    ps = np.array([_fit1(shape, np.concatenate([rows[:edges[i]], rows[edges[i + 1]:]]), sd, tool, t_onset, fired,
+                         f.joint).p
                    for i in range(JACK_BLOCKS)])
     d = ps - ps.mean(axis=0)
     jack = (JACK_BLOCKS - 1) / JACK_BLOCKS * d.T @ d
     return f._replace(cov=f.cov + jack)
 
 
-def _fit1(shape: str, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: float,
-          fired: np.ndarray | None = None) -> Fit:
+def _fit1(shape: str, rows: np.ndarray, sd: np.ndarray, tool: Tool, t_onset: float,
+          fired: np.ndarray | None = None, joint: int = -1) -> Fit:
     """Least squares of the residual on the shape's columns, rows divided by the channel sd (6,);
-    ``fired`` (6,) bool: the channels whose test fired (a drift's constant is fitted on those only)."""
+    ``fired`` (6,) bool: the channels whose test fired (a drift's constant is fitted on those only);
+    ``encoder_offset``: of ``joint``, or (-1) each of ``encoder_joints`` alone and the least chi^2 kept
+    (one parameter: the offline library's one-of; None where no joint has an axis)."""
     if shape == "world_force":
         p, cov, chi2, m = _world_force(rows, sd)
         return Fit(shape, p, cov, chi2, chi2 + 6 * np.log(m), m)
-    C = columns(shape, rows, mc, t_onset)
+    if shape == "encoder_offset" and joint < 0:
+        fits = [_fit1(shape, rows, sd, tool, t_onset, fired, j) for j in encoder_joints(rows)]
+        return min(fits, key=lambda f: f.chi2) if fits else None
+    C = columns(shape, rows, tool, t_onset, joint)
     if shape == "ft_bias_drift":  # the rate on every channel, the constant (the onset's error) on those that fired
         keep = np.concatenate([np.ones(6, bool), fired if fired is not None else np.ones(6, bool)])
         C = C[:, :, keep]
@@ -190,7 +269,7 @@ def _fit1(shape: str, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset:
     y = rows[:, K.G_E:K.G_E + 6] / sd[None, :]
     A = C.reshape(-1, C.shape[2])
     b = y.reshape(-1)
-    P0 = np.diag(1.0 / prior_sd(shape, mc)[keep if shape == "ft_bias_drift" else slice(None)] ** 2)
+    P0 = np.diag(1.0 / prior_sd(shape)[keep if shape == "ft_bias_drift" else slice(None)] ** 2)
     H = A.T @ A + P0
     p = np.linalg.solve(H, A.T @ b)
     r = b - A @ p
@@ -203,13 +282,14 @@ def _fit1(shape: str, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset:
         cf = np.zeros((12, 12))
         cf[np.ix_(keep, keep)] = cov
         p, cov = full, cf
-    return Fit(shape, p, cov, chi2, chi2 + k * np.log(m), m)
+    return Fit(shape, p, cov, chi2, chi2 + k * np.log(m), m, joint)
 
 
 def relevant_sizes(shape: str, relevant_force_N: float) -> np.ndarray:
     """Each parameter's relevant size in SI, the smallest worth reporting (the offline diagnosis's: its
     effect library's ``relevant``, ``effects.builtin``): ``tool_gravity`` 30 g and 1.5 g m,
-    ``tool_tilt`` and ``ft_frame_rotation`` 1 deg a component, ``ft_bias_drift`` 0.03 N/s and 0.003 N m/s
+    ``tool_tilt`` and ``ft_frame_rotation`` 1 deg a component, ``encoder_offset`` 0.5 deg,
+    ``ft_bias_drift`` 0.03 N/s and 0.003 N m/s
     (its constants and ``sensor_constant``: ``ft_offset``'s 0.2 N, 0.02 N m); ``world_force``: the set-up's
     ``[analysis] relevant_force_N`` per component of the force (its point: none, inf). -> (k,)"""
     from kinadapt_nn.effects.builtin import BUILTINS
@@ -218,6 +298,8 @@ def relevant_sizes(shape: str, relevant_force_N: float) -> np.ndarray:
         return np.array([relevant_force_N] * 3 + [np.inf] * 3)
     if shape == "ft_bias_drift":
         return np.concatenate([BUILTINS["ft_bias_drift"].relevant, BUILTINS["ft_offset"].relevant])
+    if shape == "encoder_offset":  # one joint's (the library's one-of)
+        return np.asarray(BUILTINS["encoder_offset"].relevant[:1], dtype=float)
     return np.asarray(BUILTINS["ft_offset" if shape == "sensor_constant" else shape].relevant, dtype=float)
 
 
@@ -238,23 +320,23 @@ def significant(f: Fit, p_false: float) -> bool:
     return float(np.sum(proj ** 2 / w[keep])) > float(chi2.ppf(1.0 - p_false, int(keep.sum())))
 
 
-def evaluate(f: Fit, rows: np.ndarray, mc: np.ndarray, t_onset: float) -> np.ndarray:
+def evaluate(f: Fit, rows: np.ndarray, tool: Tool, t_onset: float) -> np.ndarray:
     """The fitted shape's wrench on ring rows -> (n, 6) (tool on sensor, s)."""
     if f.shape == "world_force":
         n = len(rows)
         R = rows[:, K.G_R:K.G_R + 9].reshape(n, 3, 3)
         f_s = R.transpose(0, 2, 1) @ f.p[:3]
         return np.concatenate([f_s, np.cross(f.p[3:], f_s)], axis=1)
-    return columns(f.shape, rows, mc, t_onset) @ f.p
+    return columns(f.shape, rows, tool, t_onset, f.joint) @ f.p
 
 
-def chi2_of(f: Fit, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: float) -> float:
+def chi2_of(f: Fit, rows: np.ndarray, sd: np.ndarray, tool: Tool, t_onset: float) -> float:
     """chi^2 of ring rows' residual (without the shape's correction) against the fitted shape."""
-    r = (rows[:, K.G_E:K.G_E + 6] - evaluate(f, rows, mc, t_onset)) / sd[None, :]
+    r = (rows[:, K.G_E:K.G_E + 6] - evaluate(f, rows, tool, t_onset)) / sd[None, :]
     return float(np.sum(r * r))
 
 
-def design(shape: str, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: float, f: Fit,
+def design(shape: str, rows: np.ndarray, sd: np.ndarray, tool: Tool, t_onset: float, f: Fit,
            fired: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The shape's design at its fit, rows divided by the channel sd: (A (6n, k) the columns -- for the
     world force the Jacobian at the estimate --, e (6n,) the residual the fit leaves)."""
@@ -270,15 +352,15 @@ def design(shape: str, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset
         J[:, 3:, 3:] = -_skew(f_s)
         A = (J / sd[None, :, None]).reshape(-1, 6)
     else:
-        C = columns(shape, rows, mc, t_onset)
+        C = columns(shape, rows, tool, t_onset, f.joint)
         if shape == "ft_bias_drift":
             C = C[:, :, np.concatenate([np.ones(6, bool), fired if fired is not None else np.ones(6, bool)])]
         A = (C / sd[None, :, None]).reshape(-1, C.shape[2])
-    e = ((rows[:, K.G_E:K.G_E + 6] - evaluate(f, rows, mc, t_onset)) / sd[None, :]).reshape(-1)
+    e = ((rows[:, K.G_E:K.G_E + 6] - evaluate(f, rows, tool, t_onset)) / sd[None, :]).reshape(-1)
     return A, e
 
 
-def slow_bic(f: Fit, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: float, slow_sd: np.ndarray,
+def slow_bic(f: Fit, rows: np.ndarray, sd: np.ndarray, tool: Tool, t_onset: float, slow_sd: np.ndarray,
              fired: np.ndarray | None = None) -> float:
     """The fit's BIC where each channel also carries an unknown constant error of the model, ``b_c ~ N(0,
     slow_sd_c^2)`` [N, N m] (the model's slow error before the change: what a constant shape would otherwise
@@ -289,13 +371,13 @@ def slow_bic(f: Fit, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: 
     keep = slow_sd > 0.0
     if not keep.any():
         return f.bic
-    A, e = design(f.shape, rows, sd, mc, t_onset, f, fired)
+    A, e = design(f.shape, rows, sd, tool, t_onset, f, fired)
     n = len(rows)
     B = np.zeros((n, 6, 6))
     B[:, np.arange(6), np.arange(6)] = 1.0 / sd
     B = B.reshape(-1, 6)[:, keep]
     Pb = np.diag(1.0 / slow_sd[keep] ** 2)
-    pr = prior_sd(f.shape, mc)
+    pr = prior_sd(f.shape)
     if f.shape == "ft_bias_drift":
         pr = pr[np.concatenate([np.ones(6, bool), fired if fired is not None else np.ones(6, bool)])]
     Pp = np.diag(1.0 / pr ** 2)
@@ -310,15 +392,31 @@ def slow_bic(f: Fit, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: 
     return chi2 + k * np.log(f.rows) + occam
 
 
-def best(rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: float,
-         fired: np.ndarray | None = None, slow_sd: np.ndarray | None = None) -> tuple[Fit, list[Fit]]:
-    """The best-fitting shape (least BIC) and every fit, best first; with ``slow_sd`` (6,) [N, N m] the BIC
-    with the model's slow error integrated out (``slow_bic``)."""
-    fits = [fit(s, rows, sd, mc, t_onset, fired) for s in SHAPES]
+def best(rows: np.ndarray, sd: np.ndarray, tool: Tool, t_onset: float,
+         fired: np.ndarray | None = None, slow_sd: np.ndarray | None = None,
+         shapes: tuple[str, ...] = SHAPES) -> tuple[Fit, list[Fit]]:
+    """The best-fitting of ``shapes`` (least BIC) and every fit, best first; with ``slow_sd`` (6,) [N, N m]
+    the BIC with the model's slow error integrated out (``slow_bic``). ``encoder_offset`` is left out where
+    the rows have no joint it may be of (``encoder_joints``)."""
+    fits = [f for f in (fit(s, rows, sd, tool, t_onset, fired) if s != "encoder_offset" or encoder_joints(rows)
+                        else None for s in shapes) if f is not None]
     if slow_sd is not None:
-        fits = [f._replace(bic=slow_bic(f, rows, sd, mc, t_onset, slow_sd, fired)) for f in fits]
+        fits = [f._replace(bic=slow_bic(f, rows, sd, tool, t_onset, slow_sd, fired)) for f in fits]
     fits = sorted(fits, key=lambda f: f.bic)
     return fits[0], fits
+
+
+def end_look(rows: np.ndarray, sd: np.ndarray, tool: Tool, t_onset: float, fired: np.ndarray | None = None,
+             slow_sd: np.ndarray | None = None) -> tuple[Fit, list[Fit], list[str]]:
+    """The end-of-run look's verdict (``Monitor._end_look``): every shape of ``END_SHAPES`` fitted (``best``);
+    the best is the least-BIC live shape (``SHAPES``), and its near-ties (``ties``) are sought among all of
+    them, so ``encoder_offset`` is a rival only: it may tie the best, it is not named best (docs/monitor.md,
+    "Agreement with the offline diagnosis": as a candidate it out-named a turned mount by BIC on its one
+    parameter against three while its chi^2 was worse, the moment error the slow BIC forgives).
+    -> (the best, every fit in BIC order, the best's ties)."""
+    _, fits = best(rows, sd, tool, t_onset, fired, slow_sd=slow_sd, shapes=END_SHAPES)
+    named = next(f for f in fits if f.shape in SHAPES)
+    return named, fits, ties(named, fits, rows, sd, tool, t_onset, fired)
 
 
 #: near-ties (``ties``): a shape ties the best when it explains at least TIE_RATIO of what the best explains
@@ -327,13 +425,13 @@ def best(rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: float,
 TIE_RATIO = 0.8
 
 
-def _target(f: Fit, rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: float,
+def _target(f: Fit, rows: np.ndarray, sd: np.ndarray, tool: Tool, t_onset: float,
             fired: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The fit's linear form on the window: (A (6n, k) its columns -- the world force's Jacobian at its
     estimate --, b (6n,) the data it is fitted to -- for the world force linearised at its estimate,
     ``e + J p`` --, the prior precision's diagonal (k,))."""
-    A, e = design(f.shape, rows, sd, mc, t_onset, f, fired)
-    pr = prior_sd(f.shape, mc)
+    A, e = design(f.shape, rows, sd, tool, t_onset, f, fired)
+    pr = prior_sd(f.shape)
     p = f.p
     if f.shape == "ft_bias_drift":
         keep = np.concatenate([np.ones(6, bool), fired if fired is not None else np.ones(6, bool)])
@@ -348,7 +446,7 @@ def _misfit(A: np.ndarray, b: np.ndarray, prec: np.ndarray) -> float:
     return float(r @ r)
 
 
-def ties(best: Fit, fits: list[Fit], rows: np.ndarray, sd: np.ndarray, mc: np.ndarray, t_onset: float,
+def ties(best: Fit, fits: list[Fit], rows: np.ndarray, sd: np.ndarray, tool: Tool, t_onset: float,
          fired: np.ndarray | None = None) -> list[str]:
     """The shapes the window cannot tell from ``best`` (``fits``: every shape's fit on ``rows``, rows divided
     by ``sd``): each explains at least ``TIE_RATIO`` of the chi^2 ``best`` explains, and with both fitted
@@ -357,14 +455,14 @@ def ties(best: Fit, fits: list[Fit], rows: np.ndarray, sd: np.ndarray, mc: np.nd
     the best (``tool_gravity`` holds every ``tool_tilt``: a first moment turned about O) adds nothing worth
     its parameters when the best is enough, so it ties: the best is then named for having fewer parameters
     only. -> shape names, in ``fits``' order."""
-    A1, b, P1 = _target(best, rows, sd, mc, t_onset, fired)
+    A1, b, P1 = _target(best, rows, sd, tool, t_onset, fired)
     log_m = np.log(len(b))
     none = float(np.sum((rows[:, K.G_E:K.G_E + 6] / sd[None, :]) ** 2))  # chi^2 of the window with no shape
     out = []
     for f in fits:
         if f.shape == best.shape:
             continue
-        A2, b2, P2 = _target(f, rows, sd, mc, t_onset, fired)
+        A2, b2, P2 = _target(f, rows, sd, tool, t_onset, fired)
         c1, c2 = _misfit(A1, b, P1), _misfit(A2, b2, P2)
         # together: on the world force's linearised data where one is the world force (its fit's residual at
         # its estimate, the other's columns free), else on the data
@@ -392,7 +490,7 @@ def _along(v: np.ndarray, cov: np.ndarray) -> tuple[float, float, str]:
     return size, sd, word
 
 
-def describe(f: Fit, mc: np.ndarray, frame: str, sign: float = 1.0) -> tuple[str, dict]:
+def describe(f: Fit, tool: Tool, frame: str, sign: float = 1.0) -> tuple[str, dict]:
     """The event's words and its estimate (a dict of values, their sds and units) from the best fit;
     ``frame``: what the world frame is called (for a world force's direction); ``sign``: the log's
     convention (``LogCfg.sign``): a drift's or a step's channels are said as the log has them."""
@@ -422,6 +520,10 @@ def describe(f: Fit, mc: np.ndarray, frame: str, sign: float = 1.0) -> tuple[str
         size, sd, word = _along(deg, cd)
         return (f"the sensor turned in its mount, {size:.2g} ± {Z95 * sd:.2g} deg about {word}",
                 {"rotvec_deg": deg.tolist(), "rotvec_cov_deg2": cd.tolist(), "angle_deg": size, "angle_sd_deg": sd})
+    if f.shape == "encoder_offset":
+        deg, sd = float(np.rad2deg(p[0])), float(np.rad2deg(np.sqrt(cov[0, 0])))
+        return (f"joint {f.joint + 1}'s encoder zero is off, {deg:+.2g} ± {Z95 * sd:.2g} deg",
+                {"joint": f.joint + 1, "offset_deg": deg, "offset_sd_deg": sd})
     if f.shape == "tool_tilt":
         deg = np.rad2deg(p)
         cd = np.rad2deg(np.rad2deg(cov))
@@ -435,14 +537,17 @@ def describe(f: Fit, mc: np.ndarray, frame: str, sign: float = 1.0) -> tuple[str
             {"step_s": p.tolist(), "step_sd_s": sd6.tolist()})
 
 
-def correction(f: Fit, mc: np.ndarray, t_onset: float) -> np.ndarray:
-    """The fitted shape as the kernel's model correction (``kernel.NCORR``), added to what is there."""
+def correction(f: Fit, tool: Tool, t_onset: float) -> np.ndarray:
+    """The fitted shape as the kernel's model correction (``kernel.NCORR``), added to what is there (a live
+    shape's: ``SHAPES``)."""
+    if f.shape not in SHAPES:
+        raise ValueError(f"{f.shape} is not named live: the kernel has no correction of it")
     c = np.zeros(K.NCORR)
     p = f.p
     if f.shape == "tool_gravity":
         c[K.K_DM], c[K.K_DMC:K.K_DMC + 3] = p[0], p[1:4]
     elif f.shape == "tool_tilt":
-        c[K.K_DMC:K.K_DMC + 3] = np.cross(np.array([p[0], p[1], 0.0]), mc)
+        c[K.K_DMC:K.K_DMC + 3] = np.cross(np.array([p[0], p[1], 0.0]), tool.mc)
     elif f.shape == "world_force":
         c[K.K_FW:K.K_FW + 3], c[K.K_P:K.K_P + 9] = p[:3], np.outer(p[3:], p[:3]).ravel()
     elif f.shape == "ft_bias_drift":

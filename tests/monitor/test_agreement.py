@@ -13,15 +13,15 @@ import pytest
 from kinadapt_nn.effects.builtin import BUILTINS
 from kinadapt_nn.diagnostics.completeness import SHAPES as HINT_SHAPES
 from kinadapt_nn.monitor.agreement import OFFLINE_NAME, agreement, diagnosis_names, monitor_names
-from kinadapt_nn.monitor.shapes import SHAPES
+from kinadapt_nn.monitor.shapes import END_SHAPES, SHAPES
 
 REPO = Path(__file__).resolve().parents[2]
 
 
 def test_every_monitor_shape_has_one_offline_name_of_the_diagnosis():
     """One to one, every shape mapped, and each name one the diagnosis gives: a built-in effect or a
-    hint shape."""
-    assert set(OFFLINE_NAME) == set(SHAPES)
+    hint shape (the end-of-run look's shapes: the live ones and ``encoder_offset``)."""
+    assert set(OFFLINE_NAME) == set(END_SHAPES) and set(SHAPES) < set(END_SHAPES)
     assert len(set(OFFLINE_NAME.values())) == len(OFFLINE_NAME)
     for kind, name in OFFLINE_NAME.values():
         assert name in (BUILTINS if kind == "effect" else HINT_SHAPES), (kind, name)
@@ -64,13 +64,16 @@ def test_the_end_of_run_look_is_what_the_monitor_says_at_the_end():
 def test_an_undecided_event_agrees_with_a_near_tie():
     """The monitor cannot tell the tilt from a payload shape; the diagnosis leaves tool_tilt undecided as a
     near-tie: agree, with the same ties when the diagnosis's tie set within the monitor's vocabulary is the
-    monitor's (an encoder offset, which the monitor has no shape for, does not count). A tilt the diagnosis
-    finds present, or cannot decide for too little excitation (no near-tie), does not agree."""
+    monitor's (``tool_inertia``, which the monitor has no shape for, does not count; ``encoder_offset``, a rival
+    of its end-of-run look, does). A tilt the diagnosis finds present, or cannot decide for too little
+    excitation (no near-tie), does not agree."""
     mon = {"events": [{"shape": "tool_tilt", "open": True, "at_end": {"shape": "tool_tilt", "ties": ["tool_gravity"]}}]}
     pair = _report({"tool_tilt": "cannot_decide", "tool_gravity": "cannot_decide"}, [],
-                   {"tool_tilt": ["tool_gravity", "encoder_offset"]})
+                   {"tool_tilt": ["tool_gravity", "tool_inertia"]})
     a = agreement(mon, pair)
     assert a.agree and a.same_ties and not a.names_equal and a.compatible
+    enc = _report({"tool_tilt": "cannot_decide"}, [], {"tool_tilt": ["tool_gravity", "encoder_offset"]})
+    assert agreement(mon, enc).agree and not agreement(mon, enc).same_ties
     three = _report({"tool_tilt": "cannot_decide"}, [], {"tool_tilt": ["tool_gravity", "ft_offset"]})
     b = agreement(mon, three)
     assert b.agree and not b.same_ties

@@ -16,6 +16,7 @@ from kinadapt_nn.runs.episode import run_episode
 REPO = Path(__file__).resolve().parents[2]
 SD = np.array([0.02, 0.02, 0.02, 0.002, 0.002, 0.002])  # [N, N m] the sensor's noise
 MC = np.array([0.0, 0.0, -0.005])  # [kg m] the declared tool's first moment (only tool_tilt reads it)
+TOOL = shapes.Tool(0.1, MC, np.zeros((3, 3)))  # the declared tool (0.1 kg; its inertia unread here)
 
 
 def _rows(n: int, reading: np.ndarray, e: np.ndarray) -> np.ndarray:
@@ -36,7 +37,7 @@ def _exact(shape: str, rows: np.ndarray, slow_sd: np.ndarray) -> float:
     prior ``N(0, (A^T A / m)^-1)``; both integrated out in closed form: ``e^T S^-1 e + ln det S``, ``S = I +
     A U^-1 A^T + B P^-1 B^T`` (dense, no Laplace step)."""
     n = len(rows)
-    A = (shapes.columns(shape, rows, MC, 1.0) / SD[None, :, None]).reshape(-1, shapes.prior_sd(shape, MC).size)
+    A = (shapes.columns(shape, rows, TOOL, 1.0) / SD[None, :, None]).reshape(-1, shapes.prior_sd(shape).size)
     m = A.shape[0]
     B = np.zeros((n, 6, 6))
     B[:, np.arange(6), np.arange(6)] = 1.0 / SD
@@ -62,7 +63,7 @@ def test_slow_bic_is_the_marginal_likelihood_of_a_linear_shape():
     e += SD * rng.standard_normal((n, 6)) + np.array([0.0, 0.0, 0.0, 3e-4, -2e-4, 1e-4])
     rows = _rows(n, reading, e)
     slow = np.array([0.002, 0.002, 0.003, 2e-4, 3e-4, 2e-4])
-    got = {s: shapes.slow_bic(shapes.fit(s, rows, SD, MC, 1.0), rows, SD, MC, 1.0, slow)
+    got = {s: shapes.slow_bic(shapes.fit(s, rows, SD, TOOL, 1.0), rows, SD, TOOL, 1.0, slow)
            for s in ("ft_frame_rotation", "sensor_constant")}
     want = {s: _exact(s, rows, slow) for s in got}
     d_got = got["ft_frame_rotation"] - got["sensor_constant"]
@@ -83,8 +84,8 @@ def test_a_constant_error_of_the_model_in_the_moments_does_not_name_a_constant()
     e = np.concatenate([np.cross(reading[:, :3], delta), np.zeros((n, 3))], axis=1)
     e += SD * rng.standard_normal((n, 6)) + np.array([0.0, 0.0, 0.0, 2e-4, -2e-4, 2e-4])
     rows = _rows(n, reading, e)
-    white, _ = shapes.best(rows, SD, MC, 1.0)
-    slow, _ = shapes.best(rows, SD, MC, 1.0, slow_sd=np.array([0.002] * 3 + [2e-4] * 3))
+    white, _ = shapes.best(rows, SD, TOOL, 1.0)
+    slow, _ = shapes.best(rows, SD, TOOL, 1.0, slow_sd=np.array([0.002] * 3 + [2e-4] * 3))
     assert white.shape == "sensor_constant"
     assert slow.shape == "ft_frame_rotation"
 

@@ -19,6 +19,7 @@ from kinadapt_nn.monitor.monitor import Monitor
 REPO = Path(__file__).resolve().parents[2]
 SD = np.array([0.02, 0.02, 0.02, 0.002, 0.002, 0.002])  # [N, N m] the sensor's noise
 MC = np.array([0.0, 0.0, 0.005])  # [kg m] the declared tool's first moment (0.1 kg, 50 mm along z)
+TOOL = shapes.Tool(0.1, MC, np.zeros((3, 3)))  # the declared tool (0.1 kg; its inertia unread here)
 G_W = np.array([0.0, 0.0, -9.81])
 
 
@@ -49,21 +50,21 @@ def test_a_tilt_ties_the_payload_shape_that_contains_it_and_nothing_else():
     as well (dm = 0, dmc = delta x mc). The tilt is named (fewer parameters) and ``tool_gravity`` ties it;
     the other shapes cannot make a moment that turns with gravity and no force, so the turn tells them apart."""
     delta = np.deg2rad([8.0, 0.0])
-    rows = _turning_rows(1500, lambda r: shapes.columns("tool_tilt", r, MC, 1.0) @ delta)
-    best, fits = shapes.best(rows, SD, MC, 1.0)
+    rows = _turning_rows(1500, lambda r: shapes.columns("tool_tilt", r, TOOL, 1.0) @ delta)
+    best, fits = shapes.best(rows, SD, TOOL, 1.0)
     assert best.shape == "tool_tilt"
-    assert shapes.ties(best, fits, rows, SD, MC, 1.0) == ["tool_gravity"]
+    assert shapes.ties(best, fits, rows, SD, TOOL, 1.0) == ["tool_gravity"]
 
 
 def test_the_tilts_columns_lie_in_the_payload_shapes_span():
     """Nested: fitted together with ``tool_gravity`` the tilt lowers the chi^2 by nothing (its columns are
     ``tool_gravity``'s first-moment columns times ``-[mc]x``); only the weak priors differ."""
     delta = np.deg2rad([8.0, 0.0])
-    rows = _turning_rows(600, lambda r: shapes.columns("tool_tilt", r, MC, 1.0) @ delta)
-    g = shapes.fit("tool_gravity", rows, SD, MC, 1.0)
-    tl = shapes.fit("tool_tilt", rows, SD, MC, 1.0)
-    A_g, b, P_g = shapes._target(g, rows, SD, MC, 1.0, None)
-    A_t, _, P_t = shapes._target(tl, rows, SD, MC, 1.0, None)
+    rows = _turning_rows(600, lambda r: shapes.columns("tool_tilt", r, TOOL, 1.0) @ delta)
+    g = shapes.fit("tool_gravity", rows, SD, TOOL, 1.0)
+    tl = shapes.fit("tool_tilt", rows, SD, TOOL, 1.0)
+    A_g, b, P_g = shapes._target(g, rows, SD, TOOL, 1.0, None)
+    A_t, _, P_t = shapes._target(tl, rows, SD, TOOL, 1.0, None)
     alone = shapes._misfit(A_g, b, P_g)
     both = shapes._misfit(np.hstack([A_g, A_t]), b, np.concatenate([P_g, P_t]))
     assert abs(alone - both) < 1e-3 * alone, (alone, both)
@@ -74,10 +75,10 @@ def test_a_snag_is_decided():
     (a payload's weight is vertical, a constant or a drift does not turn with the wrist): no tie."""
     p = np.array([0.0, -1.5, 0.0, 0.0, 0.02, 0.06])  # f_w [N], point [m]
     pull = shapes.Fit("world_force", p, np.eye(6), 0.0, 0.0, 0)
-    rows = _turning_rows(1500, lambda r: shapes.evaluate(pull, r, MC, 1.0))
-    best, fits = shapes.best(rows, SD, MC, 1.0)
+    rows = _turning_rows(1500, lambda r: shapes.evaluate(pull, r, TOOL, 1.0))
+    best, fits = shapes.best(rows, SD, TOOL, 1.0)
     assert best.shape == "world_force"
-    assert shapes.ties(best, fits, rows, SD, MC, 1.0) == []
+    assert shapes.ties(best, fits, rows, SD, TOOL, 1.0) == []
 
 
 def test_without_acceleration_a_payload_is_a_vertical_world_force():
@@ -85,10 +86,10 @@ def test_without_acceleration_a_payload_is_a_vertical_world_force():
     gravity at its centre of mass -- the world-force shape, exactly; only the arm's accelerations could tell
     them apart, and this motion has none: they tie (and nothing else does)."""
     p = np.array([0.5, 0.0, 0.0, 0.025])  # dm [kg], dmc [kg m]
-    rows = _turning_rows(1500, lambda r: shapes.columns("tool_gravity", r, MC, 1.0) @ p)
-    best, fits = shapes.best(rows, SD, MC, 1.0)
+    rows = _turning_rows(1500, lambda r: shapes.columns("tool_gravity", r, TOOL, 1.0) @ p)
+    best, fits = shapes.best(rows, SD, TOOL, 1.0)
     assert best.shape == "tool_gravity"  # 4 parameters against the world force's 6
-    assert shapes.ties(best, fits, rows, SD, MC, 1.0) == ["world_force"]
+    assert shapes.ties(best, fits, rows, SD, TOOL, 1.0) == ["world_force"]
 
 
 def _monitor() -> Monitor:
@@ -135,6 +136,6 @@ def test_a_world_force_event_as_an_effect_file(tmp_path):
     from types import SimpleNamespace
 
     s = SimpleNamespace(n=len(rows), R_ws=rows[:, K.G_R:K.G_R + 9].reshape(-1, 3, 3))
-    want = shapes.evaluate(shapes.Fit("world_force", np.concatenate([fw, point]), np.eye(6), 0.0, 0.0, 0), rows, MC, 1.0)
+    want = shapes.evaluate(shapes.Fit("world_force", np.concatenate([fw, point]), np.eye(6), 0.0, 0.0, 0), rows, TOOL, 1.0)
     assert np.allclose(eff(s) @ fw, want, rtol=1e-12, atol=1e-9)
     assert effect_file({**ev, "shape": "tool_gravity"}, 0.2) is None
