@@ -469,6 +469,21 @@ class Monitor:
                 ev.at_end = self._end_look(ev, t0)
         return self.events
 
+    def end_rows(self, ev: Event) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """What the end-of-run look of event ``ev`` fits (``_end_look``): (ring rows (n, NCOL + 3 nj): the free
+        samples from its onset (after ``SETTLE_S``) to the next event's onset or the end, the residual without
+        its own correction less its baseline; the naming sd (6,), the model's slow error (6,) and the fired
+        channels (6,) bool it was named with)."""
+        t0 = ev.onset_s
+        naming_sd, slow_sd, fmask, base = self._named[id(ev)]
+        later = [e.onset_s for e in self.events if e.onset_s > t0]
+        t_to = min(later) if later else np.inf
+        rows = K.ring_rows(self.st, self.ring, t0)
+        rows = rows[(rows[:, K.G_FREE] > 0.5) & (rows[:, K.G_T] > t0 + SETTLE_S) & (rows[:, K.G_T] <= t_to)]
+        y = self._without(ev, rows, t0)
+        y[:, K.G_E:K.G_E + 6] -= base
+        return y, naming_sd, slow_sd, fmask
+
     def _end_look(self, ev: Event, t0: float) -> dict | None:
         """Every shape (``shapes.END_SHAPES``: the live ones and ``encoder_offset``) fitted again on the free
         samples from the event's onset (after ``SETTLE_S``; the ring's oldest where the onset has left it) to the
@@ -478,15 +493,9 @@ class Monitor:
         judges (``diagnostics.ownrun.monitor_window``). ``encoder_offset`` is a rival only (it may tie the best,
         it is not named best); its fit is kept under its name (joint, offset, its BIC less the best's; its
         ``delta_bic`` the runner-up live shape's). -> ``Event.at_end``, or None (too few rows)."""
-        naming_sd, slow_sd, fmask, base = self._named[id(ev)]
-        later = [e.onset_s for e in self.events if e.onset_s > t0]
-        t_to = min(later) if later else np.inf
-        rows = K.ring_rows(self.st, self.ring, t0)
-        rows = rows[(rows[:, K.G_FREE] > 0.5) & (rows[:, K.G_T] > t0 + SETTLE_S) & (rows[:, K.G_T] <= t_to)]
-        if len(rows) < 20:
+        y, naming_sd, slow_sd, fmask = self.end_rows(ev)
+        if len(y) < 20:
             return None
-        y = self._without(ev, rows, t0)
-        y[:, K.G_E:K.G_E + 6] -= base
         f, fits, tied = shapes.end_look(y, naming_sd, self.tool, t0, fmask, slow_sd=slow_sd)
         live = [g for g in fits if g.shape in shapes.SHAPES]
         out = {"shape": f.shape, "ties": tied,
