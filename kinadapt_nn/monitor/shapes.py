@@ -34,7 +34,10 @@ wrench (``kernel.predict``) changes by ``dF = m dga - dal x mc - dom x (om x mc)
 mc x dga - I_O dal - dom x (I_O om) - om x (I_O dom)`` with ``dga = ga x a``, ``dal = al x a``, ``dom = om x
 a``. At rest that is the exact derivative of the model in q_j (``tests/monitor/test_encoder_shape.py`` checks
 it against central differences of ``kernel.predict`` on the arm's kinematics); moving, the joints beyond j
-also turn the twist in the world, a change of order ``delta |qdot|`` left out. One joint at a time, as the
+also turn the twist in the world, a change of order ``delta |qdot|`` left out. At rest an offset about ``a``
+is the mount turned by ``delta a`` plus the tool's first moment turned about ``a`` (``dmc = delta a x mc``;
+Jacobi: ``mc x (g x a) = (mc x g) x a + (a x mc) x g``): the tool's gravity moment tells the two apart.
+One joint at a time, as the
 offline library's ``encoder_offset`` (``one_of``): each joint's column is fitted alone and the best kept
 (``Fit.joint``), one parameter; a joint whose axis is the sensor's z axis at every row is left out (its turn
 is ``ft_frame_rotation``'s about z_s, as the diagnosis leaves it out where the mount is known), and so is a

@@ -223,3 +223,26 @@ def test_the_tools_gravity_moment_tells_a_turned_mount_from_an_offset():
     assert best.shape == "ft_frame_rotation" and "encoder_offset" not in tied
     enc = next(f for f in fits if f.shape == "encoder_offset")
     assert enc.bic - best.bic > 10.0
+
+
+def test_an_offset_is_a_turned_mount_plus_a_turned_first_moment(rig):
+    """At rest, on the declared tool's own reading: an offset ``delta`` about ``a`` is the mount turned by
+    ``delta a`` (``ft_frame_rotation``: ``r x delta a``) plus the tool's first moment turned about ``a``
+    (``tool_gravity``'s ``dmc = delta a x mc``): the Jacobi identity ``mc x (g x a) = (mc x g) x a + (a x mc)
+    x g``, the forces alike. So with the tool's first moment free the two shapes differ only where ``a`` turns
+    in s (``benchmarks/monitor_encoder_rivals.py``)."""
+    _, arm, c, tool = rig
+    qs = Q0[None, :] + 0.3 * np.sin(np.linspace(0.0, 3.0, 40))[:, None] * np.linspace(1.0, 0.4, 7)
+    rows = _kernel_rows(c, arm, qs, np.zeros_like(qs))
+    for i, r in enumerate(rows):  # the reading: the declared tool's wrench at that pose
+        out = np.empty(6)
+        K.predict(c, K.new_state()[0], 0.0, r[K.G_R:K.G_R + 9].reshape(3, 3), np.zeros(3), np.zeros(3),
+                  r[K.G_GA:K.G_GA + 3], out)
+        rows[i, K.G_RM:K.G_RM + 6] = out
+    for j in (1, 2, 4):
+        a = shapes.joint_axes(rows)[:, j]  # (n, 3)
+        enc = shapes.columns("encoder_offset", rows, tool, 0.0, j)[:, :, 0]
+        turn = np.einsum("nij,nj->ni", shapes.columns("ft_frame_rotation", rows, tool, 0.0), a)
+        moment = np.einsum("nij,nj->ni", shapes.columns("tool_gravity", rows, tool, 0.0)[:, :, 1:], np.cross(a, tool.mc))
+        assert np.linalg.norm(enc - turn) > 1e-4  # not the turn alone: the tool's gravity moment
+        assert np.allclose(enc, turn + moment, atol=1e-12)
