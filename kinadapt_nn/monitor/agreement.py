@@ -5,8 +5,9 @@ Each side says, at the end of a run, which effects it finds and whether it can t
 
 * The monitor: each open event names a shape (``shapes.SHAPES``). Its end-of-run look (``Event.at_end``:
   every shape fitted again on all the samples since the event's onset -- the log the offline diagnosis of
-  the run judges) gives the best shape and its near-ties (``shapes.ties``); without it the event as named
-  live. An event with no tie is *decided*; with ties it is *undecided* among them.
+  the run judges) gives the best shape and its near-ties (``shapes.end_look``: ``encoder_offset`` among the
+  rivals, never the best); without it the event as named live. An event with no tie is *decided*; with
+  ties it is *undecided* among them.
 * The diagnosis (``diagnosis.json``): the effects it judges ``present`` are decided; an effect it cannot
   decide on as a near-tie is undecided among its ``indistinguishable_from``. A hint shape (outside the
   library: a world-frame force) is named by its leading hint (``unexplained.hints[0]``, the one its summary
