@@ -33,8 +33,10 @@ vector x seen from the turned sensor frame is ``x + delta x x a`` to first order
 wrench (``kernel.predict``) changes by ``dF = m dga - dal x mc - dom x (om x mc) - om x (dom x mc)``, ``dM =
 mc x dga - I_O dal - dom x (I_O om) - om x (I_O dom)`` with ``dga = ga x a``, ``dal = al x a``, ``dom = om x
 a``. At rest that is the exact derivative of the model in q_j (``tests/monitor/test_encoder_shape.py`` checks
-it against central differences of ``kernel.predict`` on the arm's kinematics); moving, the joints beyond j
-also turn the twist in the world, a change of order ``delta |qdot|`` left out. At rest an offset about ``a``
+it against central differences of ``kernel.predict`` on the arm's kinematics); moving, the sensor's
+acceleration also changes with the joint's angle (its centripetal and tangential parts), which the column
+leaves out: of order ``|qdot|^2 L / |g|`` of it (L ~ 1 m, the arm's reach; the test bounds it at 0.5 rad/s).
+At rest an offset about ``a``
 is the mount turned by ``delta a`` plus the tool's first moment turned about ``a`` (``dmc = delta a x mc``;
 Jacobi: ``mc x (g x a) = (mc x g) x a + (a x mc) x g``): the tool's gravity moment tells the two apart.
 One joint at a time, as the
