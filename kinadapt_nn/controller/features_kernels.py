@@ -14,7 +14,7 @@ import math
 import numba as nb
 import numpy as np
 
-from kinadapt_nn.controller.dense import dot, mm, vcopy
+from kinadapt_nn.controller.dense import dot, vcopy
 from kinadapt_nn.controller.layout import (L_M, L_N, L_P, V_LNOM, V_N)
 
 @nb.njit(cache=True)
@@ -84,22 +84,42 @@ def _adjoint_twist_jacobian(b, R, theta, c, mats):
     """S Ad(R theta) (6, 6) with the depth row on the nominal lever (AdjointFeatures.twist_jacobian)."""
     S = mats[0]
     Rb = R[b]
-    a = np.empty(3)
-    for i in range(3):
-        a[i] = Rb[i, 0] * theta[0] + Rb[i, 1] * theta[1] + Rb[i, 2] * theta[2]
+    a0 = Rb[0, 0] * theta[0] + Rb[0, 1] * theta[1] + Rb[0, 2] * theta[2]
+    a1 = Rb[1, 0] * theta[0] + Rb[1, 1] * theta[1] + Rb[1, 2] * theta[2]
+    a2 = Rb[2, 0] * theta[0] + Rb[2, 1] * theta[1] + Rb[2, 2] * theta[2]
     l0, l1, l2 = _lever(b, R, c)
     Jx = np.empty((6, 6))  # S Ad(l) = [S_v, S_w - S_v [l]x]
     for i in range(6):
         vcopy(Jx[i], S[i])
     for i in range(6):
         if i == 0:
-            v0, v1, v2, a0, a1, a2 = S[0, 0], S[0, 1], S[0, 2], l0, l1, l2
+            v0, v1, v2, u0, u1, u2 = S[0, 0], S[0, 1], S[0, 2], l0, l1, l2
         else:
-            v0, v1, v2, a0, a1, a2 = S[i, 0], S[i, 1], S[i, 2], a[0], a[1], a[2]
-        Jx[i, 3] -= v1 * a2 - v2 * a1  # row i of S_v [a]x is v^T [a]x = (v x a)^T
-        Jx[i, 4] -= v2 * a0 - v0 * a2
-        Jx[i, 5] -= v0 * a1 - v1 * a0
+            v0, v1, v2, u0, u1, u2 = S[i, 0], S[i, 1], S[i, 2], a0, a1, a2
+        Jx[i, 3] -= v1 * u2 - v2 * u1  # row i of S_v [a]x is v^T [a]x = (v x a)^T
+        Jx[i, 4] -= v2 * u0 - v0 * u2
+        Jx[i, 5] -= v0 * u1 - v1 * u0
     return Jx
+
+
+@nb.njit(cache=True)
+def _twist_jacobian_times(Jx, Jb):
+    """Jx @ Jb (6, n) for Jx = S Ad(.) (6, 6) (:func:`_adjoint_twist_jacobian`; S mostly zeros) and
+    the arm's Jacobian Jb (6, n): each entry summed from 0.0 over Jx's non-zeros in r's order.
+    ``dense.mm``'s sums to the bit: a left-out term is an exact zero (Jb is finite: the forward
+    kinematics of finite encoder readings), and adding a zero to a sum that starts at +0.0 changes
+    no bit."""
+    n = Jb.shape[1]
+    out = np.empty((6, n))
+    for i in range(6):
+        for j in range(n):
+            v = 0.0
+            for r in range(6):
+                a = Jx[i, r]
+                if a != 0.0:
+                    v += a * Jb[r, j]
+            out[i, j] = v
+    return out
 
 
 
@@ -169,7 +189,7 @@ def _known_at_prior(b, inp, R, J, lay, c, mats, fx, known):
 @nb.njit(cache=True)
 def _jhat_prior(b, R, J, c, mats, fx):
     """The learned features' known Jacobian K(q) = S Ad(R l_prior) J (6, n) (l_prior = fx[2:5])."""
-    return mm(_adjoint_twist_jacobian(b, R, fx[2:5], c, mats), J[b])
+    return _twist_jacobian_times(_adjoint_twist_jacobian(b, R, fx[2:5], c, mats), J[b])
 
 
 @nb.njit(cache=True)

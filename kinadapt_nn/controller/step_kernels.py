@@ -20,10 +20,11 @@ import numba as nb
 import numpy as np
 
 from kinadapt_nn.controller.arm_chain import _fk
-from kinadapt_nn.controller.dense import chol, chol_solve, gram_sparse_log, mm, mm_nt, sym_eigmin, vcopy, vfill
+from kinadapt_nn.controller.dense import (chol, chol_solve, gram_lower, gram_sparse_log, mirror_lower, sym_eigmin, vcopy,
+                                          vfill)
 from kinadapt_nn.controller.features_kernels import (_adjoint_drive, _adjoint_regressor, _adjoint_twist_jacobian,
                                                      _jhat_prior, _lever, _neural_body, _neural_jhat, _neural_rows,
-                                                     _rbf_jhat, _rbf_psi, _rbf_rows)
+                                                     _rbf_jhat, _rbf_psi, _rbf_rows, _twist_jacobian_times)
 from kinadapt_nn.controller.layout import (ALPHA, BLEND, C_F, C_M, DAMP, DITHER_ON, DT, D_STAR, EXCITE, FEAT,
                                            FEAT_ADJOINT, FEAT_NEURAL, FEAT_RBF, FEAT_TWIST, F_GATE, F_MAX, INV_TAU,
                                            K_BAD_RUN, K_D, K_DONE, K_DROPOUTS, K_ERROR, K_GRAM_N, K_HAVE_HELD,
@@ -331,19 +332,24 @@ def law_kernel(reg, x, k, lay, c, pv, lc, law_fn, out):
 
 @nb.njit(cache=True)
 def _rank_margin(b, Jh, c, out, lay):
-    """lambda_min(W J_hat J_hat^T W) (the rank gate); with RANK_ON = 2 only the gate (Cholesky)."""
-    WJ = np.empty(Jh.shape)
+    """lambda_min(W J_hat J_hat^T W) (the rank gate); with RANK_ON = 2 only the gate (Cholesky).
+    ``Jh`` (6, n): the caller's own new array, scaled by W in place. The Gram is summed on its
+    lower triangle, all the Cholesky reads (``dense.gram_lower``: mm_nt's sums, to the bit)."""
+    n = Jh.shape[1]
     for i in range(6):
-        for j in range(Jh.shape[1]):
-            WJ[i, j] = Jh[i, j] * c[V_W + i]
-    G = mm_nt(WJ, WJ)
+        w = c[V_W + i]
+        for j in range(n):
+            Jh[i, j] *= w
+    G = np.empty((6, 6))
+    gram_lower(Jh, G)
     if c[RANK_ON] == 2.0:  # gate only: lambda_min > gate  <=>  G - gate I is positive definite
         for i in range(6):
             G[i, i] -= c[RANK_GATE_V]
         if chol(G, 6):
             out[b, lay[O_LAM]] = np.inf
             return
-        G = mm_nt(WJ, WJ)
+        gram_lower(Jh, G)
+    mirror_lower(G)
     out[b, lay[O_LAM]] = sym_eigmin(G)
 
 
@@ -435,7 +441,7 @@ def _adjoint_drive_part(b, R, J, Lc, st, theta, lay, c, mats, fx, out, drive):
 @nb.njit(cache=True)
 def _adjoint_rank(b, R, J, st, theta, lay, c, mats, out):
     """The rank gate of the next step's J_hat = S Ad(R theta) J."""
-    _rank_margin(b, mm(_adjoint_twist_jacobian(b, R, theta[:3], c, mats), J[b]), c, out, lay)
+    _rank_margin(b, _twist_jacobian_times(_adjoint_twist_jacobian(b, R, theta[:3], c, mats), J[b]), c, out, lay)
 
 
 def _learned_rows(b, inp, R, J, reg, lay, c, mats, fx):

@@ -34,7 +34,7 @@ import math
 import numba as nb
 import numpy as np
 
-from kinadapt_nn.controller.dense import chol, chol_solve_cols, mm, mm_nt, vcopy
+from kinadapt_nn.controller.dense import SMALL, chol, chol_solve_cols, mm, mm_nt, vcopy
 from kinadapt_nn.controller.laws import tracking
 from kinadapt_nn.controller.laws.base import LawSpec, LawState, LawView, config_key
 
@@ -150,6 +150,15 @@ def _tracking_term(P, PhiF, c, d_track, th):
     ``th``. P PhiF as sum_j PhiF_j P[j, :] (P is exactly symmetric: rows are columns; contiguous
     row sweeps vectorise)."""
     p = th.shape[0]
+    g = -c[DT] * c[GAMMA_D]
+    if p <= SMALL:  # (dense.SMALL: the same sums in scalars)
+        for i in range(p):
+            v = 0.0
+            for j in range(p):
+                v += PhiF[j] * P[j, i]
+            d_track[i] = v * g
+            th[i] += d_track[i]
+        return
     for i in range(p):
         d_track[i] = 0.0
     for j in range(p):
@@ -157,7 +166,6 @@ def _tracking_term(P, PhiF, c, d_track, th):
         Pj = P[j]
         for i in range(p):
             d_track[i] += v * Pj[i]
-    g = -c[DT] * c[GAMMA_D]
     for i in range(p):
         d_track[i] *= g
         th[i] += d_track[i]
@@ -168,18 +176,25 @@ def _act_identified(theta, th, prior, A):
     """theta = prior + Pi (th - prior): act on the identified part only, Pi dth = sum_j dth_j
     Pi[:, j] (``A`` holds Pi^T)."""
     p = th.shape[0]
-    dth = np.empty(p)
+    if p <= SMALL:  # (dense.SMALL: the same sums in scalars)
+        for i in range(p):
+            v = 0.0
+            for j in range(p):
+                d = th[j] - prior[j]
+                if d != 0.0:
+                    v += d * A[j, i]
+            theta[i] = prior[i] + v
+        return
+    for i in range(p):  # theta (written only: neither th nor prior) sums Pi dth first
+        theta[i] = 0.0
     for j in range(p):
-        dth[j] = th[j] - prior[j]
-    act = np.zeros(p)
-    for j in range(p):
-        v = dth[j]
+        v = th[j] - prior[j]
         if v != 0.0:
             Aj = A[j]
             for i in range(p):
-                act[i] += v * Aj[i]
+                theta[i] += v * Aj[i]
     for i in range(p):
-        theta[i] = prior[i] + act[i]
+        theta[i] = prior[i] + theta[i]
 
 
 @nb.njit(cache=True)
@@ -204,32 +219,12 @@ def _measurement_update(P, H_T, e_kf, R, d_pred):
     False (nothing changed) when H P H^T + diag R is not positive definite.
 
     Written for the sparse rows of per-entry features (the RBF's row i touches only its own block
-    of theta): zeros of H are skipped, the rank-m downdate is formed on the lower triangle and
-    mirrored (P stays exactly symmetric)."""
+    of theta): the products with a zero of H are skipped (each sum runs over H's non-zeros in
+    order), the rank-m downdate is formed on the lower triangle and mirrored (P stays exactly
+    symmetric)."""
     p, m = H_T.shape
-    nz = np.empty((m, p), dtype=np.int64)  # per row of H, its non-zero columns
-    cnt = np.zeros(m, dtype=np.int64)
-    for j in range(m):
-        for r in range(p):
-            if H_T[r, j] != 0.0:
-                nz[j, cnt[j]] = r
-                cnt[j] += 1
-    HP = np.zeros((m, p))  # H P = (P H^T)^T, row j = sum_r H[j, r] P[r, :] (P symmetric)
-    for j in range(m):
-        for a in range(cnt[j]):
-            r = nz[j, a]
-            h = H_T[r, j]
-            for i in range(p):
-                HP[j, i] += h * P[r, i]
-    S = np.empty((m, m))  # (m, m) = H P H^T + R
-    for i in range(m):
-        for j in range(m):
-            v = 0.0
-            for a in range(cnt[i]):
-                r = nz[i, a]
-                v += H_T[r, i] * HP[j, r]
-            S[i, j] = v
-        S[i, i] += R[i]
+    HP = _h_p(P, H_T)
+    S = _h_p_ht(H_T, HP, R)
     if not chol(S, m):
         return False
     X = HP.copy()  # K^T = S^-1 (H P), every column at once
@@ -247,26 +242,78 @@ def _measurement_update(P, H_T, e_kf, R, d_pred):
 
 
 @nb.njit(cache=True)
+def _h_p(P, H_T):
+    """H P (m, p) = (P H^T)^T, row j = sum_r H[j, r] P[r, :] (P symmetric), each entry summed from
+    0.0 over H's non-zeros in r's order: up to ``dense.SMALL`` parameters in scalars, else by row
+    sweeps (the same sums)."""
+    p, m = H_T.shape
+    HP = np.zeros((m, p))
+    for j in range(m):
+        if p <= SMALL:
+            for i in range(p):
+                v = 0.0
+                for r in range(p):
+                    h = H_T[r, j]
+                    if h != 0.0:
+                        v += h * P[r, i]
+                HP[j, i] = v
+            continue
+        HPj = HP[j]
+        for r in range(p):
+            h = H_T[r, j]
+            if h != 0.0:
+                Pr = P[r]
+                for i in range(p):
+                    HPj[i] += h * Pr[i]
+    return HP
+
+
+@nb.njit(cache=True)
+def _h_p_ht(H_T, HP, R):
+    """S = H P H^T + diag R (m, m): S[i, j] = sum_r H[i, r] HP[j, r], summed from 0.0 over H's
+    non-zeros in r's order (in scalars up to ``dense.SMALL`` parameters, else by sweeps over j)."""
+    p, m = H_T.shape
+    S = np.zeros((m, m))
+    for i in range(m):
+        if p <= SMALL:
+            for j in range(m):
+                v = 0.0
+                for r in range(p):
+                    h = H_T[r, i]
+                    if h != 0.0:
+                        v += h * HP[j, r]
+                S[i, j] = v
+        else:
+            for r in range(p):
+                h = H_T[r, i]
+                if h != 0.0:
+                    for j in range(m):
+                        S[i, j] += h * HP[j, r]
+        S[i, i] += R[i]
+    return S
+
+
+@nb.njit(cache=True)
 def _downdate_lower(P, X, HP):
     """P[i, :i+1] -= sum_r X[r, i] HP[r, :i+1] for every row i (the lower triangle of P - K H P,
     K^T = X (m, p), HP (m, p)): the terms with X[r, i] = 0 left out, the others summed from 0.0 in
-    r's order. A row with all six terms of m = 6 is one pass over the row (a straight-line sum per
-    entry that vectorises, with the roundings of accumulating the terms one by one: 22 -> 14 us
-    at p = 210); any other row, one pass per term."""
+    r's order. For m = 6 every row is one pass (a straight-line sum per entry that vectorises: 22
+    -> 14 us at p = 210) of all six terms: a term X[r, i] HP[r, j] with X[r, i] = 0 is an exact
+    zero (HP is finite), and adding a zero to a sum that starts at +0.0 changes no bit (the sum is
+    never -0.0), so the result is the sum of the non-zero terms, to the bit. Any other m: one pass
+    per non-zero term."""
     p = P.shape[0]
     m = X.shape[0]
+    if m == 6:
+        for i in range(p):
+            a0, a1, a2, a3, a4, a5 = X[0, i], X[1, i], X[2, i], X[3, i], X[4, i], X[5, i]
+            Pi = P[i]
+            for j in range(i + 1):
+                Pi[j] -= (((((0.0 + a0 * HP[0, j]) + a1 * HP[1, j]) + a2 * HP[2, j]) + a3 * HP[3, j])
+                          + a4 * HP[4, j]) + a5 * HP[5, j]
+        return
     row = np.empty(p)
     for i in range(p):
-        full = m == 6
-        for r in range(m):
-            if X[r, i] == 0.0:
-                full = False
-        if full:
-            a0, a1, a2, a3, a4, a5 = X[0, i], X[1, i], X[2, i], X[3, i], X[4, i], X[5, i]
-            for j in range(i + 1):
-                P[i, j] -= (((((0.0 + a0 * HP[0, j]) + a1 * HP[1, j]) + a2 * HP[2, j]) + a3 * HP[3, j])
-                            + a4 * HP[4, j]) + a5 * HP[5, j]
-            continue
         for j in range(i + 1):
             row[j] = 0.0
         for r in range(m):
