@@ -220,8 +220,7 @@ JACK_BLOCKS = 10
 
 
 def fit(shape: str, rows: np.ndarray, sd: np.ndarray, tool: Tool, t_onset: float,
-        fired: np.ndarray | None = None, jackknife: bool = False, model_sd: np.ndarray | None = None,
-        joint: int = -1) -> Fit:
+        fired: np.ndarray | None = None, jackknife: bool = False, model_sd: np.ndarray | None = None) -> Fit:
     """``_fit1``; with ``jackknife`` the covariance also counts what the noise sd does not: errors of
     the model that persist in time (a residual correlated over many samples). The delete-one-block
     jackknife over ``JACK_BLOCKS`` contiguous blocks estimates the spread such errors give within the
@@ -230,7 +229,7 @@ def fit(shape: str, rows: np.ndarray, sd: np.ndarray, tool: Tool, t_onset: float
     makes to the estimate (``sum_c d_c d_c^T``, d_c the estimate's shift when channel c's residual is
     shifted by ``model_sd[c]``: exact for the linear shapes). The covariance is the white-noise one plus
     both. ``encoder_offset``: the best joint (``_fit1``), kept for the jackknife's and the shifts' refits."""
-    f = _fit1(shape, rows, sd, tool, t_onset, fired, joint)
+    f = _fit1(shape, rows, sd, tool, t_onset, fired)
     if f is None:
         raise ValueError("encoder_offset: the rows hold no joint axis it may be of (kernel.new_state(nj), "
                          "encoder_joints)")
