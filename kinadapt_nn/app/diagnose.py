@@ -124,14 +124,9 @@ def cmd_diagnose_run(args: argparse.Namespace) -> int:
     progress("reading the run; its set-up generated from its config")
     log, setup = ownrun.as_log(src, cfg, list(args.effects or []), tip, (None, None) if window is None else
                                (window.from_s, None))
-    base_tool = None
-    if window is not None:  # the tool the window is judged against: calibrated on the log before the onset
-        progress(f"the tool calibrated on the log before the monitor's event ({window.onset_s:.2f} s)")
-        setup, base_tool = ownrun.baseline_tool(src, cfg, list(args.effects or []), tip, window.onset_s, setup)
     res = diagnose(log, setup, list(args.add or []), progress=progress)
     if window is not None:
-        res = dataclasses.replace(res, report=_with_window(res.report, window, src, cfg, args, tip, progress,
-                                                            base_tool))
+        res = dataclasses.replace(res, report=_with_window(res.report, window, src, cfg, args, tip, progress))
     if args.baseline and args.add:
         res = dataclasses.replace(res, report=_with_effect_free_level(res.report, Path(args.baseline), args,
                                                                       tip, progress))
@@ -146,11 +141,10 @@ def cmd_diagnose_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _with_window(report, window, src: Path, cfg, args: argparse.Namespace, tip, progress, base_tool=None):
+def _with_window(report, window, src: Path, cfg, args: argparse.Namespace, tip, progress):
     """``report`` (the log from the monitor's event on) with the section ``window``: where it starts
-    and why, the tool calibrated on the baseline (``base_tool``: ``ownrun.baseline_tool``'s section),
-    and the log before the onset diagnosed on its own as the baseline against the declared tool (its
-    present effects were there before the change; hints not sought). The summary leads with it."""
+    and why, and the log before the onset diagnosed on its own as the baseline (its present effects
+    were there before the change; hints not sought). The summary leads with it."""
     from kinadapt_nn.diagnostics import ownrun
     from kinadapt_nn.diagnostics.report import Report
     from kinadapt_nn.diagnostics.userlog import diagnose, summary_text
@@ -168,7 +162,7 @@ def _with_window(report, window, src: Path, cfg, args: argparse.Namespace, tip, 
     sections = {**report.sections, "window": {
         "from_s": window.from_s, "onset_s": window.onset_s, "why": "the monitor's first open event",
         "event": window.line, "monitor_shapes": list(window.shapes), "later_onsets_s": list(window.later),
-        "before": before, **({"baseline_tool": base_tool} if base_tool is not None else {})}}
+        "before": before}}
     return Report.of(sections, summary_text)
 
 

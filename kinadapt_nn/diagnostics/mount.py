@@ -672,51 +672,6 @@ def fit_at(D: np.ndarray, d: MountData, iters: int = 8) -> tuple[np.ndarray, np.
     return theta[:N_THETA], res
 
 
-class ToolFit(NamedTuple):
-    """The tool's mass and first moment at the declared mount (``tool_at_mount``)."""
-
-    mass_kg: float
-    mc_kg_m: np.ndarray  #: (3,) [kg m] first moment, sensor frame
-    sd: np.ndarray  #: (4,) of [m, m c]
-    samples: int  #: samples the fit used
-
-
-def tool_at_mount(s, free: np.ndarray, sigma: np.ndarray, prior_sd: np.ndarray, iters: int = 8) -> ToolFit:
-    """The tool's mass and first moment ``[m, m c]`` (4,) on the samples ``free`` (n,) bool of
-    ``LogSignals`` s, with the mount's rotation the declared one and no offset (an untared log's
-    nominal model: ``[m, m c]`` and nothing else change): the calibration a part of a log gives the
-    rest of it (``ownrun.baseline_tool``). Noise-weighted least squares (``sigma`` (6,)) with Huber
-    IRLS as ``fit_at``, the declared inertia's own terms kept, and the declared ``[m, m c]`` as a prior
-    of sd ``prior_sd`` (4,) [kg, kg m]: a direction the samples do not excite (the first moment along a
-    gravity that barely turns) stays at the declared value instead of an arbitrary one. sd: the
-    posterior's, scaled by the weighted residual's chi^2 per degree of freedom where above 1.
-    -> ``ToolFit``."""
-    from kinadapt_nn.diagnostics.physical import nominal_inertials
-
-    idx = np.flatnonzero(free)
-    if len(idx) > MAX_ROWS:
-        idx = idx[np.linspace(0, len(idx) - 1, MAX_ROWS).round().astype(int)]
-    m0, mc0, I_O = nominal_inertials(s.setup)
-    d = MountData(s.g_s[idx] - s.a_s[idx], s.omega_s[idx], s.alpha_s[idx], s.wrench[idx], 1.0 / sigma, I_O,
-                  np.zeros(len(idx), int))
-    A, c = _mass_part(np.eye(3), d)
-    y = d.r - c
-    prior = np.concatenate([[m0], mc0])
-    P = 1.0 / np.asarray(prior_sd, dtype=float) ** 2
-    rw = np.ones_like(y)
-    for _ in range(iters + 1):
-        sw = d.w * np.sqrt(rw)
-        Aw, yw = (A * sw[:, :, None]).reshape(-1, 4), (y * sw).reshape(-1)
-        H = Aw.T @ Aw + np.diag(P)
-        theta = np.linalg.solve(H, Aw.T @ yw + P * prior)
-        res = y - np.einsum("nik,k->ni", A, theta)
-        rw = _huber((res * d.w).reshape(-1))
-    e = (res * d.w).reshape(-1)
-    scale = max(1.0, float(e @ e) / max(len(e) - 4, 1))
-    sd = np.sqrt(np.diag(np.linalg.inv(H)) * scale)
-    return ToolFit(float(theta[0]), theta[1:4].copy(), sd, int(len(idx)))
-
-
 def plausibility(fitm: "MountFit", setup) -> list[str]:
     """Why the calibration fit is not a physical tool on a physical sensor (empty: plausible). A
     tool much heavier than declared is implausible only when the log does not determine its mass

@@ -34,14 +34,7 @@ diagnosis is taken as present through the whole log it judges. ``monitor_window`
 open event there (only the ``monitor`` section: the summary's truth, ``hidden_effects``, is not read);
 the diagnosis then judges the log from that onset on (the monitor's settle time after it left out,
 as the monitor's own fit does), and the log before the onset is its effect-free baseline, diagnosed
-on its own (``kinadapt diagnose RUN``; ``--whole-log`` judges the whole log as one). The baseline
-also calibrates the tool the window is judged against (``baseline_tool``): what was there before the
-change -- the nominal tool's own error, which the controller adapts (the peg at ``tool.offset_f_m``,
-declared at ``sensing.nominal_offset_f_m``) -- is not a finding of the window. Judged against the
-declared tool instead, that error (a first moment of 3e-4 kg m on the monitor scenarios, 2/3 of the
-window's noise-weighted residual, all in M_x and M_y, as large before the onset as after) was named
-``tool_tilt`` in the window, and with the tool's first moment in the model a turned mount could no
-longer be told from a joint's encoder offset (``effects.builtin.encoder_offset``).
+on its own (``kinadapt diagnose RUN``; ``--whole-log`` judges the whole log as one).
 """
 
 from __future__ import annotations
@@ -139,48 +132,6 @@ def monitor_window(folder) -> Window | None:
     return Window(t0 + SETTLE_S, t0, str(first.get("line", first.get("shape", ""))),
                   tuple(str(e.get("shape", "")) for e in opened),
                   tuple(sorted(float(e["onset_s"]) for e in opened if e is not first)))
-
-
-#: [samples] a baseline with fewer free-space samples calibrates nothing: the declared tool stands
-MIN_BASELINE_SAMPLES = 200
-
-
-def baseline_tool(src, cfg: ExperimentCfg | None, effects_files, tip_sensor_m, onset_s: float,
-                  setup: SetupCfg) -> tuple[SetupCfg, dict]:
-    """``setup`` (the judged window's) with its tool's mass and centre of mass calibrated on the
-    baseline, the log of ``src`` before ``onset_s`` [s] run time (module docstring): its free-space
-    samples (contact detected as every diagnosis does, ``userlog.calibrate``), the mount declared, no
-    offset (``mount.tool_at_mount``; the declared tool a prior of ``tool_gravity``'s relevant sizes).
-    A baseline too short to diagnose, with fewer than ``MIN_BASELINE_SAMPLES`` free samples, or a
-    mass that is not positive keeps the declared tool. -> (set-up, the ``window.baseline_tool``
-    section: what was calibrated, or why not)."""
-    from kinadapt_nn.diagnostics import mount, userlog
-    from kinadapt_nn.diagnostics import signals as sg
-    from kinadapt_nn.effects.builtin.tool_gravity import RELEVANT_FIRST_MOMENT_KG_M, RELEVANT_MASS_KG
-
-    declared = {"declared_mass_kg": float(setup.tool.mass_kg),
-                "declared_com_sensor_m": [float(v) for v in setup.tool.com_sensor_m]}
-    try:
-        blog, bsetup = as_log(src, cfg, effects_files, tip_sensor_m, (None, onset_s))
-        cal = userlog.calibrate(blog, sg.from_log(blog, bsetup), bsetup, None, userlog.RowCfg(), lambda msg: None)
-    except KinadaptError as exc:
-        return setup, {"calibrated": False, "why": f"the baseline was not calibrated ({exc})", **declared}
-    free = ~cal.signals.contact & ~userlog.excluded_samples(cal.signals, bsetup)
-    if int(free.sum()) < MIN_BASELINE_SAMPLES:
-        return setup, {"calibrated": False, "why": f"{int(free.sum())} free-space samples before the onset, "
-                       f"{MIN_BASELINE_SAMPLES} needed", **declared}
-    fit = mount.tool_at_mount(cal.signals, free, cal.sigma,
-                              np.array([RELEVANT_MASS_KG] + [RELEVANT_FIRST_MOMENT_KG_M] * 3))
-    if fit.mass_kg <= 0.0:
-        return setup, {"calibrated": False, "why": f"the baseline's tool weighs {fit.mass_kg:.3g} kg", **declared}
-    com = fit.mc_kg_m / fit.mass_kg
-    tool = setup.tool.model_copy(update={"mass_kg": fit.mass_kg, "com_sensor_m": tuple(float(v) for v in com)})
-    return setup.model_copy(update={"tool": tool}), {
-        "calibrated": True, "mass_kg": fit.mass_kg, "mass_sd_kg": float(fit.sd[0]),
-        "com_sensor_m": [float(v) for v in com], "first_moment_sd_kg_m": [float(v) for v in fit.sd[1:]],
-        "samples": fit.samples, **declared,
-        "how": "mass and first moment fitted on the baseline's free space at the declared mount, no offset "
-               "(mount.tool_at_mount); the window is judged against this tool"}
 
 
 def cut(raw, from_s: float | None = None, to_s: float | None = None):
@@ -287,5 +238,5 @@ def rerun_with_effects(src: Path, add: list[str]):
     return cfg, result, info
 
 
-__all__ = ["Window", "as_log", "baseline_tool", "calibrated_tip", "check_rerun", "cut", "log_of_run", "monitor_window",
+__all__ = ["Window", "as_log", "calibrated_tip", "check_rerun", "cut", "log_of_run", "monitor_window",
            "rerun_with_effects", "setup_of_run"]

@@ -112,14 +112,6 @@ def _window_text(w: dict) -> str:
                 "change).")
     else:
         out += f" before {b['to_s']:.2f} s no library effect is present."
-    bt = w.get("baseline_tool") or {}
-    if bt.get("calibrated"):
-        out += (f" The window is judged against the tool calibrated on the baseline: {bt['mass_kg']:.3g} kg, its "
-                "centre of mass at (" + ", ".join(f"{1e3 * v:.1f}" for v in bt["com_sensor_m"]) + ") mm (declared "
-                f"{bt['declared_mass_kg']:.3g} kg at (" + ", ".join(f"{1e3 * v:.1f}" for v in bt["declared_com_sensor_m"])
-                + ") mm).")
-    elif bt:
-        out += f" The declared tool stands: {bt['why']}."
     if w.get("later_onsets_s"):
         out += " The monitor's later events from " + ", ".join(f"{v:.2f} s" for v in w["later_onsets_s"]) + \
             " fall inside the judged log."
