@@ -17,7 +17,7 @@ import numpy as np
 from kinadapt_nn.controller.dense import dot, vcopy
 from kinadapt_nn.controller.layout import (L_M, L_N, L_P, V_LNOM, V_N)
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _adjoint_regressor(b, inp, R, J, lay, c, mats, known, Phi_T):
     """Adjoint regressor on the realised velocity: known = S xi + e_0 n . (w x R l_nom),
     Phi = S_v [w]x R (Phi_T (p=3, m)), xi = J qdot."""
@@ -47,7 +47,7 @@ def _adjoint_regressor(b, inp, R, J, lay, c, mats, known, Phi_T):
     known[0] += n0 * (w1 * lw2 - w2 * lw1) + n1 * (w2 * lw0 - w0 * lw2) + n2 * (w0 * lw1 - w1 * lw0)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _lever(b, R, c):
     """R l_nom: the nominal lever, world."""
     Rb = R[b]
@@ -56,7 +56,7 @@ def _lever(b, R, c):
             Rb[2, 0] * c[V_LNOM] + Rb[2, 1] * c[V_LNOM + 1] + Rb[2, 2] * c[V_LNOM + 2])
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _adjoint_drive(b, R, theta, F, c, mats, drive):
     """(S Ad(R theta))^T F without forming it (AdjointFeatures.twist_drive): with a = R theta,
     u = S_v^T F, m = F_0 n: [S_v^T F + m; S_w^T F + a x u + lw x m]."""
@@ -79,7 +79,7 @@ def _adjoint_drive(b, R, theta, F, c, mats, drive):
 
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _adjoint_twist_jacobian(b, R, theta, c, mats):
     """S Ad(R theta) (6, 6) with the depth row on the nominal lever (AdjointFeatures.twist_jacobian)."""
     S = mats[0]
@@ -102,7 +102,7 @@ def _adjoint_twist_jacobian(b, R, theta, c, mats):
     return Jx
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _twist_jacobian_times(Jx, Jb):
     """Jx @ Jb (6, n) for Jx = S Ad(.) (6, 6) (:func:`_adjoint_twist_jacobian`; S mostly zeros) and
     the arm's Jacobian Jb (6, n): each entry summed from 0.0 over Jx's non-zeros in r's order.

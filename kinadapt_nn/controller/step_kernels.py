@@ -9,6 +9,14 @@ The sequence is written once (``_step``); what a features kind changes in it is 
 (front, rows, drive, rank gate), and each kernel is ``_step``'s code compiled with its kind's parts
 (``_kernel``): the code numba emits is what the sequence written out per kind gave (one level, the
 parts called directly), so speed and compile time are unchanged and each kind compiles only its own.
+
+The small parts a period calls once per episode (intake, sense, the regressor filter, the
+features' parts and the rank gate; ``features_kernels``' adjoint parts) are inlined by numba
+(``inline="always"``): a call passes each array as 7-11 values, which cost more than these parts'
+arithmetic (measured on a recorded 64-episode batch, kernel CPU time per episode-step: 3.31 ->
+2.82 us, the cold compile 14.4 -> 15.0 s; the same numbers to the bit). ``_act_head``,
+``_act_tail``, ``_law`` and the law's own parts are not: inlined, they saved 0.03 us and cost
+4.4 s of compile.
 """
 
 from __future__ import annotations
@@ -45,7 +53,7 @@ def intake_kernel(inp, x, k, lay, c):
         _intake(b, inp, x, k, lay, c)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _intake(b, inp, x, k, lay, c):
     """Episode b's sample: kept (and remembered) when finite, else the last valid one is held."""
     n = lay[L_N]
@@ -73,7 +81,7 @@ def _intake(b, inp, x, k, lay, c):
         vfill(inp[b, 2 * n:], 0.0)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _sense(t, b, inp, p_O, R, x, k, lay, c, mats, out):
     """Tare, w_env and s of episode b (written to out); returns rho."""
     n = lay[L_N]
@@ -251,7 +259,7 @@ def _act_tail(t, b, rho, drive, Lc, inp, J, x, lay, c, out):
         qref[j] = qref[j] + c[DT] * qdr[j]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _filter_regressor(b, reg, x, lay, c):
     """known_f, Phi_f^T += alpha (input - state) (the same filter as the measured rate)."""
     m, p = lay[L_M], lay[L_P]
@@ -330,7 +338,7 @@ def law_kernel(reg, x, k, lay, c, pv, lc, law_fn, out):
         out[b, lay[O_UNC]] = x[b, lay[X_UNC]]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _rank_margin(b, Jh, c, out, lay):
     """lambda_min(W J_hat J_hat^T W) (the rank gate); with RANK_ON = 2 only the gate (Cholesky).
     ``Jh`` (6, n): the caller's own new array, scaled by W in place. The Gram is summed on its
@@ -362,7 +370,7 @@ def sense_kernel(t, inp, p_O, R, x, k, lay, c, mats, out):
             _sense(t, b, inp, p_O, R, x, k, lay, c, mats, out)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _front(t, b, inp, chain, p_O, R, J, x, k, lay, c, mats, out):
     """Intake (dropout hold), forward kinematics of the bare arm and sense of episode b; False
     when it has diverged (nothing more this step)."""
@@ -427,18 +435,18 @@ def _no_rank(b, R, J, st, theta, lay, c, mats, out):
     return
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _adjoint_rows(b, inp, R, J, reg, lay, c, mats, fx):
     _adjoint_regressor(b, inp, R, J, lay, c, mats, reg[b, 0], reg[b, 1:])
     return 0
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _adjoint_drive_part(b, R, J, Lc, st, theta, lay, c, mats, fx, out, drive):
     _adjoint_drive(b, R, theta, out[b, lay[O_F]:lay[O_F] + 6], c, mats, drive)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _adjoint_rank(b, R, J, st, theta, lay, c, mats, out):
     """The rank gate of the next step's J_hat = S Ad(R theta) J."""
     _rank_margin(b, _twist_jacobian_times(_adjoint_twist_jacobian(b, R, theta[:3], c, mats), J[b]), c, out, lay)
