@@ -413,14 +413,14 @@ def best(rows: np.ndarray, sd: np.ndarray, tool: Tool, t_onset: float,
 def end_look(rows: np.ndarray, sd: np.ndarray, tool: Tool, t_onset: float, fired: np.ndarray | None = None,
              slow_sd: np.ndarray | None = None) -> tuple[Fit, list[Fit], list[str]]:
     """The end-of-run look's verdict (``Monitor._end_look``): every shape of ``END_SHAPES`` fitted (``best``);
-    the best is the least-BIC live shape (``SHAPES``), and its near-ties are sought among all of them by the
-    offline diagnosis's rule (``heldout_ties``: the run's whole window is what that diagnosis judges), so ``encoder_offset`` is a rival only: it may tie the best, it is not named best (docs/monitor.md,
+    the best is the least-BIC live shape (``SHAPES``), and its near-ties (``ties``) are sought among all of
+    them, so ``encoder_offset`` is a rival only: it may tie the best, it is not named best (docs/monitor.md,
     "Agreement with the offline diagnosis": as a candidate it out-named a turned mount by BIC on its one
     parameter against three while its chi^2 was worse, the moment error the slow BIC forgives).
     -> (the best, every fit in BIC order, the best's ties)."""
     _, fits = best(rows, sd, tool, t_onset, fired, slow_sd=slow_sd, shapes=END_SHAPES)
     named = next(f for f in fits if f.shape in SHAPES)
-    return named, fits, heldout_ties(named, fits, rows, sd, tool, t_onset, fired)
+    return named, fits, ties(named, fits, rows, sd, tool, t_onset, fired)
 
 
 #: near-ties (``ties``): a shape ties the best when it explains at least TIE_RATIO of what the best explains
@@ -478,73 +478,6 @@ def ties(best: Fit, fits: list[Fit], rows: np.ndarray, sd: np.ndarray, tool: Too
         out.append(f.shape)
     return out
 
-
-
-def _blocks(rows: np.ndarray) -> np.ndarray:
-    """(6n,) each design row's block: contiguous spans of time as the offline diagnosis cuts its log
-    (``diagnostics.userlog.RowCfg``: ``block_s``, at most ``max_blocks``)."""
-    from kinadapt_nn.diagnostics.userlog import RowCfg
-
-    rc = RowCfg()
-    t = rows[:, K.G_T] - rows[0, K.G_T]
-    blen = max(rc.block_s, float(t[-1]) / rc.max_blocks) if len(t) else rc.block_s
-    blk = np.minimum((t / blen).astype(int), max(int(t[-1] / blen) if len(t) else 0, 0))
-    return np.repeat(blk, 6)
-
-
-def _cv(A: np.ndarray, b: np.ndarray, prec: np.ndarray, blk: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Delete-one-block least squares of ``b`` on ``A`` (prior precision ``prec``): (the held-out SSE of each
-    block (B,), the estimate without each block (B, k), the estimate on all)."""
-    G, h = A.T @ A + np.diag(prec), A.T @ b
-    B = int(blk.max()) + 1
-    sse, reps = np.zeros(B), np.zeros((B, A.shape[1]))
-    for j in range(B):
-        m = blk == j
-        Aj, bj = A[m], b[m]
-        reps[j] = np.linalg.solve(G - Aj.T @ Aj, h - Aj.T @ bj)
-        sse[j] = float(np.sum((bj - Aj @ reps[j]) ** 2))
-    return sse, reps, np.linalg.solve(G, h)
-
-
-def heldout_ties(best: Fit, fits: list[Fit], rows: np.ndarray, sd: np.ndarray, tool: Tool, t_onset: float,
-                 fired: np.ndarray | None = None) -> list[str]:
-    """``ties`` by the offline diagnosis's rule (``diagnostics.selection``'s near-tie, its ``SelCfg``), on the
-    window's blocks of time (``_blocks``), each predicted by the fit on the others: a shape ties ``best`` when
-    it explains at least ``tie_ratio`` of the chi^2 ``best`` explains, explains less than ``min_explained`` of
-    what ``best`` leaves held-out, ``best`` is not significantly better block by block (``paired_p`` above
-    ``tie_p``), and ``best`` does not explain a significant part (Hotelling's test on the delete-one-block
-    estimates, below ``alpha``) of at least ``min_explained`` of what the shape leaves held-out. Held-out
-    blocks, unlike ``ties``' chi^2 against the white noise, do not count a slow error of the model (a residual
-    correlated over many samples) as a difference between two shapes. -> shape names, in ``fits``' order."""
-    from kinadapt_nn.diagnostics.intervals import jackknife_cov, paired_p, wald_pvalue
-    from kinadapt_nn.diagnostics.selection import SelCfg
-
-    rc = SelCfg()
-    A1, b, P1 = _target(best, rows, sd, tool, t_onset, fired)
-    blk = _blocks(rows)
-    B = int(blk.max()) + 1
-    none = float(np.sum((rows[:, K.G_E:K.G_E + 6] / sd[None, :]) ** 2))
-    k1 = A1.shape[1]
-    out = []
-    for f in fits:
-        if f.shape == best.shape:
-            continue
-        A2, b2, P2 = _target(f, rows, sd, tool, t_onset, fired)
-        if none - _misfit(A2, b2, P2) < rc.tie_ratio * (none - _misfit(A1, b, P1)):
-            continue
-        data = b2 if f.shape == "world_force" else b  # as ``ties``: the world force linearised at its estimate
-        sse1, _, _ = _cv(A1, data, P1, blk)
-        sse2, _, _ = _cv(A2, data, P2, blk)
-        both, reps, p = _cv(np.hstack([A1, A2]), data, np.concatenate([P1, P2]), blk)
-        if (sse1 - both).sum() / max(float(sse1.sum()), 1e-300) >= rc.min_explained:
-            continue  # the shape explains a part of what the best leaves
-        if paired_p(sse1, sse2) <= rc.tie_p:
-            continue  # the best is better block by block
-        share = (sse2 - both).sum() / max(float(sse2.sum()), 1e-300)
-        if share >= rc.min_explained and wald_pvalue(p[:k1], jackknife_cov(reps[:, :k1]), B) < rc.alpha:
-            continue  # the best explains a significant part of what the shape leaves: told apart
-        out.append(f.shape)
-    return out
 
 AXES = ("x", "y", "z")
 CHANNELS = ("F_x", "F_y", "F_z", "M_x", "M_y", "M_z")

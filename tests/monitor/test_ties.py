@@ -1,4 +1,4 @@
-"""What the monitor cannot tell apart (``shapes.ties``; at the end of a run ``shapes.heldout_ties``), the slow error of the model counted beyond the noise
+"""What the monitor cannot tell apart (``shapes.ties``), the slow error of the model counted beyond the noise
 (``Monitor._beyond_noise``) and a hint-shaped event as an effect file for the offline diagnosis
 (``agreement.effect_file``)."""
 
@@ -91,59 +91,6 @@ def test_without_acceleration_a_payload_is_a_vertical_world_force():
     assert best.shape == "tool_gravity"  # 4 parameters against the world force's 6
     assert shapes.ties(best, fits, rows, SD, TOOL, 1.0) == ["world_force"]
 
-
-
-def _window(e_of, span_s: float) -> np.ndarray:
-    """``_turning_rows``' wrist turn spread over ``span_s`` [s] (the end-of-run look's window; the offline
-    diagnosis's blocks are 0.5 s): residual ``e_of(rows)`` plus the noise."""
-    rows = _turning_rows(3000, lambda r: np.zeros((len(r), 6)))
-    rows[:, K.G_T] = 1.0 + np.linspace(0.0, span_s, len(rows))
-    rows[:, K.G_E:K.G_E + 6] = e_of(rows) + SD * np.random.default_rng(11).standard_normal((len(rows), 6))
-    return rows
-
-
-def test_the_heldout_sse_is_the_refit_without_each_block():
-    """``shapes._cv``: each block's SSE predicted by the least squares on the other blocks, against refits
-    written out block by block."""
-    rng = np.random.default_rng(3)
-    A, b = rng.standard_normal((120, 4)), rng.standard_normal(120)
-    prec, blk = np.array([0.5, 1.0, 2.0, 0.1]), np.repeat(np.arange(5), 24)
-    sse, reps, p_all = shapes._cv(A, b, prec, blk)
-    for j in range(5):
-        keep = blk != j
-        pj = np.linalg.solve(A[keep].T @ A[keep] + np.diag(prec), A[keep].T @ b[keep])
-        np.testing.assert_allclose(reps[j], pj, rtol=1e-10, atol=1e-12)
-        np.testing.assert_allclose(sse[j], np.sum((b[~keep] - A[~keep] @ pj) ** 2), rtol=1e-10)
-    np.testing.assert_allclose(p_all, np.linalg.solve(A.T @ A + np.diag(prec), A.T @ b), rtol=1e-10)
-
-
-def test_heldout_ties_decide_what_the_turning_window_tells_apart():
-    """The end-of-run look's rule (the offline diagnosis's, on 0.5 s blocks): on 8 s of the wrist turning,
-    a snag is decided, a tilt ties the payload shape that contains it but not a constant (which cannot make
-    a moment that turns with gravity), a turned mount ties no constant either."""
-    pull = shapes.Fit("world_force", np.array([0.0, -1.5, 0.0, 0.0, 0.02, 0.06]), np.eye(6), 0.0, 0.0, 0)
-    rows = _window(lambda r: shapes.evaluate(pull, r, TOOL, 1.0), 8.0)
-    best, fits = shapes.best(rows, SD, TOOL, 1.0)
-    assert best.shape == "world_force" and shapes.heldout_ties(best, fits, rows, SD, TOOL, 1.0) == []
-    rows = _window(lambda r: shapes.columns("tool_tilt", r, TOOL, 1.0) @ np.deg2rad([8.0, 0.0]), 8.0)
-    best, fits = shapes.best(rows, SD, TOOL, 1.0)
-    tied = shapes.heldout_ties(best, fits, rows, SD, TOOL, 1.0)
-    assert best.shape == "tool_tilt" and "tool_gravity" in tied and "sensor_constant" not in tied
-    rows = _window(lambda r: shapes.columns("ft_frame_rotation", r, TOOL, 1.0) @ np.deg2rad([1.4, 0.0, 1.4]), 8.0)
-    best, fits = shapes.best(rows, SD, TOOL, 1.0)
-    tied = shapes.heldout_ties(best, fits, rows, SD, TOOL, 1.0)
-    assert best.shape == "ft_frame_rotation" and "sensor_constant" not in tied
-
-
-def test_heldout_ties_on_two_blocks_tell_nothing_apart():
-    """The same tilt on a 1 s window holds two 0.5 s blocks: a block test of one or more parameters has
-    no degrees of freedom left (Hotelling's F(r, B - r)), so every shape that explains enough ties, the
-    constant among them -- as the offline diagnosis on so short a log; ``ties``' chi^2 still tells them apart."""
-    rows = _window(lambda r: shapes.columns("tool_tilt", r, TOOL, 1.0) @ np.deg2rad([8.0, 0.0]), 1.0)
-    best, fits = shapes.best(rows, SD, TOOL, 1.0)
-    assert best.shape == "tool_tilt"
-    assert "sensor_constant" in shapes.heldout_ties(best, fits, rows, SD, TOOL, 1.0)
-    assert "sensor_constant" not in shapes.ties(best, fits, rows, SD, TOOL, 1.0)
 
 def _monitor() -> Monitor:
     cfg = load_config(REPO / "online/monitor.toml", ["run.progress=false"])
