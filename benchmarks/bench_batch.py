@@ -11,6 +11,14 @@ rounds of raw wall / controlled wall (= a / c), ``s`` the spread (max - min) of 
 ratios, and ``a``, ``c`` are the medians. Target: a / c >= 0.6. Also checks a sample of episodes against the
 single-episode path (success, seat time): the batch runs the same kernels, so they agree.
 Usage: python benchmarks/bench_batch.py [--episodes 256] [--processes 2] [--check 8] [--set key=value]
+
+``--profile``: instead, where one process's controlled loop goes (``--episodes`` of the same
+configs in one process, ``--rounds`` runs): wall seconds of the loop and of its two big parts --
+the controller's step kernel (``Kernels.control``) and the physics step (``SceneBatch.step``:
+MuJoCo's batch step and the F/T sensor's realised-acceleration correction) --, each also in us
+per episode-step (sim steps), the rest being sensing, the watch, the logs and the loop's Python.
+Prints per round ``profile: loop_wall_s=... control_s=... physics_s=... control_us=...
+physics_us=... rest_us=...`` and the medians of the per-episode-step figures last.
 """
 
 from __future__ import annotations
@@ -63,6 +71,42 @@ def _chunk(job):
     return res._replace(ctrl_log=None), walls, raws
 
 
+def profile(cfgs, rounds: int) -> None:
+    """``--profile`` (module docstring): the controlled loop of ``cfgs`` in this process, its
+    controller and physics calls timed from outside (numba's kernels cannot be profiled inside)."""
+    from kinadapt_nn.runs import loop
+    from kinadapt_nn.runs.batch import compile_loop
+    from kinadapt_nn.runs.build import one_blas_thread
+
+    compile_loop(cfgs[0])
+    rows = []
+    for _ in range(rounds):
+        with one_blas_thread():
+            lp = loop.setup(cfgs, None, traces=False, nthread=1)
+            spent = {"control": 0.0, "physics": 0.0}
+
+            def timed(fn, key):
+                def call(*args):
+                    t0 = time.perf_counter()
+                    fn(*args)
+                    spent[key] += time.perf_counter() - t0
+                return call
+
+            lp.kn.control = timed(lp.kn.control, "control")
+            lp.world.step = timed(lp.world.step, "physics")
+            t0 = time.perf_counter()
+            loop.run(lp, loop.SummaryLog(lp))
+            wall = time.perf_counter() - t0
+        n = int(lp.watch["n_sim"].sum())
+        us = [1e6 * v / n for v in (spent["control"], spent["physics"], wall - sum(spent.values()))]
+        rows.append(us)
+        print(f"profile: loop_wall_s={wall:.2f} control_s={spent['control']:.2f} physics_s={spent['physics']:.2f} "
+              f"control_us={us[0]:.3f} physics_us={us[1]:.3f} rest_us={us[2]:.3f} sim_steps={n}", flush=True)
+    med = np.median(np.array(rows), axis=0)
+    print(f"episodes={len(cfgs)} rounds={rounds} control_us_per_episode_step={med[0]:.3f} "
+          f"physics_us_per_episode_step={med[1]:.3f} rest_us_per_episode_step={med[2]:.3f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--episodes", type=int, default=256)
@@ -70,11 +114,15 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=5, help="alternating controlled/raw timing rounds")
     ap.add_argument("--check", type=int, default=8, help="episodes re-run on the single path for comparison")
     ap.add_argument("--set", action="append", default=[], help="config override key=value (e.g. adaptation.mode=composite)")
+    ap.add_argument("--profile", action="store_true", help="where one process's controlled loop goes (docstring)")
     a = ap.parse_args()
     sw = SweepCfg()
     base = ["run.progress=false", "start.lateral_jitter_m=0.0003", "start.tilt_jitter_deg=0.5", "run.stop_after_seat_s=0.1",
             *a.set]
     cfgs = [load_config(None, [*base, *tool_overrides(sw, s), f"run.seed={s}"]) for s in range(a.episodes)]
+    if a.profile:
+        profile(cfgs, a.rounds)
+        return
     chunks = [cfgs[i::a.processes] for i in range(a.processes) if cfgs[i::a.processes]]
     with multiprocessing.Manager() as mgr, ProcessPoolExecutor(max_workers=len(chunks)) as ex:
         barrier = mgr.Barrier(len(chunks))

@@ -13,10 +13,10 @@ parts called directly), so speed and compile time are unchanged and each kind co
 The small parts a period calls once per episode (intake, sense, the regressor filter, the
 features' parts and the rank gate; ``features_kernels``' adjoint parts) are inlined by numba
 (``inline="always"``): a call passes each array as 7-11 values, which cost more than these parts'
-arithmetic (measured on a recorded 64-episode batch, kernel CPU time per episode-step: 3.31 ->
-2.82 us, the cold compile 14.4 -> 15.0 s; the same numbers to the bit). ``_act_head``,
-``_act_tail``, ``_law`` and the law's own parts are not: inlined, they saved 0.03 us and cost
-4.4 s of compile.
+arithmetic (``benchmarks/bench_batch.py --profile``, one process, 128 episodes: the controller
+3.34-3.50 -> 2.95-2.97 us per episode-step; the same numbers to the bit). ``_act_head``,
+``_act_tail``, ``_law`` and the law's own parts are not: inlined, they saved little and lengthened
+the cold compile by seconds (benchmarks/results/bench_batch_2026-11-29_small_products.txt).
 """
 
 from __future__ import annotations
