@@ -47,7 +47,7 @@ def _adjoint_regressor(b, inp, R, J, lay, c, mats, known, Phi_T):
     known[0] += n0 * (w1 * lw2 - w2 * lw1) + n1 * (w2 * lw0 - w0 * lw2) + n2 * (w0 * lw1 - w1 * lw0)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _lever(b, R, c):
     """R l_nom: the nominal lever, world."""
     Rb = R[b]
@@ -79,7 +79,7 @@ def _adjoint_drive(b, R, theta, F, c, mats, drive):
 
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _adjoint_twist_jacobian(b, R, theta, c, mats):
     """S Ad(R theta) (6, 6) with the depth row on the nominal lever (AdjointFeatures.twist_jacobian)."""
     S = mats[0]
@@ -102,7 +102,7 @@ def _adjoint_twist_jacobian(b, R, theta, c, mats):
     return Jx
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _twist_jacobian_times(Jx, Jb):
     """Jx @ Jb (6, n) for Jx = S Ad(.) (6, 6) (:func:`_adjoint_twist_jacobian`; S mostly zeros) and
     the arm's Jacobian Jb (6, n): each entry summed from 0.0 over Jx's non-zeros in r's order.

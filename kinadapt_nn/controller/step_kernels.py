@@ -10,13 +10,13 @@ The sequence is written once (``_step``); what a features kind changes in it is 
 (``_kernel``): the code numba emits is what the sequence written out per kind gave (one level, the
 parts called directly), so speed and compile time are unchanged and each kind compiles only its own.
 
-The small parts a period calls once per episode (intake, sense, the regressor filter, the
-features' parts and the rank gate; ``features_kernels``' adjoint parts) are inlined by numba
-(``inline="always"``): a call passes each array as 7-11 values, which cost more than these parts'
-arithmetic (``benchmarks/bench_batch.py --profile``, one process, 128 episodes: the controller
-3.34-3.50 -> 2.95-2.97 us per episode-step; the same numbers to the bit). ``_act_head``,
-``_act_tail``, ``_law`` and the law's own parts are not: inlined, they saved little and lengthened
-the cold compile by seconds (benchmarks/results/bench_batch_2026-11-29_small_products.txt).
+The small parts a period calls once per episode -- intake, sense, the regressor filter and the
+adjoint's regressor and drive (``features_kernels``) -- are inlined by numba (``inline="always"``):
+a call passes each array as 7-11 values, which cost more than these parts' arithmetic; the same
+numbers to the bit, and the cold compile as long (benchmarks/results/
+bench_batch_2026-11-29_small_products.txt). Inlining more (``_front``, the rank gate's parts) ran
+the kernel ~0.15 us per episode-step faster and compiled ~2 s longer; ``_act_head``, ``_act_tail``,
+``_law`` and the law's own parts, no faster and seconds longer: not inlined.
 """
 
 from __future__ import annotations
@@ -338,7 +338,7 @@ def law_kernel(reg, x, k, lay, c, pv, lc, law_fn, out):
         out[b, lay[O_UNC]] = x[b, lay[X_UNC]]
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _rank_margin(b, Jh, c, out, lay):
     """lambda_min(W J_hat J_hat^T W) (the rank gate); with RANK_ON = 2 only the gate (Cholesky).
     ``Jh`` (6, n): the caller's own new array, scaled by W in place. The Gram is summed on its
@@ -370,7 +370,7 @@ def sense_kernel(t, inp, p_O, R, x, k, lay, c, mats, out):
             _sense(t, b, inp, p_O, R, x, k, lay, c, mats, out)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _front(t, b, inp, chain, p_O, R, J, x, k, lay, c, mats, out):
     """Intake (dropout hold), forward kinematics of the bare arm and sense of episode b; False
     when it has diverged (nothing more this step)."""
@@ -435,18 +435,18 @@ def _no_rank(b, R, J, st, theta, lay, c, mats, out):
     return
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _adjoint_rows(b, inp, R, J, reg, lay, c, mats, fx):
     _adjoint_regressor(b, inp, R, J, lay, c, mats, reg[b, 0], reg[b, 1:])
     return 0
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _adjoint_drive_part(b, R, J, Lc, st, theta, lay, c, mats, fx, out, drive):
     _adjoint_drive(b, R, theta, out[b, lay[O_F]:lay[O_F] + 6], c, mats, drive)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _adjoint_rank(b, R, J, st, theta, lay, c, mats, out):
     """The rank gate of the next step's J_hat = S Ad(R theta) J."""
     _rank_margin(b, _twist_jacobian_times(_adjoint_twist_jacobian(b, R, theta[:3], c, mats), J[b]), c, out, lay)
