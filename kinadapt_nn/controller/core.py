@@ -303,14 +303,16 @@ def _code_size(fn, module: dict, seen: set) -> int:
 def callee_plan(calls) -> list[tuple[object, tuple]]:
     """The direct callees of the kernels of ``calls`` ((name, dispatcher, args) each) as
     (dispatcher, argument types), the largest first; a callee is listed when every parameter is
-    one of its kernel's (typed from the call's arguments) or in :data:`LOCAL_TYPES`."""
+    one of its kernel's (typed from the call's arguments) or in :data:`LOCAL_TYPES`, and not inlined
+    (``inline="always"``: numba types its body inside the kernel, so nothing of it is compiled apart)."""
     plan: dict[str, tuple[object, tuple, int]] = {}
     for _name, fn, args in calls:
         module = fn.py_func.__globals__
         by_name = {p: nb.typeof(a) for p, a in zip(inspect.signature(fn.py_func).parameters, args)}
         for name in fn.py_func.__code__.co_names:
             callee = module.get(name)
-            if not compiled.is_kernel(callee) or callee is fn or name in plan:
+            if not compiled.is_kernel(callee) or callee is fn or name in plan or \
+                    callee.targetoptions.get("inline") == "always":
                 continue
             params = inspect.signature(callee.py_func).parameters
             if not all(p in by_name or p in LOCAL_TYPES for p in params):
