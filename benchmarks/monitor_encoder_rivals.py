@@ -29,6 +29,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "benchmarks"))
 
 from kinadapt_nn.monitor import kernel as K  # noqa: E402
 from kinadapt_nn.monitor import shapes  # noqa: E402
@@ -36,25 +37,17 @@ from kinadapt_nn.monitor import shapes  # noqa: E402
 
 def replay(run: Path):
     """A fresh monitor fed the run's trace (``Monitor.loop_step``), finished. -> the monitor."""
-    import mujoco
+    from monitor_events import trace_kinematics
 
     from kinadapt_nn.config import load_config
-    from kinadapt_nn.controller import core
     from kinadapt_nn.monitor.monitor import monitor_of_run
-    from kinadapt_nn.robot import FLANGE_SITE
 
     cfg = load_config(run / "config.toml")
     cfg = cfg.model_copy(update={"run": cfg.run.model_copy(update={"progress": False})})
     tr = np.load(run / "trace.npz")
-    arm = mujoco.MjModel.from_xml_path(str(REPO / "models" / "panda.xml"))
-    chain = core.arm_chain(arm, mujoco.mj_name2id(arm, mujoco.mjtObj.mjOBJ_SITE, FLANGE_SITE))
-    q, qd, w = tr["q_rad"], tr["qdot_rad_s"], tr["wrench_raw_f"]
-    N, n = len(q), q.shape[1]
-    inp = np.concatenate([q, qd, w], axis=1)
-    p_O, R, J = np.zeros((N, 3)), np.zeros((N, 3, 3)), np.zeros((N, 6, n))
-    core.fk_batch(chain, inp, p_O, R, J)
+    inp, p_O, R, J = trace_kinematics(tr)
     mon = monitor_of_run(cfg)
-    for k in range(N):
+    for k in range(len(inp)):
         mon.loop_step(float(tr["t_s"][k]), inp[k], R[k], p_O[k], J[k])
     mon.finish()
     return mon

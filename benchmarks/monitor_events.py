@@ -161,17 +161,15 @@ def clean_alarms(path: str, seeds: int) -> tuple[int, int, float, int]:
     return runs, events, sim, alarms
 
 
-def kernel_cost(reps: int = 3) -> tuple[float, float]:
-    """Median and p99 [us] of one ``Monitor.loop_step`` call on a run's control periods (the
-    controller's flange kinematics recomputed for each from the logged encoders, outside the timing)."""
+def trace_kinematics(tr) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A run's trace as the monitor's loop got it: (inp (N, 2n+6) [q; qdot; raw wrench], p_O (N, 3), R_wf
+    (N, 3, 3), J (N, 6, n)) -- the controller's own flange kinematics (``core.fk_batch``) from the logged
+    encoders."""
     import mujoco
 
     from kinadapt_nn.controller import core
-    from kinadapt_nn.monitor.monitor import monitor_of_run
     from kinadapt_nn.robot import FLANGE_SITE
 
-    cfg = _cfg("online/monitor.toml", ["effects.world_force.enabled=true", "effects.world_force.onset_s=3"])
-    tr = run_episode(cfg).trace
     arm = mujoco.MjModel.from_xml_path(str(REPO / "models" / "panda.xml"))
     chain = core.arm_chain(arm, mujoco.mj_name2id(arm, mujoco.mjtObj.mjOBJ_SITE, FLANGE_SITE))
     q, qd, w = tr["q_rad"], tr["qdot_rad_s"], tr["wrench_raw_f"]
@@ -179,6 +177,18 @@ def kernel_cost(reps: int = 3) -> tuple[float, float]:
     inp = np.concatenate([q, qd, w], axis=1)
     p_O, R, J = np.zeros((N, 3)), np.zeros((N, 3, 3)), np.zeros((N, 6, n))
     core.fk_batch(chain, inp, p_O, R, J)
+    return inp, p_O, R, J
+
+
+def kernel_cost(reps: int = 3) -> tuple[float, float]:
+    """Median and p99 [us] of one ``Monitor.loop_step`` call on a run's control periods (the
+    controller's flange kinematics recomputed for each from the logged encoders, outside the timing)."""
+    from kinadapt_nn.monitor.monitor import monitor_of_run
+
+    cfg = _cfg("online/monitor.toml", ["effects.world_force.enabled=true", "effects.world_force.onset_s=3"])
+    tr = run_episode(cfg).trace
+    inp, p_O, R, J = trace_kinematics(tr)
+    N = len(inp)
     times = []
     for _ in range(reps):
         mon = monitor_of_run(cfg.model_copy(update={"run": cfg.run.model_copy(update={"progress": False})}))

@@ -223,8 +223,10 @@ def _measurement_update(P, H_T, e_kf, R, d_pred):
     order), the rank-m downdate is formed on the lower triangle and mirrored (P stays exactly
     symmetric)."""
     p, m = H_T.shape
-    HP = _h_p(P, H_T)
-    S = _h_p_ht(H_T, HP, R)
+    HP = _h_times(H_T, P)  # H P = (P H^T)^T, P symmetric
+    S = _h_times(H_T, HP.T)  # H P H^T
+    for i in range(len(R)):
+        S[i, i] += R[i]
     if not chol(S, m):
         return False
     X = HP.copy()  # K^T = S^-1 (H P), every column at once
@@ -242,55 +244,31 @@ def _measurement_update(P, H_T, e_kf, R, d_pred):
 
 
 @nb.njit(cache=True)
-def _h_p(P, H_T):
-    """H P (m, p) = (P H^T)^T, row j = sum_r H[j, r] P[r, :] (P symmetric), each entry summed from
-    0.0 over H's non-zeros in r's order: up to ``dense.SMALL`` parameters in scalars, else by row
-    sweeps (the same sums)."""
+def _h_times(H_T, X):
+    """H X (m, q) for X (p, q): entry (j, i) = sum_r H[j, r] X[r, i], summed from 0.0 over H's non-zeros in
+    r's order: up to ``dense.SMALL`` parameters in scalars, else by row sweeps (the same sums). H P is
+    ``_h_times(H_T, P)``; H P H^T is ``_h_times(H_T, HP.T)``."""
     p, m = H_T.shape
-    HP = np.zeros((m, p))
+    q = X.shape[1]
+    out = np.zeros((m, q))
     for j in range(m):
         if p <= SMALL:
-            for i in range(p):
+            for i in range(q):
                 v = 0.0
                 for r in range(p):
                     h = H_T[r, j]
                     if h != 0.0:
-                        v += h * P[r, i]
-                HP[j, i] = v
+                        v += h * X[r, i]
+                out[j, i] = v
             continue
-        HPj = HP[j]
+        oj = out[j]
         for r in range(p):
             h = H_T[r, j]
             if h != 0.0:
-                Pr = P[r]
-                for i in range(p):
-                    HPj[i] += h * Pr[i]
-    return HP
-
-
-@nb.njit(cache=True)
-def _h_p_ht(H_T, HP, R):
-    """S = H P H^T + diag R (m, m): S[i, j] = sum_r H[i, r] HP[j, r], summed from 0.0 over H's
-    non-zeros in r's order (in scalars up to ``dense.SMALL`` parameters, else by sweeps over j)."""
-    p, m = H_T.shape
-    S = np.zeros((m, m))
-    for i in range(m):
-        if p <= SMALL:
-            for j in range(m):
-                v = 0.0
-                for r in range(p):
-                    h = H_T[r, i]
-                    if h != 0.0:
-                        v += h * HP[j, r]
-                S[i, j] = v
-        else:
-            for r in range(p):
-                h = H_T[r, i]
-                if h != 0.0:
-                    for j in range(m):
-                        S[i, j] += h * HP[j, r]
-        S[i, i] += R[i]
-    return S
+                Xr = X[r]
+                for i in range(q):
+                    oj[i] += h * Xr[i]
+    return out
 
 
 @nb.njit(cache=True)
