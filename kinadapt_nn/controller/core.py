@@ -303,21 +303,24 @@ def _code_size(fn, module: dict, seen: set) -> int:
 def callee_plan(calls) -> list[tuple[object, tuple]]:
     """The direct callees of the kernels of ``calls`` ((name, dispatcher, args) each) as
     (dispatcher, argument types), the largest first; a callee is listed when every parameter is
-    one of its kernel's (typed from the call's arguments) or in :data:`LOCAL_TYPES`, and not inlined
-    (``inline="always"``: numba types its body inside the kernel, so nothing of it is compiled apart)."""
+    one of its kernel's (typed from the call's arguments), in the kernel's own ``local_types`` (a
+    step kernel's: what its features kind passes between its parts) or in :data:`LOCAL_TYPES`, and
+    not inlined (``inline="always"``: numba types its body inside the kernel, so nothing of it is
+    compiled apart)."""
     plan: dict[str, tuple[object, tuple, int]] = {}
     for _name, fn, args in calls:
         module = fn.py_func.__globals__
-        by_name = {p: nb.typeof(a) for p, a in zip(inspect.signature(fn.py_func).parameters, args)}
+        by_name = {**LOCAL_TYPES, **getattr(fn, "local_types", {}),
+                   **{p: nb.typeof(a) for p, a in zip(inspect.signature(fn.py_func).parameters, args)}}
         for name in fn.py_func.__code__.co_names:
             callee = module.get(name)
             if not compiled.is_kernel(callee) or callee is fn or name in plan or \
                     callee.targetoptions.get("inline") == "always":
                 continue
             params = inspect.signature(callee.py_func).parameters
-            if not all(p in by_name or p in LOCAL_TYPES for p in params):
+            if not all(p in by_name for p in params):
                 continue
-            sig = tuple(by_name[p] if p in by_name else LOCAL_TYPES[p] for p in params)
+            sig = tuple(by_name[p] for p in params)
             plan[name] = (callee, sig, _code_size(callee, callee.py_func.__globals__, set()))
     return [(fn, sig) for fn, sig, _ in sorted(plan.values(), key=lambda e: -e[2])]
 

@@ -26,6 +26,7 @@ import types
 
 import numba as nb
 import numpy as np
+from numba import types as nbt
 
 from kinadapt_nn.controller.arm_chain import _fk
 from kinadapt_nn.controller.dense import (chol, chol_solve, gram_lower, gram_sparse_log, mirror_lower, sym_eigmin, vcopy,
@@ -499,9 +500,21 @@ def _compiled(py_fn, name: str, doc: str, **parts):
     return nb.njit(cache=True)(fn)
 
 
-def _kernel(name: str, doc: str, front_fn, rows_fn, drive_fn, rank_fn):
-    """The step kernel ``name``: :func:`_step` with a features kind's four parts."""
-    return _compiled(_step, name, doc, front_fn=front_fn, rows_fn=rows_fn, drive_fn=drive_fn, rank_fn=rank_fn)
+def _kernel(name: str, doc: str, front_fn, rows_fn, drive_fn, rank_fn, st_type):
+    """The step kernel ``name``: :func:`_step` with a features kind's four parts. ``st_type``: the numba
+    type of what ``rows_fn`` returns (``st``, which the drive and rank gate take), the kernel's
+    ``local_types``: the cold compile's plan types those parts with it (``core.callee_plan``; a wrong
+    type leaves a second signature, which tests/controller/test_twocore.py checks)."""
+    kernel = _compiled(_step, name, doc, front_fn=front_fn, rows_fn=rows_fn, drive_fn=drive_fn, rank_fn=rank_fn)
+    kernel.local_types = {"st": st_type}
+    return kernel
+
+
+#: ``st`` of the kinds whose rows part keeps nothing for the drive (the literal 0 it returns), and of the
+#: learned kinds: (basis, K(q)) -- the neural Y(q) (m, n, p) or the RBF psi(q) (p,), and K(q) (m, n)
+_ST_NONE = nbt.literal(0)
+_ST_NEURAL = nbt.Tuple((nbt.Array(nbt.float64, 3, "C"), nbt.Array(nbt.float64, 2, "C")))
+_ST_RBF = nbt.Tuple((nbt.Array(nbt.float64, 1, "C"), nbt.Array(nbt.float64, 2, "C")))
 
 
 #: the learned features' parts, one code for both (the basis, its rows and J_hat are each kind's own)
@@ -519,16 +532,16 @@ _rbf_rank = _compiled(_learned_rank, "_rbf_rank", "_learned_rank with the RBF J_
 #: one whole period for B episodes with the adjoint features (one dispatch): intake, forward kinematics of
 #: the bare arm, sense, regressor, act, law, rank gate (``fx``: unused; the fused kernels share one signature)
 step_adjoint = _kernel("step_adjoint", "The step sequence (``_step``) with the adjoint features.",
-                       _front, _adjoint_rows, _adjoint_drive_part, _adjoint_rank)
+                       _front, _adjoint_rows, _adjoint_drive_part, _adjoint_rank, _ST_NONE)
 #: ``step_adjoint`` for the neural basis (``fx``: ``neural_consts``)
 step_neural = _kernel("step_neural", "The step sequence (``_step``) with the neural basis (fx: neural_consts).",
-                      _front, _neural_rows_part, _neural_drive, _neural_rank)
+                      _front, _neural_rows_part, _neural_drive, _neural_rank, _ST_NEURAL)
 #: ``step_adjoint`` for the per-entry Gaussian RBF (``fx``: ``rbf_consts``)
 step_rbf = _kernel("step_rbf", "The step sequence (``_step``) with the per-entry Gaussian RBF (fx: rbf_consts).",
-                   _front, _rbf_rows_part, _rbf_drive, _rbf_rank)
+                   _front, _rbf_rows_part, _rbf_drive, _rbf_rank, _ST_RBF)
 #: the sequence after ``sense_kernel`` for features computed in Python (``fx``: their ``ext_J``)
 _step_given = _kernel("_step_given", "The step sequence (``_step``) after sense_kernel, features from Python.",
-                      _ready, _rows_given, _drive_given, _no_rank)
+                      _ready, _rows_given, _drive_given, _no_rank, _ST_NONE)
 
 
 @nb.njit(cache=True)

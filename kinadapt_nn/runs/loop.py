@@ -34,6 +34,7 @@ from kinadapt_nn.controller import core
 from kinadapt_nn.controller.controller import (Controller, StepBuffers, feature_consts, generic_step, kernel_parts,
                                                sensor_error_message)
 from kinadapt_nn.controller.core import K_ERROR, RANK_GATE
+from kinadapt_nn.controller.dense import vcopy
 from kinadapt_nn.errors import ConfigError
 from kinadapt_nn.known import KnownCfg
 from kinadapt_nn.robot import FLANGE_SITE
@@ -132,12 +133,12 @@ def _log_rows(j, t, every_one, active, src, dst):
     for b in range(out.shape[0]):
         if every_one or active[b]:
             t_log[j, b] = t
-            out_log[j, b] = out[b]
-            q_log[j, b] = q_ref[b]
-            phi_log[j, b] = phi[b]
+            vcopy(out_log[j, b], out[b])  # (element loops: a slice assignment compiles numba's broadcasting, ~2 s)
+            vcopy(q_log[j, b], q_ref[b])
+            vcopy(phi_log[j, b], phi[b])
             lam_log[j, b] = lam[b]
             lam[b] = np.inf
-            tip_log[j, b] = tip[b]
+            vcopy(tip_log[j, b], tip[b])
 
 
 @nb.njit(cache=True)
@@ -146,7 +147,7 @@ def _log_sample(j, every_one, active, inp, io):
     episode (``every_one``) or the ``active`` (B,) ones."""
     for b in range(inp.shape[0]):
         if every_one or active[b]:
-            io[j, b, :inp.shape[1]] = inp[b]
+            vcopy(io[j, b, :inp.shape[1]], inp[b])
 
 
 # a compile phase is cold (and shown) while these are not in numba's cache either
