@@ -85,26 +85,17 @@ def write_online(stage: Path, cfg, result) -> None:
     (stage / "config.toml").write_text(config_to_toml(cfg))
     write_json(stage / "summary.json", result.summary)
     result.trace.save(stage / "trace.npz")
+    png = None
+    if cfg.run.figure:
+        from kinadapt_nn.figures import rollout_figure, save_figure  # (matplotlib only when a figure is wanted)
+
+        png = stage / "rollout.png"
+        save_figure(rollout_figure(result.trace, result.summary, cfg), png)
     if cfg.run.tensorboard:
-        from kinadapt_nn.runs.tb import write_cell_tensorboard, write_tensorboard
+        from kinadapt_nn.runs.tb import write_run
 
         hp = {"features": cfg.run.features, "law": result.summary["law"], "seed": cfg.run.seed}
-        write_tensorboard(stage / "tb", result.trace, result.summary, hp)
-        write_cell_tensorboard(stage / "tb", result.summary)  # a work cell: error vs insertion
-        if result.summary.get("monitor"):
-            from kinadapt_nn.runs.tb import write_monitor_events
-
-            write_monitor_events(stage / "tb", result.summary)
-    if not cfg.run.figure:
-        return
-    from kinadapt_nn.figures import rollout_figure, save_figure  # (matplotlib only when a figure is wanted)
-
-    png = stage / "rollout.png"
-    save_figure(rollout_figure(result.trace, result.summary, cfg), png)
-    if cfg.run.tensorboard:
-        from kinadapt_nn.runs.tb import write_tensorboard_figure
-
-        write_tensorboard_figure(stage / "tb", png)
+        write_run(stage / "tb", result.trace, result.summary, hp, png)
 
 
 def cmd_online(args: argparse.Namespace) -> int:

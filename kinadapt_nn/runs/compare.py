@@ -146,16 +146,12 @@ def _job_result(job: CompareJob, cfg, res) -> dict:
     """A job's row material from its run ``res``; writes its TensorBoard run."""
     from kinadapt_nn.runs.insertions import judged_whole
     from kinadapt_nn.runs.outcome import monitor_brief
-    from kinadapt_nn.runs.tb import write_cell_tensorboard, write_monitor_events, write_tensorboard
+    from kinadapt_nn.runs.tb import write_run
 
     s = judged_whole(res.summary)  # several insertions: judged from the first one's start to the last one's end
     hp = {"features": job.features, "tool_family": job.family, "scenario": job.scenario, "tool": job.tool,
           "n_params": int(s["n_params"]), "law": s["law"]}
-    write_tensorboard(Path(job.tb_dir), res.trace, s, hp)
-    if "cell" in s:
-        write_cell_tensorboard(Path(job.tb_dir), s)
-    if s.get("monitor"):  # --monitor: its events as text beside the residual scalars (the trace's monitor_z)
-        write_monitor_events(Path(job.tb_dir), s)
+    write_run(Path(job.tb_dir), res.trace, s, hp)  # (--monitor: its events as text beside the trace's monitor_z)
     t = res.trace["t_s"]
     idx = np.arange(0, len(t), 10)
     return {

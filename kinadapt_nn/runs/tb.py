@@ -1,4 +1,5 @@
-"""TensorBoard logging: the same tag names for every features type, so runs overlay.
+"""TensorBoard logging: the same tag names for every features type, so runs overlay; a run's
+TensorBoard (``write_run``: trace, work cell, monitor events, figure, hparams) is one event file.
 
 Written with TensorBoard's own event writer and summaries (``runio.EventWriter``), not
 ``torch.utils.tensorboard``: importing torch costs seconds and the episode never needs it
@@ -51,73 +52,64 @@ def tensorboard_series(trace: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]
     return steps, series
 
 
-def write_monitor_events(log_dir: Path, summary: dict) -> None:
-    """The live monitor's events as text (tag ``monitor/events``, step = the event's time in ms)."""
-    mon = summary.get("monitor")
-    if not mon:
-        return
-    with EventWriter(log_dir) as wr:
-        lines = [e["line"] for e in mon["events"]] or ["no event: the wrench stayed within the model's noise"]
-        for e, line in zip(mon["events"] or [None], lines):
-            step = int(round(1e3 * e["t_s"])) if e else 0
-            wr.add_text("monitor/events", line, step)
-
-
-def write_tensorboard(log_dir: Path, trace: Trace, summary: dict, hparams: dict, figure=None) -> None:
-    """Scalars at 100 Hz (step = simulated milliseconds), theta as a histogram at 10 Hz, the
-    summary as hparams, and ``figure`` (a matplotlib figure) if given; a saved PNG is added by
-    ``write_tensorboard_figure``."""
+def write_run(log_dir: Path, trace: Trace, summary: dict, hparams: dict, png_path: Path | None = None) -> None:
+    """A run's TensorBoard, one event file: the trace's scalars at 100 Hz (step = simulated
+    milliseconds) and theta as a histogram at 10 Hz; a work cell's learning curve
+    (``cell/jacobian_error_median``, ``cell/seated``, ``cell/jacobian_error_p90``; step = insertion,
+    0 = before the first, so runs of every features type overlay); the live monitor's events as
+    text (``monitor/events``, step = the event's time in ms); the saved figure ``png_path`` as the
+    image ``rollout`` (embedded as is: no second rendering); the summary as hparams. What is
+    written is gathered first, then written in one go."""
     t = trace["t_s"]
-    if len(t) == 0:
-        return
-    steps, series = tensorboard_series(trace)
-    dt = float(trace.meta.get("dt_s", t[1] - t[0] if len(t) > 1 else 1e-3))
-    hist_stride = max(1, int(round(HIST_PERIOD_S / dt)))
+    steps, series = tensorboard_series(trace) if len(t) else (np.zeros(0, int), {})
     tags = list(series)
-    table = np.column_stack([series[k] for k in tags]).astype(float)  # (steps, tags)
-    metrics = {
-        f"summary/{k}": float(v)
-        for k, v in summary.items()
-        if isinstance(v, (int, float)) and not isinstance(v, bool) and v is not None
-    }
+    table = np.column_stack([series[k] for k in tags]).astype(float) if tags else np.zeros((0, 0))  # (steps, tags)
+    dt = float(trace.meta.get("dt_s", t[1] - t[0] if len(t) > 1 else 1e-3))
+    hist = range(0, len(t), max(1, int(round(HIST_PERIOD_S / dt))))  # theta as a histogram, not p charts
+    cell, texts = _cell_curve(summary), _monitor_events(summary)
+    png = None if png_path is None else Path(png_path).read_bytes()
+    metrics = {f"summary/{k}": float(v) for k, v in summary.items()
+               if isinstance(v, (int, float)) and not isinstance(v, bool) and v is not None}
     metrics["summary/success"] = float(summary["success"])
     with EventWriter(log_dir) as wr:
         for st, row in zip(steps.tolist(), table):
             wr.add_scalars_at(st, dict(zip(tags, row.tolist())))
-        theta = trace["theta"]
-        for i in range(0, len(t), hist_stride):  # theta as a histogram (not p charts)
-            wr.add_histogram("learning/theta", theta[i], int(round(t[i] * 1e3)))
-        if figure is not None:  # a matplotlib figure: rendered here
-            import io
-
-            buf = io.BytesIO()
-            figure.savefig(buf, format="png", dpi=100)
-            png = buf.getvalue()
-            width, height = (int.from_bytes(png[16 + 4 * k:20 + 4 * k], "big") for k in range(2))  # IHDR
+        for i in hist:
+            wr.add_histogram("learning/theta", trace["theta"][i], int(round(t[i] * 1e3)))
+        for k, vals in enumerate(cell):
+            wr.add_scalars_at(k, vals)
+        for step, line in texts:
+            wr.add_text("monitor/events", line, step)
+        if png is not None:
+            width, height = (int.from_bytes(png[16 + 4 * k:20 + 4 * k], "big") for k in range(2))  # the IHDR chunk
             wr.add_png("rollout", png, height, width)
         wr.add_hparams(dict(hparams), metrics)
 
 
-def write_tensorboard_figure(log_dir: Path, png_path: Path, tag: str = "rollout") -> None:
-    """A saved PNG figure as a TensorBoard image (embedded as is: no second rendering)."""
-    png = Path(png_path).read_bytes()
-    width, height = (int.from_bytes(png[16 + 4 * k:20 + 4 * k], "big") for k in range(2))  # the IHDR chunk
-    with EventWriter(log_dir) as wr:
-        wr.add_png(tag, png, height, width)
-
-
-def write_cell_tensorboard(log_dir: Path, summary: dict) -> None:
-    """A work cell's learning curve: ``cell/jacobian_error_median`` (and ``cell/seated``) with
-    step = insertion (0 = before the first), so runs of every features type overlay."""
+def _cell_curve(summary: dict) -> list[dict[str, float]]:
+    """A work cell's scalars per insertion (0 = before the first): the Jacobian error, and after an
+    insertion whether it seated and the p90 error; empty for one insertion."""
     cell = summary.get("cell")
     if not cell:
-        return
-    with EventWriter(log_dir) as wr:
-        for k, e in enumerate(cell["jacobian_error_cell_median"]):
-            vals = {"cell/jacobian_error_median": float(e)}
-            if k:
-                row = summary["insertions"][k - 1]
-                vals["cell/seated"] = float(row["success"])
-                if row.get("jacobian_error_cell_p90") is not None:
-                    vals["cell/jacobian_error_p90"] = float(row["jacobian_error_cell_p90"])
-            wr.add_scalars_at(k, vals)
+        return []
+    rows = []
+    for k, e in enumerate(cell["jacobian_error_cell_median"]):
+        vals = {"cell/jacobian_error_median": float(e)}
+        if k:
+            row = summary["insertions"][k - 1]
+            vals["cell/seated"] = float(row["success"])
+            if row.get("jacobian_error_cell_p90") is not None:
+                vals["cell/jacobian_error_p90"] = float(row["jacobian_error_cell_p90"])
+        rows.append(vals)
+    return rows
+
+
+def _monitor_events(summary: dict) -> list[tuple[int, str]]:
+    """The live monitor's event lines as (step = the event's time in ms, line), or the line saying
+    there was none; empty without a monitor."""
+    mon = summary.get("monitor")
+    if not mon:
+        return []
+    if not mon["events"]:
+        return [(0, "no event: the wrench stayed within the model's noise")]
+    return [(int(round(1e3 * e["t_s"])), e["line"]) for e in mon["events"]]

@@ -43,6 +43,7 @@ def test_online_adjoint_path_imports_no_torch_and_tensorboard_reads_it_back(tmp_
     assert (out / "rollout.png").stat().st_size > 10_000
 
     tr = Trace.load(out / "trace.npz")
+    assert len(list((out / "tb").iterdir())) == 1  # the run's TensorBoard, one event file (runs.tb.write_run)
     ea = EventAccumulator(str(out / "tb"), size_guidance={"scalars": 0, "tensors": 0, "images": 0})
     ea.Reload()
     tags = ea.Tags()
