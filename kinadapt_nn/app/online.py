@@ -102,7 +102,6 @@ def cmd_online(args: argparse.Namespace) -> int:
     from kinadapt_nn.config import load_config
     from kinadapt_nn.controller.laws import law_spec
     from kinadapt_nn.features import features_spec
-    from kinadapt_nn.features.effect_library import online_of
     from kinadapt_nn.runio import check_output_dir, staged_output
 
     cfg = load_config(Path(args.config) if args.config else None,
@@ -111,8 +110,11 @@ def cmd_online(args: argparse.Namespace) -> int:
     # the registered names (features type, law, effects), checked before anything compiles or prints
     features_spec(cfg.run.features)
     law_spec(cfg.adaptation.mode)
-    for eff in cfg.model.effects:
-        online_of(eff)
+    if cfg.model.effects:  # (the effect library imports the built-in effects: only when some are named)
+        from kinadapt_nn.features.effect_library import online_of
+
+        for eff in cfg.model.effects:
+            online_of(eff)
     out = args.run_dir = Path(args.out) if args.out else default_out("online")
     check_output_dir(out, args.overwrite)
     if cfg.monitor.enabled:

@@ -15,8 +15,8 @@ ROOT = Path(__file__).resolve().parents[2]
 #: modules the online path with adjoint features must not import (numba itself imports ``scipy``
 #: and, for np.linalg inside the controller's kernels, ``scipy.linalg.cython_blas/lapack``;
 #: TensorBoard's writer loads its TensorFlow stub, not TensorFlow)
-NOT_IMPORTED = ("torch", "scipy.stats", "scipy.optimize", "scipy.signal", "pyarrow", "rosbags",
-                "tensorflow")
+NOT_IMPORTED = ("torch", "scipy.stats", "scipy.optimize", "scipy.signal", "scipy.spatial", "pyarrow", "rosbags",
+                "tensorflow", "kinadapt_nn.effects.builtin")  # (the built-in effects: only when model.effects names one)
 
 _PROBE = """
 import sys
