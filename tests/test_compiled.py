@@ -15,9 +15,9 @@ import kinadapt_nn
 PKG = Path(kinadapt_nn.__file__).parent
 ROOT = PKG.parent
 #: numba's private API: its cache's internals, compiled overloads' entries, its core and experimental
-#: modules, LLVM helpers, the optimisation level's internals
+#: modules, LLVM helpers, the optimisation level's internals, a dispatcher's target options
 INTERNALS = re.compile(r"\._cache\b|_cache_file|_load_index|_index_key|_cache_path|\.overloads\b|numba\.core|nb\.core|"
-                       r"numba\.experimental|_get_jit_address|cgutils|targetctx|_OptLevel|cpu_target")
+                       r"numba\.experimental|_get_jit_address|cgutils|targetctx|targetoptions|_OptLevel|cpu_target")
 
 
 def test_numba_internals_only_in_the_compile_module():

@@ -6,6 +6,7 @@ numba); everything about compiling them goes through here:
 * ``compile_for(fn, args)`` / ``compile_sig(fn, sig)`` compile (or load from numba's on-disk
   cache) a dispatcher for the types of ``args`` / for a signature; ``compile_or_skip`` the same,
   a typing error ignored (a speculative entry of a compile plan);
+* ``inlined(fn)``: a kernel numba types inside each caller (``inline="always"``), compiled nowhere apart;
 * ``entry_point(fn, args)``: the machine code's entry for those types (the dispatcher's type
   resolution skipped: arguments whose types never change);
 * ``in_cache(fn, sig)``, ``cached_any(fn)``, ``cache_dir(fn)``: what numba's on-disk cache holds;
@@ -30,11 +31,11 @@ points, the optimisation level), ``cache`` (numba's on-disk cache, the stale-cal
 from __future__ import annotations
 
 from kinadapt_nn.compiled.address import address_caller, jit_address
-from kinadapt_nn.compiled.build import (compile_for, compile_or_skip, compile_sig, entry_point, is_kernel, opt_level,
-                                        signature_of)
+from kinadapt_nn.compiled.build import (compile_for, compile_or_skip, compile_sig, entry_point, inlined, is_kernel,
+                                        opt_level, signature_of)
 from kinadapt_nn.compiled.cache import (STAMP_FILE, cache_dir, cached_any, in_cache, invalidate_stale,
                                         sources_fingerprint)
 
 __all__ = ["STAMP_FILE", "address_caller", "cache_dir", "cached_any", "compile_for", "compile_or_skip",
-           "compile_sig", "entry_point", "in_cache", "invalidate_stale", "is_kernel", "jit_address", "opt_level",
+           "compile_sig", "entry_point", "in_cache", "inlined", "invalidate_stale", "is_kernel", "jit_address", "opt_level",
            "signature_of", "sources_fingerprint"]

@@ -41,6 +41,12 @@ def is_kernel(obj) -> bool:
     return isinstance(obj, CPUDispatcher)
 
 
+def inlined(fn) -> bool:
+    """True for a kernel numba types inside each caller (``@njit(inline="always")``): nothing of it is
+    compiled apart, so a compile plan leaves it out."""
+    return getattr(fn, "targetoptions", {}).get("inline") == "always"
+
+
 def entry_point(fn, args: Sequence[Any]):
     """The machine code's entry of the compiled ``fn`` for the numba types of ``args``: what the
     dispatcher calls once it has resolved the types. It checks nothing, so only for arguments whose

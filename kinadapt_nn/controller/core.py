@@ -314,8 +314,7 @@ def callee_plan(calls) -> list[tuple[object, tuple]]:
                    **{p: nb.typeof(a) for p, a in zip(inspect.signature(fn.py_func).parameters, args)}}
         for name in fn.py_func.__code__.co_names:
             callee = module.get(name)
-            if not compiled.is_kernel(callee) or callee is fn or name in plan or \
-                    callee.targetoptions.get("inline") == "always":
+            if not compiled.is_kernel(callee) or callee is fn or name in plan or compiled.inlined(callee):
                 continue
             params = inspect.signature(callee.py_func).parameters
             if not all(p in by_name for p in params):

@@ -35,7 +35,7 @@ def test_plan_lists_the_kernels_callees_with_their_cached_types(features):
     (_name, kernel, _args), = ctrl.kernel_calls()
     here = kernel.py_func.__globals__
     direct = {here[nm].py_func.__name__ for nm in kernel.py_func.__code__.co_names
-              if compiled.is_kernel(here.get(nm)) and here[nm].targetoptions.get("inline") != "always"}
+              if compiled.is_kernel(here.get(nm)) and not compiled.inlined(here[nm])}
     # every part the kernel calls apart is planned: none is left to the kernel's own compile, on one core (the
     # drive and rank gate take what the rows part returns, typed by the kernel's local_types)
     assert direct - {kernel.py_func.__name__} <= set(names), direct - set(names)
