@@ -19,6 +19,7 @@ finished its callees at 7.1 s while the step kernel compiled two of its parts on
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import resource
 import subprocess
@@ -29,10 +30,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-#: installed in every child process: numba's compile events, appended to $KINADAPT_COMPILE_LOG as
-#: "pid depth start end name" (perf_counter seconds: one clock for every process of the machine)
+#: installed in every child process: numba's compile events, appended to $KINADAPT_COMPILE_LOG as JSON
+#: lines {pid, depth, start, end, name} (perf_counter seconds: one clock for every process of the machine)
 _SITECUSTOMIZE = '''
-import os, time
+import json, os, time
 _log = os.environ.get("KINADAPT_COMPILE_LOG")
 if _log:
     from numba.core import event as _event
@@ -50,18 +51,16 @@ if _log:
             t0 = self.starts.pop()
             fn = ev.data["dispatcher"].py_func
             with open(_log, "a") as f:
-                f.write(f"{os.getpid()} {_Listener.depth} {t0:.4f} {time.perf_counter():.4f} {fn.__qualname__}\\n")
+                f.write(json.dumps({"pid": os.getpid(), "depth": _Listener.depth, "start": t0,
+                                    "end": time.perf_counter(), "name": fn.__qualname__}) + "\\n")
 
     _event.register("numba:compile", _Listener())
 '''
 
 
 def _rows(log: Path) -> list[tuple[int, int, float, float, str]]:
-    out = []
-    for line in log.read_text().splitlines():
-        pid, depth, t0, t1, name = line.split(None, 4)
-        out.append((int(pid), int(depth), float(t0), float(t1), name))
-    return out
+    events = [json.loads(line) for line in log.read_text().splitlines()]
+    return [(e["pid"], e["depth"], e["start"], e["end"], e["name"]) for e in events]
 
 
 def main() -> None:

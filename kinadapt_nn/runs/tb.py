@@ -26,8 +26,7 @@ HIST_PERIOD_S = 0.1
 def tensorboard_series(trace: Trace) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """The scalars TensorBoard shows, sampled at ``TB_PERIOD_S``: (steps in simulated ms, tag -> values)."""
     t = trace["t_s"]
-    dt = float(trace.meta.get("dt_s", t[1] - t[0] if len(t) > 1 else 1e-3))
-    stride = max(1, int(round(TB_PERIOD_S / dt)))
+    stride = max(1, int(round(TB_PERIOD_S / _dt_s(trace))))
     idx = np.arange(0, len(t), stride)
     steps = np.round(t[idx] * 1e3).astype(int)
     s, eps = trace["s"], trace["s_dot_meas"] - trace["s_dot_pred"]
@@ -64,12 +63,11 @@ def write_run(log_dir: Path, trace: Trace, summary: dict, hparams: dict, png_pat
     steps, series = tensorboard_series(trace) if len(t) else (np.zeros(0, int), {})
     tags = list(series)
     table = np.column_stack([series[k] for k in tags]).astype(float) if tags else np.zeros((0, 0))  # (steps, tags)
-    dt = float(trace.meta.get("dt_s", t[1] - t[0] if len(t) > 1 else 1e-3))
-    hist = range(0, len(t), max(1, int(round(HIST_PERIOD_S / dt))))  # theta as a histogram, not p charts
+    hist = range(0, len(t), max(1, int(round(HIST_PERIOD_S / _dt_s(trace)))))  # theta as a histogram, not p charts
     cell, texts = _cell_curve(summary), _monitor_events(summary)
-    png = None if png_path is None else Path(png_path).read_bytes()
+    png = None if png_path is None else _png(Path(png_path))
     metrics = {f"summary/{k}": float(v) for k, v in summary.items()
-               if isinstance(v, (int, float)) and not isinstance(v, bool) and v is not None}
+               if isinstance(v, (int, float)) and not isinstance(v, bool)}
     metrics["summary/success"] = float(summary["success"])
     with EventWriter(log_dir) as wr:
         for st, row in zip(steps.tolist(), table):
@@ -81,9 +79,25 @@ def write_run(log_dir: Path, trace: Trace, summary: dict, hparams: dict, png_pat
         for step, line in texts:
             wr.add_text("monitor/events", line, step)
         if png is not None:
-            width, height = (int.from_bytes(png[16 + 4 * k:20 + 4 * k], "big") for k in range(2))  # the IHDR chunk
-            wr.add_png("rollout", png, height, width)
+            data, (width, height) = png
+            wr.add_png("rollout", data, height, width)
         wr.add_hparams(dict(hparams), metrics)
+
+
+def _dt_s(trace: Trace) -> float:
+    """The trace's control period [s] (its meta, else its first step; 1 ms for a one-row trace)."""
+    t = trace["t_s"]
+    return float(trace.meta.get("dt_s", t[1] - t[0] if len(t) > 1 else 1e-3))
+
+
+def _png(path: Path) -> tuple[bytes, tuple[int, int]]:
+    """A saved PNG's bytes (embedded as they are: no second rendering) and its (width, height) [px],
+    read by Pillow (matplotlib's own image library) from the file's header."""
+    from PIL import Image
+
+    with Image.open(path) as im:
+        size = im.size
+    return path.read_bytes(), size
 
 
 def _cell_curve(summary: dict) -> list[dict[str, float]]:
